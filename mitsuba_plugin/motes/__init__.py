@@ -1,0 +1,46 @@
+"""motes: discrete participating media for Mitsuba 3, over a Rust core.
+
+Single-particle optics (this release)
+-------------------------------------
+All lengths are in micrometres and angles in radians. ``eta`` is the particle's complex refractive
+index ``n + i*kappa`` (``kappa >= 0`` absorbs; a float means ``kappa = 0``), ``eta_medium`` the host's
+real index, so the relative index is ``eta / eta_medium`` and the size parameter
+``alpha = 2*pi*eta_medium*radius_um/wavelength_um``. Every argument broadcasts like numpy.
+
+==========================  ==================================================================
+``mie_amplitudes``          Lorenz-Mie S1, S2 (Bohren-Huffman convention, ``C_ext = 4pi/k^2 Re S(0)``)
+``goa_amplitudes``          Geometrical-optics S1, S2: diffraction + ray orders p = 0..p_max
+``cross_sections``          dict of ``ext``, ``sca``, ``abs`` (um^2) and ``g``
+``phase_function``          f_p(theta) of Eq. 1, normalised so that the integral over the sphere is 1
+``size_parameter``          alpha for given radius, wavelength and host index
+==========================  ==================================================================
+
+``method`` selects the theory: ``"mie"`` (exact), ``"goa"``, ``"hybrid"`` (Mie below
+``hybrid_radius_um``, default the paper's 2 um) or ``"auto"`` (Mie below the size parameter
+``AUTO_SIZE_PARAMETER``, chosen from measured GOA error; see BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+from ._optics import (
+    AUTO_SIZE_PARAMETER,
+    HYBRID_RADIUS_UM,
+    cross_sections,
+    goa_amplitudes,
+    goa_extinction_efficiency,
+    mie_amplitudes,
+    phase_function,
+    size_parameter,
+)
+
+__all__ = [
+    "AUTO_SIZE_PARAMETER",
+    "HYBRID_RADIUS_UM",
+    "cross_sections",
+    "goa_amplitudes",
+    "goa_extinction_efficiency",
+    "mie_amplitudes",
+    "phase_function",
+    "size_parameter",
+]
+__version__ = "0.1.0"

@@ -1,0 +1,16 @@
+//! motes-core: the physics of discrete participating media, free of Python and Mitsuba.
+//!
+//! * [`mie`]: Lorenz–Mie theory (paper App. A).
+//! * [`goa`]: the geometrical optics approximation (Sec. 3.1, App. B–C) with documented
+//!   regularisations of its singular points.
+//! * [`optics`]: one particle as the renderer sees it — cross sections, normalised phase function,
+//!   and the choice between Mie and GOA (`Method`), batched over many particles and angles.
+
+pub mod error;
+pub mod goa;
+pub mod mie;
+pub mod optics;
+pub mod quadrature;
+
+pub use error::OpticsError;
+pub use optics::{Method, Particle};

@@ -1,0 +1,155 @@
+//! `motes._motes`: the compiled extension. Every function takes flat, equally long float64 arrays
+//! (broadcasting happens in the Python layer), releases the GIL, and runs rayon inside.
+
+use motes_core::goa::GoaOptions;
+use motes_core::optics::{self, Method, ParticleColumns, Theory};
+use motes_core::OpticsError;
+use num_complex::Complex64 as C64;
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+fn to_py(e: OpticsError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+type F64In<'py> = PyReadonlyArray1<'py, f64>;
+
+struct Columns {
+    r: Vec<f64>,
+    lam: Vec<f64>,
+    er: Vec<f64>,
+    ei: Vec<f64>,
+    em: Vec<f64>,
+}
+
+impl Columns {
+    fn new(r: F64In, lam: F64In, er: F64In, ei: F64In, em: F64In) -> PyResult<Self> {
+        let v = |a: &F64In| -> PyResult<Vec<f64>> { Ok(a.as_array().to_vec()) };
+        Ok(Columns { r: v(&r)?, lam: v(&lam)?, er: v(&er)?, ei: v(&ei)?, em: v(&em)? })
+    }
+    fn view(&self) -> ParticleColumns<'_> {
+        ParticleColumns { radius_um: &self.r, wavelength_um: &self.lam, eta_re: &self.er, eta_im: &self.ei, eta_medium: &self.em }
+    }
+}
+
+fn options(p_max: u32, diffraction: bool, regularise: bool, edge_correction: bool) -> GoaOptions {
+    GoaOptions { p_max, diffraction, regularise, edge_correction }
+}
+
+type Amps<'py> = (Bound<'py, PyArray1<C64>>, Bound<'py, PyArray1<C64>>);
+
+fn amplitudes(py: Python<'_>, cols: Columns, theta: Vec<f64>, theory: Theory, opts: GoaOptions) -> PyResult<Amps<'_>> {
+    let out = py.detach(|| optics::amplitudes_batch(&cols.view(), &theta, theory, &opts)).map_err(to_py)?;
+    let (s1, s2): (Vec<C64>, Vec<C64>) = out.into_iter().unzip();
+    Ok((s1.into_pyarray(py), s2.into_pyarray(py)))
+}
+
+/// Lorenz–Mie amplitudes (S1, S2), Bohren–Huffman convention.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn mie_amplitudes<'py>(py: Python<'py>, radius_um: F64In, wavelength_um: F64In, eta_re: F64In, eta_im: F64In, eta_medium: F64In, theta: F64In) -> PyResult<Amps<'py>> {
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    amplitudes(py, cols, theta.as_array().to_vec(), Theory::Mie, GoaOptions::default())
+}
+
+/// GOA amplitudes (S1, S2), Bohren–Huffman convention.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn goa_amplitudes<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    theta: F64In,
+    p_max: u32,
+    diffraction: bool,
+    regularise: bool,
+    edge_correction: bool,
+) -> PyResult<Amps<'py>> {
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    amplitudes(py, cols, theta.as_array().to_vec(), Theory::Goa, options(p_max, diffraction, regularise, edge_correction))
+}
+
+type F64Out<'py> = Bound<'py, PyArray1<f64>>;
+
+/// Cross sections (ext, sca, abs in µm²) and asymmetry g.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn cross_sections<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+    regularise: bool,
+    edge_correction: bool,
+) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    let opts = options(p_max, true, regularise, edge_correction);
+    let cs = py.detach(|| optics::cross_sections_batch(&cols.view(), method, &opts)).map_err(to_py)?;
+    let col = |f: fn(&optics::CrossSections) -> f64| cs.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
+    Ok((col(|c| c.ext), col(|c| c.sca), col(|c| c.abs), col(|c| c.g)))
+}
+
+/// Normalised phase function f_p(θ) (sr⁻¹), ∫ f dΩ = 1.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn phase_function<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    theta: F64In,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+    regularise: bool,
+    edge_correction: bool,
+) -> PyResult<F64Out<'py>> {
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    let theta = theta.as_array().to_vec();
+    let opts = options(p_max, true, regularise, edge_correction);
+    let f = py.detach(|| optics::phase_function_batch(&cols.view(), &theta, method, &opts)).map_err(to_py)?;
+    Ok(f.into_pyarray(py))
+}
+
+/// GOA extinction efficiency by Eq. 12 (per element), for studies of p and the regularisation.
+#[pyfunction]
+fn goa_extinction_efficiency<'py>(py: Python<'py>, alpha: F64In, eta_re: F64In, eta_im: F64In, p_max: u32, regularise: bool, edge_correction: bool) -> PyResult<F64Out<'py>> {
+    let (a, er, ei) = (alpha.as_array().to_vec(), eta_re.as_array().to_vec(), eta_im.as_array().to_vec());
+    if a.len() != er.len() || a.len() != ei.len() {
+        return Err(PyValueError::new_err("alpha, eta_re and eta_im must have the same length"));
+    }
+    let out: Vec<f64> = py.detach(|| {
+        a.iter().zip(&er).zip(&ei).map(|((a, r), i)| motes_core::goa::extinction_efficiency(*a, C64::new(*r, *i), p_max, regularise, edge_correction)).collect()
+    });
+    Ok(out.into_pyarray(py))
+}
+
+/// Constants of the method policy.
+#[pyfunction]
+fn policy_constants() -> (f64, f64) {
+    (optics::AUTO_SIZE_PARAMETER, optics::HYBRID_RADIUS_UM)
+}
+
+#[pymodule]
+fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
+    m.add_function(wrap_pyfunction!(goa_amplitudes, m)?)?;
+    m.add_function(wrap_pyfunction!(cross_sections, m)?)?;
+    m.add_function(wrap_pyfunction!(phase_function, m)?)?;
+    m.add_function(wrap_pyfunction!(goa_extinction_efficiency, m)?)?;
+    m.add_function(wrap_pyfunction!(policy_constants, m)?)?;
+    Ok(())
+}
