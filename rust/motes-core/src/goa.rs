@@ -128,11 +128,42 @@ pub fn ray_geometry(m: C64, p: u32, theta_i: f64) -> RayGeometry {
     }
 }
 
+/// Deflection θ_p (Eq. 5) and dθ_p/dθi only — the cheap part used inside the root finder. Real indices
+/// take a real-arithmetic path (Snell's law); complex ones go through `ray_geometry`.
+#[inline]
+fn deflection(m: C64, p: u32, theta_i: f64) -> (f64, f64) {
+    if p == 0 {
+        return (PI - 2.0 * theta_i, -2.0);
+    }
+    let pf = p as f64;
+    if m.im == 0.0 {
+        let (s, c) = theta_i.sin_cos();
+        let st = (s / m.re).min(1.0);
+        let ct = (1.0 - st * st).sqrt();
+        let theta_t = st.asin();
+        let dtheta_t = if ct > 0.0 { c / (m.re * ct) } else { f64::INFINITY };
+        (2.0 * pf * theta_t - 2.0 * theta_i - (pf - 1.0) * PI, 2.0 * pf * dtheta_t - 2.0)
+    } else {
+        let g = ray_geometry(m, p, theta_i);
+        (g.deflection, g.d_deflection)
+    }
+}
+
+/// One sample of θ_p(θi) on a branch.
+#[derive(Clone, Copy, Debug)]
+struct Sample {
+    theta_i: f64,
+    deflection: f64,
+    d: f64,
+    /// d²θ_p/dθi² (for the caustic width of regularisation 3).
+    d2: f64,
+}
+
 /// One monotonic branch of θ_p(θi), sampled for bracketing.
 #[derive(Clone, Debug)]
 struct Branch {
-    /// Sampled (θi, θ_p) with θ_p monotonic along the vector.
-    samples: Vec<(f64, f64)>,
+    /// Samples with θ_p monotonic along the vector.
+    samples: Vec<Sample>,
     increasing: bool,
 }
 
@@ -153,24 +184,36 @@ fn max_incidence(m: C64, p: u32) -> f64 {
     }
 }
 
+/// d²θ_p/dθi² by central differences of the analytic first derivative.
+fn d2_deflection(m: C64, p: u32, theta_i: f64, hi: f64) -> f64 {
+    let h = 1e-6;
+    let a = (theta_i - h).max(0.0);
+    let b = (theta_i + h).min(hi);
+    let (da, db) = (deflection(m, p, a).1, deflection(m, p, b).1);
+    if da.is_finite() && db.is_finite() && b > a {
+        (db - da) / (b - a)
+    } else {
+        0.0
+    }
+}
+
 impl OrderGeometry {
     /// Sample θ_p(θi), find every extremum (rainbow angle) by bisection on dθ_p/dθi, and split the
     /// domain into monotonic branches: each scattering angle then has at most one root per branch and
     /// per (q, l) of Eq. 6, so *every* contributing incidence angle is found.
     pub fn new(m: C64, p: u32) -> Self {
         let hi = max_incidence(m, p);
-        // Sample slightly inside the domain ends, where dθt/dθi may be infinite.
         let n = GEOMETRY_SAMPLES;
         let ti: Vec<f64> = (0..n).map(|k| hi * k as f64 / (n - 1) as f64).collect();
-        let geo: Vec<RayGeometry> = ti.iter().map(|&t| ray_geometry(m, p, t)).collect();
+        let dd: Vec<(f64, f64)> = ti.iter().map(|&t| deflection(m, p, t)).collect();
         let mut cuts = vec![0.0];
         for k in 0..n - 1 {
-            let (d0, d1) = (geo[k].d_deflection, geo[k + 1].d_deflection);
+            let (d0, d1) = (dd[k].1, dd[k + 1].1);
             if d0.is_finite() && d1.is_finite() && d0 * d1 < 0.0 {
                 let (mut a, mut b) = (ti[k], ti[k + 1]);
                 for _ in 0..60 {
                     let mid = 0.5 * (a + b);
-                    let dm = ray_geometry(m, p, mid).d_deflection;
+                    let dm = deflection(m, p, mid).1;
                     if (dm < 0.0) == (d0 < 0.0) {
                         a = mid;
                     } else {
@@ -181,26 +224,31 @@ impl OrderGeometry {
             }
         }
         cuts.push(hi);
+        let sample = |t: f64| {
+            let (th, d) = deflection(m, p, t);
+            Sample { theta_i: t, deflection: th, d, d2: d2_deflection(m, p, t, hi) }
+        };
         let mut branches = Vec::new();
         for w in cuts.windows(2) {
             let (a, b) = (w[0], w[1]);
             if b - a <= 0.0 {
                 continue;
             }
-            let mut samples: Vec<(f64, f64)> = vec![(a, ray_geometry(m, p, a).deflection)];
-            samples.extend(ti.iter().zip(&geo).filter(|(t, _)| **t > a && **t < b).map(|(t, g)| (*t, g.deflection)));
-            samples.push((b, ray_geometry(m, p, b).deflection));
-            let increasing = samples.last().unwrap().1 > samples[0].1;
+            let mut samples = vec![sample(a)];
+            samples.extend(ti.iter().filter(|t| **t > a && **t < b).map(|&t| sample(t)));
+            samples.push(sample(b));
+            let increasing = samples.last().unwrap().deflection > samples[0].deflection;
             branches.push(Branch { samples, increasing });
         }
         OrderGeometry { p, branches }
     }
 
-    /// Every root θi of `q(θ_p(θi) − 2πl) = θ` (Eq. 6), as (geometry, q, l).
-    pub fn rays_at(&self, m: C64, theta: f64, out: &mut Vec<(RayGeometry, i32, i64)>) {
+    /// Every ray of this order leaving at scattering angle θ: each root θi of
+    /// `q(θ_p(θi) − 2πl) = θ` (Eq. 6), prepared for evaluation at any size.
+    pub fn rays_at(&self, m: C64, theta: f64, out: &mut Vec<PreparedRay>) {
         for br in &self.branches {
-            let first = br.samples[0].1;
-            let last = br.samples.last().unwrap().1;
+            let first = br.samples[0].deflection;
+            let last = br.samples.last().unwrap().deflection;
             let (lo, hi) = if first < last { (first, last) } else { (last, first) };
             for q in [1i32, -1] {
                 let qt = q as f64 * theta;
@@ -208,8 +256,11 @@ impl OrderGeometry {
                 let l_hi = ((hi - qt) / (2.0 * PI)).floor() as i64;
                 for l in l_lo..=l_hi {
                     let target = qt + 2.0 * PI * l as f64;
-                    if let Some(g) = solve_branch(m, self.p, br, target) {
-                        out.push((g, q, l));
+                    if let Some((ti, d2)) = solve_branch(m, self.p, br, target) {
+                        let g = ray_geometry(m, self.p, ti);
+                        if let Some(r) = PreparedRay::new(&g, self.p, q, l, theta, d2) {
+                            out.push(r);
+                        }
                     }
                 }
             }
@@ -217,88 +268,260 @@ impl OrderGeometry {
     }
 }
 
-/// Solve θ_p(θi) = target on a monotonic branch: bracket from the samples, then safeguarded Newton.
-fn solve_branch(m: C64, p: u32, br: &Branch, target: f64) -> Option<RayGeometry> {
+/// Solve θ_p(θi) = target on a monotonic branch: bracket by binary search over the samples, start from
+/// cubic Hermite interpolation of the inverse, then safeguarded Newton (typically 1–3 steps).
+/// Returns the root and the interpolated d²θ_p/dθi² there.
+fn solve_branch(m: C64, p: u32, br: &Branch, target: f64) -> Option<(f64, f64)> {
     let s = &br.samples;
-    // Binary search for the bracketing sample interval (θ_p monotonic along s).
     let key = |v: f64| if br.increasing { v } else { -v };
     let t = key(target);
-    if t < key(s[0].1) || t > key(s[s.len() - 1].1) {
+    if t < key(s[0].deflection) || t > key(s[s.len() - 1].deflection) {
         return None;
     }
     let (mut i0, mut i1) = (0usize, s.len() - 1);
     while i1 - i0 > 1 {
         let mid = (i0 + i1) / 2;
-        if key(s[mid].1) <= t {
+        if key(s[mid].deflection) <= t {
             i0 = mid;
         } else {
             i1 = mid;
         }
     }
-    let (mut a, mut b) = (s[i0].0, s[i1].0);
-    // Initial guess by linear interpolation.
-    let (fa, fb) = (s[i0].1 - target, s[i1].1 - target);
-    let mut x = if fb != fa { a - fa * (b - a) / (fb - fa) } else { 0.5 * (a + b) };
-    if !(x > a && x < b) {
+    let (sa, sb) = (s[i0], s[i1]);
+    let (mut a, mut b) = (sa.theta_i, sb.theta_i);
+    let span = sb.deflection - sa.deflection;
+    // Hermite interpolation of θi(θ_p) with slopes 1/D (when finite), else linear.
+    let mut x = if span != 0.0 {
+        let u = (target - sa.deflection) / span;
+        let (ia, ib) = (1.0 / sa.d, 1.0 / sb.d);
+        if ia.is_finite() && ib.is_finite() && sa.d * sb.d > 0.0 {
+            let (h00, h10, h01, h11) = (
+                (1.0 + 2.0 * u) * (1.0 - u) * (1.0 - u),
+                u * (1.0 - u) * (1.0 - u),
+                u * u * (3.0 - 2.0 * u),
+                u * u * (u - 1.0),
+            );
+            h00 * a + h10 * span * ia + h01 * b + h11 * span * ib
+        } else {
+            a + u * (b - a)
+        }
+    } else {
+        0.5 * (a + b)
+    };
+    if !(x >= a && x <= b) {
         x = 0.5 * (a + b);
     }
-    let mut g = ray_geometry(m, p, x);
     for _ in 0..60 {
-        let f = g.deflection - target;
-        // Keep the bracket: f has the sign of (x − root) times the branch direction.
+        let (th, d) = deflection(m, p, x);
+        let f = th - target;
+        if f == 0.0 {
+            break;
+        }
         if (f > 0.0) == br.increasing {
             b = x;
         } else {
             a = x;
         }
-        let newton = x - f / g.d_deflection;
+        let newton = x - f / d;
         let next = if newton.is_finite() && newton > a && newton < b { newton } else { 0.5 * (a + b) };
         let step = (next - x).abs();
         x = next;
-        g = ray_geometry(m, p, x);
-        if step <= 4.0 * f64::EPSILON * x.abs().max(1e-300) || b - a <= 4.0 * f64::EPSILON * b.abs() {
+        if step <= 2.0 * f64::EPSILON * x.abs().max(1e-300) || b - a <= 2.0 * f64::EPSILON * b.abs() {
             break;
         }
     }
-    Some(g)
+    let w = if sb.theta_i > sa.theta_i { (x - sa.theta_i) / (sb.theta_i - sa.theta_i) } else { 0.0 };
+    Some((x, sa.d2 + w.clamp(0.0, 1.0) * (sb.d2 - sa.d2)))
+}
+
+/// A ray found for one scattering angle, with everything that does not depend on the particle size
+/// (Eq. 7–10 and 35 factored as `α ε √(ratio(α)) ξ(α) exp(−i(α·path + φ_f))`).
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedRay {
+    /// ε_1, ε_2 of Eq. 8.
+    eps: [C64; 2],
+    /// sin 2θi.
+    sin2i: f64,
+    /// sin θi (glory regularisation).
+    sin_i: f64,
+    /// sin θ at the (clamped) scattering angle.
+    sin_th: f64,
+    /// dθ_p/dθi.
+    d: f64,
+    /// |d²θ_p/dθi²|^{2/3} (caustic width coefficient).
+    caustic: f64,
+    /// Eq. 9 divided by α: 2(cos θi − p η' cos θ't).
+    path: f64,
+    /// Eq. 35 exponent divided by α: 2 p χ cos²θ't.
+    attenuation: f64,
+    /// Eq. 10.
+    phi_f: f64,
+}
+
+impl PreparedRay {
+    fn new(g: &RayGeometry, p: u32, q: i32, l: i64, theta: f64, d2: f64) -> Option<Self> {
+        let d = g.d_deflection;
+        if !d.is_finite() {
+            return None;
+        }
+        let (sin_i, cos_i) = g.theta_i.sin_cos();
+        let pf = p as f64;
+        let sgn = if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 };
+        Some(PreparedRay {
+            eps: g.eps,
+            sin2i: 2.0 * sin_i * cos_i,
+            sin_i,
+            sin_th: theta.sin(),
+            d,
+            caustic: d2.abs().powf(2.0 / 3.0),
+            path: 2.0 * (cos_i - pf * g.eta_eff * g.cos_t),
+            attenuation: 2.0 * pf * g.chi * g.cos_t * g.cos_t,
+            phi_f: FRAC_PI_2 * (1.0 + pf - 2.0 * l as f64 - 0.5 * sgn - 0.5 * q as f64),
+        })
+    }
+
+    /// The ray's (S1, S2) for size parameter α (BH convention: conjugated phase, module docs).
+    #[inline]
+    fn amplitude(&self, alpha: f64, alpha_m13: f64, regularise: bool) -> [C64; 2] {
+        let (sin_eff2, d_eff2) = if regularise {
+            // Regularisations 2 (glory) and 3 (caustic), module docs.
+            let glory = 2.0 * self.sin_i / alpha;
+            let dc = (self.caustic * alpha_m13).max(2.0 / alpha);
+            (self.sin_th * self.sin_th + glory * glory, self.d * self.d + dc * dc)
+        } else {
+            (self.sin_th * self.sin_th, self.d * self.d)
+        };
+        let denom = 2.0 * (sin_eff2 * d_eff2).sqrt();
+        let ratio = if self.sin2i == 0.0 { 0.0 } else { self.sin2i / denom };
+        if !(ratio > 0.0) || !ratio.is_finite() {
+            return [C64::new(0.0, 0.0); 2];
+        }
+        let xi = if self.attenuation > 0.0 { (-alpha * self.attenuation).exp() } else { 1.0 };
+        let phase = C64::from_polar(alpha * xi * ratio.sqrt(), -(alpha * self.path + self.phi_f));
+        [self.eps[0] * phase, self.eps[1] * phase]
+    }
+}
+
+/// The rays of every order at a list of angles (size independent; reusable across radii).
+#[derive(Clone, Debug, Default)]
+pub struct PreparedAngles {
+    /// Scattering angles (unclamped, for diffraction).
+    pub theta: Vec<f64>,
+    /// `rays[offsets[i]..offsets[i+1]]` belong to `theta[i]`.
+    offsets: Vec<usize>,
+    rays: Vec<PreparedRay>,
+}
+
+impl PreparedAngles {
+    pub fn len(&self) -> usize {
+        self.theta.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.theta.is_empty()
+    }
+    /// Approximate heap size in bytes.
+    pub fn bytes(&self) -> usize {
+        self.theta.len() * 16 + self.rays.len() * std::mem::size_of::<PreparedRay>()
+    }
 }
 
 /// All orders 0..=p_max of one relative index: the size-independent part of a GOA evaluation.
 #[derive(Clone, Debug)]
 pub struct GoaGeometry {
     pub m: C64,
+    pub p_max: u32,
     pub orders: Vec<OrderGeometry>,
 }
 
 impl GoaGeometry {
     pub fn new(m: C64, p_max: u32) -> Self {
-        GoaGeometry { m, orders: (0..=p_max).map(|p| OrderGeometry::new(m, p)).collect() }
+        GoaGeometry { m, p_max, orders: (0..=p_max).map(|p| OrderGeometry::new(m, p)).collect() }
     }
 
-    /// Amplitudes (S1, S2) in the BH convention at scattering angle θ ∈ [0, π] for size parameter α.
-    pub fn amplitudes(&self, alpha: f64, theta: f64, opts: &GoaOptions, scratch: &mut Vec<(RayGeometry, i32, i64)>) -> (C64, C64) {
+    /// Append the rays (orders ≤ p_max) leaving at θ ∈ [0, π].
+    pub fn rays_at(&self, theta: f64, p_max: u32, out: &mut Vec<PreparedRay>) {
+        // Regularisation 1: rays at θ clamped away from 0 and π (their axial limits are finite).
+        let th = theta.clamp(THETA_EPS, PI - THETA_EPS);
+        for order in self.orders.iter().take(p_max as usize + 1) {
+            order.rays_at(self.m, th, out);
+        }
+    }
+
+    /// Prepare many angles at once (parallel).
+    pub fn prepare(&self, theta: &[f64], p_max: u32) -> PreparedAngles {
+        use rayon::prelude::*;
+        let per: Vec<Vec<PreparedRay>> = theta
+            .par_iter()
+            .with_min_len(64)
+            .map(|&t| {
+                let mut v = Vec::with_capacity(8);
+                self.rays_at(t, p_max, &mut v);
+                v
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(theta.len() + 1);
+        offsets.push(0);
+        let mut rays = Vec::with_capacity(per.iter().map(Vec::len).sum());
+        for v in per {
+            rays.extend(v);
+            offsets.push(rays.len());
+        }
+        PreparedAngles { theta: theta.to_vec(), offsets, rays }
+    }
+
+    /// Amplitudes (S1, S2) in the BH convention at one scattering angle θ ∈ [0, π] for size parameter α.
+    pub fn amplitudes(&self, alpha: f64, theta: f64, opts: &GoaOptions, scratch: &mut Vec<PreparedRay>) -> (C64, C64) {
+        scratch.clear();
+        self.rays_at(theta, opts.p_max, scratch);
+        SizeTerms::new(self.m, alpha, opts).sum(theta, scratch, opts)
+    }
+}
+
+/// The size-dependent constants of one evaluation, computed once per particle.
+struct SizeTerms {
+    alpha: f64,
+    /// α^{-1/3} (caustic width).
+    alpha_m13: f64,
+    /// Diffraction amplitude factor: `sqrt(1 + edge_term)` or 1.
+    diffraction_scale: f64,
+}
+
+impl SizeTerms {
+    fn new(m: C64, alpha: f64, opts: &GoaOptions) -> Self {
+        let diffraction_scale = if opts.edge_correction { (1.0 + edge_term(alpha, m)).sqrt() } else { 1.0 };
+        SizeTerms { alpha, alpha_m13: alpha.powf(-1.0 / 3.0), diffraction_scale }
+    }
+
+    /// Diffraction plus the given rays (Eq. 11).
+    #[inline]
+    fn sum(&self, theta: f64, rays: &[PreparedRay], opts: &GoaOptions) -> (C64, C64) {
         let mut s = [C64::new(0.0, 0.0); 2];
         if opts.diffraction {
-            let mut d = diffraction(alpha, theta);
-            if opts.edge_correction {
-                d *= (1.0 + edge_term(alpha, self.m)).sqrt();
-            }
-            s[0] += d;
-            s[1] += d;
+            let d = diffraction(self.alpha, theta) * self.diffraction_scale;
+            s[0].re += d;
+            s[1].re += d;
         }
-        let th = theta.clamp(THETA_EPS, PI - THETA_EPS);
-        let sin_th = th.sin();
-        for order in self.orders.iter().take(opts.p_max as usize + 1) {
-            scratch.clear();
-            order.rays_at(self.m, th, scratch);
-            for &(g, q, l) in scratch.iter() {
-                let ray = ray_amplitude(&g, order.p, q, l, alpha, sin_th, opts.regularise, self.m);
-                s[0] += ray[0];
-                s[1] += ray[1];
-            }
+        for r in rays {
+            let a = r.amplitude(self.alpha, self.alpha_m13, opts.regularise);
+            s[0] += a[0];
+            s[1] += a[1];
         }
         (s[0], s[1])
     }
+}
+
+/// Evaluate prepared angles at size parameter α: element i is (S1, S2) at `prepared.theta[i]`.
+pub fn evaluate_prepared(m: C64, prepared: &PreparedAngles, alpha: f64, opts: &GoaOptions) -> Vec<(C64, C64)> {
+    use rayon::prelude::*;
+    let size = SizeTerms::new(m, alpha, opts);
+    (0..prepared.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let rays = &prepared.rays[prepared.offsets[i]..prepared.offsets[i + 1]];
+            size.sum(prepared.theta[i], rays, opts)
+        })
+        .collect()
 }
 
 /// Fraunhofer diffraction, Eq. 4: `S_D = α² J1(α sinθ)/(α sinθ)` for θ < π/2 (Eq. 11), else 0.
@@ -328,46 +551,6 @@ pub fn edge_term(alpha: f64, m: C64) -> f64 {
     }
     let a = alpha.max(3.0);
     1.9923861 * a.powf(-2.0 / 3.0) - 0.7153537 * a.powf(-4.0 / 3.0)
-}
-
-/// Second derivative d²θ_p/dθi² by central differences (needed only for the caustic width).
-fn d2_deflection(m: C64, p: u32, theta_i: f64) -> f64 {
-    let h = 1e-5;
-    let a = (theta_i - h).max(0.0);
-    let b = (theta_i + h).min(FRAC_PI_2);
-    (ray_geometry(m, p, b).d_deflection - ray_geometry(m, p, a).d_deflection) / (b - a)
-}
-
-/// One ray's contribution, Eq. 7 with Eq. 9–10 (phases) and Eq. 35 (absorption).
-fn ray_amplitude(g: &RayGeometry, p: u32, q: i32, l: i64, alpha: f64, sin_th: f64, regularise: bool, m: C64) -> [C64; 2] {
-    let d = g.d_deflection;
-    if !d.is_finite() {
-        return [C64::new(0.0, 0.0); 2];
-    }
-    let (sin_i, cos_i) = g.theta_i.sin_cos();
-    let sin2i = 2.0 * sin_i * cos_i;
-    let (sin_eff, d_eff) = if regularise {
-        let glory = 2.0 * sin_i / alpha;
-        let dc_airy = d2_deflection(m, p, g.theta_i).abs().powf(2.0 / 3.0) * alpha.powf(-1.0 / 3.0);
-        let dc = dc_airy.max(2.0 / alpha);
-        ((sin_th * sin_th + glory * glory).sqrt(), (d * d + dc * dc).sqrt())
-    } else {
-        (sin_th, d.abs())
-    };
-    let ratio = if sin2i == 0.0 { 0.0 } else { sin2i / (2.0 * sin_eff * d_eff) };
-    if !(ratio > 0.0) || !ratio.is_finite() {
-        return [C64::new(0.0, 0.0); 2];
-    }
-    let pf = p as f64;
-    // Eq. 9: optical path phase; Eq. 10: focal-line phase with s = sgn(dθ_p/dθi).
-    let phi_p = 2.0 * alpha * (cos_i - pf * g.eta_eff * g.cos_t);
-    let sgn = if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 };
-    let phi_f = FRAC_PI_2 * (1.0 + pf - 2.0 * l as f64 - 0.5 * sgn - 0.5 * q as f64);
-    // Eq. 35: amplitude attenuation along p chords.
-    let xi = (-2.0 * pf * alpha * g.chi * g.cos_t * g.cos_t).exp();
-    // BH convention: conjugate phase (module docs).
-    let phase = C64::from_polar(alpha * xi * ratio.sqrt(), -(phi_p + phi_f));
-    [g.eps[0] * phase, g.eps[1] * phase]
 }
 
 /// Normal-incidence amplitude of order p (θi → 0), the axial limit used by Eq. 12.
@@ -470,4 +653,112 @@ pub fn absorption_efficiency(alpha: f64, m: C64) -> f64 {
         }
     }
     sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn real(n: f64) -> C64 {
+        C64::new(n, 0.0)
+    }
+
+    /// Descartes' primary rainbow (p = 2) for water: minimum deviation at cos²θi = (m²−1)/3, found as
+    /// the split point of the p = 2 branches, and both rays on the bright side are found.
+    #[test]
+    fn rainbow_branches() {
+        let m = 1.333;
+        let g = OrderGeometry::new(real(m), 2);
+        assert_eq!(g.branches.len(), 2, "p = 2 must split at the rainbow");
+        let ti_r = ((m * m - 1.0) / 3.0).sqrt().acos();
+        let split = g.branches[0].samples.last().unwrap().theta_i;
+        assert!((split - ti_r).abs() < 1e-9, "{split} vs {ti_r}");
+        let theta_r = PI + g.branches[0].samples.last().unwrap().deflection; // θ = −θ_2 with l = 0
+        let theta_rainbow = PI - theta_r; // scattering angle of the rainbow (~137.9°)
+        assert!((theta_rainbow.to_degrees() - 137.5).abs() < 1.0, "{}", theta_rainbow.to_degrees());
+        let mut rays = Vec::new();
+        g.rays_at(real(m), theta_rainbow + 0.05, &mut rays);
+        assert_eq!(rays.len(), 2, "bright side: two rays");
+        rays.clear();
+        g.rays_at(real(m), theta_rainbow - 0.05, &mut rays);
+        assert_eq!(rays.len(), 0, "dark side (Alexander's band side for p = 2): no ray");
+    }
+
+    /// Every ray found satisfies Eq. 6 to rounding, for real, complex and bubble indices.
+    #[test]
+    fn roots_satisfy_eq6() {
+        for m in [real(1.33), real(1.56), real(0.75), C64::new(1.5, 0.05), real(2.5)] {
+            let geo = GoaGeometry::new(m, 5);
+            for k in 0..=90 {
+                let theta = PI * k as f64 / 90.0;
+                for order in &geo.orders {
+                    let th = theta.clamp(THETA_EPS, PI - THETA_EPS);
+                    for br in &order.branches {
+                        for q in [1i32, -1] {
+                            let (lo, hi) = (br.samples[0].deflection, br.samples.last().unwrap().deflection);
+                            let (lo, hi) = (lo.min(hi), lo.max(hi));
+                            let qt = q as f64 * th;
+                            for l in ((lo - qt) / (2.0 * PI)).ceil() as i64..=((hi - qt) / (2.0 * PI)).floor() as i64 {
+                                let target = qt + 2.0 * PI * l as f64;
+                                let (ti, _) = solve_branch(m, order.p, br, target).expect("root in range");
+                                let (dev, _) = deflection(m, order.p, ti);
+                                assert!((dev - target).abs() < 1e-9, "m={m} p={} θ={theta} dev={dev} target={target}", order.p);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The exact geometric absorption reduces to Eq. 13 for weak absorption and never exceeds 1.
+    #[test]
+    fn absorption_limits() {
+        for n in [1.1, 1.33, 1.5, 2.0, 0.8] {
+            let m = C64::new(n, 1e-7);
+            let (a, b) = (absorption_efficiency(100.0, m), absorption_eq13(100.0, m));
+            assert!((a / b - 1.0).abs() < 0.02, "n={n}: {a} vs Eq.13 {b}");
+        }
+        let strong = absorption_efficiency(1e4, C64::new(1.5, 0.5));
+        assert!(strong > 0.8 && strong <= 1.0, "{strong}");
+    }
+
+    /// Eq. 12 with p = 1 (paper verbatim) equals the closed form Eq. 14 for η > 1.
+    #[test]
+    fn eq12_matches_eq14() {
+        let (lam, eta) = (0.6, 1.33);
+        for r in [1.0, 7.3, 50.0, 400.0] {
+            let alpha = 2.0 * PI * r / lam;
+            let q12 = extinction_efficiency(alpha, real(eta), 1, false, false);
+            let q14 = extinction_eq14(r, lam, eta) / (PI * r * r);
+            assert!((q12 - q14).abs() < 1e-9 * q14.abs(), "r={r}: {q12} vs {q14}");
+        }
+    }
+
+    /// η → 1: the regularised extinction tends to 0 (the particle disappears); the paper's diverges.
+    #[test]
+    fn eta_to_one() {
+        let alpha = 1000.0;
+        let q = extinction_efficiency(alpha, real(1.0 + 1e-9), 3, true, false);
+        assert!(q.abs() < 1e-3, "{q}");
+        let paper = extinction_efficiency(alpha, real(1.0 + 1e-9), 3, false, false);
+        assert!(paper.abs() > 1.0, "{paper}");
+    }
+
+    /// Amplitudes are finite everywhere with regularisation, including θ = 0, π and the caustics.
+    #[test]
+    fn finite_everywhere() {
+        let opts = GoaOptions::default();
+        for m in [real(1.0), real(1.33), real(0.75), C64::new(2.5, 0.5), real(1.414)] {
+            let geo = GoaGeometry::new(m, 3);
+            let mut scratch = Vec::new();
+            for alpha in [0.1, 10.0, 3e4] {
+                for k in 0..=2000 {
+                    let theta = PI * k as f64 / 2000.0;
+                    let (s1, s2) = geo.amplitudes(alpha, theta, &opts, &mut scratch);
+                    assert!(s1.norm().is_finite() && s2.norm().is_finite(), "m={m} α={alpha} θ={theta}");
+                }
+            }
+        }
+    }
 }

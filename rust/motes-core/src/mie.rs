@@ -174,3 +174,43 @@ impl MieAngularSeries {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rayleigh limit: Q_sca = 8/3 x⁴ |(m²−1)/(m²+2)|² and Q_abs = 4x Im((m²−1)/(m²+2)) for x → 0.
+    #[test]
+    fn rayleigh_limit() {
+        let m = C64::new(1.5, 0.1);
+        let x = 1e-3;
+        let c = MieCoefficients::new(x, m);
+        let pol = (m * m - 1.0) / (m * m + 2.0);
+        let qsca = 8.0 / 3.0 * x.powi(4) * pol.norm_sqr();
+        let qabs = 4.0 * x * pol.im;
+        assert!((c.q_sca() / qsca - 1.0).abs() < 1e-4, "{} vs {}", c.q_sca(), qsca);
+        assert!(((c.q_ext() - c.q_sca()) / qabs - 1.0).abs() < 1e-4);
+    }
+
+    /// Optical theorem in BH convention: Q_ext = 4/x² Re S(0), and S1(0) = S2(0), S2(π) = −S1(π).
+    #[test]
+    fn forward_and_backward_symmetry() {
+        for (x, m) in [(5.0, C64::new(1.33, 0.0)), (300.0, C64::new(1.5, 0.01)), (50.0, C64::new(0.75, 0.0))] {
+            let c = MieCoefficients::new(x, m);
+            let s = c.weighted();
+            let (s1, s2) = s.amplitudes(1.0);
+            assert!((s1 - s2).norm() < 1e-9 * s1.norm());
+            assert!((4.0 / (x * x) * s1.re / c.q_ext() - 1.0).abs() < 1e-9);
+            let (b1, b2) = s.amplitudes(-1.0);
+            assert!((b1 + b2).norm() < 1e-9 * b1.norm().max(1e-300));
+        }
+    }
+
+    /// Large non-absorbing spheres: Q_ext → 2 (extinction paradox) and Q_sca = Q_ext.
+    #[test]
+    fn extinction_paradox() {
+        let c = MieCoefficients::new(20000.0, C64::new(1.33, 0.0));
+        assert!((c.q_ext() - 2.0).abs() < 0.01);
+        assert!((c.q_sca() / c.q_ext() - 1.0).abs() < 1e-9);
+    }
+}

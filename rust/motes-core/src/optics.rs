@@ -64,15 +64,6 @@ impl Particle {
         self.eta / self.eta_medium
     }
 
-    fn key(&self) -> [u64; 5] {
-        [
-            self.radius_um.to_bits(),
-            self.wavelength_um.to_bits(),
-            self.eta.re.to_bits(),
-            self.eta.im.to_bits(),
-            self.eta_medium.to_bits(),
-        ]
-    }
 }
 
 /// How single-particle optics are computed.
@@ -144,56 +135,130 @@ pub struct CrossSections {
     pub g: f64,
 }
 
-/// GOA angular integrals `(∫ (|S1|²+|S2|²) dΩ, ∫ (|S1|²+|S2|²) cosθ dΩ)` by composite 8-point
-/// Gauss–Legendre on panels of width ≤ π/(2α): every ray-interference fringe (period ≳ π/α) and the
-/// diffraction lobe (first zero 3.83/α) get several nodes. A panel edge sits at π/2, where Eq. 11
-/// switches diffraction off.
-pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -> (f64, f64) {
-    let (x, w) = gauss_legendre(8);
-    let half_panels = ((alpha).ceil() as usize).max(64);
-    let h = 0.5 * PI / half_panels as f64;
-    let (norm, first) = (0..2 * half_panels)
-        .into_par_iter()
-        .fold(
-            || (0.0, 0.0, Vec::new()),
-            |(mut n, mut f, mut scratch), k| {
-                let a = k as f64 * h;
-                for (xi, wi) in x.iter().zip(&w) {
-                    let t = a + 0.5 * h * (1.0 + xi);
-                    let (s1, s2) = geo.amplitudes(alpha, t, opts, &mut scratch);
-                    let v = (s1.norm_sqr() + s2.norm_sqr()) * t.sin() * 0.5 * h * wi * 2.0 * PI;
-                    n += v;
-                    f += v * t.cos();
+/// Process-wide cache of prepared GOA rays, keyed by (relative index, p_max, the exact angle array).
+/// The ray geometry does not depend on the particle size, so tables over radii and the quadrature
+/// grids below (shared by all radii with the same panel count) reuse it. Small LRU, bounded in bytes.
+mod prepared_cache {
+    use super::*;
+    use std::sync::Mutex;
+
+    const ENTRIES: usize = 32;
+    const MAX_BYTES_PER_ENTRY: usize = 64 << 20;
+
+    type Key = (u64, u64, u32, u64, usize);
+    static CACHE: Mutex<Vec<(Key, Arc<goa::PreparedAngles>)>> = Mutex::new(Vec::new());
+
+    fn key(m: C64, p_max: u32, theta: &[f64]) -> Key {
+        // A fast multiplicative hash (FxHash-style): a hit is confirmed by comparing the arrays.
+        let mut h: u64 = 0;
+        for t in theta {
+            h = (h.rotate_left(5) ^ t.to_bits()).wrapping_mul(0x517c_c1b7_2722_0a95);
+        }
+        (m.re.to_bits(), m.im.to_bits(), p_max, h, theta.len())
+    }
+
+    type GeoKey = (u64, u64, u32);
+    static GEOMETRIES: Mutex<Vec<(GeoKey, Arc<GoaGeometry>)>> = Mutex::new(Vec::new());
+
+    /// The branch geometry of index `m` up to `p_max` (cached: it is size and angle independent).
+    pub fn geometry(m: C64, p_max: u32) -> Arc<GoaGeometry> {
+        let k = (m.re.to_bits(), m.im.to_bits(), p_max);
+        if let Some((_, g)) = GEOMETRIES.lock().unwrap_or_else(|e| e.into_inner()).iter().find(|(kk, _)| *kk == k) {
+            return g.clone();
+        }
+        let g = Arc::new(GoaGeometry::new(m, p_max));
+        let mut c = GEOMETRIES.lock().unwrap_or_else(|e| e.into_inner());
+        if c.len() >= 4 * ENTRIES {
+            c.remove(0);
+        }
+        c.push((k, g.clone()));
+        g
+    }
+
+    /// The prepared rays of `geo` at `theta`, from the cache or computed (and cached if small enough).
+    pub fn get(geo: &GoaGeometry, theta: &[f64], p_max: u32) -> Arc<goa::PreparedAngles> {
+        let k = key(geo.m, p_max, theta);
+        {
+            let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(pos) = c.iter().position(|(kk, _)| *kk == k) {
+                let entry = c.remove(pos);
+                let v = entry.1.clone();
+                c.push(entry);
+                if v.theta == theta {
+                    return v;
                 }
-                (n, f, scratch)
-            },
-        )
-        .map(|(n, f, _)| (n, f))
-        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+            }
+        }
+        let v = Arc::new(geo.prepare(theta, p_max));
+        if v.bytes() <= MAX_BYTES_PER_ENTRY {
+            let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+            if c.len() >= ENTRIES {
+                c.remove(0);
+            }
+            c.push((k, v.clone()));
+        }
+        v
+    }
+}
+
+/// Quadrature nodes and weights (in θ, including 2π sin θ) for the GOA angular integrals: composite
+/// 8-point Gauss–Legendre on `2·half_panels` equal panels over [0, π], so that a panel edge sits at π/2
+/// where Eq. 11 switches diffraction off. `half_panels` is a power of two ≥ α, so every ray-interference
+/// fringe (period ≳ π/α) and the diffraction lobe (first zero 3.83/α) get several nodes, and radii of
+/// similar size share a node set (and the prepared-ray cache).
+fn goa_quadrature(alpha: f64) -> (Vec<f64>, Vec<f64>) {
+    let (x, w) = gauss_legendre(8);
+    let half_panels = (alpha.ceil() as usize).max(64).next_power_of_two();
+    let h = 0.5 * PI / half_panels as f64;
+    let mut nodes = Vec::with_capacity(16 * half_panels);
+    let mut weights = Vec::with_capacity(16 * half_panels);
+    for k in 0..2 * half_panels {
+        let a = k as f64 * h;
+        for (xi, wi) in x.iter().zip(&w) {
+            let t = a + 0.5 * h * (1.0 + xi);
+            nodes.push(t);
+            weights.push(0.5 * h * wi * 2.0 * PI * t.sin());
+        }
+    }
+    (nodes, weights)
+}
+
+/// GOA angular integrals `(∫ (|S1|²+|S2|²) dΩ, ∫ (|S1|²+|S2|²) cosθ dΩ)`.
+pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -> (f64, f64) {
+    let (nodes, weights) = goa_quadrature(alpha);
+    let prepared = prepared_cache::get(geo, &nodes, opts.p_max);
+    let amps = goa::evaluate_prepared(geo.m, &prepared, alpha, opts);
+    let mut norm = 0.0;
+    let mut first = 0.0;
+    for ((s1, s2), (t, w)) in amps.iter().zip(nodes.iter().zip(&weights)) {
+        let v = (s1.norm_sqr() + s2.norm_sqr()) * w;
+        norm += v;
+        first += v * t.cos();
+    }
     (norm, first)
 }
 
-/// Everything needed to evaluate one particle's phase function at many angles.
-pub enum Evaluator {
-    Mie { series: crate::mie::MieAngularSeries, norm: f64 },
-    Goa { geo: Arc<GoaGeometry>, alpha: f64, opts: GoaOptions, norm: f64 },
+/// (S1, S2) of one particle at the angles `theta` with the given theory.
+fn particle_amplitudes(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, theta: &[f64], opts: &GoaOptions) -> Vec<(C64, C64)> {
+    let alpha = p.size_parameter();
+    match (theory, geo) {
+        (Theory::Goa, Some(geo)) => goa::evaluate_prepared(geo.m, &prepared_cache::get(geo, theta, opts.p_max), alpha, opts),
+        (Theory::Goa, None) => {
+            let geo = GoaGeometry::new(p.relative_index(), opts.p_max);
+            goa::evaluate_prepared(geo.m, &geo.prepare(theta, opts.p_max), alpha, opts)
+        }
+        (Theory::Mie, _) => MieCoefficients::new(alpha, p.relative_index()).weighted().amplitudes_many(theta),
+    }
 }
 
-impl Evaluator {
-    /// f_p(θ) of Eq. 1, normalised so that ∫ f dΩ = 1 (sr⁻¹).
-    pub fn phase(&self, theta: f64, scratch: &mut Vec<(goa::RayGeometry, i32, i64)>) -> f64 {
-        let (s1, s2) = match self {
-            Evaluator::Mie { series, .. } => series.amplitudes(theta.cos()),
-            Evaluator::Goa { geo, alpha, opts, .. } => geo.amplitudes(*alpha, theta, opts, scratch),
-        };
-        let norm = match self {
-            Evaluator::Mie { norm, .. } | Evaluator::Goa { norm, .. } => *norm,
-        };
-        if norm > 0.0 {
-            (s1.norm_sqr() + s2.norm_sqr()) / norm
-        } else {
-            1.0 / (4.0 * PI)
-        }
+/// `∫ (|S1|²+|S2|²) dΩ`, the normaliser of f_p (Eq. 1): `2π x² Q_sca` for Mie (exact), the
+/// quadrature of `goa_angular_integrals` for GOA (so that ∫ f dΩ = 1 whatever p_max keeps).
+fn phase_normaliser(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, opts: &GoaOptions) -> f64 {
+    let alpha = p.size_parameter();
+    match (theory, geo) {
+        (Theory::Mie, _) => 2.0 * PI * alpha * alpha * MieCoefficients::new(alpha, p.relative_index()).q_sca(),
+        (Theory::Goa, Some(geo)) => goa_angular_integrals(geo, alpha, opts).0,
+        (Theory::Goa, None) => goa_angular_integrals(&GoaGeometry::new(p.relative_index(), opts.p_max), alpha, opts).0,
     }
 }
 
@@ -225,25 +290,6 @@ pub fn cross_sections_with(p: &Particle, theory: Theory, geo: Option<&GoaGeometr
             let (norm, first) = goa_angular_integrals(geo, alpha, opts);
             let g = if norm > 0.0 { (first / norm).clamp(-1.0, 1.0) } else { 0.0 };
             CrossSections { ext: qe * area, sca: (qe - qa) * area, abs: qa * area, g }
-        }
-    }
-}
-
-/// Build the phase-function evaluator of one particle.
-pub fn evaluator(p: &Particle, theory: Theory, geo: Option<Arc<GoaGeometry>>, opts: &GoaOptions) -> Evaluator {
-    let alpha = p.size_parameter();
-    let m = p.relative_index();
-    match theory {
-        Theory::Mie => {
-            let c = MieCoefficients::new(alpha, m);
-            // ∫(|S1|²+|S2|²) dΩ = 2 k² C_sca = 2π x² Q_sca.
-            let norm = 2.0 * PI * alpha * alpha * c.q_sca();
-            Evaluator::Mie { series: c.weighted(), norm }
-        }
-        Theory::Goa => {
-            let geo = geo.unwrap_or_else(|| Arc::new(GoaGeometry::new(m, opts.p_max)));
-            let (norm, _) = goa_angular_integrals(&geo, alpha, opts);
-            Evaluator::Goa { geo, alpha, opts: *opts, norm }
         }
     }
 }
@@ -281,24 +327,38 @@ impl ParticleColumns<'_> {
         Ok(())
     }
 
-    /// Validate every element and group equal particles: returns the unique particles and, for each,
-    /// the indices of the elements that use it.
+    /// Validate every element and group equal particles: returns the unique particles (in order of
+    /// first appearance) and, for each, the indices of the elements that use it. Linear time: runs of
+    /// equal particles (the usual broadcast layout) skip the hash map.
     pub fn group(&self) -> Result<Vec<(Particle, Vec<usize>)>, OpticsError> {
-        let mut items: Vec<([u64; 5], usize, Particle)> = Vec::with_capacity(self.len());
-        for i in 0..self.len() {
-            let p = Particle::new(self.radius_um[i], self.wavelength_um[i], C64::new(self.eta_re[i], self.eta_im[i]), self.eta_medium[i])?;
-            items.push((p.key(), i, p));
-        }
-        items.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut groups: Vec<(Particle, Vec<usize>)> = Vec::new();
-        let mut last: Option<[u64; 5]> = None;
-        for (key, i, p) in items {
-            if last == Some(key) {
-                groups.last_mut().unwrap().1.push(i);
-            } else {
-                groups.push((p, vec![i]));
-                last = Some(key);
+        let mut index: HashMap<[u64; 5], usize> = HashMap::new();
+        let mut last: Option<([u64; 5], usize)> = None;
+        for i in 0..self.len() {
+            let key = [
+                self.radius_um[i].to_bits(),
+                self.wavelength_um[i].to_bits(),
+                self.eta_re[i].to_bits(),
+                self.eta_im[i].to_bits(),
+                self.eta_medium[i].to_bits(),
+            ];
+            if let Some((k, g)) = last {
+                if k == key {
+                    groups[g].1.push(i);
+                    continue;
+                }
             }
+            let g = match index.get(&key) {
+                Some(&g) => g,
+                None => {
+                    let p = Particle::new(self.radius_um[i], self.wavelength_um[i], C64::new(self.eta_re[i], self.eta_im[i]), self.eta_medium[i])?;
+                    groups.push((p, Vec::new()));
+                    index.insert(key, groups.len() - 1);
+                    groups.len() - 1
+                }
+            };
+            groups[g].1.push(i);
+            last = Some((key, g));
         }
         Ok(groups)
     }
@@ -321,7 +381,7 @@ fn geometries(groups: &[(Particle, Vec<usize>)], opts: &GoaOptions, needed: impl
     ms.sort_by(|a, b| (a.re, a.im).partial_cmp(&(b.re, b.im)).unwrap());
     ms.dedup();
     ms.par_iter()
-        .map(|m| ([m.re.to_bits(), m.im.to_bits()], Arc::new(GoaGeometry::new(*m, opts.p_max))))
+        .map(|m| ([m.re.to_bits(), m.im.to_bits()], prepared_cache::geometry(*m, opts.p_max)))
         .collect::<Vec<_>>()
         .into_iter()
         .collect()
@@ -342,20 +402,9 @@ pub fn amplitudes_batch(cols: &ParticleColumns, theta: &[f64], theory: Theory, o
     let per_group: Vec<Vec<(usize, (C64, C64))>> = groups
         .par_iter()
         .map(|(p, idx)| {
-            let alpha = p.size_parameter();
-            match theory {
-                Theory::Mie => {
-                    let series = MieCoefficients::new(alpha, p.relative_index()).weighted();
-                    let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
-                    idx.iter().copied().zip(series.amplitudes_many(&th)).collect()
-                }
-                Theory::Goa => {
-                    let geo = &geos[&geo_key(p)];
-                    idx.par_iter()
-                        .map_init(Vec::new, |scratch, &i| (i, geo.amplitudes(alpha, theta[i], opts, scratch)))
-                        .collect()
-                }
-            }
+            let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
+            let geo = geos.get(&geo_key(p)).map(|g| g.as_ref());
+            idx.iter().copied().zip(particle_amplitudes(p, theory, geo, &th, opts)).collect()
         })
         .collect();
     let mut out = vec![(C64::new(0.0, 0.0), C64::new(0.0, 0.0)); theta.len()];
@@ -401,9 +450,14 @@ pub fn phase_function_batch(cols: &ParticleColumns, theta: &[f64], method: Metho
         .par_iter()
         .map(|(p, idx)| {
             let theory = method.theory(p);
-            let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].clone()) } else { None };
-            let ev = evaluator(p, theory, geo, opts);
-            idx.par_iter().map_init(Vec::new, |scratch, &i| (i, ev.phase(theta[i], scratch))).collect()
+            let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].as_ref()) } else { None };
+            let norm = phase_normaliser(p, theory, geo, opts);
+            let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
+            let amps = particle_amplitudes(p, theory, geo, &th, opts);
+            idx.iter()
+                .zip(amps)
+                .map(|(&i, (s1, s2))| (i, if norm > 0.0 { (s1.norm_sqr() + s2.norm_sqr()) / norm } else { 1.0 / (4.0 * PI) }))
+                .collect()
         })
         .collect();
     let mut out = vec![0.0; theta.len()];
