@@ -224,18 +224,27 @@ fn goa_quadrature(alpha: f64) -> (Vec<f64>, Vec<f64>) {
 }
 
 /// GOA angular integrals `(∫ (|S1|²+|S2|²) dΩ, ∫ (|S1|²+|S2|²) cosθ dΩ)`.
+/// Small grids go through the prepared-ray cache (shared by radii of similar size); large ones
+/// (α ≳ 4000, up to ~5e5 nodes) are streamed node by node so that memory stays bounded.
 pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -> (f64, f64) {
+    const CACHED_NODES: usize = 1 << 16;
     let (nodes, weights) = goa_quadrature(alpha);
-    let prepared = prepared_cache::get(geo, &nodes, opts.p_max);
-    let amps = goa::evaluate_prepared(geo.m, &prepared, alpha, opts);
-    let mut norm = 0.0;
-    let mut first = 0.0;
-    for ((s1, s2), (t, w)) in amps.iter().zip(nodes.iter().zip(&weights)) {
+    let moments = |(s1, s2): (C64, C64), t: f64, w: f64| {
         let v = (s1.norm_sqr() + s2.norm_sqr()) * w;
-        norm += v;
-        first += v * t.cos();
+        (v, v * t.cos())
+    };
+    let add = |a: (f64, f64), b: (f64, f64)| (a.0 + b.0, a.1 + b.1);
+    if nodes.len() <= CACHED_NODES {
+        let prepared = prepared_cache::get(geo, &nodes, opts.p_max);
+        let amps = goa::evaluate_prepared(geo.m, &prepared, alpha, opts);
+        amps.iter().zip(nodes.iter().zip(&weights)).map(|(a, (t, w))| moments(*a, *t, *w)).fold((0.0, 0.0), add)
+    } else {
+        (0..nodes.len())
+            .into_par_iter()
+            .with_min_len(1024)
+            .map_init(Vec::new, |scratch, i| moments(geo.amplitudes(alpha, nodes[i], opts, scratch), nodes[i], weights[i]))
+            .reduce(|| (0.0, 0.0), add)
     }
-    (norm, first)
 }
 
 /// (S1, S2) of one particle at the angles `theta` with the given theory.
