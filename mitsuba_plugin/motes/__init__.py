@@ -13,34 +13,40 @@ real index, so the relative index is ``eta / eta_medium`` and the size parameter
 ``cross_sections``          dict of ``ext``, ``sca``, ``abs`` (um^2) and ``g``
 ``phase_function``          f_p(theta) of Eq. 1, normalised so that the integral over the sphere is 1
 ``size_parameter``          alpha for given radius, wavelength and host index
+``resolve_method``          which theory ("mie"/"goa") a method picks for each particle
 ==========================  ==================================================================
 
 ``method`` selects the theory: ``"mie"`` (exact), ``"goa"``, ``"hybrid"`` (Mie below
 ``hybrid_radius_um``, default the paper's 2 um) or ``"auto"`` (Mie below the size parameter
-``AUTO_SIZE_PARAMETER``, chosen from measured GOA error; see BENCHMARKS.md).
+``AUTO_SIZE_PARAMETER``, chosen from measured GOA error, and near the degenerate axial rays of
+``AXIAL_CAUSTIC_WINDOW`` such as eta = 2; see BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 from ._optics import (
     AUTO_SIZE_PARAMETER,
+    AXIAL_CAUSTIC_WINDOW,
     HYBRID_RADIUS_UM,
     cross_sections,
     goa_amplitudes,
     goa_extinction_efficiency,
     mie_amplitudes,
     phase_function,
+    resolve_method,
     size_parameter,
 )
 
 __all__ = [
     "AUTO_SIZE_PARAMETER",
+    "AXIAL_CAUSTIC_WINDOW",
     "HYBRID_RADIUS_UM",
     "cross_sections",
     "goa_amplitudes",
     "goa_extinction_efficiency",
     "mie_amplitudes",
     "phase_function",
+    "resolve_method",
     "size_parameter",
 ]
 __version__ = "0.1.0"

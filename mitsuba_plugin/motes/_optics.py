@@ -13,7 +13,7 @@ from . import _motes
 
 Method = Literal["auto", "mie", "goa", "hybrid"]
 
-AUTO_SIZE_PARAMETER, HYBRID_RADIUS_UM = _motes.policy_constants()
+AUTO_SIZE_PARAMETER, HYBRID_RADIUS_UM, AXIAL_CAUSTIC_WINDOW = _motes.policy_constants()
 
 
 def _real(name: str, value) -> np.ndarray:
@@ -112,6 +112,14 @@ def phase_function(radius_um, wavelength_um, eta, theta, method: Method = "auto"
     shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium, theta)
     f = _motes.phase_function(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), bool(regularise), bool(edge_correction))
     return f.reshape(shape)
+
+
+def resolve_method(radius_um, wavelength_um, eta, method: Method = "auto", eta_medium=1.0, *,
+                   hybrid_radius_um=HYBRID_RADIUS_UM, p_max=3):
+    """The theory (``"mie"`` or ``"goa"``) that ``method`` uses for each particle, as a string array."""
+    shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium)
+    names = _motes.resolve_method(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max))
+    return np.asarray(names).reshape(shape)
 
 
 def goa_extinction_efficiency(alpha, eta, p_max=3, regularise=True, edge_correction=True):

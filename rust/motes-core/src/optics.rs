@@ -17,6 +17,18 @@ use std::sync::Arc;
 /// (|S1|+|S2|)/2 stays below 1e-2 for every tested index, and Mie costs grow linearly with x.
 pub const AUTO_SIZE_PARAMETER: f64 = 60.0;
 
+/// `Method::Auto` also uses Mie (at any size) when an axial ray is degenerate, `|2p/η_r − 2| <` this for
+/// some order p: there dθ_p/dθi vanishes on the axis (η = 2 focuses light on the back of the sphere, a
+/// retro-reflecting ball lens; η → 1 makes the p = 1 ray go straight through). GOA's caustic then grows
+/// like α² where Mie's grows like α^{3/2}; the measured window (`scripts/hybrid_threshold.py`) is
+/// |4/η − 2| ≲ 0.005 at x = 400..6400.
+pub const AXIAL_CAUSTIC_WINDOW: f64 = 0.01;
+
+/// True when some order p ≤ max(p_max, 2) has a degenerate axial ray (see [`AXIAL_CAUSTIC_WINDOW`]).
+pub fn has_axial_caustic(m: C64, p_max: u32) -> bool {
+    (1..=p_max.max(2)).any(|p| (2.0 * p as f64 / m.re - 2.0).abs() < AXIAL_CAUSTIC_WINDOW)
+}
+
 /// Default radius threshold of `Method::Hybrid` (the paper's 2 µm, Sec. 3.3).
 pub const HYBRID_RADIUS_UM: f64 = 2.0;
 
@@ -75,7 +87,8 @@ pub enum Method {
     Goa,
     /// Mie below `radius_um`, GOA at and above (the paper's policy, 2 µm).
     Hybrid { radius_um: f64 },
-    /// Mie below the size parameter [`AUTO_SIZE_PARAMETER`], GOA above.
+    /// Mie below the size parameter [`AUTO_SIZE_PARAMETER`] or near a degenerate axial ray
+    /// ([`has_axial_caustic`]), GOA otherwise.
     Auto,
 }
 
@@ -104,7 +117,7 @@ impl Method {
         }
     }
 
-    pub fn theory(&self, p: &Particle) -> Theory {
+    pub fn theory(&self, p: &Particle, p_max: u32) -> Theory {
         match *self {
             Method::Mie => Theory::Mie,
             Method::Goa => Theory::Goa,
@@ -116,7 +129,7 @@ impl Method {
                 }
             }
             Method::Auto => {
-                if p.size_parameter() < AUTO_SIZE_PARAMETER {
+                if p.size_parameter() < AUTO_SIZE_PARAMETER || has_axial_caustic(p.relative_index(), p_max) {
                     Theory::Mie
                 } else {
                     Theory::Goa
@@ -430,11 +443,11 @@ pub fn cross_sections_batch(cols: &ParticleColumns, method: Method, opts: &GoaOp
     cols.check_lengths(None)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| method.theory(p) == Theory::Goa);
+    let geos = geometries(&groups, opts, |p| method.theory(p, opts.p_max) == Theory::Goa);
     let per_group: Vec<CrossSections> = groups
         .par_iter()
         .map(|(p, _)| {
-            let theory = method.theory(p);
+            let theory = method.theory(p, opts.p_max);
             let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].as_ref()) } else { None };
             cross_sections_with(p, theory, geo, opts)
         })
@@ -454,11 +467,11 @@ pub fn phase_function_batch(cols: &ParticleColumns, theta: &[f64], method: Metho
     check_theta(theta)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| method.theory(p) == Theory::Goa);
+    let geos = geometries(&groups, opts, |p| method.theory(p, opts.p_max) == Theory::Goa);
     let per_group: Vec<Vec<(usize, f64)>> = groups
         .par_iter()
         .map(|(p, idx)| {
-            let theory = method.theory(p);
+            let theory = method.theory(p, opts.p_max);
             let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].as_ref()) } else { None };
             let norm = phase_normaliser(p, theory, geo, opts);
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();

@@ -137,10 +137,30 @@ fn goa_extinction_efficiency<'py>(py: Python<'py>, alpha: F64In, eta_re: F64In, 
     Ok(out.into_pyarray(py))
 }
 
-/// Constants of the method policy.
+/// Constants of the method policy: (AUTO_SIZE_PARAMETER, HYBRID_RADIUS_UM, AXIAL_CAUSTIC_WINDOW).
 #[pyfunction]
-fn policy_constants() -> (f64, f64) {
-    (optics::AUTO_SIZE_PARAMETER, optics::HYBRID_RADIUS_UM)
+fn policy_constants() -> (f64, f64, f64) {
+    (optics::AUTO_SIZE_PARAMETER, optics::HYBRID_RADIUS_UM, optics::AXIAL_CAUSTIC_WINDOW)
+}
+
+/// The theory ("mie" or "goa") that `method` picks for each particle.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn resolve_method(radius_um: F64In, wavelength_um: F64In, eta_re: F64In, eta_im: F64In, eta_medium: F64In, method: &str, hybrid_radius_um: f64, p_max: u32) -> PyResult<Vec<&'static str>> {
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    let groups = cols.view().group().map_err(to_py)?;
+    let mut out = vec![""; cols.r.len()];
+    for (p, idx) in groups {
+        let name = match method.theory(&p, p_max) {
+            Theory::Mie => "mie",
+            Theory::Goa => "goa",
+        };
+        for i in idx {
+            out[i] = name;
+        }
+    }
+    Ok(out)
 }
 
 #[pymodule]
@@ -151,5 +171,6 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(phase_function, m)?)?;
     m.add_function(wrap_pyfunction!(goa_extinction_efficiency, m)?)?;
     m.add_function(wrap_pyfunction!(policy_constants, m)?)?;
+    m.add_function(wrap_pyfunction!(resolve_method, m)?)?;
     Ok(())
 }
