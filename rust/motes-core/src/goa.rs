@@ -31,9 +31,13 @@
 //! 3. Rainbow caustics (`dθ_p/dθi → 0`): `|dθ_p/dθi|` is replaced by `sqrt(D² + D_c²)` with
 //!    `D_c = max(|D'|^{2/3} α^{−1/3}, 2/α)`: `|D'|^{2/3} α^{−1/3}` is the width (in D) of the Airy zone
 //!    and `2/α` guarantees that no ray carries more forward amplitude than the shadow, `|S_p| ≤ α²|ε|/2`.
+//! 2b. Pole symmetry: near θ = 0 and π a glory ring is unresolved; each non-axial ray is blended toward
+//!    the axially symmetric combination (S1 = S2 forward, S1 = −S2 backward) with weight 1/(1+u²),
+//!    u = α sinθi sinθ, so the exact symmetries of every sphere hold on the axis.
 //! 4. η → 1 (`|η − 1|` in Eq. 12/14): the `p = 1` extinction term is replaced by the anomalous
 //!    diffraction (van de Hulst) kernel scaled by the normal-incidence Fresnel factor, which equals the
-//!    GOA term asymptotically (ρ = 2α|η−1| → ∞) and tends to zero extinction as η → 1.
+//!    GOA term asymptotically (ρ = 2α|η−1| → ∞); the factor and the edge term fade with
+//!    `ray_optics_weight(ρ) = ρ²/(ρ²+25)`, so the extinction tends to ADT's (→ 0) as η → 1.
 
 use crate::quadrature::gauss_legendre;
 use num_complex::Complex64 as C64;
@@ -346,6 +350,8 @@ pub struct PreparedRay {
     sin_i: f64,
     /// sin θ at the (clamped) scattering angle.
     sin_th: f64,
+    /// cos θ (which pole is near).
+    cos_th: f64,
     /// dθ_p/dθi.
     d: f64,
     /// |d²θ_p/dθi²|^{2/3} (caustic width coefficient).
@@ -372,6 +378,7 @@ impl PreparedRay {
             sin2i: 2.0 * sin_i * cos_i,
             sin_i,
             sin_th: theta.sin(),
+            cos_th: theta.cos(),
             d,
             caustic: d2.abs().powf(2.0 / 3.0),
             path: 2.0 * (cos_i - pf * g.eta_eff * g.cos_t),
@@ -398,7 +405,20 @@ impl PreparedRay {
         }
         let xi = if self.attenuation > 0.0 { (-alpha * self.attenuation).exp() } else { 1.0 };
         let phase = C64::from_polar(alpha * xi * ratio.sqrt(), -(alpha * self.path + self.phi_f));
-        [self.eps[0] * phase, self.eps[1] * phase]
+        let (a1, a2) = (self.eps[0] * phase, self.eps[1] * phase);
+        if !regularise {
+            return [a1, a2];
+        }
+        // Regularisation 2b (pole symmetry): a ray with θi ≠ 0 that reaches θ ≈ 0 or π belongs to a
+        // glory ring of angular radius ~1/(α sinθi) that the ray picture cannot resolve. On the axis
+        // only the axially symmetric part survives (S1 = S2 forward, S1 = −S2 backward); the rest
+        // grows back like the ring's J2 term, ∝ u² with u = α sinθi sinθ. Axial rays (θi → 0, u → 0)
+        // already have ε2 = ±ε1 and are unchanged.
+        let u = alpha * self.sin_i * self.sin_th;
+        let w = u * u / (1.0 + u * u);
+        let sigma = if self.cos_th >= 0.0 { 1.0 } else { -1.0 };
+        let (sym, anti) = (0.5 * (a1 + sigma * a2), 0.5 * (a1 - sigma * a2));
+        [sym + w * anti, sigma * (sym - w * anti)]
     }
 }
 
@@ -550,7 +570,17 @@ pub fn edge_term(alpha: f64, m: C64) -> f64 {
         return 0.0;
     }
     let a = alpha.max(3.0);
-    1.9923861 * a.powf(-2.0 / 3.0) - 0.7153537 * a.powf(-4.0 / 3.0)
+    // A sphere with η → 1 has no edge: taper with the phase shift ρ (regularisation 4).
+    ray_optics_weight(alpha, m) * (1.9923861 * a.powf(-2.0 / 3.0) - 0.7153537 * a.powf(-4.0 / 3.0))
+}
+
+/// Weight of ray-optics (as opposed to anomalous-diffraction) behaviour: `t = ρ²/(ρ² + ρ0²)` with
+/// `ρ = 2α|m − 1|` the central phase shift and ρ0 = 5. t → 0 as η → 1 at fixed α (ADT regime, where
+/// the edge term and the Fresnel focusing factor of the p = 1 ray both disappear) and t → 1 in the
+/// GOA regime. ρ0 from the η → 1 table of `scripts/singularities.py` (part b).
+pub fn ray_optics_weight(alpha: f64, m: C64) -> f64 {
+    let rho = 2.0 * alpha * (m - 1.0).norm();
+    rho * rho / (rho * rho + 25.0)
 }
 
 /// Normal-incidence amplitude of order p (θi → 0), the axial limit used by Eq. 12.
@@ -591,7 +621,9 @@ pub fn extinction_efficiency(alpha: f64, m: C64, p_max: u32, regularise: bool, e
     while p <= p_max {
         if p == 1 && regularise {
             let r0 = (1.0 - m) / (1.0 + m);
-            let fresnel_factor = (m * (1.0 - r0 * r0)).norm();
+            // GOA's axial p = 1 amplitude is the ADT one times |m(1 − r0²)| = 4η²/(1+η)² (focusing and
+            // Fresnel transmission); that factor fades to 1 in the ADT regime, so that Q → Q_ADT ≥ 0.
+            let fresnel_factor = 1.0 + ((m * (1.0 - r0 * r0)).norm() - 1.0) * ray_optics_weight(alpha, m);
             q += fresnel_factor * adt_excess(alpha, m);
         } else {
             q += 4.0 / (alpha * alpha) * axial_term(m, p, alpha, regularise).re;
