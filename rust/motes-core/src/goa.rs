@@ -94,12 +94,23 @@ pub fn fresnel(m: C64, cos_i: f64, b: C64) -> [C64; 2] {
 }
 
 /// `ε_j` of Eq. 8: `r` for p = 0, `(1 − r²)(−r)^{p−1}` otherwise.
+///
+/// For a complex `r` (absorbing particles, total internal reflection) the magnitude is taken from the
+/// energy balance, `(1 − |r|²)|r|^{p−1}`, and only the phase from `(1 − r²)(−r)^{p−1}`: for a real `r`
+/// this is Eq. 8 exactly, and beyond the critical angle of a bubble, where the transmitted wave is
+/// evanescent and carries no energy, it vanishes — so an absorption of 1e-12 no longer turns evanescent
+/// waves into refracted rays (the transmitted amplitude is continuous in κ at κ = 0).
 #[inline]
 fn epsilon(r: C64, p: u32) -> C64 {
     if p == 0 {
-        r
+        return r;
+    }
+    let coherent = (1.0 - r * r) * (-r).powu(p - 1);
+    let magnitude = (1.0 - r.norm_sqr()).max(0.0) * r.norm().powi(p as i32 - 1);
+    if coherent.norm() > 0.0 {
+        coherent * (magnitude / coherent.norm())
     } else {
-        (1.0 - r * r) * (-r).powu(p - 1)
+        C64::new(0.0, 0.0)
     }
 }
 
@@ -673,12 +684,18 @@ pub fn absorption_efficiency(alpha: f64, m: C64) -> f64 {
             let br = bb.re.max(0.0);
             let eta_eff = (s * s + br * br).sqrt();
             let cos_t = br / eta_eff;
-            let tr = (-4.0 * alpha * bb.im * cos_t * cos_t).exp();
+            // 1 − T per chord, without cancellation for thin absorption.
+            let absorbed = -(-4.0 * alpha * bb.im * cos_t * cos_t).exp_m1();
             let r = fresnel(m, c, bb);
             let mut f = 0.0;
             for rj in r {
-                let rr = rj.norm_sqr();
-                f += 0.5 * (1.0 - rr) * (1.0 - tr) / (1.0 - rr * tr);
+                // (1−R)(1−T)/(1−RT) written as ab/(a + b − ab) with a = 1−R, b = 1−T: no 0/0 when
+                // both R and T round to 1 (grazing rays of weakly absorbing bubbles).
+                let a = (1.0 - rj.norm_sqr()).max(0.0);
+                let den = a + absorbed - a * absorbed;
+                if den > 0.0 {
+                    f += 0.5 * a * absorbed / den;
+                }
             }
             // d(sin²θi) = sin 2θi dθi
             sum += 0.5 * (b - a) * wi * f * 2.0 * s * c;

@@ -131,6 +131,11 @@ fn goa_extinction_efficiency<'py>(py: Python<'py>, alpha: F64In, eta_re: F64In, 
     if a.len() != er.len() || a.len() != ei.len() {
         return Err(PyValueError::new_err("alpha, eta_re and eta_im must have the same length"));
     }
+    for ((a, r), im) in a.iter().zip(&er).zip(&ei) {
+        motes_core::error::require("alpha", *a, a.is_finite() && *a > 0.0, "finite and > 0").map_err(to_py)?;
+        motes_core::error::require("eta (real part)", *r, r.is_finite() && *r > 0.0, "finite and > 0").map_err(to_py)?;
+        motes_core::error::require("eta (imaginary part)", *im, im.is_finite() && *im >= 0.0, "finite and >= 0").map_err(to_py)?;
+    }
     let out: Vec<f64> = py.detach(|| {
         a.iter().zip(&er).zip(&ei).map(|((a, r), i)| motes_core::goa::extinction_efficiency(*a, C64::new(*r, *i), p_max, regularise, edge_correction)).collect()
     });
