@@ -66,9 +66,23 @@ def _particle_args(radius_um, wavelength_um, eta, eta_medium, theta=None):
     return _broadcast(**named)
 
 
+def _positive(name: str, value) -> np.ndarray:
+    arr = _real(name, value)
+    if not np.all(np.isfinite(arr) & (arr > 0)):
+        raise ValueError(f"invalid {name}: every value must be finite and > 0")
+    return arr
+
+
 def size_parameter(radius_um, wavelength_um, eta_medium=1.0):
     """``alpha = 2 pi eta_medium r / lambda``."""
-    return 2.0 * np.pi * np.asarray(eta_medium) * np.asarray(radius_um) / np.asarray(wavelength_um)
+    r, lam, em = (_positive(n, v) for n, v in (("radius_um", radius_um), ("wavelength_um", wavelength_um), ("eta_medium", eta_medium)))
+    return 2.0 * np.pi * em * r / lam
+
+
+def _flag(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def mie_amplitudes(radius_um, wavelength_um, eta, theta, eta_medium=1.0):
@@ -86,7 +100,7 @@ def goa_amplitudes(radius_um, wavelength_um, eta, theta, p_max=3, diffraction=Tr
     ``regularise=False`` gives the paper's formulas verbatim (infinite at caustics and glories);
     ``edge_correction=False`` leaves out the edge term that the paper's GOA lacks (see BENCHMARKS.md)."""
     shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium, theta)
-    s1, s2 = _motes.goa_amplitudes(*cols, _p_max(p_max), bool(diffraction), bool(regularise), bool(edge_correction))
+    s1, s2 = _motes.goa_amplitudes(*cols, _p_max(p_max), _flag("diffraction", diffraction), _flag("regularise", regularise), _flag("edge_correction", edge_correction))
     return s1.reshape(shape), s2.reshape(shape)
 
 
@@ -102,7 +116,7 @@ def cross_sections(radius_um, wavelength_um, eta, method: Method = "auto", eta_m
 
     Returns ``{"ext", "sca", "abs", "g"}``, each an array of the broadcast shape of the inputs."""
     shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium)
-    ext, sca, ab, g = _motes.cross_sections(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), bool(regularise), bool(edge_correction))
+    ext, sca, ab, g = _motes.cross_sections(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), _flag("regularise", regularise), _flag("edge_correction", edge_correction))
     return {"ext": ext.reshape(shape), "sca": sca.reshape(shape), "abs": ab.reshape(shape), "g": g.reshape(shape)}
 
 
@@ -110,7 +124,7 @@ def phase_function(radius_um, wavelength_um, eta, theta, method: Method = "auto"
                    hybrid_radius_um=HYBRID_RADIUS_UM, p_max=3, regularise=True, edge_correction=True):
     """Single-particle phase function ``f_p(theta)`` of Eq. 1 in sr^-1 (integral over the sphere = 1)."""
     shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium, theta)
-    f = _motes.phase_function(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), bool(regularise), bool(edge_correction))
+    f = _motes.phase_function(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), _flag("regularise", regularise), _flag("edge_correction", edge_correction))
     return f.reshape(shape)
 
 
@@ -126,4 +140,4 @@ def goa_extinction_efficiency(alpha, eta, p_max=3, regularise=True, edge_correct
     """``Q_ext = C_ext / (pi r^2)`` of GOA by Eq. 12 for size parameter ``alpha`` and relative index ``eta``."""
     er, ei = _index(eta)
     shape, (a, r, i) = _broadcast(alpha=_real("alpha", alpha), eta_re=er, eta_im=ei)
-    return _motes.goa_extinction_efficiency(a, r, i, _p_max(p_max), bool(regularise), bool(edge_correction)).reshape(shape)
+    return _motes.goa_extinction_efficiency(a, r, i, _p_max(p_max), _flag("regularise", regularise), _flag("edge_correction", edge_correction)).reshape(shape)
