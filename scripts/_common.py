@@ -50,6 +50,13 @@ def import_motes(retries: int = 5, wait_s: float = 60.0):
     raise RuntimeError("unreachable")
 
 
+def start(doc: str | None):
+    """The common start of a script: parsed ``--out/--quick`` arguments, the output folder, a stopwatch
+    and the imported ``motes``."""
+    args = parser(doc).parse_args()
+    return args, out_dir(args.out), Stopwatch(), import_motes()
+
+
 def plt():
     """``matplotlib.pyplot`` on the Agg backend."""
     import matplotlib  # noqa: PLC0415

@@ -51,10 +51,7 @@ def timed(fn, budget_s: float, n_min: int = 3, n_max: int = 200, once: bool = Fa
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
     import miepython  # noqa: PLC0415
 
     budget = 0.2 if args.quick else 0.5

@@ -21,10 +21,7 @@ from singularities import edge_term_study  # noqa: E402
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
     res = edge_term_study(motes, args.quick, out, C.plt())
     elapsed = sw()
     C.write_json(out / "edge_term.json", dict(meta=C.meta(args, elapsed), wavelength_um=C.LAM, **res))

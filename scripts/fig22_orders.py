@@ -25,10 +25,7 @@ P_LIST = [1, 2, 3, 4, 100]
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
 
     theta = np.linspace(0.0, np.pi, 600) if args.quick else C.THETA
     deg = np.degrees(theta)

@@ -38,10 +38,7 @@ BANDS = [(1.0, 10.0, "[1, 10)"), (10.0, 100.0 + 1e-9, "[10, 100]")]
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
 
     n = 600 if args.quick else 3000
     r = np.geomspace(0.1, 100.0, n)

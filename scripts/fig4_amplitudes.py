@@ -41,10 +41,7 @@ def panel(ax, deg, mie, goa, title, ylabel):
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
 
     theta = np.linspace(0.0, np.pi, 600) if args.quick else C.THETA
     deg = np.degrees(theta)

@@ -50,10 +50,7 @@ def fresh_theta() -> np.ndarray:
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
 
     n = 20 if args.quick else 60
     radii = list(np.geomspace(0.5, 200.0, n)) + [1.0, 10.0, 100.0] + ([] if args.quick else [500.0, 1000.0])

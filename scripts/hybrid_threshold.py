@@ -59,10 +59,7 @@ def switch_check(motes, eta) -> dict:
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
     x_auto = float(motes.AUTO_SIZE_PARAMETER)
     x_hyb = float(motes.size_parameter(motes.HYBRID_RADIUS_UM, C.LAM))
 

@@ -21,10 +21,7 @@ from conftest import mie_reference  # noqa: E402  (40-digit mpmath Lorenz–Mie,
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
     import miepython  # noqa: PLC0415
 
     rng = np.random.default_rng(20261122)

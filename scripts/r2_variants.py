@@ -17,10 +17,7 @@ import _common as C  # noqa: E402
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
     th = C.THETA
     deg = np.degrees(th)
     rows_def, rows_var, rows_loc = [], [], []

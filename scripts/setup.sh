@@ -13,7 +13,7 @@ for pkg in libllvm19 python3-venv python3-dev gcc; do
 done
 if [ -n "$need" ]; then
   $SUDO apt-get update -qq
-  $SUDO DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $need
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $need
 fi
 
 if ! command -v cargo >/dev/null 2>&1; then

@@ -308,10 +308,7 @@ def plot_main(out, plt, a, b, d):
 
 
 def main() -> None:
-    args = C.parser(__doc__).parse_args()
-    out = C.out_dir(args.out)
-    sw = C.Stopwatch()
-    motes = C.import_motes()
+    args, out, sw, motes = C.start(__doc__)
     plt = C.plt()
     a = part_a(motes, args.quick)
     b = part_b(motes, args.quick)
