@@ -16,6 +16,9 @@ real index, so the relative index is ``eta / eta_medium`` and the size parameter
 ``resolve_method``          which theory ("mie"/"goa") a method picks for each particle
 ==========================  ==================================================================
 
+Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``Uniform``, ``Histogram``,
+``Mixture``), exported at the top level too.
+
 ``method`` selects the theory: ``"mie"`` (exact), ``"goa"``, ``"hybrid"`` (Mie below
 ``hybrid_radius_um``, default the paper's 2 um) or ``"auto"`` (Mie below the size parameter
 ``AUTO_SIZE_PARAMETER``, chosen from measured GOA error, and near the degenerate axial rays of
@@ -24,6 +27,8 @@ real index, so the relative index is ``eta / eta_medium`` and the size parameter
 
 from __future__ import annotations
 
+from . import psd
+from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
     AXIAL_CAUSTIC_WINDOW,
@@ -38,6 +43,12 @@ from ._optics import (
 )
 
 __all__ = [
+    "psd",
+    "Histogram",
+    "LogNormal",
+    "Mixture",
+    "Monodisperse",
+    "Uniform",
     "AUTO_SIZE_PARAMETER",
     "AXIAL_CAUSTIC_WINDOW",
     "HYBRID_RADIUS_UM",

@@ -10,7 +10,9 @@ pub mod error;
 pub mod goa;
 pub mod mie;
 pub mod optics;
+pub mod psd;
 pub mod quadrature;
 
 pub use error::OpticsError;
 pub use optics::{Method, Particle};
+pub use psd::Psd;
