@@ -28,6 +28,7 @@ Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``U
 from __future__ import annotations
 
 from . import psd
+from .ensemble import Species, bulk_properties
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
@@ -44,6 +45,8 @@ from ._optics import (
 
 __all__ = [
     "psd",
+    "Species",
+    "bulk_properties",
     "Histogram",
     "LogNormal",
     "Mixture",

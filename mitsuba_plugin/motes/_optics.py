@@ -111,12 +111,15 @@ def _method(method) -> str:
 
 
 def cross_sections(radius_um, wavelength_um, eta, method: Method = "auto", eta_medium=1.0, *,
-                   hybrid_radius_um=HYBRID_RADIUS_UM, p_max=3, regularise=True, edge_correction=True) -> dict:
+                   hybrid_radius_um=HYBRID_RADIUS_UM, p_max=3, regularise=True, edge_correction=True,
+                   asymmetry=True) -> dict:
     """Extinction, scattering and absorption cross sections (um^2) and asymmetry ``g``.
 
-    Returns ``{"ext", "sca", "abs", "g"}``, each an array of the broadcast shape of the inputs."""
+    Returns ``{"ext", "sca", "abs", "g"}``, each an array of the broadcast shape of the inputs.
+    ``asymmetry=False`` skips g (NaN), which for GOA saves an angular integral per particle."""
     shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium)
-    ext, sca, ab, g = _motes.cross_sections(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), _flag("regularise", regularise), _flag("edge_correction", edge_correction))
+    ext, sca, ab, g = _motes.cross_sections(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), _flag("regularise", regularise), _flag("edge_correction", edge_correction),
+                                            _flag("asymmetry", asymmetry))
     return {"ext": ext.reshape(shape), "sca": sca.reshape(shape), "abs": ab.reshape(shape), "g": g.reshape(shape)}
 
 

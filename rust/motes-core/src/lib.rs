@@ -6,6 +6,7 @@
 //! * [`optics`]: one particle as the renderer sees it — cross sections, normalised phase function,
 //!   and the choice between Mie and GOA (`Method`), batched over many particles and angles.
 
+pub mod ensemble;
 pub mod error;
 pub mod goa;
 pub mod mie;

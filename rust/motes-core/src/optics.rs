@@ -261,7 +261,7 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
 }
 
 /// (S1, S2) of one particle at the angles `theta` with the given theory.
-fn particle_amplitudes(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, theta: &[f64], opts: &GoaOptions) -> Vec<(C64, C64)> {
+pub fn particle_amplitudes(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, theta: &[f64], opts: &GoaOptions) -> Vec<(C64, C64)> {
     let alpha = p.size_parameter();
     match (theory, geo) {
         (Theory::Goa, Some(geo)) => goa::evaluate_prepared(geo.m, &prepared_cache::get(geo, theta, opts.p_max), alpha, opts),
@@ -281,6 +281,28 @@ fn phase_normaliser(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, opt
         (Theory::Mie, _) => 2.0 * PI * alpha * alpha * MieCoefficients::new(alpha, p.relative_index()).q_sca(),
         (Theory::Goa, Some(geo)) => goa_angular_integrals(geo, alpha, opts).0,
         (Theory::Goa, None) => goa_angular_integrals(&GoaGeometry::new(p.relative_index(), opts.p_max), alpha, opts).0,
+    }
+}
+
+/// `(C_ext, C_abs)` in µm² without the asymmetry parameter — cheap for GOA (Eq. 12 and the
+/// geometric absorption integral, no angular quadrature).
+pub fn extinction_and_absorption(p: &Particle, theory: Theory, opts: &GoaOptions) -> (f64, f64) {
+    let area = PI * p.radius_um * p.radius_um;
+    let m = p.relative_index();
+    let alpha = p.size_parameter();
+    match theory {
+        Theory::Mie => {
+            let c = MieCoefficients::new(alpha, m);
+            let (qe, qs) = (c.q_ext(), c.q_sca());
+            (qe * area, (qe - qs).max(0.0) * area)
+        }
+        Theory::Goa => {
+            let qa = goa::absorption_efficiency(alpha, m);
+            // Outside GOA's validity (α ≲ 1) Eq. 12 can dip below the absorption: clamp so that
+            // C_ext ≥ C_abs and C_sca ≥ 0 always hold.
+            let qe = goa::extinction_efficiency(alpha, m, opts.p_max, opts.regularise, opts.edge_correction).max(qa);
+            (qe * area, qa * area)
+        }
     }
 }
 
@@ -305,13 +327,10 @@ pub fn cross_sections_with(p: &Particle, theory: Theory, geo: Option<&GoaGeometr
                     &owned
                 }
             };
-            let qa = goa::absorption_efficiency(alpha, m);
-            // Outside GOA's validity (α ≲ 1) Eq. 12 can dip below the absorption: clamp so that
-            // C_ext ≥ C_abs and C_sca ≥ 0 always hold.
-            let qe = goa::extinction_efficiency(alpha, m, opts.p_max, opts.regularise, opts.edge_correction).max(qa);
+            let (ext, abs) = extinction_and_absorption(p, theory, opts);
             let (norm, first) = goa_angular_integrals(geo, alpha, opts);
             let g = if norm > 0.0 { (first / norm).clamp(-1.0, 1.0) } else { 0.0 };
-            CrossSections { ext: qe * area, sca: (qe - qa) * area, abs: qa * area, g }
+            CrossSections { ext, sca: ext - abs, abs, g }
         }
     }
 }
@@ -409,6 +428,10 @@ fn geometries(groups: &[(Particle, Vec<usize>)], opts: &GoaOptions, needed: impl
         .collect()
 }
 
+pub(crate) fn cached_geometry(m: C64, p_max: u32) -> Arc<GoaGeometry> {
+    prepared_cache::geometry(m, p_max)
+}
+
 fn geo_key(p: &Particle) -> [u64; 2] {
     let m = p.relative_index();
     [m.re.to_bits(), m.im.to_bits()]
@@ -438,16 +461,21 @@ pub fn amplitudes_batch(cols: &ParticleColumns, theta: &[f64], theory: Theory, o
     Ok(out)
 }
 
-/// Cross sections for every particle of the batch.
-pub fn cross_sections_batch(cols: &ParticleColumns, method: Method, opts: &GoaOptions) -> Result<Vec<CrossSections>, OpticsError> {
+/// Cross sections for every particle of the batch (`with_g = false` skips GOA's angular integral and
+/// returns g = NaN).
+pub fn cross_sections_batch(cols: &ParticleColumns, method: Method, opts: &GoaOptions, with_g: bool) -> Result<Vec<CrossSections>, OpticsError> {
     cols.check_lengths(None)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| method.theory(p, opts.p_max) == Theory::Goa);
+    let geos = geometries(&groups, opts, |p| with_g && method.theory(p, opts.p_max) == Theory::Goa);
     let per_group: Vec<CrossSections> = groups
         .par_iter()
         .map(|(p, _)| {
             let theory = method.theory(p, opts.p_max);
+            if !with_g {
+                let (ext, abs) = extinction_and_absorption(p, theory, opts);
+                return CrossSections { ext, sca: ext - abs, abs, g: f64::NAN };
+            }
             let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].as_ref()) } else { None };
             cross_sections_with(p, theory, geo, opts)
         })

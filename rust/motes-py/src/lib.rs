@@ -90,11 +90,12 @@ fn cross_sections<'py>(
     p_max: u32,
     regularise: bool,
     edge_correction: bool,
+    with_g: bool,
 ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
     let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
     let opts = options(p_max, true, regularise, edge_correction);
-    let cs = py.detach(|| optics::cross_sections_batch(&cols.view(), method, &opts)).map_err(to_py)?;
+    let cs = py.detach(|| optics::cross_sections_batch(&cols.view(), method, &opts, with_g)).map_err(to_py)?;
     let col = |f: fn(&optics::CrossSections) -> f64| cs.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
     Ok((col(|c| c.ext), col(|c| c.sca), col(|c| c.abs), col(|c| c.g)))
 }
@@ -223,6 +224,71 @@ fn psd_support(spec: &str) -> PyResult<((f64, f64), Vec<(f64, f64)>)> {
     Ok((d.support(), d.atoms()))
 }
 
+type BulkOut<'py> = (F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>, Bound<'py, numpy::PyArray2<f64>>, F64Out<'py>, F64Out<'py>);
+
+/// Bulk properties (Eq. 16–17) per wavelength. `eta_re/eta_im` are (n_species × n_wavelengths), row-major.
+/// `theta` empty: the graded default grid (for the shortest wavelength's largest particle).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn bulk_properties<'py>(
+    py: Python<'py>,
+    psd_specs: Vec<String>,
+    shares: Vec<f64>,
+    eta_re: F64In,
+    eta_im: F64In,
+    wavelength_um: F64In,
+    number_density_m3: f64,
+    eta_medium: f64,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+    max_log_step: f64,
+    theta: F64In,
+    with_phase: bool,
+) -> PyResult<BulkOut<'py>> {
+    use motes_core::ensemble::{self, BulkOptions, Species};
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let lam = wavelength_um.as_array().to_vec();
+    let (er, ei) = (eta_re.as_array().to_vec(), eta_im.as_array().to_vec());
+    let (ns, nl) = (psd_specs.len(), lam.len());
+    if shares.len() != ns || er.len() != ns * nl || ei.len() != ns * nl {
+        return Err(PyValueError::new_err("species, shares and eta must describe the same species and wavelengths"));
+    }
+    for &l in &lam {
+        motes_core::error::require("wavelength_um", l, l.is_finite() && l > 0.0, "finite and > 0").map_err(to_py)?;
+    }
+    motes_core::error::require("max_log_step", max_log_step, max_log_step.is_finite() && max_log_step > 0.0, "finite and > 0").map_err(to_py)?;
+    let psds = psd_specs.iter().map(|s| psd(s)).collect::<PyResult<Vec<_>>>()?;
+    let mut theta = theta.as_array().to_vec();
+    if with_phase && theta.is_empty() {
+        let r_max = psds.iter().map(|p| p.support().1).fold(0.0, f64::max);
+        let lam_min = lam.iter().cloned().fold(f64::INFINITY, f64::min);
+        theta = ensemble::graded_angles(2.0 * std::f64::consts::PI * eta_medium * r_max / lam_min, 400, 1400);
+    }
+    if !with_phase {
+        theta.clear();
+    }
+    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step };
+    let results = py.detach(|| {
+        lam.iter()
+            .enumerate()
+            .map(|(j, &l)| {
+                let species: Vec<Species> = psds
+                    .iter()
+                    .enumerate()
+                    .map(|(i, p)| Species { psd: p.clone(), eta: C64::new(er[i * nl + j], ei[i * nl + j]), share: shares[i] })
+                    .collect();
+                ensemble::bulk(&species, number_density_m3, l, eta_medium, &theta, &opts)
+            })
+            .collect::<Result<Vec<_>, _>>()
+    })
+    .map_err(to_py)?;
+    let col = |f: fn(&ensemble::Bulk) -> f64| results.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
+    let phase: Vec<Vec<f64>> = results.iter().map(|b| b.phase.clone()).collect();
+    let phase = if theta.is_empty() { numpy::PyArray2::zeros(py, [nl, 0], false) } else { numpy::PyArray2::from_vec2(py, &phase)? };
+    Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), theta.into_pyarray(py)))
+}
+
 #[pymodule]
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
@@ -237,5 +303,6 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(psd_sample, m)?)?;
     m.add_function(wrap_pyfunction!(psd_quadrature, m)?)?;
     m.add_function(wrap_pyfunction!(psd_support, m)?)?;
+    m.add_function(wrap_pyfunction!(bulk_properties, m)?)?;
     Ok(())
 }
