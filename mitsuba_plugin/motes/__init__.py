@@ -28,7 +28,7 @@ Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``U
 from __future__ import annotations
 
 from . import psd
-from .ensemble import Species, bulk_properties
+from .ensemble import PhaseTable, Species, bulk_properties
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
@@ -45,6 +45,7 @@ from ._optics import (
 
 __all__ = [
     "psd",
+    "PhaseTable",
     "Species",
     "bulk_properties",
     "Histogram",

@@ -84,4 +84,32 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
             "theta": th, "phase": ph, "energy_ratio": ratio}
 
 
-__all__ = ["Species", "bulk_properties"]
+class PhaseTable:
+    """A tabulated phase function, piecewise linear in cos(theta) between the nodes ``theta`` (from 0 to
+    pi, increasing), normalised over the sphere. ``eval``/``pdf`` give f (1/sr) and ``sample`` draws
+    scattering angles from exactly that density (inverse CDF, O(log n) per sample).
+
+    ``PhaseTable.from_bulk(b, i)`` takes wavelength ``i`` of a ``bulk_properties`` result."""
+
+    def __init__(self, theta, f):
+        self.theta = np.ascontiguousarray(np.asarray(theta, dtype=np.float64))
+        self.f = np.ascontiguousarray(np.asarray(f, dtype=np.float64))
+        _motes.phase_table_eval(self.theta, self.f, np.zeros(1))  # validates
+
+    @classmethod
+    def from_bulk(cls, bulk: dict, index: int = 0) -> "PhaseTable":
+        return cls(bulk["theta"], bulk["phase"][index])
+
+    def eval(self, theta):
+        q = np.asarray(theta, dtype=np.float64)
+        return _motes.phase_table_eval(self.theta, self.f, np.ascontiguousarray(q).ravel()).reshape(q.shape)
+
+    pdf = eval
+
+    def sample(self, u):
+        """Scattering angles (radians) for uniform numbers ``u`` in [0, 1]."""
+        u = np.asarray(u, dtype=np.float64)
+        return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
+
+
+__all__ = ["PhaseTable", "Species", "bulk_properties"]

@@ -11,6 +11,7 @@ pub mod error;
 pub mod goa;
 pub mod mie;
 pub mod optics;
+pub mod phase_table;
 pub mod psd;
 pub mod quadrature;
 

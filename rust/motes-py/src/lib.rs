@@ -289,6 +289,34 @@ fn bulk_properties<'py>(
     Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), theta.into_pyarray(py)))
 }
 
+fn phase_table(theta: F64In, f: F64In) -> PyResult<motes_core::phase_table::PhaseTable> {
+    motes_core::phase_table::PhaseTable::new(theta.as_slice()?, f.as_slice()?).map_err(to_py)
+}
+
+/// Evaluate a tabulated phase function (nodes `theta`, values `f`) at angles `query` (radians).
+#[pyfunction]
+fn phase_table_eval<'py>(py: Python<'py>, theta: F64In, f: F64In, query: F64In) -> PyResult<F64Out<'py>> {
+    let t = phase_table(theta, f)?;
+    let q = query.as_array().to_vec();
+    if let Some(v) = q.iter().find(|v| !(v.is_finite() && (0.0..=std::f64::consts::PI).contains(*v))) {
+        return Err(PyValueError::new_err(format!("invalid theta = {v}: must be finite and in [0, π]")));
+    }
+    let out: Vec<f64> = py.detach(|| q.iter().map(|th| t.eval(th.cos())).collect());
+    Ok(out.into_pyarray(py))
+}
+
+/// Sample scattering angles (radians) from a tabulated phase function, one per uniform number `u`.
+#[pyfunction]
+fn phase_table_sample<'py>(py: Python<'py>, theta: F64In, f: F64In, u: F64In) -> PyResult<F64Out<'py>> {
+    let t = phase_table(theta, f)?;
+    let u = u.as_array().to_vec();
+    if let Some(v) = u.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+        return Err(PyValueError::new_err(format!("invalid u = {v}: must be in [0, 1]")));
+    }
+    let out: Vec<f64> = py.detach(|| u.iter().map(|&x| t.sample(x).clamp(-1.0, 1.0).acos()).collect());
+    Ok(out.into_pyarray(py))
+}
+
 #[pymodule]
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
@@ -304,5 +332,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(psd_quadrature, m)?)?;
     m.add_function(wrap_pyfunction!(psd_support, m)?)?;
     m.add_function(wrap_pyfunction!(bulk_properties, m)?)?;
+    m.add_function(wrap_pyfunction!(phase_table_eval, m)?)?;
+    m.add_function(wrap_pyfunction!(phase_table_sample, m)?)?;
     Ok(())
 }
