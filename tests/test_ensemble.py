@@ -118,3 +118,32 @@ def test_errors_name_the_argument():
         motes.Species("not a psd", 1.33)
     with pytest.raises(ValueError, match="theta"):
         motes.bulk_properties(sp, N0, 0.5, theta=[0.0, 0.2, 0.1])
+
+
+def test_forward_peak_truncation():
+    """Truncation removes exactly the clipped fraction F from sigma_s and sigma_t, keeps sigma_a, keeps the
+    phase function normalised, lowers g, and grows monotonically with the cone angle; theta_c = 0 is the
+    identity. It needs the phase function."""
+    sp = motes.Species(motes.LogNormal(800.0, 4.0), 1.31 + 1e-5j)
+    full = motes.bulk_properties(sp, N0, 0.55)
+    prev = 0.0
+    for theta_c in (0.0, 1e-4, 1e-3, 1e-2):
+        t = motes.bulk_properties(sp, N0, 0.55, truncate_below_rad=theta_c)
+        f = t["peak_fraction"][0]
+        assert f >= prev
+        prev = f
+        assert t["sigma_a"][0] == full["sigma_a"][0]
+        assert t["sigma_s"][0] == pytest.approx(full["sigma_s"][0] * (1 - f), rel=1e-12)
+        assert t["sigma_t"][0] == pytest.approx(full["sigma_t"][0] - full["sigma_s"][0] * f, rel=1e-12)
+        th = t["theta"]
+        assert abs(np.trapezoid(t["phase"][0] * 2 * np.pi * np.sin(th), th) - 1) < 1e-3
+        if theta_c == 0.0:
+            assert f == 0.0
+        else:
+            assert t["g"][0] < full["g"][0]
+    assert 0.3 < prev < 0.7  # large grains: about half of the scattering is diffraction
+    with pytest.raises(ValueError, match="phase"):
+        motes.bulk_properties(sp, N0, 0.55, phase=False, truncate_below_rad=1e-3)
+    with pytest.raises(ValueError, match="theta_c"):
+        motes.bulk_properties(sp, N0, 0.55, truncate_below_rad=-1.0)
+    assert motes.pixel_footprint_rad(40.0, 800) == pytest.approx(np.radians(40) / 800)

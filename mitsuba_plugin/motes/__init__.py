@@ -28,7 +28,7 @@ Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``U
 from __future__ import annotations
 
 from . import psd
-from .ensemble import PhaseTable, Species, bulk_properties
+from .ensemble import PhaseTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
@@ -48,6 +48,7 @@ __all__ = [
     "PhaseTable",
     "Species",
     "bulk_properties",
+    "pixel_footprint_rad",
     "Histogram",
     "LogNormal",
     "Mixture",

@@ -14,7 +14,16 @@
                     integral 1 over the sphere on that grid (Eq. 17)
 ``energy_ratio``    integral of the amplitudes' |S|^2 over the ensemble divided by its C_sca (a check:
                     1 for Mie up to grid error, slightly below 1 for GOA, which keeps p <= p_max)
+``peak_fraction``   with ``truncate_below_rad``: the fraction F of scattering folded into unscattered
+                    transmission (0 otherwise)
 ==================  ===================================================================================
+
+Forward-peak truncation (``truncate_below_rad=theta_c``, e.g. ``pixel_footprint_rad(fov, width)``):
+scattering by less than theta_c cannot be told from no scattering at the pixel's resolution, so the
+phase function is clipped at f(theta_c) inside the cone and the clipped fraction F is removed from
+sigma_s and sigma_t (sigma_a unchanged) — the delta-M scaling of atmospheric radiative transfer. It saves
+the scattering events spent in the diffraction peak of large grains; ``scripts/truncation_experiment.py``
+measures what it saves and what it changes.
 
 A ``Species`` is a particle material with a PSD: ``Species(psd, eta, share=1.0)``; ``eta`` is one complex
 index or one per wavelength; ``share`` is its share of the particle count. ``number_density_m3`` is the
@@ -56,9 +65,16 @@ class Species:
         return eta
 
 
+def pixel_footprint_rad(fov_deg: float, width_px: int) -> float:
+    """Angular size of one pixel (radians) of a camera with horizontal field of view ``fov_deg``."""
+    if not (0 < fov_deg < 180) or int(width_px) < 1:
+        raise ValueError("fov_deg must be in (0, 180) and width_px >= 1")
+    return float(np.radians(fov_deg) / int(width_px))
+
+
 def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium: float = 1.0, method="auto", *,
                     theta=None, phase: bool = True, max_log_step: float = 0.05, p_max: int = 3,
-                    hybrid_radius_um: float = HYBRID_RADIUS_UM) -> dict:
+                    hybrid_radius_um: float = HYBRID_RADIUS_UM, truncate_below_rad: float | None = None) -> dict:
     """Bulk coefficients and the ensemble phase function of a cloud of ``species`` (see module docs)."""
     if isinstance(species, Species):
         species = [species]
@@ -74,14 +90,17 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
         raise ValueError(f"invalid eta_medium = {eta_medium}: must be finite and > 0")
     eta = np.stack([s.index_at(lam.size) for s in species])
     th = np.zeros(0) if theta is None else np.ascontiguousarray(np.asarray(theta, dtype=np.float64).ravel())
-    st, ss, sa, g, ph, ratio, th = _motes.bulk_properties(
+    cut = 0.0 if truncate_below_rad is None else float(truncate_below_rad)
+    if truncate_below_rad is not None and not phase:
+        raise ValueError("truncate_below_rad needs phase=True (the peak is measured on the phase function)")
+    st, ss, sa, g, ph, ratio, th, frac = _motes.bulk_properties(
         [s.psd._json() for s in species], [float(s.share) for s in species],
         np.ascontiguousarray(eta.real.ravel()), np.ascontiguousarray(eta.imag.ravel()), lam,
         float(number_density_m3), float(eta_medium), _method(method), float(hybrid_radius_um), _p_max(p_max),
-        float(max_log_step), th, bool(phase))
+        float(max_log_step), th, bool(phase), cut)
     albedo = np.divide(ss, st, out=np.zeros_like(st), where=st > 0)
     return {"wavelength_um": lam, "sigma_t": st, "sigma_s": ss, "sigma_a": sa, "albedo": albedo, "g": g,
-            "theta": th, "phase": ph, "energy_ratio": ratio}
+            "theta": th, "phase": ph, "energy_ratio": ratio, "peak_fraction": frac}
 
 
 class PhaseTable:
@@ -112,4 +131,4 @@ class PhaseTable:
         return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
-__all__ = ["PhaseTable", "Species", "bulk_properties"]
+__all__ = ["PhaseTable", "Species", "bulk_properties", "pixel_footprint_rad"]

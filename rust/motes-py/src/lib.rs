@@ -224,7 +224,7 @@ fn psd_support(spec: &str) -> PyResult<((f64, f64), Vec<(f64, f64)>)> {
     Ok((d.support(), d.atoms()))
 }
 
-type BulkOut<'py> = (F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>, Bound<'py, numpy::PyArray2<f64>>, F64Out<'py>, F64Out<'py>);
+type BulkOut<'py> = (F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>, Bound<'py, numpy::PyArray2<f64>>, F64Out<'py>, F64Out<'py>, F64Out<'py>);
 
 /// Bulk properties (Eq. 16–17) per wavelength. `eta_re/eta_im` are (n_species × n_wavelengths), row-major.
 /// `theta` empty: the graded default grid (for the shortest wavelength's largest particle).
@@ -245,6 +245,7 @@ fn bulk_properties<'py>(
     max_log_step: f64,
     theta: F64In,
     with_phase: bool,
+    truncate_below_rad: f64,
 ) -> PyResult<BulkOut<'py>> {
     use motes_core::ensemble::{self, BulkOptions, Species};
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
@@ -278,15 +279,22 @@ fn bulk_properties<'py>(
                     .enumerate()
                     .map(|(i, p)| Species { psd: p.clone(), eta: C64::new(er[i * nl + j], ei[i * nl + j]), share: shares[i] })
                     .collect();
-                ensemble::bulk(&species, number_density_m3, l, eta_medium, &theta, &opts)
+                let b = ensemble::bulk(&species, number_density_m3, l, eta_medium, &theta, &opts)?;
+                if truncate_below_rad > 0.0 && !theta.is_empty() {
+                    ensemble::truncate_forward_peak(&b, &theta, truncate_below_rad)
+                } else {
+                    Ok((b, 0.0))
+                }
             })
             .collect::<Result<Vec<_>, _>>()
     })
     .map_err(to_py)?;
+    let fractions: Vec<f64> = results.iter().map(|(_, f)| *f).collect();
+    let results: Vec<ensemble::Bulk> = results.into_iter().map(|(b, _)| b).collect();
     let col = |f: fn(&ensemble::Bulk) -> f64| results.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
     let phase: Vec<Vec<f64>> = results.iter().map(|b| b.phase.clone()).collect();
     let phase = if theta.is_empty() { numpy::PyArray2::zeros(py, [nl, 0], false) } else { numpy::PyArray2::from_vec2(py, &phase)? };
-    Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), theta.into_pyarray(py)))
+    Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), theta.into_pyarray(py), fractions.into_pyarray(py)))
 }
 
 fn phase_table(theta: F64In, f: F64In) -> PyResult<motes_core::phase_table::PhaseTable> {
