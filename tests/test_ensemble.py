@@ -144,6 +144,6 @@ def test_forward_peak_truncation():
     assert 0.3 < prev < 0.7  # large grains: about half of the scattering is diffraction
     with pytest.raises(ValueError, match="phase"):
         motes.bulk_properties(sp, N0, 0.55, phase=False, truncate_below_rad=1e-3)
-    with pytest.raises(ValueError, match="theta_c"):
+    with pytest.raises(ValueError, match="truncate_below_rad"):
         motes.bulk_properties(sp, N0, 0.55, truncate_below_rad=-1.0)
     assert motes.pixel_footprint_rad(40.0, 800) == pytest.approx(np.radians(40) / 800)

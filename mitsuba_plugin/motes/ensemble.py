@@ -91,6 +91,8 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
     eta = np.stack([s.index_at(lam.size) for s in species])
     th = np.zeros(0) if theta is None else np.ascontiguousarray(np.asarray(theta, dtype=np.float64).ravel())
     cut = 0.0 if truncate_below_rad is None else float(truncate_below_rad)
+    if not (np.isfinite(cut) and 0.0 <= cut < np.pi):
+        raise ValueError(f"invalid truncate_below_rad = {truncate_below_rad}: must be in [0, pi)")
     if truncate_below_rad is not None and not phase:
         raise ValueError("truncate_below_rad needs phase=True (the peak is measured on the phase function)")
     st, ss, sa, g, ph, ratio, th, frac = _motes.bulk_properties(
