@@ -28,6 +28,7 @@ Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``U
 from __future__ import annotations
 
 from . import psd
+from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
 from .ensemble import PhaseTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
 from ._optics import (
@@ -49,6 +50,9 @@ __all__ = [
     "Species",
     "bulk_properties",
     "pixel_footprint_rad",
+    "homogeneous_equivalent",
+    "RGB_WAVELENGTHS_UM",
+    "SPECTRAL_WAVELENGTHS_UM",
     "Histogram",
     "LogNormal",
     "Mixture",

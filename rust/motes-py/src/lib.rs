@@ -325,6 +325,25 @@ fn phase_table_sample<'py>(py: Python<'py>, theta: F64In, f: F64In, u: F64In) ->
     Ok(out.into_pyarray(py))
 }
 
+/// Averages of a tabulated phase function over `n` equal bins of μ = cos θ from −1 to 1, as values at
+/// `n` evenly spaced nodes from μ = −1 (backward) to μ = 1 (forward) — Mitsuba `tabphase` order.
+#[pyfunction]
+fn phase_table_regular_mu<'py>(py: Python<'py>, theta: F64In, f: F64In, n: usize) -> PyResult<F64Out<'py>> {
+    let t = phase_table(theta, f)?;
+    if n < 2 {
+        return Err(PyValueError::new_err(format!("invalid n = {n}: must be >= 2")));
+    }
+    // Node i sits at μ_i = −1 + 2i/(n−1); it takes the average over its Voronoi cell in μ.
+    let h = 2.0 / (n - 1) as f64;
+    let out: Vec<f64> = (0..n)
+        .map(|i| {
+            let mu = -1.0 + h * i as f64;
+            t.average(mu - 0.5 * h, mu + 0.5 * h)
+        })
+        .collect();
+    Ok(out.into_pyarray(py))
+}
+
 #[pymodule]
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
@@ -342,5 +361,6 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(bulk_properties, m)?)?;
     m.add_function(wrap_pyfunction!(phase_table_eval, m)?)?;
     m.add_function(wrap_pyfunction!(phase_table_sample, m)?)?;
+    m.add_function(wrap_pyfunction!(phase_table_regular_mu, m)?)?;
     Ok(())
 }
