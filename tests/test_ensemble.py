@@ -147,3 +147,26 @@ def test_forward_peak_truncation():
     with pytest.raises(ValueError, match="truncate_below_rad"):
         motes.bulk_properties(sp, N0, 0.55, truncate_below_rad=-1.0)
     assert motes.pixel_footprint_rad(40.0, 800) == pytest.approx(np.radians(40) / 800)
+
+
+def test_materials_and_spectral_table():
+    """Tabulated ice and water indices (Warren & Brandt 2008, Hale & Querry 1973) reproduce their samples,
+    ice absorbs more in the red than the blue, and a SpectralTable returns its nodes exactly, interpolates
+    in between (bounded by its neighbours for sigma_t) and refuses wavelengths outside its range."""
+    ice, water = motes.Material("ice"), motes.Material("water")
+    assert ice.index(0.55)[0] == pytest.approx(1.3110 + 2.289e-9j, rel=1e-12)
+    assert water.index([0.4])[0] == pytest.approx(1.339 + 1.86e-9j, rel=1e-12)
+    assert ice.index(0.75)[0].imag > 10 * ice.index(0.45)[0].imag
+    with pytest.raises(ValueError, match="wavelength_um"):
+        ice.index(0.3)
+    with pytest.raises(ValueError, match="material"):
+        motes.Material("glass")
+    sp = motes.Species(motes.LogNormal(20.0, 2.0), ice)
+    table = motes.SpectralTable(sp, N0, [0.4, 0.5, 0.6, 0.7], phase=False)
+    nodes = table.at([0.4, 0.6])
+    np.testing.assert_array_equal(nodes["sigma_t"], table.bulk["sigma_t"][[0, 2]])
+    mid = table.at(0.55)["sigma_t"][0]
+    lo, hi = sorted(table.bulk["sigma_t"][1:3])
+    assert lo <= mid <= hi
+    with pytest.raises(ValueError, match="range"):
+        table.at(0.8)

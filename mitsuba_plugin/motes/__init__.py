@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from . import psd
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
-from .ensemble import PhaseTable, Species, bulk_properties, pixel_footprint_rad
+from .ensemble import Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
@@ -46,7 +46,9 @@ from ._optics import (
 
 __all__ = [
     "psd",
+    "Material",
     "PhaseTable",
+    "SpectralTable",
     "Species",
     "bulk_properties",
     "pixel_footprint_rad",

@@ -43,9 +43,28 @@ from .psd import Psd
 
 
 @dataclass(frozen=True)
+class Material:
+    """A tabulated particle material: ``Material("ice")`` (Warren & Brandt 2008, -7 C) or
+    ``Material("water")`` (Hale & Querry 1973, 25 C), 0.35-0.85 um; see ``rust/motes-core/src/materials.rs``."""
+
+    name: str
+
+    def __post_init__(self) -> None:
+        self.index([0.55])
+
+    def index(self, wavelength_um) -> np.ndarray:
+        """Complex refractive index n + i kappa at the wavelengths (um)."""
+        lam = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+        return _motes.material_index(self.name, np.ascontiguousarray(lam.ravel())).reshape(lam.shape)
+
+
+@dataclass(frozen=True)
 class Species:
+    """A particle species: a PSD and a refractive index — one complex value, one per wavelength, or a
+    tabulated ``Material`` — and its share of the particle count."""
+
     psd: Psd
-    eta: complex | Sequence[complex]
+    eta: complex | Sequence[complex] | Material
     share: float = 1.0
     name: str = ""
 
@@ -55,7 +74,11 @@ class Species:
         if not (np.isfinite(self.share) and self.share >= 0):
             raise ValueError(f"invalid share = {self.share}: must be finite and >= 0")
 
-    def index_at(self, n_wavelengths: int) -> np.ndarray:
+    def index_at(self, wavelength_um) -> np.ndarray:
+        lam = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+        n_wavelengths = lam.size
+        if isinstance(self.eta, Material):
+            return self.eta.index(lam)
         eta = np.atleast_1d(np.asarray(self.eta, dtype=np.complex128))
         if eta.ndim != 1 or eta.size not in (1, n_wavelengths):
             raise ValueError(f"Species {self.name or ''} eta must be one value or one per wavelength ({n_wavelengths}), got shape {eta.shape}")
@@ -88,7 +111,7 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
         raise ValueError(f"invalid number_density_m3 = {number_density_m3}: must be finite and >= 0")
     if not (np.isfinite(eta_medium) and eta_medium > 0):
         raise ValueError(f"invalid eta_medium = {eta_medium}: must be finite and > 0")
-    eta = np.stack([s.index_at(lam.size) for s in species])
+    eta = np.stack([s.index_at(lam) for s in species])
     th = np.zeros(0) if theta is None else np.ascontiguousarray(np.asarray(theta, dtype=np.float64).ravel())
     cut = 0.0 if truncate_below_rad is None else float(truncate_below_rad)
     if not (np.isfinite(cut) and 0.0 <= cut < np.pi):
@@ -103,6 +126,39 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
     albedo = np.divide(ss, st, out=np.zeros_like(st), where=st > 0)
     return {"wavelength_um": lam, "sigma_t": st, "sigma_s": ss, "sigma_a": sa, "albedo": albedo, "g": g,
             "theta": th, "phase": ph, "energy_ratio": ratio, "peak_fraction": frac}
+
+
+class SpectralTable:
+    """Bulk properties tabulated at a few wavelengths (>= 2; the paper uses 8 over the visible) and
+    interpolated linearly in wavelength at any wavelength inside the tabulated range — what a spectral
+    renderer needs per sampled wavelength. ``scripts/spectral_interpolation.py`` measures the error.
+
+    ``SpectralTable(species, number_density_m3, wavelength_um=SPECTRAL_WAVELENGTHS_UM, **bulk_kwargs)``"""
+
+    def __init__(self, species, number_density_m3: float, wavelength_um=None, **kwargs):
+        if wavelength_um is None:
+            wavelength_um = np.linspace(0.36, 0.83, 8)
+        lam = np.sort(np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64)))
+        if lam.size < 2 or np.any(np.diff(lam) <= 0):
+            raise ValueError("wavelength_um must hold at least 2 distinct wavelengths")
+        self.bulk = bulk_properties(species, number_density_m3, lam, **kwargs)
+        self.wavelength_um = lam
+
+    def at(self, wavelength_um) -> dict:
+        """sigma_t, sigma_s, sigma_a (1/m), albedo, g and phase (n, n_theta) at the given wavelengths."""
+        q = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+        lo, hi = self.wavelength_um[0], self.wavelength_um[-1]
+        if np.any(~np.isfinite(q)) or np.any(q < lo) or np.any(q > hi):
+            raise ValueError(f"wavelength_um must lie in the tabulated range [{lo}, {hi}] um")
+        out = {k: np.interp(q, self.wavelength_um, self.bulk[k]) for k in ("sigma_t", "sigma_s", "sigma_a", "g")}
+        out["albedo"] = np.divide(out["sigma_s"], out["sigma_t"], out=np.zeros_like(q), where=out["sigma_t"] > 0)
+        if self.bulk["phase"].size:
+            i = np.clip(np.searchsorted(self.wavelength_um, q) - 1, 0, self.wavelength_um.size - 2)
+            w = (q - self.wavelength_um[i]) / (self.wavelength_um[i + 1] - self.wavelength_um[i])
+            out["phase"] = (1 - w)[:, None] * self.bulk["phase"][i] + w[:, None] * self.bulk["phase"][i + 1]
+            out["theta"] = self.bulk["theta"]
+        out["wavelength_um"] = q
+        return out
 
 
 class PhaseTable:
@@ -133,4 +189,4 @@ class PhaseTable:
         return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
-__all__ = ["PhaseTable", "Species", "bulk_properties", "pixel_footprint_rad"]
+__all__ = ["Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]

@@ -344,6 +344,14 @@ fn phase_table_regular_mu<'py>(py: Python<'py>, theta: F64In, f: F64In, n: usize
     Ok(out.into_pyarray(py))
 }
 
+/// Complex refractive index of a tabulated material ("ice", "water") at wavelengths (µm).
+#[pyfunction]
+fn material_index<'py>(py: Python<'py>, name: &str, wavelength_um: F64In) -> PyResult<Bound<'py, PyArray1<C64>>> {
+    let m = motes_core::materials::Material::parse(name).map_err(to_py)?;
+    let out = wavelength_um.as_array().iter().map(|&l| m.index(l)).collect::<Result<Vec<_>, _>>().map_err(to_py)?;
+    Ok(out.into_pyarray(py))
+}
+
 #[pymodule]
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
@@ -362,5 +370,6 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(phase_table_eval, m)?)?;
     m.add_function(wrap_pyfunction!(phase_table_sample, m)?)?;
     m.add_function(wrap_pyfunction!(phase_table_regular_mu, m)?)?;
+    m.add_function(wrap_pyfunction!(material_index, m)?)?;
     Ok(())
 }
