@@ -14,7 +14,13 @@ from __future__ import annotations
 
 import math
 
+import os
+import tempfile
+
 import numpy as np
+
+# Tests never touch the user's cache: a fresh one per test session.
+os.environ["MOTES_CACHE_DIR"] = tempfile.mkdtemp(prefix="motes-test-cache-")
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 

@@ -170,3 +170,27 @@ def test_materials_and_spectral_table():
     assert lo <= mid <= hi
     with pytest.raises(ValueError, match="range"):
         table.at(0.8)
+
+
+def test_disk_cache(tmp_path, monkeypatch):
+    """A second identical call is served from disk with identical arrays; any changed parameter misses;
+    a damaged cache file is rebuilt, not an error; cache=False and MOTES_CACHE_DIR="" bypass it."""
+    monkeypatch.setenv("MOTES_CACHE_DIR", str(tmp_path))
+    sp = motes.Species(motes.LogNormal(30.0, 2.0), 1.31)
+    a = motes.bulk_properties(sp, N0, [0.5, 0.6])
+    files = list(tmp_path.glob("bulk-*.npz"))
+    assert len(files) == 1
+    b = motes.bulk_properties(sp, N0, [0.5, 0.6])
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    motes.bulk_properties(sp, N0, [0.5, 0.61])
+    motes.bulk_properties(motes.Species(motes.LogNormal(30.0, 2.0), 1.32), N0, [0.5, 0.6])
+    motes.bulk_properties(sp, N0, [0.5, 0.6], truncate_below_rad=1e-3)
+    assert len(list(tmp_path.glob("bulk-*.npz"))) == 4
+    files[0].write_bytes(b"not an npz")
+    c = motes.bulk_properties(sp, N0, [0.5, 0.6])
+    np.testing.assert_array_equal(a["sigma_t"], c["sigma_t"])
+    monkeypatch.setenv("MOTES_CACHE_DIR", "")
+    assert motes.ensemble.cache_dir() is None
+    motes.bulk_properties(sp, N0, [0.45])
+    assert len(list(tmp_path.glob("bulk-*.npz"))) == 4

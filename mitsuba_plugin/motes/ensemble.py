@@ -32,6 +32,11 @@ total particle count per cubic metre.
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+import pathlib
+import tempfile
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -95,10 +100,53 @@ def pixel_footprint_rad(fov_deg: float, width_px: int) -> float:
     return float(np.radians(fov_deg) / int(width_px))
 
 
+_CACHE_FORMAT = 1
+_KEYS = ("wavelength_um", "sigma_t", "sigma_s", "sigma_a", "albedo", "g", "theta", "phase", "energy_ratio", "peak_fraction")
+
+
+def cache_dir() -> pathlib.Path | None:
+    """Where ``bulk_properties`` caches its tables: ``$MOTES_CACHE_DIR``, else ``~/.cache/motes``;
+    ``MOTES_CACHE_DIR=""`` disables the cache."""
+    env = os.environ.get("MOTES_CACHE_DIR")
+    if env is not None:
+        return pathlib.Path(env) if env else None
+    return pathlib.Path.home() / ".cache" / "motes"
+
+
+def _cache_key(payload: dict) -> str:
+    from . import __version__  # noqa: PLC0415
+
+    text = json.dumps({"format": _CACHE_FORMAT, "version": __version__, **payload}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _cache_load(path: pathlib.Path) -> dict | None:
+    try:
+        with np.load(path) as z:
+            return {k: z[k] for k in _KEYS}
+    except (OSError, ValueError, KeyError, EOFError):
+        return None  # missing or damaged entry: recompute (and overwrite)
+
+
+def _cache_store(path: pathlib.Path, result: dict) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **{k: result[k] for k in _KEYS})
+        os.replace(tmp, path)  # atomic: readers never see a half-written table
+    except OSError:
+        pass  # a read-only or full disk only costs the rebuild next time
+
+
 def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium: float = 1.0, method="auto", *,
                     theta=None, phase: bool = True, max_log_step: float = 0.05, p_max: int = 3,
-                    hybrid_radius_um: float = HYBRID_RADIUS_UM, truncate_below_rad: float | None = None) -> dict:
-    """Bulk coefficients and the ensemble phase function of a cloud of ``species`` (see module docs)."""
+                    hybrid_radius_um: float = HYBRID_RADIUS_UM, truncate_below_rad: float | None = None,
+                    cache: bool = True) -> dict:
+    """Bulk coefficients and the ensemble phase function of a cloud of ``species`` (see module docs).
+
+    Results are cached on disk (``cache_dir()``), keyed by every argument, each species' PSD spec and
+    refractive index at each wavelength, and the package version; ``cache=False`` bypasses the cache."""
     if isinstance(species, Species):
         species = [species]
     species = list(species)
@@ -118,14 +166,29 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
         raise ValueError(f"invalid truncate_below_rad = {truncate_below_rad}: must be in [0, pi)")
     if truncate_below_rad is not None and not phase:
         raise ValueError("truncate_below_rad needs phase=True (the peak is measured on the phase function)")
+    payload = {
+        "species": [[s.psd.spec(), [[float(e.real), float(e.imag)] for e in row], float(s.share)] for s, row in zip(species, eta)],
+        "n0": float(number_density_m3), "lam": lam.tolist(), "eta_medium": float(eta_medium), "method": str(method),
+        "theta": th.tolist(), "phase": bool(phase), "max_log_step": float(max_log_step), "p_max": int(p_max),
+        "hybrid_radius_um": float(hybrid_radius_um), "truncate": cut,
+    }
+    where = cache_dir() if cache else None
+    path = where / f"bulk-{_cache_key(payload)}.npz" if where is not None else None
+    if path is not None and path.exists():
+        hit = _cache_load(path)
+        if hit is not None:
+            return hit
     st, ss, sa, g, ph, ratio, th, frac = _motes.bulk_properties(
         [s.psd._json() for s in species], [float(s.share) for s in species],
         np.ascontiguousarray(eta.real.ravel()), np.ascontiguousarray(eta.imag.ravel()), lam,
         float(number_density_m3), float(eta_medium), _method(method), float(hybrid_radius_um), _p_max(p_max),
         float(max_log_step), th, bool(phase), cut)
     albedo = np.divide(ss, st, out=np.zeros_like(st), where=st > 0)
-    return {"wavelength_um": lam, "sigma_t": st, "sigma_s": ss, "sigma_a": sa, "albedo": albedo, "g": g,
-            "theta": th, "phase": ph, "energy_ratio": ratio, "peak_fraction": frac}
+    result = {"wavelength_um": lam, "sigma_t": st, "sigma_s": ss, "sigma_a": sa, "albedo": albedo, "g": g,
+              "theta": th, "phase": ph, "energy_ratio": ratio, "peak_fraction": frac}
+    if path is not None:
+        _cache_store(path, result)
+    return result
 
 
 class SpectralTable:
@@ -189,4 +252,4 @@ class PhaseTable:
         return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
-__all__ = ["Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]
+__all__ = ["cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]
