@@ -37,6 +37,10 @@ pub struct BulkOptions {
     pub goa: GoaOptions,
     /// Largest quadrature panel in ln r (see `Psd::quadrature`).
     pub max_log_step: f64,
+    /// Relative accuracy the tabulated phase function must reach between its nodes (0: no refinement).
+    pub refine_tol: f64,
+    /// Cap on the number of angles after refinement.
+    pub refine_max_nodes: usize,
 }
 
 /// Bulk properties at one wavelength.
@@ -53,6 +57,8 @@ pub struct Bulk {
     /// ∫ (|S1|²+|S2|²)/(2k²) dΩ over the ensemble divided by its C_sca (1 for exact Mie up to the grid's
     /// quadrature error; GOA amplitudes carry slightly less energy than Eq. 12's C_sca, p > p_max).
     pub energy_ratio: f64,
+    /// The angle grid of `phase` (the input grid, refined where needed).
+    pub theta: Vec<f64>,
 }
 
 /// The graded angle grid: 0, `n_forward` log-spaced angles from `0.01/alpha_max` to 0.1 rad, then
@@ -111,40 +117,118 @@ pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta
             }
         }
     }
-    let n_theta = theta.len();
-    let zero = || (0.0, 0.0, vec![0.0; n_theta]);
-    let (ext, abs, intensity) = nodes
+    let (ext, abs) = nodes
         .par_iter()
         .map(|(p, w)| {
-            let theory = opts.method.theory(p, opts.goa.p_max);
-            let (ce, ca) = optics::extinction_and_absorption(p, theory, &opts.goa);
-            let mut inten = vec![0.0; n_theta];
-            if n_theta > 0 {
-                let geo = (theory == Theory::Goa).then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
-                let k2 = p.k() * p.k();
-                for (v, (s1, s2)) in inten.iter_mut().zip(optics::particle_amplitudes(p, theory, geo.as_deref(), theta, &opts.goa)) {
-                    *v = w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2);
-                }
-            }
-            (w * ce, w * ca, inten)
+            let (ce, ca) = optics::extinction_and_absorption(p, opts.method.theory(p, opts.goa.p_max), &opts.goa);
+            (w * ce, w * ca)
         })
-        .reduce(zero, |a, b| (a.0 + b.0, a.1 + b.1, a.2.iter().zip(&b.2).map(|(x, y)| x + y).collect()));
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let (theta, intensity) = if theta.is_empty() {
+        (Vec::new(), Vec::new())
+    } else {
+        let base = intensity_at(&nodes, theta, opts);
+        refine(&nodes, theta.to_vec(), base, opts)
+    };
+    let n_theta = theta.len();
     // µm² × m⁻³ → m⁻¹.
     let (sigma_t, sigma_a) = (ext * 1e-12, abs * 1e-12);
     let sigma_s = (sigma_t - sigma_a).max(0.0);
     let (mut phase, mut g, mut energy_ratio) = (Vec::new(), 0.0, 0.0);
     if n_theta > 0 {
-        let wts = solid_angle_weights(theta);
+        let wts = solid_angle_weights(&theta);
         let total: f64 = intensity.iter().zip(&wts).map(|(i, w)| i * w).sum();
         if total > 0.0 {
             phase = intensity.iter().map(|i| i / total).collect();
-            g = phase.iter().zip(&wts).zip(theta).map(|((f, w), t)| f * w * t.cos()).sum();
+            g = phase.iter().zip(&wts).zip(&theta).map(|((f, w), t)| f * w * t.cos()).sum();
         } else {
             phase = vec![1.0 / (4.0 * PI); n_theta];
         }
         energy_ratio = if sigma_s > 0.0 { total * 1e-12 / sigma_s } else { 0.0 };
     }
-    Ok(Bulk { sigma_t, sigma_s, sigma_a, g, phase, energy_ratio })
+    Ok(Bulk { sigma_t, sigma_s, sigma_a, g, phase, energy_ratio, theta })
+}
+
+/// `Σ w (|S1|²+|S2|²)/(2k²)` over the (species, radius) nodes at each angle.
+fn intensity_at(nodes: &[(Particle, f64)], theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
+    let n = theta.len();
+    nodes
+        .par_iter()
+        .map(|(p, w)| {
+            let theory = opts.method.theory(p, opts.goa.p_max);
+            let geo = (theory == Theory::Goa).then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
+            let k2 = p.k() * p.k();
+            optics::particle_amplitudes(p, theory, geo.as_deref(), theta, &opts.goa)
+                .into_iter()
+                .map(|(s1, s2)| w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2))
+                .collect::<Vec<f64>>()
+        })
+        .reduce(|| vec![0.0; n], |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect())
+}
+
+/// Adaptive refinement of the angle grid (when `opts.refine_tol > 0`): the table is piecewise linear in
+/// μ = cos θ, so at the μ-midpoint of an interval it predicts the mean of the two ends. Every interval's
+/// midpoint is evaluated and inserted where the table would be off by more
+/// than `refine_tol` (relative) and f > 1e-6 max, or where the misprediction moves more than 1e-5 of the
+/// total probability. Repeats on the new intervals, up to `refine_max_nodes`.
+/// The result stays a piecewise-linear table, so sampling remains exactly consistent with evaluation.
+fn refine(nodes: &[(Particle, f64)], mut theta: Vec<f64>, mut inten: Vec<f64>, opts: &BulkOptions) -> (Vec<f64>, Vec<f64>) {
+    if opts.refine_tol <= 0.0 {
+        return (theta, inten);
+    }
+    let fmax = inten.iter().cloned().fold(0.0, f64::max);
+    let floor = 1e-6 * fmax;
+    let mu = |t: f64| t.cos();
+    // Second criterion: an interval whose misprediction moves more than MASS_TOL of the total
+    // probability is refined too, wherever f is (keeps the normalisation right when fine fringes
+    // below the 1e-6 floor carry much of the energy, e.g. a single millimetre grain).
+    const MASS_TOL: f64 = 1e-5;
+    let total: f64 = inten.iter().zip(solid_angle_weights(&theta)).map(|(f, w)| f * w).sum();
+    let mass_floor = MASS_TOL * total;
+    // First pass: every interval is a candidate (a feature may lie entirely between two nodes, where
+    // no curvature test on the nodes can see it); later passes only the halves of refined intervals.
+    let mut candidates: Vec<usize> = (0..theta.len() - 1).collect();
+    for _pass in 0..40 {
+        if candidates.is_empty() || theta.len() >= opts.refine_max_nodes {
+            break;
+        }
+        candidates.truncate(opts.refine_max_nodes - theta.len());
+        let mids: Vec<f64> = candidates.iter().map(|&i| ((mu(theta[i]) + mu(theta[i + 1])) * 0.5).clamp(-1.0, 1.0).acos()).collect();
+        let vals = intensity_at(nodes, &mids, opts);
+        // Insert where the linear table is off; the new intervals on both sides become candidates.
+        let mut inserts: Vec<(usize, f64, f64)> = Vec::new();
+        for ((&i, &t), &v) in candidates.iter().zip(&mids).zip(&vals) {
+            let predicted = 0.5 * (inten[i] + inten[i + 1]);
+            let relative = v.max(predicted) > floor && (predicted - v).abs() > opts.refine_tol * v.max(floor);
+            let mass = (predicted - v).abs() * 2.0 * PI * (mu(theta[i]) - mu(theta[i + 1])).abs() > mass_floor;
+            if (relative || mass) && t > theta[i] && t < theta[i + 1] {
+                inserts.push((i, t, v));
+            }
+        }
+        if inserts.is_empty() {
+            break;
+        }
+        let mut new_theta = Vec::with_capacity(theta.len() + inserts.len());
+        let mut new_inten = Vec::with_capacity(theta.len() + inserts.len());
+        let mut next = Vec::with_capacity(2 * inserts.len());
+        let mut k = 0;
+        for i in 0..theta.len() {
+            new_theta.push(theta[i]);
+            new_inten.push(inten[i]);
+            if k < inserts.len() && inserts[k].0 == i {
+                let j = new_theta.len() - 1;
+                new_theta.push(inserts[k].1);
+                new_inten.push(inserts[k].2);
+                next.push(j);
+                next.push(j + 1);
+                k += 1;
+            }
+        }
+        theta = new_theta;
+        inten = new_inten;
+        candidates = next;
+    }
+    (theta, inten)
 }
 
 /// Forward-peak truncation (the delta-M idea of atmospheric radiative transfer): scattering by less than
@@ -170,7 +254,7 @@ pub fn truncate_forward_peak(b: &Bulk, theta: &[f64], theta_c: f64) -> Result<(B
     let g = phase.iter().zip(&wts).zip(theta).map(|((f, w), t)| f * w * t.cos()).sum();
     let removed = b.sigma_s * fraction;
     Ok((
-        Bulk { sigma_t: b.sigma_t - removed, sigma_s: b.sigma_s - removed, sigma_a: b.sigma_a, g, phase, energy_ratio: b.energy_ratio },
+        Bulk { sigma_t: b.sigma_t - removed, sigma_s: b.sigma_s - removed, sigma_a: b.sigma_a, g, phase, energy_ratio: b.energy_ratio, theta: theta.to_vec() },
         fraction,
     ))
 }
@@ -180,7 +264,7 @@ mod tests {
     use super::*;
 
     fn opts(method: Method) -> BulkOptions {
-        BulkOptions { method, goa: GoaOptions::default(), max_log_step: 0.05 }
+        BulkOptions { method, goa: GoaOptions::default(), max_log_step: 0.05, refine_tol: 0.0, refine_max_nodes: 0 }
     }
 
     /// The monodisperse limit equals the single-particle values exactly: σ_t = N0 C_t.

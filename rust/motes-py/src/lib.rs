@@ -224,6 +224,19 @@ fn psd_support(spec: &str) -> PyResult<((f64, f64), Vec<(f64, f64)>)> {
     Ok((d.support(), d.atoms()))
 }
 
+/// Linear-in-μ interpolation of (theta, f) onto `target` (both increasing in θ).
+fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
+    target
+        .iter()
+        .map(|&t| {
+            let i = theta.partition_point(|&x| x <= t).clamp(1, theta.len() - 1);
+            let (m0, m1, m) = (theta[i - 1].cos(), theta[i].cos(), t.cos());
+            let w = if m1 != m0 { ((m - m0) / (m1 - m0)).clamp(0.0, 1.0) } else { 0.0 };
+            f[i - 1] + w * (f[i] - f[i - 1])
+        })
+        .collect()
+}
+
 type BulkOut<'py> = (F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>, Bound<'py, numpy::PyArray2<f64>>, F64Out<'py>, F64Out<'py>, F64Out<'py>);
 
 /// Bulk properties (Eq. 16–17) per wavelength. `eta_re/eta_im` are (n_species × n_wavelengths), row-major.
@@ -246,6 +259,8 @@ fn bulk_properties<'py>(
     theta: F64In,
     with_phase: bool,
     truncate_below_rad: f64,
+    refine_tol: f64,
+    refine_max_nodes: usize,
 ) -> PyResult<BulkOut<'py>> {
     use motes_core::ensemble::{self, BulkOptions, Species};
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
@@ -269,7 +284,8 @@ fn bulk_properties<'py>(
     if !with_phase {
         theta.clear();
     }
-    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step };
+    motes_core::error::require("refine_tol", refine_tol, refine_tol.is_finite() && refine_tol >= 0.0, "finite and >= 0").map_err(to_py)?;
+    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step, refine_tol, refine_max_nodes };
     let results = py.detach(|| {
         lam.iter()
             .enumerate()
@@ -281,7 +297,8 @@ fn bulk_properties<'py>(
                     .collect();
                 let b = ensemble::bulk(&species, number_density_m3, l, eta_medium, &theta, &opts)?;
                 if truncate_below_rad > 0.0 && !theta.is_empty() {
-                    ensemble::truncate_forward_peak(&b, &theta, truncate_below_rad)
+                    let grid = b.theta.clone();
+                    ensemble::truncate_forward_peak(&b, &grid, truncate_below_rad)
                 } else {
                     Ok((b, 0.0))
                 }
@@ -292,7 +309,20 @@ fn bulk_properties<'py>(
     let fractions: Vec<f64> = results.iter().map(|(_, f)| *f).collect();
     let results: Vec<ensemble::Bulk> = results.into_iter().map(|(b, _)| b).collect();
     let col = |f: fn(&ensemble::Bulk) -> f64| results.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
-    let phase: Vec<Vec<f64>> = results.iter().map(|b| b.phase.clone()).collect();
+    // Refinement may give each wavelength its own grid: resample all onto the union grid (linear in μ,
+    // exact at every wavelength's own nodes only where it refined; the union is at least as fine).
+    let theta: Vec<f64> = if results.iter().all(|b| b.theta == results[0].theta) || results.is_empty() {
+        results.first().map(|b| b.theta.clone()).unwrap_or_default()
+    } else {
+        let mut u: Vec<f64> = results.iter().flat_map(|b| b.theta.iter().copied()).collect();
+        u.sort_by(f64::total_cmp);
+        u.dedup();
+        u
+    };
+    let phase: Vec<Vec<f64>> = results
+        .iter()
+        .map(|b| if b.theta == theta { b.phase.clone() } else { resample_linear_mu(&b.theta, &b.phase, &theta) })
+        .collect();
     let phase = if theta.is_empty() { numpy::PyArray2::zeros(py, [nl, 0], false) } else { numpy::PyArray2::from_vec2(py, &phase)? };
     Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), theta.into_pyarray(py), fractions.into_pyarray(py)))
 }
