@@ -194,3 +194,20 @@ def test_disk_cache(tmp_path, monkeypatch):
     assert motes.ensemble.cache_dir() is None
     motes.bulk_properties(sp, N0, [0.45])
     assert len(list(tmp_path.glob("bulk-*.npz"))) == 4
+
+
+def test_explicit_radius_lists():
+    """Bulk properties from an explicit list of radii equal the sum over those particles (the monodisperse
+    values averaged); empty and one-particle lists raise errors saying what to do."""
+    radii = [5.0, 20.0, 20.0, 80.0]
+    b = motes.bulk_properties(motes.Species(motes.Radii(radii), 1.33), N0, 0.55, phase=False)
+    cs = motes.cross_sections(np.array(radii), 0.55, 1.33, asymmetry=False)
+    assert b["sigma_t"][0] == pytest.approx(N0 * cs["ext"].mean() * 1e-12, rel=1e-12)
+    assert motes.Radii(radii).atoms() == [(5.0, 0.25), (20.0, 0.5), (80.0, 0.25)]
+    assert set(motes.Radii(radii).sample(1000, seed=1)) == {5.0, 20.0, 80.0}
+    with pytest.raises(ValueError, match="radii_um.*>= 2"):
+        motes.Radii([])
+    with pytest.raises(ValueError, match="Monodisperse"):
+        motes.Radii([10.0])
+    with pytest.raises(ValueError, match="radii_um"):
+        motes.Radii([10.0, -1.0])

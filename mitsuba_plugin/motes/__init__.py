@@ -30,7 +30,7 @@ from __future__ import annotations
 from . import psd
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
 from .ensemble import Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
-from .psd import Histogram, LogNormal, Mixture, Monodisperse, Uniform
+from .psd import Histogram, LogNormal, Mixture, Monodisperse, Radii, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
     AXIAL_CAUSTIC_WINDOW,
@@ -59,6 +59,7 @@ __all__ = [
     "LogNormal",
     "Mixture",
     "Monodisperse",
+    "Radii",
     "Uniform",
     "AUTO_SIZE_PARAMETER",
     "AXIAL_CAUSTIC_WINDOW",

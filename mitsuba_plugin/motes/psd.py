@@ -7,6 +7,8 @@
 ``Monodisperse``    every particle of ``radius_um``
 ``Uniform``         uniform in r on ``[r_min_um, r_max_um]`` (the paper's Fig. 8)
 ``Histogram``       ``counts[i]`` particles spread evenly over ``[edges_um[i], edges_um[i+1]]``
+``Radii``           an explicit list of particle radii (e.g. from a simulation), one particle each;
+                    at least two (one radius is ``Monodisperse``)
 ``Mixture``         number-weighted mixture, e.g. the bimodal snow of Fig. 19:
                     ``Mixture([(0.995, LogNormal(100, 1)), (0.005, LogNormal(800, 2))])``
 ==================  ======================================================================================
@@ -135,6 +137,14 @@ class Histogram(Psd):
 
 
 @dataclass(frozen=True)
+class Radii(Psd):
+    radii_um: Sequence[float]
+
+    def spec(self) -> dict:
+        return {"type": "radii", "radii_um": [float(r) for r in np.asarray(self.radii_um, dtype=np.float64).ravel()]}
+
+
+@dataclass(frozen=True)
 class Mixture(Psd):
     """``components`` is a sequence of ``(number_share, Psd)``; shares need not sum to 1."""
 
@@ -148,4 +158,4 @@ class Mixture(Psd):
                 "components": [c.spec() for _, c in self.components]}
 
 
-__all__ = ["Psd", "LogNormal", "Monodisperse", "Uniform", "Histogram", "Mixture"]
+__all__ = ["Psd", "LogNormal", "Monodisperse", "Uniform", "Histogram", "Radii", "Mixture"]

@@ -49,6 +49,9 @@ pub enum Psd {
     /// Number-weighted mixture (e.g. the bimodal snow of Fig. 19): `weights[i]` is the share of
     /// particles in `components[i]`.
     Mixture { weights: Vec<f64>, components: Vec<Psd> },
+    /// An explicit list of particle radii (e.g. from a simulation), each one particle (an atom of mass
+    /// 1/n). At least two radii: one radius is `Monodisperse`.
+    Radii { radii_um: Vec<f64> },
 }
 
 fn std_normal() -> Normal {
@@ -105,6 +108,13 @@ impl Psd {
                 }
                 require("counts (sum)", counts.iter().sum(), counts.iter().sum::<f64>() > 0.0, "> 0")
             }
+            Psd::Radii { radii_um } => {
+                require("radii_um (length)", radii_um.len() as f64, radii_um.len() >= 2, ">= 2 (an empty list has no particles; for one radius use Monodisperse)")?;
+                for &r in radii_um {
+                    pos("radii_um", r)?;
+                }
+                Ok(())
+            }
             Psd::Mixture { weights, components } => {
                 require("components (length)", components.len() as f64, !components.is_empty(), ">= 1")?;
                 require("weights (length)", weights.len() as f64, weights.len() == components.len(), "len(components)")?;
@@ -151,6 +161,7 @@ impl Psd {
                 let last = counts.iter().rposition(|&c| c > 0.0).unwrap_or(counts.len() - 1);
                 (edges_um[first], edges_um[last + 1])
             }
+            Psd::Radii { radii_um } => radii_um.iter().fold((f64::INFINITY, 0.0), |a, &r| (a.0.min(r), a.1.max(r))),
             Psd::Mixture { weights, components } => components
                 .iter()
                 .zip(weights)
@@ -188,6 +199,7 @@ impl Psd {
                 }
                 acc / total
             }
+            Psd::Radii { radii_um } => radii_um.iter().filter(|&&x| x <= r).count() as f64 / radii_um.len() as f64,
             Psd::Mixture { weights, components } => {
                 let total: f64 = weights.iter().sum();
                 components.iter().zip(weights).map(|(c, w)| w * c.cdf(r)).sum::<f64>() / total
@@ -202,7 +214,7 @@ impl Psd {
             return 0.0;
         }
         match self {
-            Psd::Monodisperse { .. } => 0.0,
+            Psd::Monodisperse { .. } | Psd::Radii { .. } => 0.0,
             Psd::LogNormal { sigma_g, .. } if *sigma_g == 1.0 => 0.0,
             Psd::LogNormal { median_um, sigma_g, .. } => {
                 // Eq. 15 divided by N0 and by the mass kept by the truncation.
@@ -228,6 +240,7 @@ impl Psd {
         match self {
             Psd::Monodisperse { radius_um } => vec![(*radius_um, 1.0)],
             Psd::LogNormal { median_um, sigma_g, .. } if *sigma_g == 1.0 => vec![(*median_um, 1.0)],
+            Psd::Radii { .. } => self.radii_atoms(),
             Psd::Mixture { weights, components } => {
                 let total: f64 = weights.iter().sum();
                 components.iter().zip(weights).flat_map(|(c, w)| c.atoms().into_iter().map(move |(r, m)| (r, m * w / total))).collect()
@@ -261,6 +274,12 @@ impl Psd {
                     acc += c;
                 }
                 self.support().1
+            }
+            Psd::Radii { radii_um } => {
+                let mut r = radii_um.clone();
+                r.sort_by(f64::total_cmp);
+                let k = ((u * r.len() as f64).ceil() as usize).clamp(1, r.len());
+                r[k - 1]
             }
             Psd::Mixture { .. } => {
                 let (mut a, mut b) = self.support();
@@ -297,8 +316,25 @@ impl Psd {
                 let last = components.iter().zip(weights).rfind(|(_, w)| **w > 0.0).map(|(c, _)| c).unwrap();
                 last.draw(0.5, u)
             }
+            Psd::Radii { radii_um } => radii_um[((u * radii_um.len() as f64) as usize).min(radii_um.len() - 1)],
             _ => self.quantile(u),
         }
+    }
+
+    /// Equal-mass atoms of an explicit radius list, equal radii merged.
+    fn radii_atoms(&self) -> Vec<(f64, f64)> {
+        let Psd::Radii { radii_um } = self else { return Vec::new() };
+        let mut r = radii_um.clone();
+        r.sort_by(f64::total_cmp);
+        let m = 1.0 / r.len() as f64;
+        let mut out: Vec<(f64, f64)> = Vec::new();
+        for x in r {
+            match out.last_mut() {
+                Some(last) if last.0 == x => last.1 += m,
+                _ => out.push((x, m)),
+            }
+        }
+        out
     }
 
     /// `n` radii, reproducible from `seed` whatever the number of threads: chunk k of 65536 radii uses
@@ -386,6 +422,12 @@ impl Psd {
                         let d = c / (total * (b - a));
                         panel(a, b, &|_| d, nodes, weights);
                     }
+                }
+            }
+            Psd::Radii { .. } => {
+                for (r, m) in self.radii_atoms() {
+                    nodes.push(r);
+                    weights.push(scale * m);
                 }
             }
             Psd::Mixture { weights: ws, components } => {
