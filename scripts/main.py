@@ -1,5 +1,6 @@
-"""The main job until the renderer lands: cross sections of ice spheres at three wavelengths (table on
-stdout) and single-particle phase functions (PNG in out/).
+"""The main job until the renderer lands: cross sections of ice spheres at three wavelengths and the bulk
+properties of the paper's ice cloud (tables on stdout), single-particle and ensemble phase functions (PNG
+in out/).
 
     .venv/bin/python scripts/main.py [--out out]
 """
@@ -13,9 +14,8 @@ import numpy as np
 
 import motes
 
-# Real refractive index of ice (Warren & Brandt 2008, J. Geophys. Res. 113, D14220), rounded;
-# absorption (kappa < 1e-8 in the visible) is negligible at these sizes and left out.
-ICE = {0.45: 1.3160, 0.55: 1.3110, 0.65: 1.3080}
+# Complex refractive index of ice (Warren & Brandt 2008, J. Geophys. Res. 113, D14220), tabulated in motes.
+ICE = {lam: complex(motes.Material("ice").index(lam)[0]) for lam in (0.45, 0.55, 0.65)}
 RADII_UM = [0.1, 1.0, 2.0, 10.0, 100.0, 800.0, 2000.0]
 
 
@@ -29,11 +29,19 @@ def main() -> None:
     print(f"{'lambda/um':>9} {'eta':>6} {'r/um':>8} {'alpha':>10} {'method':>6} {'C_ext/um^2':>13} {'Q_ext':>8} {'g':>7}")
     for lam, eta in ICE.items():
         cs = motes.cross_sections(RADII_UM, lam, eta, method="auto")
+        methods = motes.resolve_method(RADII_UM, lam, eta, method="auto")
         for i, r in enumerate(RADII_UM):
             alpha = float(motes.size_parameter(r, lam))
-            method = "mie" if alpha < motes.AUTO_SIZE_PARAMETER else "goa"
+            method = methods[i]
             q = cs["ext"][i] / (np.pi * r * r)
-            print(f"{lam:9.2f} {eta:6.4f} {r:8.1f} {alpha:10.2f} {method:>6} {cs['ext'][i]:13.5g} {q:8.4f} {cs['g'][i]:7.4f}")
+            print(f"{lam:9.2f} {eta.real:6.4f} {r:8.1f} {alpha:10.2f} {method:>6} {cs['ext'][i]:13.5g} {q:8.4f} {cs['g'][i]:7.4f}")
+
+    cloud = motes.Species(motes.LogNormal(800.0, 4.0), motes.Material("ice"))
+    bulk = motes.bulk_properties(cloud, 1e4, list(ICE))
+    print("\nIce cloud, log-normal r_g = 800 um, sigma_g = 4, 1e4 particles per m^3 (paper Sec. 6):")
+    print(f"{'lambda/um':>9} {'sigma_t/m^-1':>13} {'albedo':>10} {'g':>7}")
+    for i, lam in enumerate(ICE):
+        print(f"{lam:9.2f} {bulk['sigma_t'][i]:13.5g} {bulk['albedo'][i]:10.7f} {bulk['g'][i]:7.4f}")
 
     import matplotlib
 
@@ -51,6 +59,17 @@ def main() -> None:
     ax.legend()
     fig.tight_layout()
     path = out / "ice_phase_functions.png"
+    fig.savefig(path, dpi=120)
+    print(f"wrote {path}")
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for i, lam in enumerate(ICE):
+        ax.loglog(np.degrees(bulk["theta"][1:]), bulk["phase"][i][1:], label=f"{lam} um")
+    ax.set_xlabel("scattering angle (deg)")
+    ax.set_ylabel("ensemble phase function (1/sr)")
+    ax.set_title("Ice cloud r_g = 800 um, sigma_g = 4 (motes.bulk_properties)")
+    ax.legend()
+    fig.tight_layout()
+    path = out / "ice_cloud_phase_function.png"
     fig.savefig(path, dpi=120)
     print(f"wrote {path}")
 
