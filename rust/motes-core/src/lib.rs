@@ -9,6 +9,7 @@
 pub mod ensemble;
 pub mod error;
 pub mod goa;
+pub mod grid;
 pub mod materials;
 pub mod mie;
 pub mod optics;
