@@ -25,7 +25,9 @@ use crate::error::{require, OpticsError};
 use rayon::prelude::*;
 
 /// A particle set with per-particle extinction cross sections at one or more wavelengths, and the grid.
-pub struct ParticleGrid {
+/// One size class: particles of similar inclusion radius in a uniform grid whose cells are at least
+/// as large as that radius (so a traversal scans only the 3×3×3 cells around each ray cell).
+pub struct SubGrid {
     /// Centres (scene units), stored in cell order.
     pos: Vec<[f32; 3]>,
     /// Inclusion radius R_i = r_c + r_i (scene units), cell order.
@@ -52,11 +54,12 @@ pub struct Hit {
     pub particle: u32,
 }
 
-impl ParticleGrid {
+impl SubGrid {
     /// Build from centres (scene units), geometric radii (scene units), extinction cross sections
     /// (scene units², `[particle][channel]` row-major) and the query radius r_c (scene units).
     /// `cells_per_particle` sets the resolution (paper Sec. 6.5: about one particle per voxel).
-    pub fn build(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], channels: usize, query_radius: f64, cells_per_particle: f64) -> Result<Self, OpticsError> {
+    #[allow(clippy::too_many_arguments)]
+    fn build_class(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], ids: &[u32], channels: usize, query_radius: f64, cells_per_particle: f64, volume_hint: Option<f64>) -> Result<Self, OpticsError> {
         let n = positions.len();
         require("positions (count)", n as f64, n >= 1, ">= 1")?;
         require("radius (length)", radius.len() as f64, radius.len() == n, "one per particle")?;
@@ -88,9 +91,11 @@ impl ParticleGrid {
             hi[a] += reach_max * 1.0001 + 1e-9;
         }
         let ext: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
-        let volume = ext[0] * ext[1] * ext[2];
+        let volume = volume_hint.unwrap_or(ext[0] * ext[1] * ext[2]).max(ext[0] * ext[1] * ext[2] * 1e-9);
         let target_cells = (n as f64 * cells_per_particle).clamp(1.0, 2.0e8);
-        let cell = (volume / target_cells).cbrt().max(1e-12);
+        // About `cells_per_particle` cells per particle, but never smaller than the class's largest
+        // inclusion radius: then k = 1 and a traversal scans 27 cells per step.
+        let cell = (volume / target_cells).cbrt().max(reach_max).max(1e-12);
         let dims = [0, 1, 2].map(|a| ((ext[a] / cell).ceil() as usize).clamp(1, 1 << 20));
         let n_cells = dims[0] * dims[1] * dims[2];
         let cell_of = |p: &[f64; 3]| {
@@ -125,7 +130,8 @@ impl ParticleGrid {
             }
         }
         let k = ((reach_max / cell).ceil() as i64).max(0);
-        Ok(ParticleGrid { pos, reach: reach_sorted, tau, index: order, channels, start, lo, cell, dims, reach_max, k })
+        let index = order.iter().map(|&i| ids[i as usize]).collect();
+        Ok(SubGrid { pos, reach: reach_sorted, tau, index, channels, start, lo, cell, dims, reach_max, k })
     }
 
     pub fn len(&self) -> usize {
@@ -326,6 +332,134 @@ impl ParticleGrid {
     }
 }
 
+/// Particles of every size: one [`SubGrid`] per factor-of-two class of inclusion radius, so that a
+/// few large grains (a log-normal tail reaching 2 mm) do not force every traversal to scan wide
+/// neighbourhoods. Queries sum over the classes; free flights merge their contributions in t.
+pub struct ParticleGrid {
+    classes: Vec<SubGrid>,
+    channels: usize,
+    n: usize,
+}
+
+impl ParticleGrid {
+    /// Build from centres (scene units), geometric radii (scene units), extinction cross sections
+    /// (scene units², `[particle][channel]` row-major) and the query radius r_c (scene units).
+    /// `cells_per_particle` sets the resolution (paper Sec. 6.5: about one particle per voxel).
+    pub fn build(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], channels: usize, query_radius: f64, cells_per_particle: f64) -> Result<Self, OpticsError> {
+        let n = positions.len();
+        require("positions (count)", n as f64, n >= 1, ">= 1")?;
+        require("radius (length)", radius.len() as f64, radius.len() == n, "one per particle")?;
+        require("channels", channels as f64, channels >= 1, ">= 1")?;
+        require("c_ext (length)", c_ext.len() as f64, c_ext.len() == n * channels, "particles × channels")?;
+        require("query_radius", query_radius, query_radius.is_finite() && query_radius >= 0.0, "finite and >= 0")?;
+        require("cells_per_particle", cells_per_particle, cells_per_particle.is_finite() && cells_per_particle > 0.0, "finite and > 0")?;
+        let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
+        // Class c holds reach in (R_max 2^-(c+1), R_max 2^-c]; everything below 2^-12 R_max shares the last.
+        let class_of = |r: f64| -> usize {
+            let x = reach_max / (query_radius + r);
+            if x.is_finite() && x > 1.0 { (x.log2().floor() as usize).min(12) } else { 0 }
+        };
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); 13];
+        for i in 0..n {
+            members[class_of(radius[i])].push(i as u32);
+        }
+        // Bounding volume of all centres, shared by the classes as the density reference.
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in positions {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let volume = (0..3).map(|a| (hi[a] - lo[a]).max(1e-12)).product::<f64>();
+        let mut classes = Vec::new();
+        for ids in members.into_iter().filter(|m| !m.is_empty()) {
+            let pos: Vec<[f64; 3]> = ids.iter().map(|&i| positions[i as usize]).collect();
+            let rad: Vec<f64> = ids.iter().map(|&i| radius[i as usize]).collect();
+            let ce: Vec<f64> = ids.iter().flat_map(|&i| c_ext[i as usize * channels..(i as usize + 1) * channels].iter().copied()).collect();
+            classes.push(SubGrid::build_class(&pos, &rad, &ce, &ids, channels, query_radius, cells_per_particle, Some(volume))?);
+        }
+        Ok(ParticleGrid { classes, channels, n })
+    }
+
+    pub fn len(&self) -> usize {
+        self.n
+    }
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+    /// Cells of the finest class (the one holding the most particles).
+    pub fn dims(&self) -> [usize; 3] {
+        self.classes.iter().max_by_key(|c| c.len()).map(|c| c.dims).unwrap_or([0; 3])
+    }
+    pub fn class_count(&self) -> usize {
+        self.classes.len()
+    }
+    pub fn bytes(&self) -> usize {
+        self.classes.iter().map(SubGrid::bytes).sum()
+    }
+
+    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
+        let mut part = vec![0.0; self.channels];
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for c in &self.classes {
+            c.optical_depth(o, d, t0, t1, &mut part);
+            out.iter_mut().zip(&part).for_each(|(a, b)| *a += b);
+        }
+    }
+
+    pub fn optical_depth_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
+        let mut part = vec![0.0; self.channels];
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for c in &self.classes {
+            c.optical_depth_brute(o, d, t0, t1, &mut part);
+            out.iter_mut().zip(&part).for_each(|(a, b)| *a += b);
+        }
+    }
+
+    /// Exact free flight (see [`SubGrid::free_flight`]) over all classes: with one class its early exit
+    /// is used; otherwise the classes' contributions are merged in t.
+    pub fn free_flight(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, channel: usize, u: f64) -> (Option<Hit>, f64) {
+        if self.classes.len() == 1 {
+            return self.classes[0].free_flight(o, d, t0, t1, channel, u);
+        }
+        let mut all: Vec<(f64, f64, u32)> = Vec::new();
+        for c in &self.classes {
+            c.traverse(o, d, t0, t1, |j, t, _| {
+                all.push((t, c.tau[j * c.channels + channel] as f64, c.index[j]));
+                true
+            });
+        }
+        all.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let target = -(1.0 - u).ln();
+        let mut acc = 0.0;
+        for (t, tau, i) in all {
+            if acc + tau > target {
+                return (Some(Hit { t, particle: i }), (-acc).exp());
+            }
+            acc += tau;
+        }
+        (None, (-acc).exp())
+    }
+
+    pub fn tau_of(&self, original: u32, channel: usize) -> f64 {
+        for c in &self.classes {
+            if let Some(j) = c.index.iter().position(|&i| i == original) {
+                return c.tau[j * c.channels + channel] as f64;
+            }
+        }
+        f64::NAN
+    }
+
+    pub fn reach_max(&self) -> f64 {
+        self.classes.iter().map(|c| c.reach_max).fold(0.0, f64::max)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -348,6 +482,7 @@ mod tests {
         let rad: Vec<f64> = (0..n).map(|_| 0.005 + 0.01 * lcg(&mut s)).collect();
         let cext: Vec<f64> = rad.iter().map(|r| 2.0 * std::f64::consts::PI * r * r * 15.0).collect();
         let g = ParticleGrid::build(&pos, &rad, &cext, 1, 0.03, 1.0).unwrap();
+        assert!(g.class_count() >= 1);
         let (o, d) = ([0.5, 0.5, -0.5], [0.0, 0.6, 0.8]);
         let mut tau = [0.0];
         g.optical_depth(o, d, 0.0, 3.0, &mut tau);
@@ -385,6 +520,8 @@ mod tests {
         let cext: Vec<f64> = rad.iter().flat_map(|r| [2.0 * std::f64::consts::PI * r * r, 3.0 * r * r]).collect();
         for (rc, cpp) in [(0.0, 1.0), (0.01, 1.0), (0.05, 0.2), (0.2, 5.0)] {
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, rc, cpp).unwrap();
+            let cell = g.classes[0].cell;
+            let lo0 = g.classes[0].lo[0];
             let mut rays: Vec<([f64; 3], [f64; 3], f64, f64)> = Vec::new();
             for _ in 0..300 {
                 let o = [lcg(&mut s) * 3.0 - 1.0, lcg(&mut s) * 3.0 - 1.0, lcg(&mut s) * 3.0 - 1.0];
@@ -402,7 +539,7 @@ mod tests {
                     o[a] -= sign * 2.0;
                     rays.push((o, d, 0.0, 5.0));
                     // on a cell face of the grid and starting inside
-                    let mut o2 = [g.lo[0] + 3.0 * g.cell, 0.37, 0.61];
+                    let mut o2 = [lo0 + 3.0 * cell, 0.37, 0.61];
                     o2[a] = 0.5;
                     rays.push((o2, d, 0.0, 3.0));
                 }
