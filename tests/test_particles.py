@@ -40,6 +40,9 @@ def test_grid_equals_brute_force(query_radius, cells_per_particle):
     fast = g.optical_depth(origins, dirs, a, b)
     slow = g.optical_depth(origins, dirs, a, b, brute=True)
     np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(np.array(g.occupied_interval(origins, dirs, a, b)), np.array(g.occupied_interval(origins, dirs, a, b, brute=True)))
+    lo, hi = g.occupied_interval(origins, dirs, a, b)
+    assert np.array_equal(np.isnan(lo), fast[:, 0] == 0)  # empty exactly where nothing contributes
     assert np.all(fast[-2:] == 0)  # zero length, miss
     assert np.any(fast > 0)
 

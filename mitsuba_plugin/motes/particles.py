@@ -103,6 +103,12 @@ class ParticleGrid:
         o, d, (a, b), n = self._rays(origins, directions, t0, t1)
         return self._grid.optical_depth(o, d, a, b, bool(brute)).reshape(n, self.channels)
 
+    def occupied_interval(self, origins, directions, t0, t1, *, brute: bool = False):
+        """(first, last): the smallest and largest t on [t0, t1) where a particle contributes, NaN where
+        none — everything outside can be skipped (empty-space skipping)."""
+        o, d, (a, b), n = self._rays(origins, directions, t0, t1)
+        return self._grid.occupied_interval(o, d, a, b, bool(brute))
+
     def transmittance(self, origins, directions, t0, t1) -> np.ndarray:
         return np.exp(-self.optical_depth(origins, directions, t0, t1))
 

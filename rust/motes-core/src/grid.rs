@@ -446,6 +446,37 @@ impl ParticleGrid {
         (None, (-acc).exp())
     }
 
+    /// First and last t in [t0, t1) where any particle contributes (for empty-space skipping), or None.
+    pub fn occupied_interval(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for c in &self.classes {
+            c.traverse(o, d, t0, t1, |_, t, _| {
+                lo = lo.min(t);
+                hi = hi.max(t);
+                true
+            });
+        }
+        (lo <= hi).then_some((lo, hi))
+    }
+
+    /// The same by a loop over every particle (test oracle).
+    pub fn occupied_interval_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        if t1 > t0 {
+            for c in &self.classes {
+                for j in 0..c.len() {
+                    if let Some(t) = c.contribution(j, o, d) {
+                        if t >= t0 && t < t1 {
+                            lo = lo.min(t);
+                            hi = hi.max(t);
+                        }
+                    }
+                }
+            }
+        }
+        (lo <= hi).then_some((lo, hi))
+    }
+
     pub fn tau_of(&self, original: u32, channel: usize) -> f64 {
         for c in &self.classes {
             if let Some(j) = c.index.iter().position(|&i| i == original) {
@@ -548,6 +579,7 @@ mod tests {
             rays.push(([5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0)); // misses
             let (mut a, mut b) = (vec![0.0; 2], vec![0.0; 2]);
             for (o, d, t0, t1) in rays {
+                assert_eq!(g.occupied_interval(o, d, t0, t1), g.occupied_interval_brute(o, d, t0, t1));
                 g.optical_depth(o, d, t0, t1, &mut a);
                 g.optical_depth_brute(o, d, t0, t1, &mut b);
                 for ch in 0..2 {

@@ -481,6 +481,27 @@ impl PyParticleGrid {
         Ok((t.into_pyarray(py), i.into_pyarray(py), tr.into_pyarray(py)))
     }
 
+    /// First and last t of contributing particles on [t0, t1) per ray (NaN, NaN where none).
+    fn occupied_interval<'py>(&self, py: Python<'py>, origins: F64In, directions: F64In, t0: F64In, t1: F64In, brute: bool) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let (t0, t1) = (t0.as_slice()?.to_vec(), t1.as_slice()?.to_vec());
+        let n = t0.len();
+        if t1.len() != n {
+            return Err(PyValueError::new_err("t0 and t1 must have one value per ray"));
+        }
+        let rs = rays(origins.as_slice()?, directions.as_slice()?, n)?;
+        let res: Vec<(f64, f64)> = py.detach(|| {
+            rs.par_iter()
+                .zip(t0.par_iter().zip(t1.par_iter()))
+                .map(|((o, d), (a, b))| {
+                    let r = if brute { self.grid.occupied_interval_brute(*o, *d, *a, *b) } else { self.grid.occupied_interval(*o, *d, *a, *b) };
+                    r.unwrap_or((f64::NAN, f64::NAN))
+                })
+                .collect()
+        });
+        let (lo, hi): (Vec<f64>, Vec<f64>) = res.into_iter().unzip();
+        Ok((lo.into_pyarray(py), hi.into_pyarray(py)))
+    }
+
     #[getter]
     fn bytes(&self) -> usize {
         self.grid.bytes()
