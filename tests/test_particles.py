@@ -102,6 +102,11 @@ def test_memory_and_errors():
         motes.ParticleGrid(np.zeros((0, 3)), [], [])
     with pytest.raises(ValueError, match="positions"):
         motes.ParticleGrid([[0, 0, np.nan]], [1.0], [1.0])
+    # the error names the first bad particle by its index in the caller's arrays
+    big = np.tile([[0.1, 0.2, 0.3]], (5, 1))
+    big[3, 1] = np.inf
+    with pytest.raises(ValueError, match=r"positions.*= 3"):
+        motes.ParticleGrid(big, [1.0, 1.0, 1.0, 1.0, 2000.0], np.ones(5))
     with pytest.raises(ValueError, match="radius"):
         motes.ParticleGrid([[0, 0, 0]], [-1.0], [1.0])
     with pytest.raises(ValueError, match="radii_um"):

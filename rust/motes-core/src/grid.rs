@@ -55,27 +55,11 @@ pub struct Hit {
 }
 
 impl SubGrid {
-    /// Build from centres (scene units), geometric radii (scene units), extinction cross sections
-    /// (scene units², `[particle][channel]` row-major) and the query radius r_c (scene units).
-    /// `cells_per_particle` sets the resolution (paper Sec. 6.5: about one particle per voxel).
+    /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
+    /// particles' original indices.
     #[allow(clippy::too_many_arguments)]
     fn build_class(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], ids: &[u32], channels: usize, query_radius: f64, cells_per_particle: f64, volume_hint: Option<f64>) -> Result<Self, OpticsError> {
         let n = positions.len();
-        require("positions (count)", n as f64, n >= 1, ">= 1")?;
-        require("radius (length)", radius.len() as f64, radius.len() == n, "one per particle")?;
-        require("channels", channels as f64, channels >= 1, ">= 1")?;
-        require("c_ext (length)", c_ext.len() as f64, c_ext.len() == n * channels, "particles × channels")?;
-        require("query_radius", query_radius, query_radius.is_finite() && query_radius >= 0.0, "finite and >= 0")?;
-        require("cells_per_particle", cells_per_particle, cells_per_particle.is_finite() && cells_per_particle > 0.0, "finite and > 0")?;
-        for (i, p) in positions.iter().enumerate() {
-            for &x in p {
-                require("positions", i as f64, x.is_finite(), "finite (this is the index of the first bad particle)")?;
-            }
-            require("radius", radius[i], radius[i].is_finite() && radius[i] > 0.0, "finite and > 0")?;
-        }
-        for &c in c_ext {
-            require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
-        }
         let reach: Vec<f64> = radius.iter().map(|r| query_radius + r).collect();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let mut lo = [f64::INFINITY; 3];
@@ -353,6 +337,13 @@ impl ParticleGrid {
         require("c_ext (length)", c_ext.len() as f64, c_ext.len() == n * channels, "particles × channels")?;
         require("query_radius", query_radius, query_radius.is_finite() && query_radius >= 0.0, "finite and >= 0")?;
         require("cells_per_particle", cells_per_particle, cells_per_particle.is_finite() && cells_per_particle > 0.0, "finite and > 0")?;
+        for (i, p) in positions.iter().enumerate() {
+            require("positions (index of the first non-finite particle)", i as f64, p.iter().all(|x| x.is_finite()), "finite coordinates")?;
+            require("radius", radius[i], radius[i].is_finite() && radius[i] > 0.0, "finite and > 0")?;
+        }
+        for &c in c_ext {
+            require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
+        }
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
         // Class c holds reach in (R_max 2^-(c+1), R_max 2^-c]; everything below 2^-12 R_max shares the last.
         let class_of = |r: f64| -> usize {
