@@ -117,13 +117,16 @@ pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta
             }
         }
     }
-    let (ext, abs) = nodes
+    // Per-node values are computed in parallel but summed in node order, so results are bitwise
+    // reproducible whatever the thread scheduling.
+    let per_node: Vec<(f64, f64)> = nodes
         .par_iter()
         .map(|(p, w)| {
             let (ce, ca) = optics::extinction_and_absorption(p, opts.method.theory(p, opts.goa.p_max), &opts.goa);
             (w * ce, w * ca)
         })
-        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .collect();
+    let (ext, abs) = per_node.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
     let (theta, intensity) = if theta.is_empty() {
         (Vec::new(), Vec::new())
     } else {
@@ -149,21 +152,27 @@ pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta
     Ok(Bulk { sigma_t, sigma_s, sigma_a, g, phase, energy_ratio, theta })
 }
 
-/// `Σ w (|S1|²+|S2|²)/(2k²)` over the (species, radius) nodes at each angle.
+/// `Σ w (|S1|²+|S2|²)/(2k²)` over the (species, radius) nodes at each angle. Deterministic: nodes are
+/// summed in fixed chunks of 16, in order, then the chunk sums in order (bitwise reproducible).
 fn intensity_at(nodes: &[(Particle, f64)], theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
     let n = theta.len();
-    nodes
-        .par_iter()
-        .map(|(p, w)| {
-            let theory = opts.method.theory(p, opts.goa.p_max);
-            let geo = (theory == Theory::Goa).then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
-            let k2 = p.k() * p.k();
-            optics::particle_amplitudes(p, theory, geo.as_deref(), theta, &opts.goa)
-                .into_iter()
-                .map(|(s1, s2)| w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2))
-                .collect::<Vec<f64>>()
-        })
-        .reduce(|| vec![0.0; n], |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect())
+    let add = |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
+    let chunks: Vec<Vec<f64>> = nodes
+        .par_chunks(16)
+        .map(|chunk| chunk.iter().map(|node| node_intensity(node, theta, opts)).fold(vec![0.0; n], add))
+        .collect();
+    chunks.into_iter().fold(vec![0.0; n], add)
+}
+
+/// One node's weighted intensity `w (|S1|²+|S2|²)/(2k²)` at every angle.
+fn node_intensity((p, w): &(Particle, f64), theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
+    let theory = opts.method.theory(p, opts.goa.p_max);
+    let geo = (theory == Theory::Goa).then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
+    let k2 = p.k() * p.k();
+    optics::particle_amplitudes(p, theory, geo.as_deref(), theta, &opts.goa)
+        .into_iter()
+        .map(|(s1, s2)| w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2))
+        .collect()
 }
 
 /// Adaptive refinement of the angle grid (when `opts.refine_tol > 0`): the table is piecewise linear in
@@ -300,6 +309,19 @@ mod tests {
         let norm: f64 = t.phase.iter().zip(&w).map(|(f, w)| f * w).sum();
         assert!((norm - 1.0).abs() < 1e-12);
         assert!(t.g < b.g);
+    }
+
+    /// Bulk properties are bitwise reproducible run to run (no scheduling-dependent reductions).
+    #[test]
+    fn bitwise_reproducible() {
+        let s = Species { psd: Psd::LogNormal { median_um: 800.0, sigma_g: 4.0, r_min_um: 1e-3, r_max_um: 2000.0 }, eta: C64::new(1.31, 1e-8), share: 1.0 };
+        let theta = graded_angles(2e4, 100, 300);
+        let first = bulk(std::slice::from_ref(&s), 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
+        for _ in 0..5 {
+            let again = bulk(std::slice::from_ref(&s), 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
+            assert_eq!((again.sigma_t, again.sigma_a, again.g), (first.sigma_t, first.sigma_a, first.g));
+            assert_eq!(again.phase, first.phase);
+        }
     }
 
     /// Species shares mix linearly: two species at shares c and 1 − c give the share-weighted σ's.

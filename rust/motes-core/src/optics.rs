@@ -252,11 +252,16 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
         let amps = goa::evaluate_prepared(geo.m, &prepared, alpha, opts);
         amps.iter().zip(nodes.iter().zip(&weights)).map(|(a, (t, w))| moments(*a, *t, *w)).fold((0.0, 0.0), add)
     } else {
-        (0..nodes.len())
-            .into_par_iter()
-            .with_min_len(1024)
-            .map_init(Vec::new, |scratch, i| moments(geo.amplitudes(alpha, nodes[i], opts, scratch), nodes[i], weights[i]))
-            .reduce(|| (0.0, 0.0), add)
+        // Fixed chunks summed in order: bitwise reproducible whatever the thread scheduling.
+        let idx: Vec<usize> = (0..nodes.len()).collect();
+        idx.par_chunks(1024)
+            .map(|chunk| {
+                let mut scratch = Vec::new();
+                chunk.iter().map(|&i| moments(geo.amplitudes(alpha, nodes[i], opts, &mut scratch), nodes[i], weights[i])).fold((0.0, 0.0), add)
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold((0.0, 0.0), add)
     }
 }
 
