@@ -24,8 +24,20 @@
 use crate::error::{require, OpticsError};
 use rayon::prelude::*;
 
-/// A particle set with per-particle extinction cross sections at one or more wavelengths, and the grid.
-/// One size class: particles of similar inclusion radius in a uniform grid whose cells are at least
+/// Axis-aligned bounding box of the centres.
+fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in positions {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
+/// One size class of a [`ParticleGrid`]: particles of similar inclusion radius in a uniform grid whose cells are at least
 /// as large as that radius (so a traversal scans only the 3×3×3 cells around each ray cell).
 pub struct SubGrid {
     /// Centres (scene units), stored in cell order.
@@ -62,14 +74,7 @@ impl SubGrid {
         let n = positions.len();
         let reach: Vec<f64> = radius.iter().map(|r| query_radius + r).collect();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in positions {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (mut lo, mut hi) = bounding_box(positions);
         for a in 0..3 {
             lo[a] -= reach_max * 1.0001 + 1e-9;
             hi[a] += reach_max * 1.0001 + 1e-9;
@@ -355,14 +360,7 @@ impl ParticleGrid {
             members[class_of(radius[i])].push(i as u32);
         }
         // Bounding volume of all centres, shared by the classes as the density reference.
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in positions {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = bounding_box(positions);
         let volume = (0..3).map(|a| (hi[a] - lo[a]).max(1e-12)).product::<f64>();
         let mut classes = Vec::new();
         for ids in members.into_iter().filter(|m| !m.is_empty()) {
