@@ -28,6 +28,7 @@ Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``U
 from __future__ import annotations
 
 from . import psd
+from .particle_io import ParticleSet, load_particles, save_particles
 from .particles import ParticleGrid, extinction_um2, uniform_box
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
 from .ensemble import Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
@@ -48,6 +49,9 @@ from ._optics import (
 __all__ = [
     "psd",
     "ParticleGrid",
+    "ParticleSet",
+    "load_particles",
+    "save_particles",
     "extinction_um2",
     "uniform_box",
     "Material",
