@@ -234,8 +234,24 @@ def write_json(path: pathlib.Path, data: dict) -> None:
     print(f"wrote {path}")
 
 
-def save_fig(fig, path: pathlib.Path) -> None:
+def label(ax, xlabel: str, ylabel: str, title: str | None = None, *, legend: int | None = None, grid_which: str = "both") -> None:
+    """Axis labels, optional title and legend (font size), and the light grid every figure uses."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if title is not None:
+        ax.set_title(title)
+    if legend is not None:
+        ax.legend(fontsize=legend)
+    ax.grid(True, which=grid_which, alpha=0.3)
+
+
+def save_fig(fig, path: pathlib.Path, rect=None) -> None:
+    """Tight layout (inside ``rect``, e.g. to leave room for a suptitle), write, close."""
+    import matplotlib.pyplot as _plt  # noqa: PLC0415
+
+    fig.tight_layout(rect=rect)
     fig.savefig(path)
+    _plt.close(fig)
     print(f"wrote {path}")
 
 

@@ -100,14 +100,8 @@ def main() -> None:
     pts = [(r["x"], 1 / r["t_miepython_s"]) for r in records[:4] if r["t_miepython_s"]]
     if pts:
         ax.loglog(*zip(*pts), "^-", label="miepython 3.3.0")
-    ax.set_xlabel("size parameter x (η = 1.33, λ = 0.6 µm, r = 1…1000 µm)")
-    ax.set_ylabel("evaluations / s (1800 angles)")
-    ax.set_title("Amplitude throughput, best of n")
-    ax.legend(fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    C.label(ax, "size parameter x (η = 1.33, λ = 0.6 µm, r = 1…1000 µm)", "evaluations / s (1800 angles)", "Amplitude throughput, best of n", legend=8)
     C.save_fig(fig, out / "bench_amplitudes.png")
-    plt.close(fig)
 
     elapsed = sw()
     C.write_json(out / "bench_amplitudes.json", dict(meta=C.meta(args, elapsed), eta=ETA, wavelength_um=C.LAM,

@@ -91,12 +91,7 @@ def main() -> None:
     for psd in [motes.LogNormal(1.0, 1.5), motes.LogNormal(10.0, 2.0), motes.LogNormal(100.0, 2.0), motes.LogNormal(800.0, 4.0), motes.Uniform(1.0, 100.0)]:
         bb = motes.bulk_properties(motes.Species(psd, 1.31), N0, 0.55)
         ax.loglog(np.degrees(bb["theta"][1:]), bb["phase"][0][1:], lw=0.8, label=f"{psd!r}"[:40] + f"  g={bb['g'][0]:.3f}")
-    ax.set_xlabel("θ (deg)")
-    ax.set_ylabel("ensemble phase function (1/sr)")
-    ax.set_title("Ensemble phase functions of ice clouds, λ = 0.55 µm (cf. paper Fig. 8)")
-    ax.legend(fontsize=6)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    C.label(ax, "θ (deg)", "ensemble phase function (1/sr)", "Ensemble phase functions of ice clouds, λ = 0.55 µm (cf. paper Fig. 8)", legend=6)
     C.save_fig(fig, out / "fig8_ensemble_phase.png")
     C.write_json(out / "bench_bulk.json", dict(meta=C.meta(args, sw()), build_s=t_full, build_coefficients_s=t_coef, cache_hit_s=t_hit))
     print(f"runtime {sw():.1f} s")

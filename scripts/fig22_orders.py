@@ -65,9 +65,7 @@ def main() -> None:
         axes[0, 0].legend(fontsize=7, ncol=6)
         axes[-1, 0].set_xlabel("θ (deg)")
         fig.suptitle(f"Fig. {fig_no}: GOA (|S1|+|S2|)/2 with increasing p_max, η = {eta}")
-        fig.tight_layout(rect=(0, 0, 1, 0.97))
-        C.save_fig(fig, out / f"fig{fig_no}_orders_eta{eta:.2f}.png")
-        plt.close(fig)
+        C.save_fig(fig, out / f"fig{fig_no}_orders_eta{eta:.2f}.png", rect=(0, 0, 1, 0.97))
 
     C.print_table(
         f"Fig. 22 / 23: RelMSE of GOA (|S1|+|S2|)/2 with p_max = 1..4 against p_max = 100 ({theta.size} angles)",

@@ -78,9 +78,7 @@ def main() -> None:
         panel(axes[1, j], deg, d["m2"], d["g2"], f"r = {r:g} µm", "log10 |S2|")
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(f"Fig. 4: η = 1.33, λ = {C.LAM} µm (blue Mie, red GOA)")
-    fig.tight_layout(rect=(0, 0, 1, 0.97))
-    C.save_fig(fig, out / "fig4_amplitudes_eta1.33.png")
-    plt.close(fig)
+    C.save_fig(fig, out / "fig4_amplitudes_eta1.33.png", rect=(0, 0, 1, 0.97))
 
     # Fig. 24 (|S1|) and Fig. 25 (|S2|): eta = 1.49 upper row, 1.56 lower row
     for fig_no, comp in ((24, 1), (25, 2)):
@@ -91,9 +89,7 @@ def main() -> None:
                 panel(axes[i, j], deg, d[f"m{comp}"], d[f"g{comp}"], f"η = {eta}, r = {r:g} µm", f"log10 |S{comp}|")
         axes[0, 0].legend(fontsize=8)
         fig.suptitle(f"Fig. {fig_no}: log10|S{comp}|, η = 1.49 (top), 1.56 (bottom), λ = {C.LAM} µm (blue Mie, red GOA)")
-        fig.tight_layout(rect=(0, 0, 1, 0.97))
-        C.save_fig(fig, out / f"fig{fig_no}_S{comp}_eta1.49_1.56.png")
-        plt.close(fig)
+        C.save_fig(fig, out / f"fig{fig_no}_S{comp}_eta1.49_1.56.png", rect=(0, 0, 1, 0.97))
 
     elapsed = sw()
     C.write_json(

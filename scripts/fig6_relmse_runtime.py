@@ -126,11 +126,7 @@ def main() -> None:
     ax.plot([], [], color="k", ls="--", lw=0.6, label="dashed: paper verbatim")
     ax.axhline(0.01, color="0.4", ls="--", lw=0.8, label="0.01")
     ax.axvline(2.0, color="0.6", ls=":", lw=0.8, label="r = 2 µm")
-    ax.set_xlabel("r (µm)")
-    ax.set_ylabel("RelMSE of (|S1|+|S2|)/2")
-    ax.set_title(f"Fig. 6 left: GOA (p=3) vs Lorenz–Mie, λ = {C.LAM} µm")
-    ax.legend(fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
+    C.label(ax, "r (µm)", "RelMSE of (|S1|+|S2|)/2", f"Fig. 6 left: GOA (p=3) vs Lorenz–Mie, λ = {C.LAM} µm", legend=8)
     ax = axes[1]
     for i, eta in enumerate(ETAS):
         col = f"C{i}"
@@ -138,14 +134,8 @@ def main() -> None:
         ax.loglog(radii, res[eta]["t_mie"] / res[eta]["t_goa_cold"], color=col, lw=0.7, ls="--", alpha=0.7)
     ax.plot([], [], color="k", ls="--", lw=0.7, label="dashed: GOA cold")
     ax.axhline(1.0, color="0.5", lw=0.6)
-    ax.set_xlabel("r (µm)")
-    ax.set_ylabel("t_Mie / t_GOA")
-    ax.set_title("Fig. 6 right: runtime ratio, 1800 angles, best of 3")
-    ax.legend(fontsize=7)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    C.label(ax, "r (µm)", "t_Mie / t_GOA", "Fig. 6 right: runtime ratio, 1800 angles, best of 3", legend=7)
     C.save_fig(fig, out / "fig6_relmse_runtime.png")
-    plt.close(fig)
 
     elapsed = sw()
     C.write_json(

@@ -128,9 +128,7 @@ def main() -> None:
     ax.set_title(f"GOA error vs size parameter (λ = {C.LAM} µm, 1800 angles)")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
     C.save_fig(fig, out / "hybrid_threshold.png")
-    plt.close(fig)
 
     elapsed = sw()
     C.write_json(out / "hybrid_threshold.json", dict(

@@ -251,9 +251,7 @@ def edge_term_study(motes, quick: bool, out: pathlib.Path, plt) -> dict:
         ax.set_title(f"edge term, η = {eta}")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
     C.save_fig(fig, out / "edge_term.png")
-    plt.close(fig)
     return dict(bands=bands, coefficients={str(k): v for k, v in coefs.items()}, x_range=[200, 400], n_x=nx,
                 cross_sections_consistency_max_abs_dQ=chk)
 
@@ -271,11 +269,7 @@ def plot_main(out, plt, a, b, d):
         ax.semilogy(a["theta_window_deg"], cv["paper"] * 10**off, color="k", lw=0.7, ls="--", label="GOA paper" if r == 10 else None)
         ax.text(126, cv["mie"][0] * 10**off * 2, f"r = {r:g} µm (×{10**off:g})", fontsize=8)
     ax.axvline(a["rainbow_deg"], color="0.5", ls=":", lw=0.8)
-    ax.set_xlabel("θ (deg)")
-    ax.set_ylabel("|S1|")
-    ax.set_title("(a) primary rainbow, η = 1.33")
-    ax.legend(fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
+    C.label(ax, "θ (deg)", "|S1|", "(a) primary rainbow, η = 1.33", legend=8)
     # (b)
     ax = axes[0, 1]
     etas = sorted({rec["eta"] for rec in b})
@@ -297,14 +291,8 @@ def plot_main(out, plt, a, b, d):
             ax.semilogy(d["theta_window_deg"], cv[(eta, r, "mie")] * 10**off, color="tab:blue", lw=0.8, label="Mie" if r == 10 else None)
             ax.semilogy(d["theta_window_deg"], cv[(eta, r, "ours")] * 10**off, color="tab:red", lw=0.8, label="GOA ours" if r == 10 else None)
             ax.semilogy(d["theta_window_deg"], cv[(eta, r, "paper")] * 10**off, color="k", lw=0.7, ls="--", label="GOA paper" if r == 10 else None)
-        ax.set_xlabel("θ (deg)")
-        ax.set_ylabel("(|S1|+|S2|)/2 (r = 100 µm ×100)")
-        ax.set_title(f"(d) backward / glory window, η = {eta}, r = 10 and 100 µm")
-        ax.legend(fontsize=8)
-        ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+        C.label(ax, "θ (deg)", "(|S1|+|S2|)/2 (r = 100 µm ×100)", f"(d) backward / glory window, η = {eta}, r = 10 and 100 µm", legend=8)
     C.save_fig(fig, out / "singularities.png")
-    plt.close(fig)
 
 
 def main() -> None:

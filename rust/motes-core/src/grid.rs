@@ -392,22 +392,22 @@ impl ParticleGrid {
         self.classes.iter().map(SubGrid::bytes).sum()
     }
 
-    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
+    /// Sum a per-class optical-depth query over the classes.
+    fn sum_classes(&self, out: &mut [f64], query: impl Fn(&SubGrid, &mut [f64])) {
         let mut part = vec![0.0; self.channels];
         out.iter_mut().for_each(|v| *v = 0.0);
         for c in &self.classes {
-            c.optical_depth(o, d, t0, t1, &mut part);
+            query(c, &mut part);
             out.iter_mut().zip(&part).for_each(|(a, b)| *a += b);
         }
     }
 
+    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
+        self.sum_classes(out, |c, part| c.optical_depth(o, d, t0, t1, part));
+    }
+
     pub fn optical_depth_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
-        let mut part = vec![0.0; self.channels];
-        out.iter_mut().for_each(|v| *v = 0.0);
-        for c in &self.classes {
-            c.optical_depth_brute(o, d, t0, t1, &mut part);
-            out.iter_mut().zip(&part).for_each(|(a, b)| *a += b);
-        }
+        self.sum_classes(out, |c, part| c.optical_depth_brute(o, d, t0, t1, part));
     }
 
     /// Exact free flight (see [`SubGrid::free_flight`]) over all classes: with one class its early exit
