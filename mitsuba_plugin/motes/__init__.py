@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from . import psd
 from .particle_io import ParticleSet, load_particles, save_particles
-from .particles import ParticleGrid, extinction_um2, uniform_box
+from .particles import Gradient, Noise, ParticleGrid, density_box, extinction_um2, nearest_depth, query_radius_from_camera, uniform_box
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
 from .ensemble import Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Radii, Uniform
@@ -54,6 +54,11 @@ __all__ = [
     "save_particles",
     "extinction_um2",
     "uniform_box",
+    "density_box",
+    "Gradient",
+    "Noise",
+    "query_radius_from_camera",
+    "nearest_depth",
     "Material",
     "PhaseTable",
     "SpectralTable",
