@@ -27,7 +27,11 @@ Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``U
 
 from __future__ import annotations
 
-from . import psd
+from .plugins import configure_llvm as _configure_llvm
+
+_configure_llvm()  # before Dr.Jit loads (a no-op when DRJIT_LIBLLVM_PATH is set or no libLLVM 19 exists)
+
+from . import psd  # noqa: E402
 from .particle_io import ParticleSet, load_particles, save_particles
 from .particles import Gradient, Noise, ParticleGrid, density_box, extinction_um2, nearest_depth, query_radius_from_camera, uniform_box
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
@@ -86,3 +90,20 @@ __all__ = [
     "size_parameter",
 ]
 __version__ = "0.1.0"
+
+from .discrete import DiscreteMedium  # noqa: E402
+from .plugins import register, set_evaluated_mode, set_variant  # noqa: E402
+
+__all__ += ["DiscreteMedium", "register", "set_evaluated_mode", "set_variant"]
+
+
+def _register_if_mitsuba_is_ready() -> None:
+    """``import motes`` after ``mi.set_variant(...)`` registers the plugins for that variant."""
+    import sys
+
+    mi = sys.modules.get("mitsuba")
+    if mi is not None and getattr(mi, "variant", lambda: None)() is not None:
+        register()
+
+
+_register_if_mitsuba_is_ready()

@@ -158,4 +158,31 @@ class Mixture(Psd):
                 "components": [c.spec() for _, c in self.components]}
 
 
-__all__ = ["Psd", "LogNormal", "Monodisperse", "Uniform", "Histogram", "Radii", "Mixture"]
+def from_spec(spec) -> Psd:
+    """A distribution from its ``spec()`` dict (or that dict as a JSON string), e.g.
+    ``{"type": "lognormal", "median_um": 20, "sigma_g": 1.5}``."""
+    if isinstance(spec, str):
+        try:
+            spec = json.loads(spec)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"psd: not valid JSON ({e})") from None
+    if not isinstance(spec, dict) or "type" not in spec:
+        raise ValueError(f'psd: expected a dict with a "type" key, got {spec!r}')
+    kind = spec["type"]
+    args = {k: v for k, v in spec.items() if k != "type"}
+    classes = {"lognormal": LogNormal, "monodisperse": Monodisperse, "uniform": Uniform, "histogram": Histogram,
+               "radii": Radii}
+    if kind == "mixture":
+        w, comps = args.get("weights"), args.get("components")
+        if not isinstance(w, list) or not isinstance(comps, list) or len(w) != len(comps):
+            raise ValueError("psd: a mixture needs equally long lists \"weights\" and \"components\"")
+        return Mixture(tuple((float(a), from_spec(c)) for a, c in zip(w, comps)))
+    if kind not in classes:
+        raise ValueError(f"psd: unknown type {kind!r} (one of {sorted(classes) + ['mixture']})")
+    try:
+        return classes[kind](**args)
+    except TypeError as e:
+        raise ValueError(f"psd {kind!r}: {e}") from None
+
+
+__all__ = ["from_spec", "Psd", "LogNormal", "Monodisperse", "Uniform", "Histogram", "Radii", "Mixture"]

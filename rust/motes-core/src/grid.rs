@@ -66,6 +66,29 @@ pub struct Hit {
     pub particle: u32,
 }
 
+/// Where a sampled free flight interacts: the t of the first particle of the site and up to
+/// [`Site::CAPACITY`] particles (coincident along the ray within the sampler's tolerance; further ones
+/// still add their optical depth but not their phase function).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Site {
+    pub t: f64,
+    pub particles: [u32; Site::CAPACITY],
+    pub len: u8,
+}
+
+impl Site {
+    pub const CAPACITY: usize = 4;
+    fn push(&mut self, i: u32) {
+        if (self.len as usize) < Self::CAPACITY {
+            self.particles[self.len as usize] = i;
+            self.len += 1;
+        }
+    }
+    pub fn members(&self) -> &[u32] {
+        &self.particles[..self.len as usize]
+    }
+}
+
 impl SubGrid {
     /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
     /// particles' original indices.
@@ -268,48 +291,6 @@ impl SubGrid {
         }
     }
 
-    /// Exact free flight on [t0, t1) in `channel`: the first particle (in t) at which the path interacts,
-    /// each particle i interacting with probability 1 − exp(−τ_i), decided by `u` ∈ [0, 1) through the
-    /// equivalent test: interact where the accumulated optical depth first exceeds −ln(1 − u).
-    /// Returns (t, original particle index) or None, and the transmittance up to the interaction (or t1).
-    pub fn free_flight(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, channel: usize, u: f64) -> (Option<Hit>, f64) {
-        let target = -(1.0 - u).ln();
-        let mut acc = 0.0;
-        let mut found: Option<Hit> = None;
-        let mut batch: Vec<(f64, usize)> = Vec::new();
-        let mut current = 0u32;
-        // Walk one finished step's particles in t order; true when the path interacts among them.
-        let walk = |batch: &mut Vec<(f64, usize)>, acc: &mut f64, found: &mut Option<Hit>| {
-            batch.sort_by(|a, b| a.0.total_cmp(&b.0));
-            for &(t, j) in batch.iter() {
-                let tau = self.tau[j * self.channels + channel] as f64;
-                if *acc + tau > target {
-                    *found = Some(Hit { t, particle: self.index[j] });
-                    return true;
-                }
-                *acc += tau;
-            }
-            batch.clear();
-            false
-        };
-        let mut done = false;
-        self.traverse(o, d, t0, t1, |j, t, step| {
-            if step != current {
-                if walk(&mut batch, &mut acc, &mut found) {
-                    done = true;
-                    return false;
-                }
-                current = step;
-            }
-            batch.push((t, j));
-            true
-        });
-        if !done {
-            walk(&mut batch, &mut acc, &mut found);
-        }
-        (found, (-acc).exp())
-    }
-
     /// Per-stored-particle optical depth (channel), for tests.
     pub fn tau_of(&self, original: u32, channel: usize) -> f64 {
         let j = self.index.iter().position(|&i| i == original).unwrap();
@@ -410,29 +391,130 @@ impl ParticleGrid {
         self.sum_classes(out, |c, part| c.optical_depth_brute(o, d, t0, t1, part));
     }
 
-    /// Exact free flight (see [`SubGrid::free_flight`]) over all classes: with one class its early exit
-    /// is used; otherwise the classes' contributions are merged in t.
-    pub fn free_flight(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, channel: usize, u: f64) -> (Option<Hit>, f64) {
-        if self.classes.len() == 1 {
-            return self.classes[0].free_flight(o, d, t0, t1, channel, u);
-        }
-        let mut all: Vec<(f64, f64, u32)> = Vec::new();
+    /// Clip [t0, t1) to the union of the classes' boxes (slab test); None when the ray misses them.
+    fn clip(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
         for c in &self.classes {
-            c.traverse(o, d, t0, t1, |j, t, _| {
-                all.push((t, c.tau[j * c.channels + channel] as f64, c.index[j]));
-                true
-            });
+            for a in 0..3 {
+                lo[a] = lo[a].min(c.lo[a]);
+                hi[a] = hi[a].max(c.lo[a] + c.dims[a] as f64 * c.cell);
+            }
         }
-        all.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (mut ta, mut tb) = (t0, t1);
+        for a in 0..3 {
+            if d[a] == 0.0 {
+                if o[a] < lo[a] || o[a] > hi[a] {
+                    return None;
+                }
+            } else {
+                let (u, v) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+                ta = ta.max(u.min(v));
+                tb = tb.min(u.max(v));
+            }
+        }
+        (tb > ta).then_some((ta, tb))
+    }
+
+    /// Visit every contributing particle with t in [t0, t1), over all classes, in increasing t, as
+    /// `visit(t, τ per channel, original index)`; `visit` returns false to stop. The ray is cut into
+    /// windows of eight finest cells; each window's particles are gathered from every class and sorted, so
+    /// a walk that stops early costs only the windows it reached.
+    pub fn walk(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, mut visit: impl FnMut(f64, &[f32], u32) -> bool) {
+        if !(t1 > t0) {
+            return;
+        }
+        let Some((ta, tb)) = self.clip(o, d, t0, t1) else { return };
+        let window = 8.0 * self.classes.iter().map(|c| c.cell).fold(f64::INFINITY, f64::min);
+        let mut buf: Vec<(f64, usize, usize)> = Vec::new();
+        // Windows start at t0 (particles before the box entry count, as in `traverse`) and the last
+        // one ends at t1.
+        let mut a = t0;
+        let mut b = ta + window;
+        loop {
+            let last = b >= tb;
+            let end = if last { t1 } else { b };
+            buf.clear();
+            for (ci, c) in self.classes.iter().enumerate() {
+                c.traverse(o, d, a, end, |j, t, _| {
+                    buf.push((t, ci, j));
+                    true
+                });
+            }
+            buf.sort_by(|x, y| x.0.total_cmp(&y.0));
+            for &(t, ci, j) in &buf {
+                let c = &self.classes[ci];
+                if !visit(t, &c.tau[j * c.channels..(j + 1) * c.channels], c.index[j]) {
+                    return;
+                }
+            }
+            if last {
+                return;
+            }
+            a = b;
+            b += window;
+        }
+    }
+
+    /// Exact free flight over [t0, t1) in `channel`: each particle interacts with probability
+    /// 1 − exp(−τ_i); equivalently, particles are walked in t order and the path interacts where the accumulated optical depth first exceeds −ln(1 − u).
+    /// Returns the hit (or None) and the transmittance up to it (or to t1).
+    pub fn free_flight(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, channel: usize, u: f64) -> (Option<Hit>, f64) {
         let target = -(1.0 - u).ln();
         let mut acc = 0.0;
-        for (t, tau, i) in all {
-            if acc + tau > target {
-                return (Some(Hit { t, particle: i }), (-acc).exp());
+        let mut found = None;
+        self.walk(o, d, t0, t1, |t, tau, i| {
+            let x = tau[channel] as f64;
+            if acc + x > target {
+                found = Some(Hit { t, particle: i });
+                return false;
             }
-            acc += tau;
+            acc += x;
+            true
+        });
+        (found, (-acc).exp())
+    }
+
+    /// Exact free flight to the next *site* (channel 0), for the renderer: particles whose projections lie
+    /// within `coincide` of each other along the ray form one site (their optical depths add and the site
+    /// scatters as their mixture), and the particles in `exclude` (the one that scattered the path at
+    /// its origin) are skipped. Returns the site and the optical depth walked before it.
+    pub fn sample_site(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, exclude: &[u32], u: f64, coincide: f64) -> (Option<Site>, f64) {
+        let target = -(1.0 - u).ln();
+        let mut acc = 0.0;
+        let mut group = Site::default();
+        let mut group_tau = 0.0;
+        let mut last_t = f64::NEG_INFINITY;
+        let mut found = None;
+        self.walk(o, d, t0, t1, |t, tau, i| {
+            if exclude.contains(&i) {
+                return true;
+            }
+            if group.len > 0 && t > last_t + coincide {
+                // The group is complete: does the path interact there?
+                if acc + group_tau > target {
+                    found = Some(group);
+                    return false;
+                }
+                acc += group_tau;
+                group = Site::default();
+                group_tau = 0.0;
+            }
+            if group.len == 0 {
+                group.t = t;
+            }
+            group.push(i);
+            group_tau += tau[0] as f64;
+            last_t = t;
+            true
+        });
+        if found.is_none() && group.len > 0 {
+            if acc + group_tau > target {
+                found = Some(group);
+            } else {
+                acc += group_tau;
+            }
         }
-        (None, (-acc).exp())
+        (found, acc)
     }
 
     /// First and last t in [t0, t1) where any particle contributes (for empty-space skipping), or None.

@@ -5,7 +5,10 @@
 //!   regularisations of its singular points.
 //! * [`optics`]: one particle as the renderer sees it — cross sections, normalised phase function,
 //!   and the choice between Mie and GOA (`Method`), batched over many particles and angles.
+//! * [`grid`]: particles in space, optical depth along query cylinders and exact free flights.
+//! * [`discrete`]: the discrete medium as a renderer queries it (sites, albedo, phase function).
 
+pub mod discrete;
 pub mod ensemble;
 pub mod error;
 pub mod goa;

@@ -1,0 +1,156 @@
+"""The discrete medium's data, independent of Mitsuba: particles in a grid with the optics the renderer
+queries (``rust/motes-core/src/discrete.rs`` documents the model).
+
+``DiscreteMedium(positions, radii_um, species_index, species, ...)``
+
+==========================  ==========================================================================
+``positions``               (n, 3) particle centres, scene units
+``radii_um``                (n,) radii, micrometres
+``species_index``           (n,) index into ``species`` (a list of ``motes.Species``; their PSDs only set
+                            the radius range of the optics bins, the radii come from ``radii_um``)
+``wavelength_um``           tabulated wavelengths: the RGB channels' three (in channel order), or the
+                            spectral samples (wavelengths in between are interpolated linearly)
+``scale_m``                 metres per scene unit
+``query_radius``            r_c, scene units (``motes.query_radius_from_camera`` gives Eq. 23's)
+``size_bins``               radius bins per species (log-spaced over its particles' radii); each bin's
+                            albedo, efficiencies and phase function are the ensemble of a uniform
+                            distribution over the bin (Eq. 16-17), which also smooths Mie ripples
+``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``)
+``cells_per_particle``      grid resolution (about one particle per voxel by default)
+``seed``                    seed of the free-flight random numbers
+==========================  ==========================================================================
+
+Each particle's extinction cross section is ``pi r^2 Q_ext`` with its bin's mean efficiency over the
+wavelengths (grey, see the Rust docs for why), its albedo and phase function those of its bin per
+wavelength. ``bin_sigma_t`` etc. report what was built.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _motes
+from .ensemble import Species, bulk_properties
+from .psd import Monodisperse, Uniform
+
+
+def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
+    """Log-spaced bin edges over the radii r (one bin when they are all equal)."""
+    lo, hi = float(r.min()), float(r.max())
+    if hi <= lo * (1 + 1e-9):
+        return np.array([lo, lo])
+    return np.geomspace(lo, hi, size_bins + 1)
+
+
+class DiscreteMedium:
+    """Particles with per-bin optics in the Rust medium (module docs)."""
+
+    def __init__(self, positions, radii_um, species_index, species, wavelength_um, *, scale_m: float = 1.0,
+                 query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
+                 truncate_below_rad: float | None = None, cells_per_particle: float = 1.0, seed: int = 0):
+        pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
+        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
+            raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
+        n = pos.shape[0]
+        r = np.asarray(radii_um, dtype=np.float64).ravel()
+        idx = np.asarray(species_index, dtype=np.int64).ravel()
+        if r.size != n or idx.size != n:
+            raise ValueError(f"radii_um and species_index must have one entry per particle ({n})")
+        if not np.all(np.isfinite(r) & (r > 0)):
+            bad = int(np.flatnonzero(~(np.isfinite(r) & (r > 0)))[0])
+            raise ValueError(f"radii_um[{bad}] = {r[bad]}: radii must be finite and > 0")
+        if isinstance(species, Species):
+            species = [species]
+        species = list(species)
+        if not species or not all(isinstance(s, Species) for s in species):
+            raise ValueError("species must be a Species or a non-empty list of Species")
+        if idx.min() < 0 or idx.max() >= len(species):
+            bad = int(np.flatnonzero((idx < 0) | (idx >= len(species)))[0])
+            raise ValueError(f"species_index[{bad}] = {idx[bad]}: unknown species (have {len(species)})")
+        lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+        lam = np.sort(lam_in)
+        if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
+            raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
+        if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
+            raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
+        if not (np.isfinite(scale_m) and scale_m > 0):
+            raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
+        if not (np.isfinite(query_radius) and query_radius >= 0):
+            raise ValueError(f"invalid query_radius = {query_radius}: must be finite and >= 0")
+
+        bin_of = np.zeros(n, dtype=np.uint32)
+        q_ext = np.zeros(n)  # grey extinction efficiency of each particle's bin
+        albedo, theta, f, offsets = [], [], [], [0]
+        self.bin_radius_um, self.bin_species, self.bin_q_ext, self.bin_albedo = [], [], [], []
+        nb = 0
+        for k, sp in enumerate(species):
+            sel = np.flatnonzero(idx == k)
+            if sel.size == 0:
+                continue
+            edges = _bins(r[sel], int(size_bins))
+            which = np.clip(np.searchsorted(edges, r[sel], side="right") - 1, 0, max(edges.size - 2, 0))
+            for b in np.unique(which):
+                lo, hi = float(edges[b]), float(edges[b + 1])
+                psd = Monodisperse(lo) if hi <= lo else Uniform(lo, hi)
+                area = np.pi * (lo * lo if hi <= lo else (hi ** 3 - lo ** 3) / (3 * (hi - lo)))  # <pi r^2>, um^2
+                bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method,
+                                       truncate_below_rad=truncate_below_rad)
+                # n = 1 / m^3: sigma (1/m) is the mean cross section in m^2.
+                q_t = bulk["sigma_t"] * 1e12 / area
+                members = sel[which == b]
+                bin_of[members] = nb
+                q_ext[members] = float(np.mean(q_t))
+                albedo.append(np.clip(bulk["albedo"], 0.0, 1.0))
+                for row in bulk["phase"]:
+                    theta.append(bulk["theta"])
+                    f.append(row)
+                    offsets.append(offsets[-1] + bulk["theta"].size)
+                self.bin_radius_um.append((lo, hi))
+                self.bin_species.append(k)
+                self.bin_q_ext.append(q_t)
+                self.bin_albedo.append(bulk["albedo"])
+                nb += 1
+        um = 1e-6 / scale_m
+        c_ext = np.pi * r * r * q_ext * um * um
+        self.scale_m = float(scale_m)
+        self.query_radius = float(query_radius)
+        self.wavelength_um = lam
+        #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
+        self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
+        self.n_bins = nb
+        self._core = _motes.DiscreteMedium(
+            pos.ravel(), np.ascontiguousarray(r * um), np.ascontiguousarray(c_ext), bin_of,
+            np.ascontiguousarray(np.concatenate(albedo)), np.ascontiguousarray(np.concatenate(theta)),
+            np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
+            np.ascontiguousarray(lam * 1e3), float(query_radius), float(cells_per_particle), int(seed) & (2**64 - 1))
+        self.positions = pos
+        self.radii_um = r
+        self.c_ext_scene = c_ext
+        lo_, hi_ = pos.min(axis=0), pos.max(axis=0)
+        reach = float(query_radius + r.max() * um)
+        self.bbox = (lo_ - reach, hi_ + reach)
+
+    def __len__(self) -> int:
+        return len(self._core)
+
+    @property
+    def core(self):
+        """The Rust medium (``motes._motes.DiscreteMedium``)."""
+        return self._core
+
+    @property
+    def bytes(self) -> int:
+        return self._core.bytes
+
+    def optical_depth(self, origins, directions, t0, t1) -> np.ndarray:
+        """Grey optical depth of segments (as the renderer's free flights see it)."""
+        o = np.ascontiguousarray(np.atleast_2d(np.asarray(origins, dtype=np.float64)))
+        d = np.ascontiguousarray(np.atleast_2d(np.asarray(directions, dtype=np.float64)))
+        o, d = np.broadcast_arrays(o, d)
+        m = o.shape[0]
+        a = np.ascontiguousarray(np.broadcast_to(np.asarray(t0, dtype=np.float64), (m,)))
+        b = np.ascontiguousarray(np.broadcast_to(np.asarray(t1, dtype=np.float64), (m,)))
+        return self._core.optical_depth(np.ascontiguousarray(o).ravel(), np.ascontiguousarray(d).ravel(), a, b)
+
+
+__all__ = ["DiscreteMedium"]

@@ -1,0 +1,90 @@
+"""Mitsuba 3 plugins of motes: medium ``discrete`` and phase function ``particle``.
+
+``motes.set_variant(name)`` picks a Mitsuba variant and makes it ready for the plugins:
+
+* LLVM variants need a libLLVM that Dr.Jit can drive: ``DRJIT_LIBLLVM_PATH`` is set to Debian's
+  ``libLLVM-19.so`` when unset and present (it must happen before Dr.Jit loads, so ``import motes`` does it
+  too); without a usable LLVM, a ``llvm_*`` request falls back to the matching ``scalar_*`` variant with a
+  warning.
+* In JIT variants the plugins hand numpy batches to Rust, which needs the evaluated ("wavefront") mode:
+  ``SymbolicLoops`` and ``SymbolicCalls`` are switched off.
+* The plugins are registered for the variant (registration is per variant; ``register()`` does only that,
+  and ``import motes`` calls it when a variant is already set).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
+                   "/usr/lib/llvm-19/lib/libLLVM.so")
+
+_registered: set[str] = set()
+
+
+def configure_llvm() -> str | None:
+    """Point Dr.Jit at a usable libLLVM if ``DRJIT_LIBLLVM_PATH`` is unset; returns the path in use."""
+    if os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return os.environ["DRJIT_LIBLLVM_PATH"]
+    for path in LLVM_CANDIDATES:
+        if os.path.exists(path):
+            os.environ["DRJIT_LIBLLVM_PATH"] = path
+            return path
+    return None
+
+
+def register() -> None:
+    """Register ``discrete`` and ``particle`` for the current Mitsuba variant."""
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant is None:
+        raise RuntimeError("motes.register(): set a Mitsuba variant first (motes.set_variant(...))")
+    if variant in _registered:
+        return
+    from .discrete_medium import DiscreteMediumPlugin
+    from .particle_phase import ParticlePhase
+
+    mi.register_medium("discrete", lambda props: DiscreteMediumPlugin(props))
+    mi.register_phase("particle", lambda props: ParticlePhase(props))
+    _registered.add(variant)
+
+
+def set_evaluated_mode(on: bool = True) -> None:
+    """Evaluated ("wavefront") loops and calls in JIT variants (what the plugins need), or back to
+    Mitsuba's default symbolic mode."""
+    import drjit as dr
+
+    dr.set_flag(dr.JitFlag.SymbolicLoops, not on)
+    dr.set_flag(dr.JitFlag.SymbolicCalls, not on)
+
+
+def set_variant(name: str = "llvm_ad_rgb") -> str:
+    """Set the Mitsuba variant ``name`` ready for the plugins (module docs); returns the variant in use."""
+    configure_llvm()
+    import mitsuba as mi
+
+    if name not in mi.variants():
+        raise ValueError(f"unknown Mitsuba variant {name!r}; available: {', '.join(mi.variants())}")
+    try:
+        mi.set_variant(name)
+        if name.startswith("llvm_"):
+            import drjit as dr
+
+            dr.eval(mi.Float([1.0, 2.0]) * 2)  # the first kernel is where a bad libLLVM fails
+    except Exception as e:  # noqa: BLE001 - any failure of the LLVM backend
+        if not name.startswith("llvm_"):
+            raise
+        fallback = "scalar_" + name.split("_")[-1]
+        warnings.warn(f"motes: Mitsuba variant {name} is unusable here ({e}); falling back to {fallback}. "
+                      "Install libllvm19 (apt) for the LLVM variants.", RuntimeWarning, stacklevel=2)
+        mi.set_variant(fallback)
+        name = fallback
+    if name.startswith(("llvm_", "cuda_")):
+        set_evaluated_mode(True)
+    register()
+    return name
+
+
+__all__ = ["configure_llvm", "register", "set_evaluated_mode", "set_variant"]

@@ -1,0 +1,59 @@
+"""Dr.Jit <-> numpy conversions shared by the plugins: one batch per call, scalar and JIT variants alike."""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def _jit() -> bool:
+    return dr.is_jit_v(mi.Float)
+
+
+def vec3(v) -> np.ndarray:
+    """(n, 3) float32 array of a Dr.Jit 3-vector (n = 1 in scalar variants); contiguous."""
+    cols = [np.atleast_1d(np.asarray(c, dtype=np.float32)) for c in (v.x, v.y, v.z)]
+    n = max(c.size for c in cols)
+    return np.ascontiguousarray(np.stack([np.broadcast_to(c, (n,)) for c in cols], axis=1))
+
+
+def mask(m, n: int) -> np.ndarray:
+    return np.ascontiguousarray(np.broadcast_to(np.atleast_1d(np.asarray(m, dtype=bool)), (n,)))
+
+
+def floats(a: np.ndarray):
+    a = np.asarray(a, dtype=np.float32)
+    return mi.Float(a) if _jit() else float(a[0])
+
+
+def vector3(a: np.ndarray):
+    a = np.asarray(a, dtype=np.float32)
+    if _jit():
+        return mi.Vector3f(mi.Float(a[:, 0]), mi.Float(a[:, 1]), mi.Float(a[:, 2]))
+    return mi.Vector3f(*(float(x) for x in a[0]))
+
+
+def spectrum(a: np.ndarray, n: int):
+    """An ``UnpolarizedSpectrum`` from (n, channels) values (a single column is broadcast)."""
+    a = np.asarray(a, dtype=np.float32)
+    size = dr.size_v(mi.UnpolarizedSpectrum)
+    if a.shape[1] == 1 and size != 1:
+        a = np.repeat(a, size, axis=1)
+    if _jit():
+        return mi.UnpolarizedSpectrum(*(mi.Float(np.ascontiguousarray(a[:, c])) for c in range(size)))
+    return mi.UnpolarizedSpectrum(*(float(a[0, c]) for c in range(size)))
+
+
+def channel_wavelengths(medium, mei, n: int):
+    """(flat wavelengths in nm, channels): per lane in spectral variants, shared in RGB ones."""
+    if mi.is_spectral:
+        w = mei.wavelengths
+        cols = [np.atleast_1d(np.asarray(w[c], dtype=np.float64)) for c in range(dr.size_v(mi.UnpolarizedSpectrum))]
+        cols = [np.broadcast_to(c, (n,)) for c in cols]
+        return np.ascontiguousarray(np.stack(cols, axis=1).ravel()), len(cols)
+    if mi.is_rgb:
+        return medium.channel_wavelength_nm, medium.channel_wavelength_nm.size
+    # monochrome: the middle tabulated wavelength
+    lam = medium.channel_wavelength_nm
+    return np.ascontiguousarray(lam[[lam.size // 2]]), 1

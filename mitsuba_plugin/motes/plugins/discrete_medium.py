@@ -1,0 +1,247 @@
+"""Mitsuba medium ``discrete``: a cloud of individual particles (dust, snow, powder, bubbles) whose grains
+are visible where they are few and large and which turns into an ordinary hazy medium where they are many
+and small (Guo et al., Sec. 5). Rendered by Mitsuba's own ``volpath`` and ``volpathmis``.
+
+======================  =========  ======================================================================
+Parameter               Type       Meaning (default)
+======================  =========  ======================================================================
+``filename``            string     Particle file (.npz, .npy, .csv, .ply; see ``motes.load_particles``),
+                                   positions in the medium's local units. Without it particles are
+                                   generated in the local cube [-1, 1]^3:
+``count``               integer    number of generated particles (10000)
+``distribution``        string     ``uniform``, ``gradient`` (concentration falling linearly along
+                                   local +z) or ``noise`` (fBm noise, scale 0.5) (``uniform``)
+``radius_median``       float      log-normal PSD of the radii: median in um (20)
+``radius_sigma_g``      float      log-normal geometric standard deviation, >= 1 (1.5)
+``psd``                 string     any PSD as JSON, e.g. ``{"type": "uniform", "r_min_um": 5,
+                                   "r_max_um": 50}``; replaces the two above
+``material``            string     ``ice`` or ``water`` (tabulated indices); or give ``eta``:
+``eta``, ``eta_k``      float      particle refractive index n + i k (1.31, 0)
+``eta_medium``          float      index of the host medium (1.0)
+``species``             string     JSON list of species for mixtures, each ``{"psd": {...}, "material":
+                                   "ice"}`` or ``{"psd": ..., "eta": [n, k]}``, optional ``"share"``;
+                                   replaces psd/material/eta. Files give each particle's species index
+``scale_m``             float      metres per local unit, so that um radii and positions combine (1e-3)
+``query_radius``        float      r_c of the query cylinder in local units (0: the particles' own
+                                   cross sections). Or Eq. 23 from a camera:
+``footprint_k``         float      k in (0, 2] (paper: 0.5-1), with ``fov`` (degrees), ``film_width``
+                                   (pixels) and ``z_med`` (nearest depth of the medium, local units)
+``cells_per_particle``  float      grid resolution (1: about one particle per voxel, Sec. 6.5)
+``size_bins``           integer    radius bins of the optics tables per species (16)
+``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
+``truncate_below``      float      forward-peak truncation angle in radians (0: none)
+``wavelengths``         string     tabulated wavelengths in um, comma-separated (spectral variants:
+                                   8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
+``seed``                integer    seed of generated positions and free flights (0)
+``to_world``            transform  places the particle positions (radii stay physical)
+``sample_emitters``     boolean    next-event estimation at scattering events (true)
+======================  =========  ======================================================================
+
+The phase function must be ``<phase type="particle"/>``. Unknown or misspelt parameters fail loading
+(Mitsuba's unreferenced-property check); invalid values raise ``ValueError`` naming the parameter and
+its allowed range.
+
+How it maps onto Mitsuba's delta tracking
+-----------------------------------------
+Along a ray the discrete optical depth is a sum of per-particle steps, so the core samples the first
+interaction *exactly* (``rust/motes-core/src/discrete.rs``). ``intersect_aabb`` returns that site as
+``mint`` (nothing lies before it); ``get_majorant`` returns a huge constant ``MAJORANT``, so Mitsuba's
+tentative distance lands on the site; ``get_scattering_coefficients`` returns ``sigma_t = MAJORANT`` and
+``sigma_n = 0`` there, so every tentative collision is real. The result: no null collisions at all, and
+sigma_t <= majorant everywhere (zero away from sites). A ray that leaves without interacting gets
+``hit = False``. ``m_has_spectral_extinction`` is false and the free flight is grey per particle (the
+mean of C_ext over the wavelengths); albedo and phase function are per channel. Events are remembered by
+their exact position so that the scattered ray and its shadow rays skip the particle that scattered
+them. Random numbers for the free flights come from the core (counter-based, reproducible).
+"""
+
+from __future__ import annotations
+
+import json
+
+import mitsuba as mi
+import numpy as np
+
+from ..discrete import DiscreteMedium
+from ..ensemble import Material, Species
+from ..equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM
+from ..particle_io import load_particles
+from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
+from .. import psd as psd_mod
+from ._bridge import channel_wavelengths, mask, spectrum, vec3
+from .particle_phase import ParticlePhase
+
+#: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
+MAJORANT = 1e20
+
+
+def _get(props, name, default, kind, check=None, allowed=""):
+    """Read a property (so Mitsuba counts it as used), check its type and range."""
+    if not props.has_property(name):
+        return default
+    value = props.get(name)
+    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = float(value)
+    elif kind is int and isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise ValueError(f"discrete medium: parameter '{name}' must be a {kind.__name__}, got {value!r}")
+    if check is not None and not check(value):
+        raise ValueError(f"discrete medium: invalid {name} = {value!r}: must be {allowed}")
+    return value
+
+
+def _eta(entry, where):
+    if "material" in entry:
+        return Material(str(entry["material"]))
+    if "eta" in entry:
+        e = entry["eta"]
+        e = complex(e[0], e[1]) if isinstance(e, (list, tuple)) else complex(e)
+        if not (np.isfinite(e.real) and e.real > 0 and e.imag >= 0):
+            raise ValueError(f"discrete medium: invalid eta {e} in {where}: real part > 0, imaginary >= 0")
+        return e
+    raise ValueError(f'discrete medium: {where} needs "material" or "eta"')
+
+
+class DiscreteMediumPlugin(mi.Medium):
+    def __init__(self, props: mi.Properties):
+        mi.Medium.__init__(self, props)
+        self.m_is_homogeneous = False
+        self.m_has_spectral_extinction = False
+        pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
+
+        filename = _get(props, "filename", None, str)
+        count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
+        distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
+                            "one of uniform, gradient, noise")
+        median = _get(props, "radius_median", 20.0, float, pos_f, "finite and > 0 (um)")
+        sigma_g = _get(props, "radius_sigma_g", 1.5, float, lambda v: np.isfinite(v) and v >= 1, "finite and >= 1")
+        psd_json = _get(props, "psd", None, str)
+        material = _get(props, "material", None, str)
+        eta = _get(props, "eta", 1.31, float, pos_f, "finite and > 0")
+        eta_k = _get(props, "eta_k", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
+        eta_medium = _get(props, "eta_medium", 1.0, float, pos_f, "finite and > 0")
+        species_json = _get(props, "species", None, str)
+        scale_m = _get(props, "scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
+        query_radius = _get(props, "query_radius", None, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
+        k = _get(props, "footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
+        fov = _get(props, "fov", None, float)
+        film_width = _get(props, "film_width", None, int)
+        z_med = _get(props, "z_med", None, float)
+        cells = _get(props, "cells_per_particle", 1.0, float, pos_f, "finite and > 0")
+        size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
+        method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
+                      "one of auto, mie, goa, hybrid")
+        truncate = _get(props, "truncate_below", 0.0, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
+        wavelengths = _get(props, "wavelengths", None, str)
+        seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
+        to_world = props.get("to_world", mi.ScalarTransform4f()) if props.has_property("to_world") else mi.ScalarTransform4f()
+
+        # Species and PSD.
+        if species_json is not None:
+            try:
+                entries = json.loads(species_json)
+            except json.JSONDecodeError as e:
+                raise ValueError(f"discrete medium: parameter 'species' is not valid JSON ({e})") from None
+            if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
+                raise ValueError("discrete medium: parameter 'species' must be a non-empty JSON list of objects")
+            species = [Species(psd_mod.from_spec(e.get("psd", {})), _eta(e, f"species[{i}]"), float(e.get("share", 1.0)))
+                       for i, e in enumerate(entries)]
+        else:
+            psd = psd_mod.from_spec(psd_json) if psd_json is not None else psd_mod.LogNormal(median, sigma_g)
+            species = [Species(psd, Material(material) if material is not None else complex(eta, eta_k))]
+
+        # Particles (local units), then to world.
+        if filename is not None:
+            pset = load_particles(filename, n_species=len(species))
+            pos, radii, sidx = pset.positions, pset.radii_um, pset.species
+        else:
+            lo, hi = np.full(3, -1.0), np.full(3, 1.0)
+            shares = np.array([s.share for s in species], dtype=np.float64)
+            if not np.all(shares >= 0) or shares.sum() <= 0:
+                raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
+            rng = np.random.default_rng(seed)
+            sidx = rng.choice(len(species), size=count, p=shares / shares.sum())
+            radii = np.empty(count)
+            for i, s in enumerate(species):
+                sel = sidx == i
+                radii[sel] = s.psd.sample(int(sel.sum()), seed=seed + 7919 * (i + 1)) if sel.any() else 0
+            if distribution == "uniform":
+                pos, _ = uniform_box(count, lo, hi, species[0].psd, seed=seed)
+            else:
+                density = Gradient(axis=2, start=1.0, end=0.0) if distribution == "gradient" else Noise(scale=0.5, seed=seed)
+                pos, _ = density_box(count, lo, hi, density, species[0].psd, seed=seed)
+        m = np.array(to_world.matrix, dtype=np.float64)
+        pos = pos @ m[:3, :3].T + m[:3, 3]
+
+        # Query radius: explicit, or Eq. 23.
+        eq23 = [v is not None for v in (k, fov, film_width, z_med)]
+        if any(eq23) and not all(eq23):
+            raise ValueError("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
+        if all(eq23):
+            if query_radius is not None:
+                raise ValueError("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
+            query_radius = query_radius_from_camera(k, fov, film_width, z_med)
+        query_radius = 0.0 if query_radius is None else query_radius
+
+        if wavelengths is not None:
+            try:
+                lam = np.array([float(x) for x in wavelengths.replace(",", " ").split()])
+            except ValueError:
+                raise ValueError(f"discrete medium: parameter 'wavelengths' must be numbers in um, got {wavelengths!r}") from None
+            if mi.is_rgb and lam.size != 3:
+                raise ValueError("discrete medium: RGB variants need exactly 3 wavelengths (R, G, B)")
+        else:
+            lam = np.array(RGB_WAVELENGTHS_UM if mi.is_rgb else SPECTRAL_WAVELENGTHS_UM)
+
+        self.data = DiscreteMedium(pos, radii, sidx, species, lam, scale_m=scale_m, query_radius=query_radius,
+                                   size_bins=size_bins, eta_medium=eta_medium, method=method,
+                                   truncate_below_rad=truncate if truncate > 0 else None,
+                                   cells_per_particle=cells, seed=seed)
+        phase = self.phase_function()
+        if not isinstance(phase, ParticlePhase):
+            raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
+                             "(the medium supplies the particles it scatters from)")
+        phase.attach(self.data)
+        self.stats = {"intersect_calls": 0, "rays": 0, "events": 0}
+
+    # -- Mitsuba interface -------------------------------------------------------------------------
+    def intersect_aabb(self, ray):
+        o, d = vec3(ray.o), vec3(ray.d)
+        n = o.shape[0]
+        t_max = np.ascontiguousarray(np.broadcast_to(np.atleast_1d(np.asarray(ray.maxt, dtype=np.float64)), (n,)))
+        t, _ = self.data.core.sample_sites(o.ravel(), d.ravel(), t_max)
+        hit = np.isfinite(t)
+        self.stats["intersect_calls"] += 1
+        self.stats["rays"] += n
+        mint = np.where(hit, t, np.inf).astype(np.float32)
+        maxt = np.where(hit, np.inf, -np.inf).astype(np.float32)
+        if dr_jit():
+            return mi.Bool(hit), mi.Float(mint), mi.Float(maxt)
+        return bool(hit[0]), float(mint[0]), float(maxt[0])
+
+    def get_majorant(self, mei, active=True):
+        return mi.UnpolarizedSpectrum(MAJORANT)
+
+    def get_scattering_coefficients(self, mei, active=True):
+        p = vec3(mei.p)
+        n = p.shape[0]
+        act = mask(active, n)
+        lam, ch = channel_wavelengths(self.data, mei, n)
+        albedo = self.data.core.commit_events(p.ravel(), act, lam, ch).reshape(n, ch)
+        self.stats["events"] += int(act.sum())
+        sigma_t = np.where(act, MAJORANT, 0.0)[:, None]
+        return (spectrum(albedo * sigma_t, n), spectrum(np.zeros((n, 1)), n), spectrum(sigma_t, n))
+
+    def traverse(self, callback):
+        mi.Medium.traverse(self, callback)
+
+    def to_string(self):
+        d = self.data
+        return (f"DiscreteMedium[particles={len(d)}, bins={d.n_bins}, query_radius={d.query_radius:g}, "
+                f"scale_m={d.scale_m:g}, bytes={d.bytes}]")
+
+
+def dr_jit() -> bool:
+    import drjit as dr
+    return dr.is_jit_v(mi.Float)

@@ -1,0 +1,66 @@
+"""Mitsuba phase function ``particle``: the phase function of the particle(s) that scattered the path.
+
+=============  ======  ==========================================================================
+Parameter      Type    Meaning
+=============  ======  ==========================================================================
+(none)                 Use it as the ``<phase>`` child of a ``discrete`` medium, which supplies the
+                       particles; alone it evaluates to 0.
+=============  ======  ==========================================================================
+
+Notes
+-----
+* At an interaction the ``discrete`` medium knows which site (normally one particle; particles that
+  coincide along the ray form a mixture) scattered the path; this phase function evaluates and samples
+  that site's mixture: per channel ``f_c = sum_j s_jc f_jc / sum_j s_jc`` with scattering weights
+  ``s_jc = tau_j * albedo_jc`` — sigma_s f equals Q(theta) of the paper's Eq. 24 for those particles.
+* ``sample`` picks a channel uniformly, a particle by its scattering weight, then draws from its
+  tabulated phase function; the pdf it returns (and ``eval_pdf`` returns) is the mean over channels of
+  ``f_c``, so sampling and evaluation agree exactly, and the weights ``f_c / pdf`` stay bounded across
+  wavelengths (spectral variants interpolate between the tabulated wavelengths).
+* Every call is one batch to Rust (numpy in, numpy out); in LLVM variants it needs the evaluated
+  ("wavefront") mode that ``motes.set_variant`` switches on.
+"""
+
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+
+from ._bridge import channel_wavelengths, floats, spectrum, vec3, vector3
+
+
+class ParticlePhase(mi.PhaseFunction):
+    def __init__(self, props: mi.Properties):
+        mi.PhaseFunction.__init__(self, props)
+        self.m_flags = mi.PhaseFunctionFlags.Anisotropic
+        self._medium = None  # motes.discrete.DiscreteMedium, set by the discrete medium
+
+    def attach(self, medium) -> None:
+        self._medium = medium
+
+    def _channels(self, mei, n):
+        return channel_wavelengths(self._medium, mei, n)
+
+    def sample(self, ctx, mei, sample1, sample2, active=True):
+        p, wi = vec3(mei.p), vec3(mei.wi)
+        n = p.shape[0]
+        if self._medium is None:
+            return vector3(np.zeros((n, 3))), spectrum(np.zeros((n, 1)), n), floats(np.zeros(n))
+        lam, ch = self._channels(mei, n)
+        u1 = np.ascontiguousarray(np.broadcast_to(np.asarray(sample1, dtype=np.float64).ravel(), (n,)))
+        u2 = np.ascontiguousarray(np.stack([np.broadcast_to(np.asarray(sample2.x, dtype=np.float64).ravel(), (n,)),
+                                            np.broadcast_to(np.asarray(sample2.y, dtype=np.float64).ravel(), (n,))], axis=1).ravel())
+        wo, w, pdf = self._medium.core.phase_sample(p.ravel(), wi.ravel(), lam, ch, u1, u2)
+        return vector3(wo.reshape(n, 3)), spectrum(w.reshape(n, ch), n), floats(pdf)
+
+    def eval_pdf(self, ctx, mei, wo, active=True):
+        p, wi, w = vec3(mei.p), vec3(mei.wi), vec3(wo)
+        n = p.shape[0]
+        if self._medium is None:
+            return spectrum(np.zeros((n, 1)), n), floats(np.zeros(n))
+        lam, ch = self._channels(mei, n)
+        v, pdf = self._medium.core.phase_eval(p.ravel(), wi.ravel(), w.ravel(), lam, ch)
+        return spectrum(v.reshape(n, ch), n), floats(pdf)
+
+    def to_string(self):
+        return f"ParticlePhase[attached={self._medium is not None}]"

@@ -1,0 +1,471 @@
+//! The discrete medium as a renderer sees it: exact free flights to particle *sites*, the site's albedo and
+//! its phase function (paper Sec. 5; issue 5). Free of Mitsuba: the Python plugin maps these batched
+//! queries onto Mitsuba's medium and phase-function interfaces.
+//!
+//! ## Model
+//! Along a ray the discrete optical depth is a staircase: particle i, passing within R_i = r_c + r_i of
+//! the ray with its centre projecting at t_i, adds τ_i = C_t,i / (π R_i²) (normalisation of
+//! [`crate::grid`], so that E[τ] = σ_t · length). A free flight is sampled exactly by walking the
+//! particles in t order ([`ParticleGrid::sample_site`]): no majorant, no null collisions. The
+//! interaction happens at the site's t (the particle's projection on the ray). The scattered path must
+//! not meet the particle that scattered it again (its internal paths are already in its phase
+//! function), so each event is remembered by the exact bits of its position and the particles of that
+//! event are skipped by rays starting there ([`EventMap`]).
+//!
+//! ## Colour
+//! The free flight uses one (grey) optical depth per particle: the mean of τ over the tabulated
+//! wavelengths. Per wavelength the site has its own albedo a_c = C_s,c / C_t,c and phase function
+//! f_c. Why grey: Mitsuba's medium interface applies per-channel weights at collisions but not to a
+//! path that leaves the medium without one, so a channel-dependent free flight cannot be re-weighted
+//! there (see `mitsuba_plugin/motes/plugins/discrete.py`). A non-absorbing particle keeps a_c = 1 in
+//! every channel, so energy is conserved exactly (white furnace); what is approximated is the colour
+//! of the transmittance, by the spread of C_t over the channels (measured in BENCHMARKS.md).
+//!
+//! ## Phase function of a site (Eq. 24)
+//! With the site's particles j, scattering weights s_j,c = τ_j a_j,c, the phase function for
+//! channel c is the mixture f_c(μ) = Σ_j s_j,c f_j,c(μ) / Σ_j s_j,c — σ_s f of the site is Q(θ) of
+//! Eq. 24 for the particles it holds. Sampling picks a channel uniformly, a particle with probability
+//! ∝ s_j,c, then its tabulated f (piecewise linear in μ, inverse-CDF sampling). The pdf returned is
+//! the mean over channels of f_c (one-sample MIS over channels), so `sample` and `eval` agree
+//! exactly and the weights f_c / pdf stay bounded.
+
+use crate::error::{require, OpticsError};
+use crate::grid::{ParticleGrid, Site};
+use crate::phase_table::PhaseTable;
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+use std::f64::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, RwLock};
+
+/// Optical data of one radius bin of one species at the tabulated wavelengths.
+pub struct BinOptics {
+    /// Single-scattering albedo C_s / C_t per tabulated wavelength.
+    pub albedo: Vec<f64>,
+    /// Phase function per tabulated wavelength.
+    pub phase: Vec<PhaseTable>,
+}
+
+/// Events by the exact bits of their position, in two generations: lookups see both, inserts go to
+/// the current one, and the current one becomes the previous when it outgrows `capacity`. An event is
+/// looked up by the rays that start at it (its shadow rays and the scattered ray) within a few batches,
+/// long before two generations pass.
+struct EventMap {
+    current: FxHashMap<[u32; 3], Site>,
+    previous: FxHashMap<[u32; 3], Site>,
+    capacity: usize,
+}
+
+impl EventMap {
+    fn get(&self, key: &[u32; 3]) -> Option<&Site> {
+        self.current.get(key).or_else(|| self.previous.get(key))
+    }
+    fn insert(&mut self, key: [u32; 3], site: Site) {
+        if self.current.len() >= self.capacity {
+            self.previous = std::mem::take(&mut self.current);
+        }
+        self.current.insert(key, site);
+    }
+}
+
+fn key(p: [f32; 3]) -> [u32; 3] {
+    p.map(f32::to_bits)
+}
+
+/// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
+/// renders are reproducible whatever the thread schedule.
+fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
+    let mut z = seed ^ call.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Unit vector and two perpendicular ones (Duff et al. 2017 branchless frame).
+fn frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let sign = if n[2] >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (sign + n[2]);
+    let b = n[0] * n[1] * a;
+    ([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]], [b, sign + n[1] * n[1] * a, -n[1]])
+}
+
+fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (l.is_finite() && l > 0.0).then(|| v.map(|x| x / l))
+}
+
+/// The discrete medium: particles in a grid with grey optical depths, and per-bin optics.
+pub struct DiscreteMedium {
+    grid: ParticleGrid,
+    /// Grey optical depth of each particle (original index).
+    tau: Vec<f32>,
+    /// Optics bin of each particle (original index into `bins`).
+    bin: Vec<u32>,
+    bins: Vec<BinOptics>,
+    /// Tabulated wavelengths, increasing (any unit; the caller's channel wavelengths use the same).
+    lambda: Vec<f64>,
+    /// Projections closer than this along a ray form one site (scene units).
+    coincide: f64,
+    events: RwLock<EventMap>,
+    /// Sites sampled by each calling thread's last `sample_sites` call, per lane, until its
+    /// `commit_events` (Mitsuba's scalar variants call from several render threads at once).
+    pending: Mutex<FxHashMap<std::thread::ThreadId, Vec<Option<Site>>>>,
+    seed: u64,
+    calls: AtomicU64,
+}
+
+/// Per-lane result of [`DiscreteMedium::sample_sites`].
+#[derive(Clone, Copy, Debug)]
+pub struct SiteSample {
+    /// Distance to the site, or None when the ray leaves [0, t_max) without interacting.
+    pub t: Option<f64>,
+    /// Optical depth walked before the site (or to t_max).
+    pub tau_before: f64,
+}
+
+impl DiscreteMedium {
+    /// `positions` and `radius` in scene units, `c_ext` the grey extinction cross section per particle
+    /// (scene units²), `bin` each particle's index into `bins`, `lambda` the tabulated wavelengths
+    /// (increasing), `query_radius` r_c (scene units).
+    #[allow(clippy::too_many_arguments)]
+    pub fn build(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], bin: Vec<u32>, bins: Vec<BinOptics>, lambda: Vec<f64>, query_radius: f64, cells_per_particle: f64, seed: u64) -> Result<Self, OpticsError> {
+        let n = positions.len();
+        require("bin (length)", bin.len() as f64, bin.len() == n, "one per particle")?;
+        require("lambda (length)", lambda.len() as f64, !lambda.is_empty(), ">= 1")?;
+        for w in lambda.windows(2) {
+            require("lambda", w[1], w[1] > w[0], "strictly increasing")?;
+        }
+        for (b, o) in bins.iter().enumerate() {
+            require("bins (albedo per wavelength)", b as f64, o.albedo.len() == lambda.len() && o.phase.len() == lambda.len(), "one albedo and one phase table per wavelength")?;
+            for &a in &o.albedo {
+                require("albedo", a, a.is_finite() && (0.0..=1.0 + 1e-9).contains(&a), "in [0, 1]")?;
+            }
+        }
+        if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
+            require("bin (index)", b as f64, false, "< number of bins")?;
+        }
+        let grid = ParticleGrid::build(positions, radius, c_ext, 1, query_radius, cells_per_particle)?;
+        let tau = (0..n)
+            .map(|i| {
+                let r = query_radius + radius[i];
+                (c_ext[i] / (PI * r * r)) as f32
+            })
+            .collect();
+        let (lo, hi) = positions.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), p| {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+            (lo, hi)
+        });
+        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) + grid.reach_max();
+        // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
+        // be ordered reliably, so they form one site.
+        let coincide = 1e-6 * extent.max(1e-30);
+        let events = EventMap { current: FxHashMap::default(), previous: FxHashMap::default(), capacity: 1 << 16 };
+        Ok(DiscreteMedium { grid, tau, bin, bins, lambda, coincide, events: RwLock::new(events), pending: Mutex::new(FxHashMap::default()), seed, calls: AtomicU64::new(0) })
+    }
+
+    pub fn grid(&self) -> &ParticleGrid {
+        &self.grid
+    }
+    pub fn len(&self) -> usize {
+        self.tau.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.tau.is_empty()
+    }
+    pub fn bytes(&self) -> usize {
+        self.grid.bytes() + self.tau.len() * 4 + self.bin.len() * 4
+    }
+    pub fn lambda(&self) -> &[f64] {
+        &self.lambda
+    }
+
+    /// Interpolation of the tables at wavelength `l`: (lower index, upper index, weight of the upper);
+    /// clamped to the tabulated range.
+    fn bracket(&self, l: f64) -> (usize, usize, f64) {
+        let k = self.lambda.partition_point(|&x| x <= l);
+        if k == 0 {
+            (0, 0, 0.0)
+        } else if k >= self.lambda.len() {
+            let m = self.lambda.len() - 1;
+            (m, m, 0.0)
+        } else {
+            let (a, b) = (self.lambda[k - 1], self.lambda[k]);
+            (k - 1, k, (l - a) / (b - a))
+        }
+    }
+
+    fn albedo_at(&self, particle: u32, l: (usize, usize, f64)) -> f64 {
+        let a = &self.bins[self.bin[particle as usize] as usize].albedo;
+        (1.0 - l.2) * a[l.0] + l.2 * a[l.1]
+    }
+
+    fn phase_at(&self, particle: u32, l: (usize, usize, f64), mu: f64) -> f64 {
+        let p = &self.bins[self.bin[particle as usize] as usize].phase;
+        let lo = p[l.0].eval(mu);
+        if l.2 == 0.0 { lo } else { (1.0 - l.2) * lo + l.2 * p[l.1].eval(mu) }
+    }
+
+    /// Sample the next site along each ray (origin `o`, direction `d`, on (0, t_max)), skipping the
+    /// particles of the event the ray starts at. The sites are kept for [`Self::commit_events`].
+    pub fn sample_sites(&self, o: &[[f32; 3]], d: &[[f32; 3]], t_max: &[f64]) -> Vec<SiteSample> {
+        let call = self.calls.fetch_add(1, Ordering::Relaxed);
+        let events = self.events.read().unwrap();
+        let res: Vec<(Option<Site>, f64)> = o
+            .par_iter()
+            .zip(d.par_iter().zip(t_max.par_iter()))
+            .enumerate()
+            .map(|(lane, (oo, (dd, &tm)))| {
+                let (Some(dir), true) = (normalise(dd.map(|x| x as f64)), oo.iter().all(|x| x.is_finite())) else {
+                    return (None, 0.0);
+                };
+                let exclude = events.get(&key(*oo)).map(|s| s.members().to_vec()).unwrap_or_default();
+                // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
+                let bits = oo.iter().chain(dd.iter()).fold(0u64, |h, x| (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3));
+                let u = uniform(self.seed ^ bits, call, lane as u64);
+                self.grid.sample_site(oo.map(|x| x as f64), dir, 0.0, tm, &exclude, u, self.coincide)
+            })
+            .collect();
+        drop(events);
+        let out = res.iter().map(|(s, tau)| SiteSample { t: s.map(|s| s.t), tau_before: *tau }).collect();
+        self.pending.lock().unwrap().insert(std::thread::current().id(), res.into_iter().map(|r| r.0).collect());
+        out
+    }
+
+    /// Record the events of this thread's last [`Self::sample_sites`] call at the positions the renderer placed
+    /// them (`p`, one per lane of that call; `active` false for lanes without an event) and return each
+    /// lane's albedo at its channel wavelengths (`lambda`: `channels` per lane, or `channels` shared).
+    pub fn commit_events(&self, p: &[[f32; 3]], active: &[bool], lambda: &[f64], channels: usize) -> Result<Vec<f64>, OpticsError> {
+        let pending = self.pending.lock().unwrap().remove(&std::thread::current().id()).unwrap_or_default();
+        let n = p.len();
+        require("lanes (must equal the last sample_sites call)", n as f64, pending.len() == n && active.len() == n, "the same lane count")?;
+        let shared = lambda.len() == channels;
+        require("lambda (length)", lambda.len() as f64, shared || lambda.len() == n * channels, "channels or lanes × channels")?;
+        {
+            let mut events = self.events.write().unwrap();
+            events.capacity = events.capacity.max(4 * n);
+            for i in 0..n {
+                if let (true, Some(site)) = (active[i], pending[i]) {
+                    events.insert(key(p[i]), site);
+                }
+            }
+        }
+        Ok((0..n)
+            .into_par_iter()
+            .flat_map_iter(|i| {
+                let site = if active[i] { pending[i] } else { None };
+                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                (0..channels).map(move |c| site.map_or(0.0, |s| self.site_albedo(&s, self.bracket(lam[c]))))
+            })
+            .collect())
+    }
+
+    /// τ-weighted albedo of a site at one wavelength.
+    fn site_albedo(&self, s: &Site, l: (usize, usize, f64)) -> f64 {
+        let (mut num, mut den) = (0.0, 0.0);
+        for &j in s.members() {
+            let t = self.tau[j as usize] as f64;
+            num += t * self.albedo_at(j, l);
+            den += t;
+        }
+        if den > 0.0 { num / den } else { 0.0 }
+    }
+
+    /// The site of an event position, if it is remembered.
+    pub fn event_at(&self, p: [f32; 3]) -> Option<Site> {
+        self.events.read().unwrap().get(&key(p)).copied()
+    }
+
+    /// Phase function of the site per channel at μ = cos θ, and the channel-mean pdf (module docs).
+    fn site_phase(&self, s: &Site, ls: &[(usize, usize, f64)], mu: f64, values: &mut [f64]) -> f64 {
+        let mut pdf = 0.0;
+        for (c, &l) in ls.iter().enumerate() {
+            let (mut num, mut den) = (0.0, 0.0);
+            for &j in s.members() {
+                let w = self.tau[j as usize] as f64 * self.albedo_at(j, l);
+                num += w * self.phase_at(j, l, mu);
+                den += w;
+            }
+            values[c] = if den > 0.0 { num / den } else { 0.0 };
+            pdf += values[c];
+        }
+        pdf / ls.len() as f64
+    }
+
+    /// Evaluate the phase function of the event at `p` for incident direction `wi` (pointing back along
+    /// the path, Mitsuba's convention) and outgoing `wo`: per-channel values (1/sr) and the pdf.
+    /// Positions without a remembered event give 0 and 0.
+    pub fn phase_eval(&self, p: &[[f32; 3]], wi: &[[f32; 3]], wo: &[[f32; 3]], lambda: &[f64], channels: usize) -> (Vec<f64>, Vec<f64>) {
+        let shared = lambda.len() == channels;
+        let events = self.events.read().unwrap();
+        let res: Vec<(Vec<f64>, f64)> = (0..p.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut v = vec![0.0; channels];
+                let site = events.get(&key(p[i]));
+                let dirs = normalise(wi[i].map(|x| -(x as f64))).zip(normalise(wo[i].map(|x| x as f64)));
+                let (Some(s), Some((w_in, w_out))) = (site, dirs) else { return (v, 0.0) };
+                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+                let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
+                let pdf = self.site_phase(s, &ls, mu, &mut v);
+                (v, pdf)
+            })
+            .collect();
+        let pdf = res.iter().map(|r| r.1).collect();
+        (res.into_iter().flat_map(|r| r.0).collect(), pdf)
+    }
+
+    /// Sample the phase function of the event at `p` (module docs): outgoing directions, weights
+    /// (value / pdf per channel) and pdfs; `u1` picks channel, particle and table, `u2` the direction.
+    pub fn phase_sample(&self, p: &[[f32; 3]], wi: &[[f32; 3]], lambda: &[f64], channels: usize, u1: &[f64], u2: &[[f64; 2]]) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+        let shared = lambda.len() == channels;
+        let events = self.events.read().unwrap();
+        let res: Vec<([f64; 3], Vec<f64>, f64)> = (0..p.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut v = vec![0.0; channels];
+                let site = events.get(&key(p[i]));
+                let w_in = normalise(wi[i].map(|x| -(x as f64)));
+                let (Some(s), Some(w_in)) = (site, w_in) else { return ([0.0, 0.0, 1.0], v, 0.0) };
+                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+                // Channel, then particle ∝ s_j,c, then table (lower/upper wavelength), each by rescaling u1.
+                let x = u1[i].clamp(0.0, 1.0 - f64::EPSILON) * channels as f64;
+                let c = (x as usize).min(channels - 1);
+                let mut u = x - c as f64;
+                let l = ls[c];
+                let weights: Vec<f64> = s.members().iter().map(|&j| self.tau[j as usize] as f64 * self.albedo_at(j, l)).collect();
+                let total: f64 = weights.iter().sum();
+                if !(total > 0.0) {
+                    return ([0.0, 0.0, 1.0], v, 0.0);
+                }
+                let mut pick = s.members().len() - 1;
+                let mut acc = 0.0;
+                for (k, w) in weights.iter().enumerate() {
+                    if u * total < acc + w {
+                        pick = k;
+                        u = ((u * total - acc) / w).clamp(0.0, 1.0 - f64::EPSILON);
+                        break;
+                    }
+                    acc += w;
+                }
+                let j = s.members()[pick];
+                let table = if u < 1.0 - l.2 { l.0 } else { l.1 };
+                let mu = self.bins[self.bin[j as usize] as usize].phase[table].sample(u2[i][0]);
+                let phi = 2.0 * PI * u2[i][1];
+                let st = (1.0 - mu * mu).max(0.0).sqrt();
+                let (e1, e2) = frame(w_in);
+                let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
+                let pdf = self.site_phase(s, &ls, mu, &mut v);
+                if pdf > 0.0 {
+                    v.iter_mut().for_each(|x| *x /= pdf);
+                }
+                (wo, v, pdf)
+            })
+            .collect();
+        let wo = res.iter().map(|r| r.0).collect();
+        let pdf = res.iter().map(|r| r.2).collect();
+        (wo, res.into_iter().flat_map(|r| r.1).collect(), pdf)
+    }
+
+    /// Remember an event directly (tests and tools: e.g. a chi-square test of a chosen mixture).
+    pub fn insert_event(&self, p: [f32; 3], particles: &[u32]) -> Result<(), OpticsError> {
+        let mut s = Site::default();
+        for &i in particles {
+            require("particle", i as f64, (i as usize) < self.tau.len(), "< number of particles")?;
+            if (s.len as usize) < Site::CAPACITY {
+                s.particles[s.len as usize] = i;
+                s.len += 1;
+            }
+        }
+        require("particles (count)", particles.len() as f64, !particles.is_empty(), ">= 1")?;
+        self.events.write().unwrap().insert(key(p), s);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(g: f64) -> PhaseTable {
+        // Henyey–Greenstein on a fine grid.
+        let theta: Vec<f64> = (0..2001).map(|i| PI * i as f64 / 2000.0).collect();
+        let f: Vec<f64> = theta.iter().map(|t| (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * t.cos()).powf(1.5))).collect();
+        PhaseTable::new(&theta, &f).unwrap()
+    }
+
+    fn medium(n: usize) -> DiscreteMedium {
+        let mut s = 3u64;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64) / (1u64 << 53) as f64
+        };
+        let pos: Vec<[f64; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
+        let rad: Vec<f64> = (0..n).map(|_| 0.002 + 0.004 * r()).collect();
+        let c: Vec<f64> = rad.iter().map(|x| 2.0 * PI * x * x).collect();
+        let bins = vec![
+            BinOptics { albedo: vec![1.0, 0.9], phase: vec![table(0.3), table(0.5)] },
+            BinOptics { albedo: vec![0.5, 0.7], phase: vec![table(-0.2), table(0.8)] },
+        ];
+        let bin = (0..n).map(|i| (i % 2) as u32).collect();
+        DiscreteMedium::build(&pos, &rad, &c, bin, bins, vec![500.0, 600.0], 0.01, 1.0, 7).unwrap()
+    }
+
+    /// Sites are sampled with the exact escape probability exp(−τ) (binomial 5σ bound), and the
+    /// walked optical depth before a site never exceeds the segment's.
+    #[test]
+    fn site_escape_probability() {
+        let m = medium(4000);
+        let lanes = 40000;
+        let o = vec![[0.5f32, 0.5, -0.2]; lanes];
+        let d = vec![[0.0f32, 0.0, 1.0]; lanes];
+        let tm = vec![1.4; lanes];
+        let mut tau = [0.0];
+        m.grid.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4, &mut tau);
+        let res = m.sample_sites(&o, &d, &tm);
+        let escaped = res.iter().filter(|r| r.t.is_none()).count() as f64 / lanes as f64;
+        let p = (-tau[0]).exp();
+        assert!(tau[0] > 0.2, "{}", tau[0]);
+        assert!((escaped - p).abs() < 5.0 * (p * (1.0 - p) / lanes as f64).sqrt(), "{escaped} vs {p}");
+        for r in &res {
+            assert!(r.tau_before <= tau[0] + 1e-6);
+        }
+    }
+
+    /// After an event is committed, a ray starting at its position skips the event's particles; the
+    /// phase function of the event samples what it evaluates (pdf = mean of channel values).
+    #[test]
+    fn events_exclude_and_phase_is_consistent() {
+        let m = medium(4000);
+        let o = [[0.5f32, 0.5, -0.2]];
+        let d = [[0.0f32, 0.0, 1.0]];
+        let mut site = None;
+        for _ in 0..100 {
+            let r = m.sample_sites(&o, &d, &[2.0]);
+            if let Some(t) = r[0].t {
+                site = Some(t);
+                break;
+            }
+        }
+        let t = site.expect("an event");
+        let p = [0.5f32, 0.5, (-0.2 + t) as f32];
+        let alb = m.commit_events(&[p], &[true], &[500.0, 600.0], 2).unwrap();
+        assert!(alb.iter().all(|a| (0.0..=1.0).contains(a)));
+        let s = m.event_at(p).unwrap();
+        assert!(s.len >= 1);
+        let (wo, w, pdf) = m.phase_sample(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &[500.0, 600.0], 2, &(0..64).map(|i| i as f64 / 64.0).collect::<Vec<_>>(), &(0..64).map(|i| [((i * 37) % 64) as f64 / 64.0, ((i * 11) % 64) as f64 / 64.0]).collect::<Vec<_>>());
+        let wo32: Vec<[f32; 3]> = wo.iter().map(|v| v.map(|x| x as f32)).collect();
+        let (vals, pdf2) = m.phase_eval(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &wo32, &[500.0, 600.0], 2);
+        for i in 0..64 {
+            assert!(pdf[i] > 0.0);
+            assert!((pdf[i] - pdf2[i]).abs() < 1e-3 * pdf[i], "{} {}", pdf[i], pdf2[i]);
+            assert!((w[2 * i] * pdf[i] - vals[2 * i]).abs() < 1e-3 * vals[2 * i].max(1e-9));
+            assert!(((vals[2 * i] + vals[2 * i + 1]) / 2.0 - pdf2[i]).abs() < 1e-12);
+        }
+    }
+}
