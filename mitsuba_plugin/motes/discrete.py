@@ -18,6 +18,8 @@ queries (``rust/motes-core/src/discrete.rs`` documents the model).
 ``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``)
 ``cells_per_particle``      grid resolution (about one particle per voxel by default)
 ``seed``                    seed of the free-flight random numbers
+``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
+                            default: the physical one)
 ==========================  ==========================================================================
 
 Each particle's extinction cross section is ``pi r^2 Q_ext`` with its bin's mean efficiency over the
@@ -47,7 +49,8 @@ class DiscreteMedium:
 
     def __init__(self, positions, radii_um, species_index, species, wavelength_um, *, scale_m: float = 1.0,
                  query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
-                 truncate_below_rad: float | None = None, cells_per_particle: float = 1.0, seed: int = 0):
+                 truncate_below_rad: float | None = None, cells_per_particle: float = 1.0, seed: int = 0,
+                 albedo: float | None = None):
         pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
         if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
             raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
@@ -78,9 +81,11 @@ class DiscreteMedium:
         if not (np.isfinite(query_radius) and query_radius >= 0):
             raise ValueError(f"invalid query_radius = {query_radius}: must be finite and >= 0")
 
+        if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
+            raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
         bin_of = np.zeros(n, dtype=np.uint32)
         q_ext = np.zeros(n)  # grey extinction efficiency of each particle's bin
-        albedo, theta, f, offsets = [], [], [], [0]
+        albedos, theta, f, offsets = [], [], [], [0]
         self.bin_radius_um, self.bin_species, self.bin_q_ext, self.bin_albedo = [], [], [], []
         nb = 0
         for k, sp in enumerate(species):
@@ -100,7 +105,7 @@ class DiscreteMedium:
                 members = sel[which == b]
                 bin_of[members] = nb
                 q_ext[members] = float(np.mean(q_t))
-                albedo.append(np.clip(bulk["albedo"], 0.0, 1.0))
+                albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if albedo is None else np.full(lam.size, float(albedo)))
                 for row in bulk["phase"]:
                     theta.append(bulk["theta"])
                     f.append(row)
@@ -120,7 +125,7 @@ class DiscreteMedium:
         self.n_bins = nb
         self._core = _motes.DiscreteMedium(
             pos.ravel(), np.ascontiguousarray(r * um), np.ascontiguousarray(c_ext), bin_of,
-            np.ascontiguousarray(np.concatenate(albedo)), np.ascontiguousarray(np.concatenate(theta)),
+            np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(cells_per_particle), int(seed) & (2**64 - 1))
         self.positions = pos

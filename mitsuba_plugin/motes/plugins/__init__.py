@@ -43,11 +43,11 @@ def register() -> None:
         raise RuntimeError("motes.register(): set a Mitsuba variant first (motes.set_variant(...))")
     if variant in _registered:
         return
-    from .discrete_medium import DiscreteMediumPlugin
-    from .particle_phase import ParticlePhase
+    from . import discrete_medium, particle_phase
 
-    mi.register_medium("discrete", lambda props: DiscreteMediumPlugin(props))
-    mi.register_phase("particle", lambda props: ParticlePhase(props))
+    medium, phase = discrete_medium.plugin_class(), particle_phase.plugin_class()
+    mi.register_medium("discrete", lambda props: medium(props))
+    mi.register_phase("particle", lambda props: phase(props))
     _registered.add(variant)
 
 

@@ -11,10 +11,10 @@ def _jit() -> bool:
     return dr.is_jit_v(mi.Float)
 
 
-def vec3(v) -> np.ndarray:
-    """(n, 3) float32 array of a Dr.Jit 3-vector (n = 1 in scalar variants); contiguous."""
+def vec3(v, n: int = 0) -> np.ndarray:
+    """(n, 3) float32 array of a Dr.Jit 3-vector (broadcast to at least n lanes; 1 in scalar variants)."""
     cols = [np.atleast_1d(np.asarray(c, dtype=np.float32)) for c in (v.x, v.y, v.z)]
-    n = max(c.size for c in cols)
+    n = max([n] + [c.size for c in cols])
     return np.ascontiguousarray(np.stack([np.broadcast_to(c, (n,)) for c in cols], axis=1))
 
 

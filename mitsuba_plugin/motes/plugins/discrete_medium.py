@@ -33,6 +33,7 @@ Parameter               Type       Meaning (default)
 ``wavelengths``         string     tabulated wavelengths in um, comma-separated (spectral variants:
                                    8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
 ``seed``                integer    seed of generated positions and free flights (0)
+``albedo``              float      replaces every particle's albedo, in [0, 1] (tests, stylisation)
 ``to_world``            transform  places the particle positions (radii stay physical)
 ``sample_emitters``     boolean    next-event estimation at scattering events (true)
 ======================  =========  ======================================================================
@@ -69,7 +70,6 @@ from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod
 from ._bridge import channel_wavelengths, mask, spectrum, vec3
-from .particle_phase import ParticlePhase
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -77,7 +77,7 @@ MAJORANT = 1e20
 
 def _get(props, name, default, kind, check=None, allowed=""):
     """Read a property (so Mitsuba counts it as used), check its type and range."""
-    if not props.has_property(name):
+    if name not in props:
         return default
     value = props.get(name)
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -103,7 +103,9 @@ def _eta(entry, where):
     raise ValueError(f'discrete medium: {where} needs "material" or "eta"')
 
 
-class DiscreteMediumPlugin(mi.Medium):
+class DiscreteMediumPlugin:
+    """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.Medium``."""
+
     def __init__(self, props: mi.Properties):
         mi.Medium.__init__(self, props)
         self.m_is_homogeneous = False
@@ -135,7 +137,8 @@ class DiscreteMediumPlugin(mi.Medium):
         truncate = _get(props, "truncate_below", 0.0, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
         wavelengths = _get(props, "wavelengths", None, str)
         seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
-        to_world = props.get("to_world", mi.ScalarTransform4f()) if props.has_property("to_world") else mi.ScalarTransform4f()
+        albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+        to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
 
         # Species and PSD.
         if species_json is not None:
@@ -197,9 +200,9 @@ class DiscreteMediumPlugin(mi.Medium):
         self.data = DiscreteMedium(pos, radii, sidx, species, lam, scale_m=scale_m, query_radius=query_radius,
                                    size_bins=size_bins, eta_medium=eta_medium, method=method,
                                    truncate_below_rad=truncate if truncate > 0 else None,
-                                   cells_per_particle=cells, seed=seed)
+                                   cells_per_particle=cells, seed=seed, albedo=albedo)
         phase = self.phase_function()
-        if not isinstance(phase, ParticlePhase):
+        if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
                              "(the medium supplies the particles it scatters from)")
         phase.attach(self.data)
@@ -245,3 +248,16 @@ class DiscreteMediumPlugin(mi.Medium):
 def dr_jit() -> bool:
     import drjit as dr
     return dr.is_jit_v(mi.Float)
+
+
+_classes: dict = {}
+
+
+def plugin_class():
+    """The ``discrete`` class for the current Mitsuba variant (Mitsuba's base classes are per variant;
+    nanobind allows a single base, so the methods are copied onto a subclass of it)."""
+    variant = mi.variant()
+    if variant not in _classes:
+        methods = {k: v for k, v in vars(DiscreteMediumPlugin).items() if k not in ("__dict__", "__weakref__")}
+        _classes[variant] = type("DiscreteMedium", (mi.Medium,), methods)
+    return _classes[variant]

@@ -23,17 +23,22 @@ Notes
 
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ._bridge import channel_wavelengths, floats, spectrum, vec3, vector3
 
 
-class ParticlePhase(mi.PhaseFunction):
+class ParticlePhase:
+    """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.PhaseFunction``."""
+
     def __init__(self, props: mi.Properties):
         mi.PhaseFunction.__init__(self, props)
         self.m_flags = mi.PhaseFunctionFlags.Anisotropic
         self._medium = None  # motes.discrete.DiscreteMedium, set by the discrete medium
+
+    is_motes_particle_phase = True
 
     def attach(self, medium) -> None:
         self._medium = medium
@@ -42,8 +47,8 @@ class ParticlePhase(mi.PhaseFunction):
         return channel_wavelengths(self._medium, mei, n)
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
-        p, wi = vec3(mei.p), vec3(mei.wi)
-        n = p.shape[0]
+        n = max(np.size(np.asarray(sample1)), np.size(np.asarray(sample2.x)), dr.width(mei.p), dr.width(mei.wi))
+        p, wi = vec3(mei.p, n), vec3(mei.wi, n)
         if self._medium is None:
             return vector3(np.zeros((n, 3))), spectrum(np.zeros((n, 1)), n), floats(np.zeros(n))
         lam, ch = self._channels(mei, n)
@@ -54,8 +59,8 @@ class ParticlePhase(mi.PhaseFunction):
         return vector3(wo.reshape(n, 3)), spectrum(w.reshape(n, ch), n), floats(pdf)
 
     def eval_pdf(self, ctx, mei, wo, active=True):
-        p, wi, w = vec3(mei.p), vec3(mei.wi), vec3(wo)
-        n = p.shape[0]
+        n = max(dr.width(mei.p), dr.width(mei.wi), dr.width(wo))
+        p, wi, w = vec3(mei.p, n), vec3(mei.wi, n), vec3(wo, n)
         if self._medium is None:
             return spectrum(np.zeros((n, 1)), n), floats(np.zeros(n))
         lam, ch = self._channels(mei, n)
@@ -64,3 +69,16 @@ class ParticlePhase(mi.PhaseFunction):
 
     def to_string(self):
         return f"ParticlePhase[attached={self._medium is not None}]"
+
+
+_classes: dict = {}
+
+
+def plugin_class():
+    """The ``particle`` class for the current Mitsuba variant (Mitsuba's base classes are per variant;
+    nanobind allows a single base, so the methods are copied onto a subclass of it)."""
+    variant = mi.variant()
+    if variant not in _classes:
+        methods = {k: v for k, v in vars(ParticlePhase).items() if k not in ("__dict__", "__weakref__")}
+        _classes[variant] = type("ParticlePhase", (mi.PhaseFunction,), methods)
+    return _classes[variant]

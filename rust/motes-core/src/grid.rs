@@ -15,11 +15,15 @@
 //! probability 1 − exp(−τ_i) — no majorant, no null collisions.
 //!
 //! ## Grid
-//! Each particle is stored once, in the cell of its centre (counting sort, O(N)). The grid box is the
-//! centres' bounding box grown by R_max on every side, so any ray point within R_max of a centre is in
-//! the grid. A traversal (3D-DDA, Amanatides & Woo) visits, for each cell the ray crosses, the cells
-//! within `k = ⌈R_max / h⌉` of it, and counts a particle only in the DDA step whose t-interval holds
-//! its t_i — each particle is counted once, whatever k.
+//! Each particle's data is stored once, in the order of its centre's cell (counting sort, O(N)); each
+//! cell keeps references to particles. Where inclusion balls (radius R_i) are narrower than the cells
+//! (sparse classes), a cell references every particle whose ball overlaps it, and a traversal (3D-DDA,
+//! Amanatides & Woo) tests only the particles referenced by the cells the ray itself crosses: the
+//! projection p_i = o + t_i d of a contributing particle lies within R_i of its centre, hence in a cell
+//! that references it. Where balls are wider than the particle spacing (dense classes), cells are at
+//! least R_max wide, reference their own particles only, and a traversal scans the 3×3×3 cells around
+//! each cell it crosses. Either way a particle is counted only in the DDA step whose t-interval holds
+//! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
 
 use crate::error::{require, OpticsError};
 use rayon::prelude::*;
@@ -49,13 +53,15 @@ pub struct SubGrid {
     /// Original index of each stored particle.
     index: Vec<u32>,
     channels: usize,
-    /// Cell `c` holds stored particles `start[c]..start[c+1]`.
+    /// Cell `c` references stored particles `refs[start[c]..start[c+1]]`.
     start: Vec<u32>,
+    refs: Vec<u32>,
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
-    /// Largest inclusion radius, and the neighbourhood half-width in cells.
+    /// Largest inclusion radius.
     reach_max: f64,
+    /// Neighbourhood half-width in cells scanned per traversal step: 0 (sparse) or 1 (dense).
     k: i64,
 }
 
@@ -105,9 +111,14 @@ impl SubGrid {
         let ext: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
         let volume = volume_hint.unwrap_or(ext[0] * ext[1] * ext[2]).max(ext[0] * ext[1] * ext[2] * 1e-9);
         let target_cells = (n as f64 * cells_per_particle).clamp(1.0, 2.0e8);
-        // About `cells_per_particle` cells per particle, but never smaller than the class's largest
-        // inclusion radius: then k = 1 and a traversal scans 27 cells per step.
-        let cell = (volume / target_cells).cbrt().max(reach_max).max(1e-12);
+        // About `cells_per_particle` cells per particle. Sparse classes (inclusion diameter below the
+        // cell) reference each particle from every cell its ball overlaps (k = 0: a traversal tests only
+        // the ray's own cells). Dense classes (balls wider than the spacing) would need many references
+        // per particle; there cells are at least R_max wide, each particle is referenced by its centre's
+        // cell only, and a traversal scans the 3×3×3 cells around the ray's cell (k = 1).
+        let spacing = (volume / target_cells).cbrt();
+        let k: i64 = if 2.0 * reach_max <= spacing { 0 } else { 1 };
+        let cell = spacing.max(reach_max).max(1e-12);
         let dims = [0, 1, 2].map(|a| ((ext[a] / cell).ceil() as usize).clamp(1, 1 << 20));
         let n_cells = dims[0] * dims[1] * dims[2];
         let cell_of = |p: &[f64; 3]| {
@@ -117,22 +128,23 @@ impl SubGrid {
             }
             (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
         };
-        // Counting sort by cell (O(N)).
+        // Counting sort of the particles by the cell of their centre (O(N)): the storage order.
         let cells: Vec<u32> = positions.par_iter().map(|p| cell_of(p) as u32).collect();
-        let mut start = vec![0u32; n_cells + 1];
+        let mut centre_start = vec![0u32; n_cells + 1];
         for &c in &cells {
-            start[c as usize + 1] += 1;
+            centre_start[c as usize + 1] += 1;
         }
         for c in 0..n_cells {
-            start[c + 1] += start[c];
+            centre_start[c + 1] += centre_start[c];
         }
-        let mut fill = start.clone();
+        let mut fill = centre_start.clone();
         let mut order = vec![0u32; n];
         for (i, &c) in cells.iter().enumerate() {
             order[fill[c as usize] as usize] = i as u32;
             fill[c as usize] += 1;
         }
-        let pos = order.iter().map(|&i| positions[i as usize].map(|x| x as f32)).collect();
+        drop(fill);
+        let pos: Vec<[f32; 3]> = order.iter().map(|&i| positions[i as usize].map(|x| x as f32)).collect();
         let reach_sorted: Vec<f32> = order.iter().map(|&i| reach[i as usize] as f32).collect();
         let mut tau = vec![0f32; n * channels];
         for (j, &i) in order.iter().enumerate() {
@@ -141,9 +153,55 @@ impl SubGrid {
                 tau[j * channels + ch] = (c_ext[i as usize * channels + ch] / area) as f32;
             }
         }
-        let k = ((reach_max / cell).ceil() as i64).max(0);
+        // k = 1: each cell references its own particles, which are stored in cell order.
+        let (start, refs) = if k == 1 {
+            (centre_start, (0..n as u32).collect::<Vec<u32>>())
+        } else {
+            // Cell ranges (per axis) overlapped by each stored particle's inclusion ball, then a second
+            // counting sort of the (cell, particle) references.
+            let axis_range = |x: f64, r: f64, a: usize| -> (usize, usize) {
+                let lo_c = (((x - r - lo[a]) / cell).floor().max(0.0) as usize).min(dims[a] - 1);
+                let hi_c = (((x + r - lo[a]) / cell).floor().max(0.0) as usize).min(dims[a] - 1);
+                (lo_c, hi_c)
+            };
+            let ranges: Vec<[(u32, u32); 3]> = order
+                .par_iter()
+                .map(|&i| {
+                    let (p, r) = (positions[i as usize], reach[i as usize] * 1.0001);
+                    [0, 1, 2].map(|a| {
+                        let (x, y) = axis_range(p[a], r, a);
+                        (x as u32, y as u32)
+                    })
+                })
+                .collect();
+            let mut start = vec![0u32; n_cells + 1];
+            let for_cells = |rg: &[(u32, u32); 3], f: &mut dyn FnMut(usize)| {
+                for z in rg[2].0..=rg[2].1 {
+                    for y in rg[1].0..=rg[1].1 {
+                        for x in rg[0].0..=rg[0].1 {
+                            f((z as usize * dims[1] + y as usize) * dims[0] + x as usize);
+                        }
+                    }
+                }
+            };
+            for rg in &ranges {
+                for_cells(rg, &mut |c| start[c + 1] += 1);
+            }
+            for c in 0..n_cells {
+                start[c + 1] += start[c];
+            }
+            let mut refs = vec![0u32; start[n_cells] as usize];
+            let mut fill = start.clone();
+            for (j, rg) in ranges.iter().enumerate() {
+                for_cells(rg, &mut |c| {
+                    refs[fill[c] as usize] = j as u32;
+                    fill[c] += 1;
+                });
+            }
+            (start, refs)
+        };
         let index = order.iter().map(|&i| ids[i as usize]).collect();
-        Ok(SubGrid { pos, reach: reach_sorted, tau, index, channels, start, lo, cell, dims, reach_max, k })
+        Ok(SubGrid { pos, reach: reach_sorted, tau, index, channels, start, refs, lo, cell, dims, reach_max, k })
     }
 
     pub fn len(&self) -> usize {
@@ -161,7 +219,7 @@ impl SubGrid {
 
     /// Heap bytes of the grid and the particles it stores.
     pub fn bytes(&self) -> usize {
-        self.pos.len() * 12 + self.reach.len() * 4 + self.tau.len() * 4 + self.index.len() * 4 + self.start.len() * 4
+        self.pos.len() * 12 + self.reach.len() * 4 + self.tau.len() * 4 + self.index.len() * 4 + self.start.len() * 4 + self.refs.len() * 4
     }
 
     /// Does stored particle j contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
@@ -236,11 +294,12 @@ impl SubGrid {
                     if y < 0 || y >= self.dims[1] as i64 {
                         continue;
                     }
+                    // A row of cells is contiguous in `start`, so their references are one slice.
                     let row = (z as usize * self.dims[1] + y as usize) * self.dims[0];
                     let x0 = (c[0] - k).max(0) as usize;
                     let x1 = ((c[0] + k) as usize).min(self.dims[0] - 1);
-                    let (s, e) = (self.start[row + x0] as usize, self.start[row + x1 + 1] as usize);
-                    for j in s..e {
+                    for &j in &self.refs[self.start[row + x0] as usize..self.start[row + x1 + 1] as usize] {
+                        let j = j as usize;
                         if let Some(t) = self.contribution(j, o, d) {
                             if t >= t_enter && t < t_exit_step && t >= t0 && t < t1 && !visit(j, t, step_id) {
                                 return;
