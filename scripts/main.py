@@ -1,77 +1,56 @@
-"""The main job until the renderer lands: cross sections of ice spheres at three wavelengths and the bulk
-properties of the paper's ice cloud (tables on stdout), single-particle and ensemble phase functions (PNG
-in out/).
+"""The main job: render the default scene (scenes_xml/dust_box.xml, dust grains glinting in a light beam)
+with Mitsuba's own volpath and the motes `discrete` medium, to EXR (linear) and PNG (auto-exposed sRGB).
 
-    .venv/bin/python scripts/main.py [--out out]
+    .venv/bin/python scripts/main.py [--scene scenes_xml/dust_box.xml] [--variant llvm_ad_rgb]
+                                     [--spp 48] [--res 256] [--out out]
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import time
 
 import numpy as np
 
 import motes
 
-# Complex refractive index of ice (Warren & Brandt 2008, J. Geophys. Res. 113, D14220), tabulated in motes.
-ICE = {lam: complex(motes.Material("ice").index(lam)[0]) for lam in (0.45, 0.55, 0.65)}
-RADII_UM = [0.1, 1.0, 2.0, 10.0, 100.0, 800.0, 2000.0]
-
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--out", default="out", help="folder for the figures")
+    root = pathlib.Path(__file__).resolve().parents[1]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default=str(root / "scenes_xml" / "dust_box.xml"))
+    ap.add_argument("--variant", default="llvm_ad_rgb", help="Mitsuba variant (LLVM falls back to scalar if unusable)")
+    ap.add_argument("--spp", type=int, default=None, help="samples per pixel (scene default if omitted)")
+    ap.add_argument("--res", type=int, default=None, help="image width = height (scene default if omitted)")
+    ap.add_argument("--out", default="out", help="output folder")
     args = ap.parse_args()
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    print(f"{'lambda/um':>9} {'eta':>6} {'r/um':>8} {'alpha':>10} {'method':>6} {'C_ext/um^2':>13} {'Q_ext':>8} {'g':>7}")
-    for lam, eta in ICE.items():
-        cs = motes.cross_sections(RADII_UM, lam, eta, method="auto")
-        methods = motes.resolve_method(RADII_UM, lam, eta, method="auto")
-        for i, r in enumerate(RADII_UM):
-            alpha = float(motes.size_parameter(r, lam))
-            method = methods[i]
-            q = cs["ext"][i] / (np.pi * r * r)
-            print(f"{lam:9.2f} {eta.real:6.4f} {r:8.1f} {alpha:10.2f} {method:>6} {cs['ext'][i]:13.5g} {q:8.4f} {cs['g'][i]:7.4f}")
+    variant = motes.set_variant(args.variant)
+    import mitsuba as mi
 
-    cloud = motes.Species(motes.LogNormal(800.0, 4.0), motes.Material("ice"))
-    bulk = motes.bulk_properties(cloud, 1e4, list(ICE))
-    print("\nIce cloud, log-normal r_g = 800 um, sigma_g = 4, 1e4 particles per m^3 (paper Sec. 6):")
-    print(f"{'lambda/um':>9} {'sigma_t/m^-1':>13} {'albedo':>10} {'g':>7}")
-    for i, lam in enumerate(ICE):
-        print(f"{lam:9.2f} {bulk['sigma_t'][i]:13.5g} {bulk['albedo'][i]:10.7f} {bulk['g'][i]:7.4f}")
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    theta = np.linspace(0.0, np.pi, 3601)
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for r in [0.5, 2.0, 10.0, 100.0]:
-        f = motes.phase_function(r, 0.55, ICE[0.55], theta)
-        ax.semilogy(np.degrees(theta), f, label=f"r = {r:g} um")
-    ax.set_xlabel("scattering angle (deg)")
-    ax.set_ylabel("phase function f_p (1/sr)")
-    ax.set_title("Ice spheres at 550 nm (motes, method='auto')")
-    ax.legend()
-    fig.tight_layout()
-    path = out / "ice_phase_functions.png"
-    fig.savefig(path, dpi=120)
-    print(f"wrote {path}")
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for i, lam in enumerate(ICE):
-        ax.loglog(np.degrees(bulk["theta"][1:]), bulk["phase"][i][1:], label=f"{lam} um")
-    ax.set_xlabel("scattering angle (deg)")
-    ax.set_ylabel("ensemble phase function (1/sr)")
-    ax.set_title("Ice cloud r_g = 800 um, sigma_g = 4 (motes.bulk_properties)")
-    ax.legend()
-    fig.tight_layout()
-    path = out / "ice_cloud_phase_function.png"
-    fig.savefig(path, dpi=120)
-    print(f"wrote {path}")
+    params = {k: str(v) for k, v in (("spp", args.spp), ("res", args.res)) if v is not None}
+    t0 = time.perf_counter()
+    scene = mi.load_file(args.scene, **params)
+    t1 = time.perf_counter()
+    img = mi.render(scene)
+    t2 = time.perf_counter()
+    media = [s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None]
+    for m in media:
+        print(m.to_string())
+    stem = pathlib.Path(args.scene).stem
+    exr = out / f"{stem}.exr"
+    mi.util.write_bitmap(str(exr), img)
+    # PNG: expose so that the 99.7th percentile of luminance is white (the EXR keeps linear values).
+    a = np.asarray(img, dtype=np.float64)
+    lum = a @ np.array([0.2126, 0.7152, 0.0722])
+    scale = 1.0 / max(float(np.percentile(lum, 99.7)), 1e-12)
+    png = out / f"{stem}.png"
+    mi.util.write_bitmap(str(png), mi.TensorXf(np.clip(a * scale, 0, None).astype(np.float32)))
+    print(f"variant {variant}: loaded in {t1 - t0:.1f} s (particles, optics tables, grid), rendered in {t2 - t1:.1f} s")
+    print(f"wrote {exr} and {png} (exposure x{scale:.3g})")
 
 
 if __name__ == "__main__":
