@@ -24,7 +24,8 @@ queries (``rust/motes-core/src/discrete.rs`` documents the model).
 
 Each particle's extinction cross section is ``pi r^2 Q_ext`` with its bin's mean efficiency over the
 wavelengths (grey, see the Rust docs for why), its albedo and phase function those of its bin per
-wavelength. ``bin_sigma_t`` etc. report what was built.
+wavelength. ``bin_radius_um``, ``bin_species``, ``bin_q_ext`` and ``bin_albedo`` (per channel, in the order
+the wavelengths were given) and ``particle_bin`` report what was built.
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ class DiscreteMedium:
 
         if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
             raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
+        rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of = np.zeros(n, dtype=np.uint32)
         q_ext = np.zeros(n)  # grey extinction efficiency of each particle's bin
         albedos, theta, f, offsets = [], [], [], [0]
@@ -112,8 +114,8 @@ class DiscreteMedium:
                     offsets.append(offsets[-1] + bulk["theta"].size)
                 self.bin_radius_um.append((lo, hi))
                 self.bin_species.append(k)
-                self.bin_q_ext.append(q_t)
-                self.bin_albedo.append(bulk["albedo"])
+                self.bin_q_ext.append(q_t[rank])
+                self.bin_albedo.append(bulk["albedo"][rank])
                 nb += 1
         um = 1e-6 / scale_m
         c_ext = np.pi * r * r * q_ext * um * um
@@ -129,6 +131,9 @@ class DiscreteMedium:
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(cells_per_particle), int(seed) & (2**64 - 1))
         self.positions = pos
+        self.species_index = idx
+        #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo).
+        self.particle_bin = bin_of
         self.radii_um = r
         self.c_ext_scene = c_ext
         lo_, hi_ = pos.min(axis=0), pos.max(axis=0)
@@ -146,6 +151,41 @@ class DiscreteMedium:
     @property
     def bytes(self) -> int:
         return self._core.bytes
+
+    def _channels(self, wavelength_um):
+        lam = self.channel_wavelength_nm if wavelength_um is None else np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64)) * 1e3
+        if lam.ndim != 1 or lam.size == 0 or not np.all(np.isfinite(lam) & (lam > 0)):
+            raise ValueError("wavelength_um must be positive and finite")
+        return np.ascontiguousarray(lam), lam.size
+
+    def local_scattering(self, points, cos_theta, wavelength_um=None):
+        """Eq. 24 at points: the particles whose inclusion ball (r_c + r_i) holds the point each add
+        C_s / (4/3 pi R^3). Returns (sigma_s, Q) of shape (n, channels): sigma_s per scene unit and
+        Q = sigma_s f(theta) at ``cos_theta`` (1/sr per unit). Channels: the tabulated wavelengths in
+        the order given at construction, or ``wavelength_um``."""
+        p = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=np.float64)))
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"points must have shape (n, 3), got {p.shape}")
+        mu = np.ascontiguousarray(np.broadcast_to(np.asarray(cos_theta, dtype=np.float64), (p.shape[0],)))
+        if not np.all(np.abs(mu) <= 1):
+            raise ValueError("cos_theta must be in [-1, 1]")
+        lam, ch = self._channels(wavelength_um)
+        s, q = self._core.local_scattering(p.ravel(), mu, lam, ch)
+        return s.reshape(-1, ch), q.reshape(-1, ch)
+
+    def sample_local(self, points, directions, u1, u2, wavelength_um=None):
+        """Scattered directions from the local particle mixture at points (a particle with probability
+        proportional to its local scattering weight, then its tabulated phase function): (wo (n, 3),
+        weight = f_c / pdf (n, channels), pdf (n,), 1/sr); pdf = 0 where no particle is local.
+        ``directions`` are propagation directions, ``u1`` (n,) and ``u2`` (n, 2) uniform in [0, 1)."""
+        p = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=np.float64)))
+        n = p.shape[0]
+        d = np.ascontiguousarray(np.broadcast_to(np.asarray(directions, dtype=np.float64), (n, 3)))
+        a = np.ascontiguousarray(np.broadcast_to(np.asarray(u1, dtype=np.float64), (n,)))
+        b = np.ascontiguousarray(np.broadcast_to(np.asarray(u2, dtype=np.float64), (n, 2)))
+        lam, ch = self._channels(wavelength_um)
+        wo, w, pdf = self._core.sample_local(p.ravel(), d.ravel(), lam, ch, a, b.ravel())
+        return wo.reshape(n, 3), w.reshape(n, ch), pdf
 
     def optical_depth(self, origins, directions, t0, t1) -> np.ndarray:
         """Grey optical depth of segments (as the renderer's free flights see it)."""

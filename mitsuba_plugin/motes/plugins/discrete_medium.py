@@ -206,7 +206,7 @@ class DiscreteMediumPlugin:
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
                              "(the medium supplies the particles it scatters from)")
         phase.attach(self.data)
-        self.stats = {"intersect_calls": 0, "rays": 0, "events": 0}
+        self.stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
 
     # -- Mitsuba interface -------------------------------------------------------------------------
     def intersect_aabb(self, ray):
@@ -234,7 +234,9 @@ class DiscreteMediumPlugin:
         albedo = self.data.core.commit_events(p.ravel(), act, lam, ch).reshape(n, ch)
         self.stats["events"] += int(act.sum())
         sigma_t = np.where(act, MAJORANT, 0.0)[:, None]
-        return (spectrum(albedo * sigma_t, n), spectrum(np.zeros((n, 1)), n), spectrum(sigma_t, n))
+        sigma_n = np.zeros((n, 1))  # every tentative collision is real (module docs)
+        self.stats["nulls"] += int((act & (sigma_n[:, 0] > 0)).sum())
+        return (spectrum(albedo * sigma_t, n), spectrum(sigma_n, n), spectrum(sigma_t, n))
 
     def traverse(self, callback):
         mi.Medium.traverse(self, callback)

@@ -100,6 +100,8 @@ pub struct DiscreteMedium {
     grid: ParticleGrid,
     /// Grey optical depth of each particle (original index).
     tau: Vec<f32>,
+    /// Inclusion radius R_i = r_c + r_i of each particle (original index), scene units.
+    reach: Vec<f32>,
     /// Optics bin of each particle (original index into `bins`).
     bin: Vec<u32>,
     bins: Vec<BinOptics>,
@@ -152,6 +154,7 @@ impl DiscreteMedium {
                 (c_ext[i] / (PI * r * r)) as f32
             })
             .collect();
+        let reach = radius.iter().map(|r| (query_radius + r) as f32).collect();
         let (lo, hi) = positions.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), p| {
             for a in 0..3 {
                 lo[a] = lo[a].min(p[a]);
@@ -164,7 +167,7 @@ impl DiscreteMedium {
         // be ordered reliably, so they form one site.
         let coincide = 1e-6 * extent.max(1e-30);
         let events = EventMap { current: FxHashMap::default(), previous: FxHashMap::default(), capacity: 1 << 16 };
-        Ok(DiscreteMedium { grid, tau, bin, bins, lambda, coincide, events: RwLock::new(events), pending: Mutex::new(FxHashMap::default()), seed, calls: AtomicU64::new(0) })
+        Ok(DiscreteMedium { grid, tau, reach, bin, bins, lambda, coincide, events: RwLock::new(events), pending: Mutex::new(FxHashMap::default()), seed, calls: AtomicU64::new(0) })
     }
 
     pub fn grid(&self) -> &ParticleGrid {
@@ -177,7 +180,7 @@ impl DiscreteMedium {
         self.tau.is_empty()
     }
     pub fn bytes(&self) -> usize {
-        self.grid.bytes() + self.tau.len() * 4 + self.bin.len() * 4
+        self.grid.bytes() + self.tau.len() * 8 + self.bin.len() * 4
     }
     pub fn lambda(&self) -> &[f64] {
         &self.lambda
@@ -279,13 +282,14 @@ impl DiscreteMedium {
         self.events.read().unwrap().get(&key(p)).copied()
     }
 
-    /// Phase function of the site per channel at μ = cos θ, and the channel-mean pdf (module docs).
-    fn site_phase(&self, s: &Site, ls: &[(usize, usize, f64)], mu: f64, values: &mut [f64]) -> f64 {
+    /// Phase function of a mixture of particles per channel at μ = cos θ, and the channel-mean pdf
+    /// (module docs): particle j weighs `scale(j)` × its albedo in each channel.
+    fn mixture_phase(&self, members: &[u32], scale: &impl Fn(u32) -> f64, ls: &[(usize, usize, f64)], mu: f64, values: &mut [f64]) -> f64 {
         let mut pdf = 0.0;
         for (c, &l) in ls.iter().enumerate() {
             let (mut num, mut den) = (0.0, 0.0);
-            for &j in s.members() {
-                let w = self.tau[j as usize] as f64 * self.albedo_at(j, l);
+            for &j in members {
+                let w = scale(j) * self.albedo_at(j, l);
                 num += w * self.phase_at(j, l, mu);
                 den += w;
             }
@@ -293,6 +297,98 @@ impl DiscreteMedium {
             pdf += values[c];
         }
         pdf / ls.len() as f64
+    }
+
+    /// Sample a mixture (see [`Self::mixture_phase`]) around the propagation direction `w_in`: a channel,
+    /// then a particle by its weight in that channel, then its table (lower/upper wavelength), each by
+    /// rescaling `u1`; `u2` draws the direction. Returns (wo, pdf) and the channel values in `values`.
+    fn mixture_sample(&self, members: &[u32], scale: &impl Fn(u32) -> f64, ls: &[(usize, usize, f64)], w_in: [f64; 3], u1: f64, u2: [f64; 2], values: &mut [f64]) -> Option<([f64; 3], f64)> {
+        let channels = ls.len();
+        let x = u1.clamp(0.0, 1.0 - f64::EPSILON) * channels as f64;
+        let c = (x as usize).min(channels - 1);
+        let mut u = x - c as f64;
+        let l = ls[c];
+        let weights: Vec<f64> = members.iter().map(|&j| scale(j) * self.albedo_at(j, l)).collect();
+        let total: f64 = weights.iter().sum();
+        if !(total > 0.0) {
+            return None;
+        }
+        let mut pick = members.len() - 1;
+        let mut acc = 0.0;
+        for (k, w) in weights.iter().enumerate() {
+            if u * total < acc + w {
+                pick = k;
+                u = ((u * total - acc) / w).clamp(0.0, 1.0 - f64::EPSILON);
+                break;
+            }
+            acc += w;
+        }
+        let j = members[pick];
+        let table = if u < 1.0 - l.2 { l.0 } else { l.1 };
+        let mu = self.bins[self.bin[j as usize] as usize].phase[table].sample(u2[0]);
+        let phi = 2.0 * PI * u2[1];
+        let st = (1.0 - mu * mu).max(0.0).sqrt();
+        let (e1, e2) = frame(w_in);
+        let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
+        Some((wo, self.mixture_phase(members, scale, ls, mu, values)))
+    }
+
+    /// Local scattering at points (paper Eq. 24 with the per-particle normalisation of the grid): the
+    /// particles whose inclusion ball (R_i = r_c + r_i) contains p each add C_s,i / V_i with
+    /// V_i = 4/3 π R_i³, so that E[σ_s(p)] is the bulk σ_s. Returns σ_s per channel and
+    /// Q_c(μ) = σ_s,c f_c(μ) (1/sr per unit length) at the given μ = cos θ, each `n × channels`.
+    pub fn local_scattering(&self, p: &[[f64; 3]], mu: &[f64], lambda: &[f64], channels: usize) -> (Vec<f64>, Vec<f64>) {
+        let shared = lambda.len() == channels;
+        let res: Vec<(Vec<f64>, Vec<f64>)> = (0..p.len())
+            .into_par_iter()
+            .map(|i| {
+                let members = self.grid.containing(p[i]);
+                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+                let scale = |j: u32| self.local_weight(j);
+                let sigma: Vec<f64> = ls.iter().map(|&l| members.iter().map(|&j| scale(j) * self.albedo_at(j, l)).sum()).collect();
+                let mut f = vec![0.0; channels];
+                self.mixture_phase(&members, &scale, &ls, mu[i].clamp(-1.0, 1.0), &mut f);
+                let q = f.iter().zip(&sigma).map(|(a, b)| a * b).collect();
+                (sigma, q)
+            })
+            .collect();
+        let sigma = res.iter().flat_map(|r| r.0.iter().copied()).collect();
+        (sigma, res.into_iter().flat_map(|r| r.1).collect())
+    }
+
+    /// C_t,i / V_i of particle i (grey), the weight of a particle in the query sphere of Eq. 24.
+    fn local_weight(&self, j: u32) -> f64 {
+        self.tau[j as usize] as f64 * 0.75 / self.reach[j as usize] as f64
+    }
+
+    /// Sample scattered directions from the local mixture at points (see [`Self::local_scattering`]):
+    /// a particle with probability ∝ its local scattering weight, then its tabulated phase function.
+    /// `w_in` is the propagation direction. Returns (wo, weight per channel = f_c / pdf, pdf); pdf 0
+    /// where no particle is local.
+    pub fn sample_local(&self, p: &[[f64; 3]], w_in: &[[f64; 3]], lambda: &[f64], channels: usize, u1: &[f64], u2: &[[f64; 2]]) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+        let shared = lambda.len() == channels;
+        let res: Vec<([f64; 3], Vec<f64>, f64)> = (0..p.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut v = vec![0.0; channels];
+                let members = self.grid.containing(p[i]);
+                let Some(dir) = normalise(w_in[i]) else { return ([0.0, 0.0, 1.0], v, 0.0) };
+                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+                let scale = |j: u32| self.local_weight(j);
+                match self.mixture_sample(&members, &scale, &ls, dir, u1[i], u2[i], &mut v) {
+                    Some((wo, pdf)) if pdf > 0.0 => {
+                        v.iter_mut().for_each(|x| *x /= pdf);
+                        (wo, v, pdf)
+                    }
+                    _ => ([0.0, 0.0, 1.0], vec![0.0; channels], 0.0),
+                }
+            })
+            .collect();
+        let wo = res.iter().map(|r| r.0).collect();
+        let pdf = res.iter().map(|r| r.2).collect();
+        (wo, res.into_iter().flat_map(|r| r.1).collect(), pdf)
     }
 
     /// Evaluate the phase function of the event at `p` for incident direction `wi` (pointing back along
@@ -311,7 +407,7 @@ impl DiscreteMedium {
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
                 let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
-                let pdf = self.site_phase(s, &ls, mu, &mut v);
+                let pdf = self.mixture_phase(s.members(), &|j| self.tau[j as usize] as f64, &ls, mu, &mut v);
                 (v, pdf)
             })
             .collect();
@@ -333,38 +429,13 @@ impl DiscreteMedium {
                 let (Some(s), Some(w_in)) = (site, w_in) else { return ([0.0, 0.0, 1.0], v, 0.0) };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                // Channel, then particle ∝ s_j,c, then table (lower/upper wavelength), each by rescaling u1.
-                let x = u1[i].clamp(0.0, 1.0 - f64::EPSILON) * channels as f64;
-                let c = (x as usize).min(channels - 1);
-                let mut u = x - c as f64;
-                let l = ls[c];
-                let weights: Vec<f64> = s.members().iter().map(|&j| self.tau[j as usize] as f64 * self.albedo_at(j, l)).collect();
-                let total: f64 = weights.iter().sum();
-                if !(total > 0.0) {
-                    return ([0.0, 0.0, 1.0], v, 0.0);
-                }
-                let mut pick = s.members().len() - 1;
-                let mut acc = 0.0;
-                for (k, w) in weights.iter().enumerate() {
-                    if u * total < acc + w {
-                        pick = k;
-                        u = ((u * total - acc) / w).clamp(0.0, 1.0 - f64::EPSILON);
-                        break;
+                match self.mixture_sample(s.members(), &|j| self.tau[j as usize] as f64, &ls, w_in, u1[i], u2[i], &mut v) {
+                    Some((wo, pdf)) if pdf > 0.0 => {
+                        v.iter_mut().for_each(|x| *x /= pdf);
+                        (wo, v, pdf)
                     }
-                    acc += w;
+                    _ => ([0.0, 0.0, 1.0], vec![0.0; channels], 0.0),
                 }
-                let j = s.members()[pick];
-                let table = if u < 1.0 - l.2 { l.0 } else { l.1 };
-                let mu = self.bins[self.bin[j as usize] as usize].phase[table].sample(u2[i][0]);
-                let phi = 2.0 * PI * u2[i][1];
-                let st = (1.0 - mu * mu).max(0.0).sqrt();
-                let (e1, e2) = frame(w_in);
-                let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
-                let pdf = self.site_phase(s, &ls, mu, &mut v);
-                if pdf > 0.0 {
-                    v.iter_mut().for_each(|x| *x /= pdf);
-                }
-                (wo, v, pdf)
             })
             .collect();
         let wo = res.iter().map(|r| r.0).collect();
@@ -434,6 +505,46 @@ mod tests {
         assert!((escaped - p).abs() < 5.0 * (p * (1.0 - p) / lanes as f64).sqrt(), "{escaped} vs {p}");
         for r in &res {
             assert!(r.tau_before <= tau[0] + 1e-6);
+        }
+    }
+
+    /// Eq. 24 at points: the mean of σ_s(p) over random interior points is the bulk Σ C_s / V (6σ),
+    /// and sampling the local mixture returns the pdf that evaluation gives (mean of Q_c / σ_s,c).
+    #[test]
+    fn local_scattering_is_unbiased_and_consistent() {
+        let m = medium(4000);
+        let mut s = 99u64;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64) / (1u64 << 53) as f64
+        };
+        // interior points, away from the faces of the particles' unit box
+        let pts: Vec<[f64; 3]> = (0..40000).map(|_| [0.1 + 0.8 * r(), 0.1 + 0.8 * r(), 0.1 + 0.8 * r()]).collect();
+        let mu = vec![0.3; pts.len()];
+        let (sigma, q) = m.local_scattering(&pts, &mu, &[500.0], 1);
+        let mean = sigma.iter().sum::<f64>() / sigma.len() as f64;
+        let var = sigma.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (sigma.len() - 1) as f64;
+        // bulk: Σ_i C_t,i a_i / V over the unit box (albedo 1.0 / 0.5 by bin at 500 nm)
+        let bulk: f64 = (0..m.len()).map(|i| {
+            let rr = m.reach[i] as f64;
+            m.tau[i] as f64 * PI * rr * rr * m.bins[m.bin[i] as usize].albedo[0]
+        }).sum::<f64>();
+        let se = (var / sigma.len() as f64).sqrt();
+        assert!((mean - bulk).abs() < 6.0 * se, "mean σ_s {mean} vs bulk {bulk} (se {se})");
+        assert!(q.iter().zip(&sigma).all(|(a, b)| *a >= 0.0 && (*b > 0.0 || *a == 0.0)));
+        let n = 2000;
+        let w_in = vec![[0.0, 0.0, 1.0]; n];
+        let u1: Vec<f64> = (0..n).map(|_| r()).collect();
+        let u2: Vec<[f64; 2]> = (0..n).map(|_| [r(), r()]).collect();
+        let (wo, w, pdf) = m.sample_local(&pts[..n], &w_in, &[500.0, 600.0], 2, &u1, &u2);
+        for i in 0..n {
+            if pdf[i] == 0.0 {
+                continue;
+            }
+            let (sg, qq) = m.local_scattering(&pts[i..i + 1], &[wo[i][2]], &[500.0, 600.0], 2);
+            let expect = (qq[0] / sg[0] + qq[1] / sg[1]) / 2.0;
+            assert!((pdf[i] - expect).abs() < 1e-9 * expect.max(1.0), "{} {}", pdf[i], expect);
+            assert!((w[2 * i] * pdf[i] - qq[0] / sg[0]).abs() < 1e-9 * expect.max(1.0));
         }
     }
 

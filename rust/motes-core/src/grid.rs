@@ -321,6 +321,35 @@ impl SubGrid {
         }
     }
 
+    /// Every stored particle whose inclusion ball (radius R_i) contains the point `p`, as `visit(j)`.
+    pub fn containing(&self, p: [f64; 3], mut visit: impl FnMut(usize)) {
+        let mut c = [0i64; 3];
+        for a in 0..3 {
+            let x = ((p[a] - self.lo[a]) / self.cell).floor();
+            if !(x >= 0.0 && x < self.dims[a] as f64) {
+                return; // outside the grid box: no ball reaches there
+            }
+            c[a] = x as i64;
+        }
+        let k = self.k;
+        for z in (c[2] - k).max(0)..=(c[2] + k).min(self.dims[2] as i64 - 1) {
+            for y in (c[1] - k).max(0)..=(c[1] + k).min(self.dims[1] as i64 - 1) {
+                let row = (z as usize * self.dims[1] + y as usize) * self.dims[0];
+                let x0 = (c[0] - k).max(0) as usize;
+                let x1 = ((c[0] + k) as usize).min(self.dims[0] - 1);
+                for &j in &self.refs[self.start[row + x0] as usize..self.start[row + x1 + 1] as usize] {
+                    let j = j as usize;
+                    let q = self.pos[j];
+                    let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
+                    let r = self.reach[j] as f64;
+                    if dd < r * r {
+                        visit(j);
+                    }
+                }
+            }
+        }
+    }
+
     /// Optical depth of the segment [t0, t1) of the ray (o, d), per channel (Eq. 18, normalised as in the
     /// module docs).
     pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
@@ -576,6 +605,31 @@ impl ParticleGrid {
         (found, acc)
     }
 
+    /// Original indices of the particles whose inclusion ball (radius R_i = r_c + r_i) contains `p`:
+    /// the query sphere of Eq. 24 (a particle is in the sphere of radius r_c around `p` when it overlaps it).
+    pub fn containing(&self, p: [f64; 3]) -> Vec<u32> {
+        let mut out = Vec::new();
+        for c in &self.classes {
+            c.containing(p, |j| out.push(c.index[j]));
+        }
+        out
+    }
+
+    /// The same by a loop over every particle (test oracle).
+    pub fn containing_brute(&self, p: [f64; 3]) -> Vec<u32> {
+        let mut out = Vec::new();
+        for c in &self.classes {
+            for j in 0..c.len() {
+                let q = c.pos[j];
+                let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
+                if dd < (c.reach[j] as f64).powi(2) {
+                    out.push(c.index[j]);
+                }
+            }
+        }
+        out
+    }
+
     /// First and last t in [t0, t1) where any particle contributes (for empty-space skipping), or None.
     pub fn occupied_interval(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -704,6 +758,13 @@ mod tests {
                     o2[a] = 0.5;
                     rays.push((o2, d, 0.0, 3.0));
                 }
+            }
+            for _ in 0..200 {
+                let p = [lcg(&mut s) * 1.4 - 0.2, lcg(&mut s) * 1.4 - 0.2, lcg(&mut s) * 1.4 - 0.2];
+                let (mut a, mut b) = (g.containing(p), g.containing_brute(p));
+                a.sort();
+                b.sort();
+                assert_eq!(a, b, "containing({p:?}) rc={rc}");
             }
             rays.push(([0.5, 0.5, 0.5], [1.0, 0.0, 0.0], 0.3, 0.3)); // zero length
             rays.push(([5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0)); // misses

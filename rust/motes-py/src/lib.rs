@@ -616,6 +616,33 @@ impl PyDiscreteMedium {
         Ok((wo.into_pyarray(py), w.into_pyarray(py), pdf.into_pyarray(py)))
     }
 
+    /// Eq. 24 at points (f64 n*3): (sigma_s n*channels, Q = sigma_s f at cos θ = `mu`, n*channels).
+    fn local_scattering<'py>(&self, py: Python<'py>, points: F64In, mu: F64In, lambda: F64In, channels: usize) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let pts: Vec<[f64; 3]> = points.as_slice()?.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let (mu, lam) = (mu.as_slice()?.to_vec(), lambda.as_slice()?.to_vec());
+        if mu.len() != pts.len() || points.len()? != 3 * pts.len() || channels == 0 || (lam.len() != channels && lam.len() != channels * pts.len()) {
+            return Err(PyValueError::new_err("points (n, 3), mu (n) and lambda (channels or n*channels) must describe the same points"));
+        }
+        let (sg, q) = py.detach(|| self.medium.local_scattering(&pts, &mu, &lam, channels));
+        Ok((sg.into_pyarray(py), q.into_pyarray(py)))
+    }
+
+    /// Sample the local mixture at points: (wo n*3, weight n*channels, pdf n); `w_in` = propagation direction.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_local<'py>(&self, py: Python<'py>, points: F64In, w_in: F64In, lambda: F64In, channels: usize, u1: F64In, u2: F64In) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+        let pts: Vec<[f64; 3]> = points.as_slice()?.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let dirs: Vec<[f64; 3]> = w_in.as_slice()?.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let (lam, s1, s2) = (lambda.as_slice()?.to_vec(), u1.as_slice()?.to_vec(), u2.as_slice()?);
+        let n = pts.len();
+        if dirs.len() != n || s1.len() != n || s2.len() != 2 * n || channels == 0 || (lam.len() != channels && lam.len() != channels * n) {
+            return Err(PyValueError::new_err("points, w_in, u1, u2 and lambda must describe the same points"));
+        }
+        let s2: Vec<[f64; 2]> = s2.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let (wo, w, pdf) = py.detach(|| self.medium.sample_local(&pts, &dirs, &lam, channels, &s1, &s2));
+        let wo: Vec<f64> = wo.into_iter().flatten().collect();
+        Ok((wo.into_pyarray(py), w.into_pyarray(py), pdf.into_pyarray(py)))
+    }
+
     /// Remember an event of the given particles at `p` (tests and tools).
     fn insert_event(&self, p: (f32, f32, f32), particles: Vec<u32>) -> PyResult<()> {
         self.medium.insert_event([p.0, p.1, p.2], &particles).map_err(to_py)
