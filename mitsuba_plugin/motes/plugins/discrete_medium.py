@@ -224,7 +224,10 @@ class DiscreteMediumPlugin:
         return bool(hit[0]), float(mint[0]), float(maxt[0])
 
     def get_majorant(self, mei, active=True):
-        return mi.UnpolarizedSpectrum(MAJORANT)
+        # MAJORANT where intersect_aabb found a site, 0 elsewhere: integrators that weight by
+        # exp(-t * majorant) over the whole segment (prbvolpath) then give escaping rays weight 1.
+        n = max(dr_width(mei.wi), np.size(np.asarray(active)))
+        return spectrum(np.where(mask(active, n), MAJORANT, 0.0)[:, None], n)
 
     def get_scattering_coefficients(self, mei, active=True):
         p = vec3(mei.p)
@@ -245,6 +248,11 @@ class DiscreteMediumPlugin:
         d = self.data
         return (f"DiscreteMedium[particles={len(d)}, bins={d.n_bins}, query_radius={d.query_radius:g}, "
                 f"scale_m={d.scale_m:g}, bytes={d.bytes}]")
+
+
+def dr_width(v) -> int:
+    import drjit as dr
+    return dr.width(v)
 
 
 def dr_jit() -> bool:

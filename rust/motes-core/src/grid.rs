@@ -41,6 +41,34 @@ fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
     (lo, hi)
 }
 
+/// Spread the low 21 bits of x to every third bit.
+fn spread3(x: u64) -> u64 {
+    let mut x = x & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f_0000_0000_ffff;
+    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+    (x | x << 2) & 0x1249_2492_4924_9249
+}
+
+/// Rank of each cell (row-major index) along the Morton curve of the grid.
+fn morton_ranks(dims: [usize; 3]) -> Vec<u32> {
+    let n = dims[0] * dims[1] * dims[2];
+    let mut keys: Vec<(u64, u32)> = (0..n)
+        .into_par_iter()
+        .map(|c| {
+            let (x, y, z) = (c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1]));
+            (spread3(x as u64) | spread3(y as u64) << 1 | spread3(z as u64) << 2, c as u32)
+        })
+        .collect();
+    keys.par_sort_unstable();
+    let mut rank = vec![0u32; n];
+    for (r, &(_, c)) in keys.iter().enumerate() {
+        rank[c as usize] = r as u32;
+    }
+    rank
+}
+
 /// One size class of a [`ParticleGrid`]: particles of similar inclusion radius in a uniform grid whose cells are at least
 /// as large as that radius (so a traversal scans only the 3×3×3 cells around each ray cell).
 pub struct SubGrid {
@@ -129,7 +157,14 @@ impl SubGrid {
             (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
         };
         // Counting sort of the particles by the cell of their centre (O(N)): the storage order.
-        let cells: Vec<u32> = positions.par_iter().map(|p| cell_of(p) as u32).collect();
+        let mut cells: Vec<u32> = positions.par_iter().map(|p| cell_of(p) as u32).collect();
+        if k == 0 {
+            // Sparse classes look particles up through references, from the ray's cell into its
+            // neighbours' storage: store in Morton (Z-curve) order of the cells so that neighbouring
+            // cells' particles are close in memory (measured: see BENCHMARKS.md, issue 5).
+            let rank = morton_ranks(dims);
+            cells.par_iter_mut().for_each(|c| *c = rank[*c as usize]);
+        }
         let mut centre_start = vec![0u32; n_cells + 1];
         for &c in &cells {
             centre_start[c as usize + 1] += 1;
