@@ -34,25 +34,26 @@ def cube_volume_m3(half_units: float, scale_m: float) -> float:
     return (2 * half_units * scale_m) ** 3
 
 
+def timed(f, owner):
+    """``f`` wrapped to add its wall time to ``owner.seconds``."""
+    def run(*a, **k):
+        t = time.perf_counter()
+        try:
+            return f(*a, **k)
+        finally:
+            owner.seconds += time.perf_counter() - t
+    return run
+
+
 class CoreTimer:
     """Wraps the Rust medium to time its queries."""
 
     def __init__(self, core):
-        self.core, self.seconds, self.calls = core, 0.0, 0
+        self.core, self.seconds = core, 0.0
 
     def __getattr__(self, name):
         f = getattr(self.core, name)
-        if not callable(f):
-            return f
-
-        def timed(*a, **k):
-            t = time.perf_counter()
-            try:
-                return f(*a, **k)
-            finally:
-                self.seconds += time.perf_counter() - t
-                self.calls += 1
-        return timed
+        return timed(f, self) if callable(f) else f
 
 
 class BridgeTimer:
@@ -67,16 +68,7 @@ class BridgeTimer:
         for mod in (discrete_medium, particle_phase):
             for name in self.NAMES:
                 if hasattr(mod, name):
-                    setattr(mod, name, self._wrap(getattr(mod, name)))
-
-    def _wrap(self, f):
-        def timed(*a, **k):
-            t = time.perf_counter()
-            try:
-                return f(*a, **k)
-            finally:
-                self.seconds += time.perf_counter() - t
-        return timed
+                    setattr(mod, name, timed(getattr(mod, name), self))
 
 
 def room(mi, medium: dict, res: int, spp: int, seed: int = 0, max_depth: int = 6) -> dict:

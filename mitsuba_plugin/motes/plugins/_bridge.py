@@ -57,3 +57,14 @@ def channel_wavelengths(medium, mei, n: int):
     # monochrome: the middle tabulated wavelength
     lam = medium.channel_wavelength_nm
     return np.ascontiguousarray(lam[[lam.size // 2]]), 1
+
+
+def bind_to_variant(methods_class, base_name: str, name: str, cache: dict):
+    """A subclass of the current variant's ``mi.<base_name>`` carrying ``methods_class``'s methods, made once
+    per variant (Mitsuba's base classes are per variant; nanobind allows a single base, so the methods are
+    copied rather than mixed in)."""
+    variant = mi.variant()
+    if variant not in cache:
+        methods = {k: v for k, v in vars(methods_class).items() if k not in ("__dict__", "__weakref__")}
+        cache[variant] = type(name, (getattr(mi, base_name),), methods)
+    return cache[variant]

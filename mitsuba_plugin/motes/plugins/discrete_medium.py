@@ -69,7 +69,7 @@ from ..equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod
-from ._bridge import channel_wavelengths, mask, spectrum, vec3
+from ._bridge import bind_to_variant, channel_wavelengths, mask, spectrum, vec3
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -264,10 +264,5 @@ _classes: dict = {}
 
 
 def plugin_class():
-    """The ``discrete`` class for the current Mitsuba variant (Mitsuba's base classes are per variant;
-    nanobind allows a single base, so the methods are copied onto a subclass of it)."""
-    variant = mi.variant()
-    if variant not in _classes:
-        methods = {k: v for k, v in vars(DiscreteMediumPlugin).items() if k not in ("__dict__", "__weakref__")}
-        _classes[variant] = type("DiscreteMedium", (mi.Medium,), methods)
-    return _classes[variant]
+    """The plugin class for the current Mitsuba variant."""
+    return bind_to_variant(DiscreteMediumPlugin, "Medium", "DiscreteMedium", _classes)

@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ._bridge import channel_wavelengths, floats, spectrum, vec3, vector3
+from ._bridge import bind_to_variant, channel_wavelengths, floats, spectrum, vec3, vector3
 
 
 class ParticlePhase:
@@ -75,10 +75,5 @@ _classes: dict = {}
 
 
 def plugin_class():
-    """The ``particle`` class for the current Mitsuba variant (Mitsuba's base classes are per variant;
-    nanobind allows a single base, so the methods are copied onto a subclass of it)."""
-    variant = mi.variant()
-    if variant not in _classes:
-        methods = {k: v for k, v in vars(ParticlePhase).items() if k not in ("__dict__", "__weakref__")}
-        _classes[variant] = type("ParticlePhase", (mi.PhaseFunction,), methods)
-    return _classes[variant]
+    """The plugin class for the current Mitsuba variant."""
+    return bind_to_variant(ParticlePhase, "PhaseFunction", "ParticlePhase", _classes)

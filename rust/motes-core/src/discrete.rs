@@ -90,6 +90,20 @@ fn frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
     ([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]], [b, sign + n[1] * n[1] * a, -n[1]])
 }
 
+/// A sampled direction, its weights per channel (value / pdf) and pdf.
+type Sample = ([f64; 3], Vec<f64>, f64);
+
+fn null_sample(channels: usize) -> Sample {
+    ([0.0, 0.0, 1.0], vec![0.0; channels], 0.0)
+}
+
+/// Per-lane samples as flat columns (directions, weights lane-major, pdfs).
+fn unzip_samples(res: Vec<Sample>) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+    let wo = res.iter().map(|r| r.0).collect();
+    let pdf = res.iter().map(|r| r.2).collect();
+    (wo, res.into_iter().flat_map(|r| r.1).collect(), pdf)
+}
+
 fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     (l.is_finite() && l > 0.0).then(|| v.map(|x| x / l))
@@ -368,27 +382,29 @@ impl DiscreteMedium {
     /// where no particle is local.
     pub fn sample_local(&self, p: &[[f64; 3]], w_in: &[[f64; 3]], lambda: &[f64], channels: usize, u1: &[f64], u2: &[[f64; 2]]) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
         let shared = lambda.len() == channels;
-        let res: Vec<([f64; 3], Vec<f64>, f64)> = (0..p.len())
+        let res: Vec<Sample> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let mut v = vec![0.0; channels];
                 let members = self.grid.containing(p[i]);
-                let Some(dir) = normalise(w_in[i]) else { return ([0.0, 0.0, 1.0], v, 0.0) };
+                let Some(dir) = normalise(w_in[i]) else { return null_sample(channels) };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                let scale = |j: u32| self.local_weight(j);
-                match self.mixture_sample(&members, &scale, &ls, dir, u1[i], u2[i], &mut v) {
-                    Some((wo, pdf)) if pdf > 0.0 => {
-                        v.iter_mut().for_each(|x| *x /= pdf);
-                        (wo, v, pdf)
-                    }
-                    _ => ([0.0, 0.0, 1.0], vec![0.0; channels], 0.0),
-                }
+                self.weighted_sample(&members, &|j| self.local_weight(j), &ls, dir, u1[i], u2[i])
             })
             .collect();
-        let wo = res.iter().map(|r| r.0).collect();
-        let pdf = res.iter().map(|r| r.2).collect();
-        (wo, res.into_iter().flat_map(|r| r.1).collect(), pdf)
+        unzip_samples(res)
+    }
+
+    /// One mixture sample as (wo, weight per channel = value / pdf, pdf), or the null sample.
+    fn weighted_sample(&self, members: &[u32], scale: &impl Fn(u32) -> f64, ls: &[(usize, usize, f64)], w_in: [f64; 3], u1: f64, u2: [f64; 2]) -> Sample {
+        let mut v = vec![0.0; ls.len()];
+        match self.mixture_sample(members, scale, ls, w_in, u1, u2, &mut v) {
+            Some((wo, pdf)) if pdf > 0.0 => {
+                v.iter_mut().for_each(|x| *x /= pdf);
+                (wo, v, pdf)
+            }
+            _ => null_sample(ls.len()),
+        }
     }
 
     /// Evaluate the phase function of the event at `p` for incident direction `wi` (pointing back along
@@ -420,27 +436,18 @@ impl DiscreteMedium {
     pub fn phase_sample(&self, p: &[[f32; 3]], wi: &[[f32; 3]], lambda: &[f64], channels: usize, u1: &[f64], u2: &[[f64; 2]]) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
         let shared = lambda.len() == channels;
         let events = self.events.read().unwrap();
-        let res: Vec<([f64; 3], Vec<f64>, f64)> = (0..p.len())
+        let res: Vec<Sample> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let mut v = vec![0.0; channels];
                 let site = events.get(&key(p[i]));
                 let w_in = normalise(wi[i].map(|x| -(x as f64)));
-                let (Some(s), Some(w_in)) = (site, w_in) else { return ([0.0, 0.0, 1.0], v, 0.0) };
+                let (Some(s), Some(w_in)) = (site, w_in) else { return null_sample(channels) };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                match self.mixture_sample(s.members(), &|j| self.tau[j as usize] as f64, &ls, w_in, u1[i], u2[i], &mut v) {
-                    Some((wo, pdf)) if pdf > 0.0 => {
-                        v.iter_mut().for_each(|x| *x /= pdf);
-                        (wo, v, pdf)
-                    }
-                    _ => ([0.0, 0.0, 1.0], vec![0.0; channels], 0.0),
-                }
+                self.weighted_sample(s.members(), &|j| self.tau[j as usize] as f64, &ls, w_in, u1[i], u2[i])
             })
             .collect();
-        let wo = res.iter().map(|r| r.0).collect();
-        let pdf = res.iter().map(|r| r.2).collect();
-        (wo, res.into_iter().flat_map(|r| r.1).collect(), pdf)
+        unzip_samples(res)
     }
 
     /// Remember an event directly (tests and tools: e.g. a chi-square test of a chosen mixture).
