@@ -10,8 +10,10 @@
    N = 1e3 ... 1e6 particles (the scene's metres per unit grow as sqrt(N), so particles get many and
    small against a fixed query radius); relative image difference to the homogeneous equivalent, with the
    noise floor measured between two homogeneous renders of different seeds.
+3. Graininess: contrast between pixels in the light beam at low and high spp, discrete vs homogeneous (grains
+   persist as spp grow, Monte Carlo noise does not).
 
-    .venv/bin/python scripts/bench_render.py [--quick] [--out out]
+    .venv/bin/python scripts/bench_render.py [--quick] [--only timing|limit|grains] [--out out]
 """
 
 from __future__ import annotations
@@ -229,13 +231,48 @@ def continuous_limit(motes, mi, out, quick):
                    "rel. image difference", "image mean difference", "difference beyond noise"], rows)
 
 
+def graininess(motes, mi, out, quick):
+    """Grains are structure, noise is not. Each medium is rendered twice with different seeds (A, B); on the
+    high-pass image hp = X - (3x3 box blur of X), which removes the smooth beam profile, the noise variance is
+    var(hp(A) - hp(B)) / 2 and the structure variance var(hp((A + B) / 2)) - noise variance / 2. Contrasts are
+    relative to the mean, over the lit beam (brightest 10 % of the homogeneous image)."""
+    res, spp = (64, 64) if quick else (96, 256)
+    cfg = configs(quick)["sparse"]
+
+    def hp(x):
+        p = np.pad(x, 1, mode="edge")
+        blur = sum(p[i:i + x.shape[0], j:j + x.shape[1]] for i in range(3) for j in range(3)) / 9.0
+        return x - blur
+
+    rows, imgs = [], {}
+    for name, medium in (("discrete", discrete_dict(cfg, res)), ("homogeneous", homogeneous_dict(motes, cfg))):
+        for seed in (3, 4):
+            _, img = render(mi, mi.load_dict(room(mi, medium, res, spp, seed=seed)))
+            imgs[name, seed] = img.mean(axis=2)
+        save_png(mi, img, out / f"grains_{name}_{spp}spp.png")
+    ref = imgs["homogeneous", 3] + imgs["homogeneous", 4]
+    beam = ref > np.percentile(ref, 90)
+    for name in ("discrete", "homogeneous"):
+        a, b = imgs[name, 3], imgs[name, 4]
+        mean = float(((a + b) / 2)[beam].mean())
+        noise = float(np.var((hp(a) - hp(b))[beam]) / 2)
+        structure = float(np.var(hp((a + b) / 2)[beam]) - noise / 2)
+        rows.append([name, f"{np.sqrt(max(structure, 0)) / mean:.3f}", f"{np.sqrt(noise) / mean:.3f}"])
+    C.print_table(f"Graininess: high-pass pixel contrast in the lit beam, sparse dust room, {res}x{res} px, {spp} spp, "
+                  "two seeds per medium", ["medium", "structure (grains), noise removed", "Monte Carlo noise per render"], rows)
+
+
 def main() -> None:
-    args, out, sw, motes = C.start(__doc__)
+    ap = C.parser(__doc__)
+    ap.add_argument("--only", choices=["timing", "limit", "grains"], help="run one part")
+    args = ap.parse_args()
+    out, sw, motes = C.out_dir(args.out), C.Stopwatch(), C.import_motes()
     motes.set_variant("llvm_ad_rgb")
     import mitsuba as mi
 
-    timing(motes, mi, out, args.quick)
-    continuous_limit(motes, mi, out, args.quick)
+    for part, run in (("timing", timing), ("limit", continuous_limit), ("grains", graininess)):
+        if args.only in (None, part):
+            run(motes, mi, out, args.quick)
     print(f"runtime {sw():.1f} s")
 
 
