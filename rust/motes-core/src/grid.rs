@@ -73,9 +73,9 @@ fn morton_ranks(dims: [usize; 3]) -> Vec<u32> {
 /// as large as that radius (so a traversal scans only the 3×3×3 cells around each ray cell).
 pub struct SubGrid {
     /// Centres (scene units), stored in cell order.
-    pos: Vec<[f32; 3]>,
-    /// Inclusion radius R_i = r_c + r_i (scene units), cell order.
-    reach: Vec<f32>,
+    /// Centre (scene units) and inclusion radius R_i = r_c + r_i, together so that a test touches one
+    /// cache line, stored in cell order.
+    sphere: Vec<[f32; 4]>,
     /// Optical depth contributed per particle, C_t / (π R_i²) in scene units⁰, [particle][channel].
     tau: Vec<f32>,
     /// Original index of each stored particle.
@@ -179,8 +179,13 @@ impl SubGrid {
             fill[c as usize] += 1;
         }
         drop(fill);
-        let pos: Vec<[f32; 3]> = order.iter().map(|&i| positions[i as usize].map(|x| x as f32)).collect();
-        let reach_sorted: Vec<f32> = order.iter().map(|&i| reach[i as usize] as f32).collect();
+        let sphere: Vec<[f32; 4]> = order
+            .iter()
+            .map(|&i| {
+                let p = positions[i as usize];
+                [p[0] as f32, p[1] as f32, p[2] as f32, reach[i as usize] as f32]
+            })
+            .collect();
         let mut tau = vec![0f32; n * channels];
         for (j, &i) in order.iter().enumerate() {
             let area = std::f64::consts::PI * reach[i as usize] * reach[i as usize];
@@ -236,14 +241,14 @@ impl SubGrid {
             (start, refs)
         };
         let index = order.iter().map(|&i| ids[i as usize]).collect();
-        Ok(SubGrid { pos, reach: reach_sorted, tau, index, channels, start, refs, lo, cell, dims, reach_max, k })
+        Ok(SubGrid { sphere, tau, index, channels, start, refs, lo, cell, dims, reach_max, k })
     }
 
     pub fn len(&self) -> usize {
-        self.pos.len()
+        self.sphere.len()
     }
     pub fn is_empty(&self) -> bool {
-        self.pos.is_empty()
+        self.sphere.is_empty()
     }
     pub fn channels(&self) -> usize {
         self.channels
@@ -254,17 +259,17 @@ impl SubGrid {
 
     /// Heap bytes of the grid and the particles it stores.
     pub fn bytes(&self) -> usize {
-        self.pos.len() * 12 + self.reach.len() * 4 + self.tau.len() * 4 + self.index.len() * 4 + self.start.len() * 4 + self.refs.len() * 4
+        self.sphere.len() * 16 + self.tau.len() * 4 + self.index.len() * 4 + self.start.len() * 4 + self.refs.len() * 4
     }
 
     /// Does stored particle j contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
     #[inline]
     fn contribution(&self, j: usize, o: [f64; 3], d: [f64; 3]) -> Option<f64> {
-        let p = self.pos[j];
+        let p = self.sphere[j];
         let v = [p[0] as f64 - o[0], p[1] as f64 - o[1], p[2] as f64 - o[2]];
         let t = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
         let q = [v[0] - t * d[0], v[1] - t * d[1], v[2] - t * d[2]];
-        let r = self.reach[j] as f64;
+        let r = p[3] as f64;
         (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < r * r).then_some(t)
     }
 
@@ -374,9 +379,9 @@ impl SubGrid {
                 let x1 = ((c[0] + k) as usize).min(self.dims[0] - 1);
                 for &j in &self.refs[self.start[row + x0] as usize..self.start[row + x1 + 1] as usize] {
                     let j = j as usize;
-                    let q = self.pos[j];
+                    let q = self.sphere[j];
                     let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
-                    let r = self.reach[j] as f64;
+                    let r = q[3] as f64;
                     if dd < r * r {
                         visit(j);
                     }
@@ -655,9 +660,9 @@ impl ParticleGrid {
         let mut out = Vec::new();
         for c in &self.classes {
             for j in 0..c.len() {
-                let q = c.pos[j];
+                let q = c.sphere[j];
                 let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
-                if dd < (c.reach[j] as f64).powi(2) {
+                if dd < (q[3] as f64).powi(2) {
                     out.push(c.index[j]);
                 }
             }
