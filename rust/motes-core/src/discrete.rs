@@ -19,7 +19,7 @@
 //! path that leaves the medium without one, so a channel-dependent free flight cannot be re-weighted
 //! there (see `mitsuba_plugin/motes/plugins/discrete.py`). A non-absorbing particle keeps a_c = 1 in
 //! every channel, so energy is conserved exactly (white furnace); what is approximated is the colour
-//! of the transmittance, by the spread of C_t over the channels (measured in BENCHMARKS.md).
+//! of the transmittance, by the spread of C_t over the channels (measured by scripts/grey_extinction.py, BENCHMARKS.md).
 //!
 //! ## Phase function of a site (Eq. 24)
 //! With the site's particles j, scattering weights s_j,c = τ_j a_j,c, the phase function for
