@@ -9,8 +9,9 @@
 //! particles in t order ([`ParticleGrid::sample_site`]): no majorant, no null collisions. The
 //! interaction happens at the site's t (the particle's projection on the ray). The scattered path must
 //! not meet the particle that scattered it again (its internal paths are already in its phase
-//! function), so each event is remembered by the exact bits of its position and the particles of that
-//! event are skipped by rays starting there ([`EventMap`]).
+//! function), so each event that starts new rays is remembered by the exact bits of its position and
+//! the particles of that event are skipped by rays starting there ([`EventMap`]); the phase function
+//! finds the event's particles there too (or, failing that, from the geometry along the incident ray).
 //!
 //! ## Colour
 //! The free flight uses one (grey) optical depth per particle: the mean of τ over the tabulated
@@ -72,6 +73,9 @@ fn key(p: [f32; 3]) -> [u32; 3] {
     p.map(f32::to_bits)
 }
 
+/// Rays with a t_max below this are shadow rays (Mitsuba spawns scattered rays with the largest float).
+const SHADOW_RAY_LIMIT: f64 = 1e30;
+
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
 /// renders are reproducible whatever the thread schedule.
 fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
@@ -126,7 +130,7 @@ pub struct DiscreteMedium {
     events: RwLock<EventMap>,
     /// Sites sampled by each calling thread's last `sample_sites` call, per lane, until its
     /// `commit_events` (Mitsuba's scalar variants call from several render threads at once).
-    pending: Mutex<FxHashMap<std::thread::ThreadId, Vec<Option<Site>>>>,
+    pending: Mutex<FxHashMap<std::thread::ThreadId, Vec<(Option<Site>, bool)>>>,
     seed: u64,
     calls: AtomicU64,
 }
@@ -248,7 +252,10 @@ impl DiscreteMedium {
             .collect();
         drop(events);
         let out = res.iter().map(|(s, tau)| SiteSample { t: s.map(|s| s.t), tau_before: *tau }).collect();
-        self.pending.lock().unwrap().insert(std::thread::current().id(), res.into_iter().map(|r| r.0).collect());
+        // Only events that start new rays need remembering: scattered rays have an unbounded t_max
+        // (Mitsuba's spawn_ray), shadow rays a finite one, and an event ends a shadow ray.
+        let pending = res.into_iter().zip(t_max).map(|(r, &tm)| (r.0, tm >= SHADOW_RAY_LIMIT)).collect();
+        self.pending.lock().unwrap().insert(std::thread::current().id(), pending);
         out
     }
 
@@ -265,7 +272,7 @@ impl DiscreteMedium {
             let mut events = self.events.write().unwrap();
             events.capacity = events.capacity.max(4 * n);
             for i in 0..n {
-                if let (true, Some(site)) = (active[i], pending[i]) {
+                if let (true, (Some(site), true)) = (active[i], pending[i]) {
                     events.insert(key(p[i]), site);
                 }
             }
@@ -273,7 +280,7 @@ impl DiscreteMedium {
         Ok((0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
-                let site = if active[i] { pending[i] } else { None };
+                let site = if active[i] { pending[i].0 } else { None };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 (0..channels).map(move |c| site.map_or(0.0, |s| self.site_albedo(&s, self.bracket(lam[c]))))
             })
@@ -289,6 +296,25 @@ impl DiscreteMedium {
             den += t;
         }
         if den > 0.0 { num / den } else { 0.0 }
+    }
+
+    /// The site at `p` found from the geometry when the event is not remembered: the particles whose
+    /// projection on the ray through `p` along `w_in` lies within a few float32 ulps of `p`.
+    fn site_near(&self, p: [f32; 3], w_in: [f64; 3]) -> Option<Site> {
+        let o = p.map(|x| x as f64);
+        let tol = 4.0 * self.coincide + 1e-6 * o.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+        let mut site = Site::default();
+        self.grid.walk(o, w_in, -tol, tol, |t, _, i| {
+            if site.len == 0 {
+                site.t = t;
+            }
+            if (site.len as usize) < Site::CAPACITY {
+                site.particles[site.len as usize] = i;
+                site.len += 1;
+            }
+            true
+        });
+        (site.len > 0).then_some(site)
     }
 
     /// The site of an event position, if it is remembered.
@@ -417,9 +443,10 @@ impl DiscreteMedium {
             .into_par_iter()
             .map(|i| {
                 let mut v = vec![0.0; channels];
-                let site = events.get(&key(p[i]));
                 let dirs = normalise(wi[i].map(|x| -(x as f64))).zip(normalise(wo[i].map(|x| x as f64)));
-                let (Some(s), Some((w_in, w_out))) = (site, dirs) else { return (v, 0.0) };
+                let Some((w_in, w_out)) = dirs else { return (v, 0.0) };
+                let Some(s) = events.get(&key(p[i])).copied().or_else(|| self.site_near(p[i], w_in)) else { return (v, 0.0) };
+                let s = &s;
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
                 let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
@@ -439,9 +466,8 @@ impl DiscreteMedium {
         let res: Vec<Sample> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let site = events.get(&key(p[i]));
-                let w_in = normalise(wi[i].map(|x| -(x as f64)));
-                let (Some(s), Some(w_in)) = (site, w_in) else { return null_sample(channels) };
+                let Some(w_in) = normalise(wi[i].map(|x| -(x as f64))) else { return null_sample(channels) };
+                let Some(s) = events.get(&key(p[i])).copied().or_else(|| self.site_near(p[i], w_in)) else { return null_sample(channels) };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
                 self.weighted_sample(s.members(), &|j| self.tau[j as usize] as f64, &ls, w_in, u1[i], u2[i])
@@ -564,7 +590,7 @@ mod tests {
         let d = [[0.0f32, 0.0, 1.0]];
         let mut site = None;
         for _ in 0..100 {
-            let r = m.sample_sites(&o, &d, &[2.0]);
+            let r = m.sample_sites(&o, &d, &[f64::INFINITY]);
             if let Some(t) = r[0].t {
                 site = Some(t);
                 break;
@@ -576,6 +602,21 @@ mod tests {
         assert!(alb.iter().all(|a| (0.0..=1.0).contains(a)));
         let s = m.event_at(p).unwrap();
         assert!(s.len >= 1);
+        // without the map entry the phase function finds the site from the geometry
+        assert_eq!(m.site_near(p, [0.0, 0.0, 1.0]).map(|x| x.members().to_vec()), Some(s.members().to_vec()));
+        // a shadow ray (finite t_max) that interacts is not remembered
+        let mut shadow_hit = None;
+        for _ in 0..200 {
+            if let Some(t) = m.sample_sites(&[[0.5f32, 0.5, -0.2]], &[[0.0f32, 0.0, 1.0]], &[1.0])[0].t {
+                shadow_hit = Some(t);
+                break;
+            }
+        }
+        let q = [0.5f32, 0.5, (-0.2 + shadow_hit.unwrap()) as f32];
+        if q != p {
+            m.commit_events(&[q], &[true], &[500.0, 600.0], 2).unwrap();
+            assert!(m.event_at(q).is_none());
+        }
         let (wo, w, pdf) = m.phase_sample(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &[500.0, 600.0], 2, &(0..64).map(|i| i as f64 / 64.0).collect::<Vec<_>>(), &(0..64).map(|i| [((i * 37) % 64) as f64 / 64.0, ((i * 11) % 64) as f64 / 64.0]).collect::<Vec<_>>());
         let wo32: Vec<[f32; 3]> = wo.iter().map(|v| v.map(|x| x as f32)).collect();
         let (vals, pdf2) = m.phase_eval(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &wo32, &[500.0, 600.0], 2);
