@@ -194,6 +194,14 @@ def test_invalid_parameters_name_themselves(props, message):
         mi.load_dict(discrete(count=props.pop("count", 100), **props))
 
 
+def test_file_and_generator_parameters_clash(tmp_path):
+    motes.set_variant("scalar_rgb")
+    pset = motes.ParticleSet(np.zeros((2, 3)), np.array([10.0, 20.0]), np.zeros(2, dtype=np.int64))
+    motes.save_particles(tmp_path / "p.npz", pset)
+    with pytest.raises(Exception, match="count"):
+        mi.load_dict(discrete(count=100, filename=str(tmp_path / "p.npz")))
+
+
 def test_unknown_parameter_fails_loading():
     motes.set_variant("scalar_rgb")
     with pytest.raises(Exception, match="radius_mediam"):

@@ -21,11 +21,12 @@ Parameter               Type       Meaning (default)
 ``species``             string     JSON list of species for mixtures, each ``{"psd": {...}, "material":
                                    "ice"}`` or ``{"psd": ..., "eta": [n, k]}``, optional ``"share"``;
                                    replaces psd/material/eta. Files give each particle's species index
-``scale_m``             float      metres per local unit, so that um radii and positions combine (1e-3)
-``query_radius``        float      r_c of the query cylinder in local units (0: the particles' own
+``scale_m``             float      metres per scene unit (the units after ``to_world``), so that um radii
+                                   and positions combine (1e-3)
+``query_radius``        float      r_c of the query cylinder in scene units (0: the particles' own
                                    cross sections). Or Eq. 23 from a camera:
 ``footprint_k``         float      k in (0, 2] (paper: 0.5-1), with ``fov`` (degrees), ``film_width``
-                                   (pixels) and ``z_med`` (nearest depth of the medium, local units)
+                                   (pixels) and ``z_med`` (nearest depth of the medium, scene units)
 ``cells_per_particle``  float      grid resolution (1: about one particle per voxel, Sec. 6.5)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
@@ -34,7 +35,7 @@ Parameter               Type       Meaning (default)
                                    8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
 ``seed``                integer    seed of generated positions and free flights (0)
 ``albedo``              float      replaces every particle's albedo, in [0, 1] (tests, stylisation)
-``to_world``            transform  places the particle positions (radii stay physical)
+``to_world``            transform  places the particle positions in the scene (radii stay physical)
 ``sample_emitters``     boolean    next-event estimation at scattering events (true)
 ======================  =========  ======================================================================
 
@@ -156,6 +157,10 @@ class DiscreteMediumPlugin:
 
         # Particles (local units), then to world.
         if filename is not None:
+            clash = [name for name in ("count", "distribution") if name in props]
+            if clash:
+                raise ValueError(f"discrete medium: {', '.join(clash)} set the generated particles; with filename "
+                                 "the particles come from the file — remove one or the other")
             pset = load_particles(filename, n_species=len(species))
             pos, radii, sidx = pset.positions, pset.radii_um, pset.species
         else:
