@@ -16,6 +16,17 @@ real index, so the relative index is ``eta / eta_medium`` and the size parameter
 ``resolve_method``          which theory ("mie"/"goa") a method picks for each particle
 ==========================  ==================================================================
 
+Beyond single particles
+-----------------------
+==========================  ==================================================================
+``bulk_properties``         ensembles of particles (Eq. 16-17), ``motes.ensemble``
+``homogeneous_equivalent``  Mitsuba ``homogeneous`` + ``tabphase`` of an ensemble, ``motes.equivalent``
+``ParticleGrid``            particles in a grid: optical depth (Eq. 18), exact free flights
+``density_box``             particle positions from a density field; ``uniform_box``
+``DiscreteMedium``          the renderer's view: sites, Eq. 24 at points, local-mixture sampling
+``set_variant``             Mitsuba variant + the ``discrete`` medium and ``particle`` phase plugins
+==========================  ==================================================================
+
 Particle size distributions: ``motes.psd`` (``LogNormal``, ``Monodisperse``, ``Uniform``, ``Histogram``,
 ``Mixture``), exported at the top level too.
 
