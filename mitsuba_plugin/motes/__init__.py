@@ -1,7 +1,7 @@
 """motes: discrete participating media for Mitsuba 3, over a Rust core.
 
-Single-particle optics (this release)
--------------------------------------
+Single-particle optics
+----------------------
 All lengths are in micrometres and angles in radians. ``eta`` is the particle's complex refractive
 index ``n + i*kappa`` (``kappa >= 0`` absorbs; a float means ``kappa = 0``), ``eta_medium`` the host's
 real index, so the relative index is ``eta / eta_medium`` and the size parameter
