@@ -101,10 +101,10 @@ def configs(quick: bool):
     }
 
 
-def discrete_dict(cfg: dict, res: int, seed: int = 0) -> dict:
+def discrete_dict(mi, cfg: dict, res: int, seed: int = 0) -> dict:
     return {"type": "discrete", "count": cfg["count"], "radius_median": cfg["median"], "radius_sigma_g": cfg["sigma_g"],
             "eta": 1.55, "eta_k": 0.0005, "scale_m": 0.01, "footprint_k": cfg["k"], "fov": 40.0, "film_width": res,
-            "z_med": 32.0, "to_world": __import__("mitsuba").ScalarTransform4f().scale(10),
+            "z_med": 32.0, "to_world": mi.ScalarTransform4f().scale(10),
             "truncate_below": TRUNCATE, "seed": seed, "phase": {"type": "particle"}}
 
 
@@ -133,14 +133,14 @@ def timing(motes, mi, out, quick):
     bridge = BridgeTimer()
     for name, cfg in configs(quick).items():
         t0 = time.perf_counter()
-        sd = mi.load_dict(room(mi, discrete_dict(cfg, res), res, spp))
+        sd = mi.load_dict(room(mi, discrete_dict(mi, cfg, res), res, spp))
         t_build = time.perf_counter() - t0
         med = [sh.interior_medium() for sh in sd.shapes() if sh.interior_medium() is not None][0]
         sh = mi.load_dict(room(mi, homogeneous_dict(motes, cfg), res, spp))
         # warm up (kernel compilation), then alternate and keep the best of two
         motes.set_evaluated_mode(True)
         render(mi, mi.load_dict(room(mi, homogeneous_dict(motes, cfg), 16, 1)))
-        render(mi, mi.load_dict(room(mi, discrete_dict(cfg, 16), 16, 1)))
+        render(mi, mi.load_dict(room(mi, discrete_dict(mi, cfg, 16), 16, 1)))
         timer = CoreTimer(med.data._core)
         med.data._core = timer
         t_d, t_h, t_sym = [], [], []
@@ -245,7 +245,7 @@ def graininess(motes, mi, out, quick):
         return x - blur
 
     rows, imgs = [], {}
-    for name, medium in (("discrete", discrete_dict(cfg, res)), ("homogeneous", homogeneous_dict(motes, cfg))):
+    for name, medium in (("discrete", discrete_dict(mi, cfg, res)), ("homogeneous", homogeneous_dict(motes, cfg))):
         for seed in (3, 4):
             _, img = render(mi, mi.load_dict(room(mi, medium, res, spp, seed=seed)))
             imgs[name, seed] = img.mean(axis=2)

@@ -65,7 +65,7 @@ def test_sample_sites_is_robust(medium, o, d, t_max):
     a site only inside (0, t_max), never NaN optical depth."""
     oo = np.array(o, dtype=np.float32)
     dd = np.array(d, dtype=np.float32)
-    t, tau = medium.core.sample_sites(np.tile(oo, 64), np.tile(dd, 64), np.full(64, t_max))
+    t, tau = medium.core.sample_sites(np.tile(oo, 64), np.tile(dd, 64), np.full(64, t_max), np.ones(64, bool))
     assert np.all(np.isfinite(tau)) and np.all(tau >= 0)
     hit = np.isfinite(t)
     assert np.all((t[hit] >= 0) & (t[hit] < t_max))

@@ -99,7 +99,7 @@ class DiscreteMedium:
             for b in np.unique(which):
                 lo, hi = float(edges[b]), float(edges[b + 1])
                 psd = Monodisperse(lo) if hi <= lo else Uniform(lo, hi)
-                area = np.pi * (lo * lo if hi <= lo else (hi ** 3 - lo ** 3) / (3 * (hi - lo)))  # <pi r^2>, um^2
+                area = np.pi * psd.mean(2)  # <pi r^2>, um^2
                 bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method,
                                        truncate_below_rad=truncate_below_rad)
                 # n = 1 / m^3: sigma (1/m) is the mean cross section in m^2.

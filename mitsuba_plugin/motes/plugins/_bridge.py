@@ -7,7 +7,8 @@ import mitsuba as mi
 import numpy as np
 
 
-def _jit() -> bool:
+def is_jit() -> bool:
+    """Whether the current variant is a JIT (LLVM/CUDA) one: batches of lanes rather than one."""
     return dr.is_jit_v(mi.Float)
 
 
@@ -24,12 +25,12 @@ def mask(m, n: int) -> np.ndarray:
 
 def floats(a: np.ndarray):
     a = np.asarray(a, dtype=np.float32)
-    return mi.Float(a) if _jit() else float(a[0])
+    return mi.Float(a) if is_jit() else float(a[0])
 
 
 def vector3(a: np.ndarray):
     a = np.asarray(a, dtype=np.float32)
-    if _jit():
+    if is_jit():
         return mi.Vector3f(mi.Float(a[:, 0]), mi.Float(a[:, 1]), mi.Float(a[:, 2]))
     return mi.Vector3f(*(float(x) for x in a[0]))
 
@@ -40,7 +41,7 @@ def spectrum(a: np.ndarray, n: int):
     size = dr.size_v(mi.UnpolarizedSpectrum)
     if a.shape[1] == 1 and size != 1:
         a = np.repeat(a, size, axis=1)
-    if _jit():
+    if is_jit():
         return mi.UnpolarizedSpectrum(*(mi.Float(np.ascontiguousarray(a[:, c])) for c in range(size)))
     return mi.UnpolarizedSpectrum(*(float(a[0, c]) for c in range(size)))
 

@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import json
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -70,10 +71,12 @@ from ..equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod
-from ._bridge import bind_to_variant, channel_wavelengths, mask, spectrum, vec3
+from ._bridge import bind_to_variant, channel_wavelengths, is_jit, mask, spectrum, vec3
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
+#: Rays with at least this t_max are scattered rays (Mitsuba's spawn_ray), shorter ones shadow rays.
+SCATTERED_RAY_T_MAX = 1e30
 
 
 def _get(props, name, default, kind, check=None, allowed=""):
@@ -218,20 +221,22 @@ class DiscreteMediumPlugin:
         o, d = vec3(ray.o), vec3(ray.d)
         n = o.shape[0]
         t_max = np.ascontiguousarray(np.broadcast_to(np.atleast_1d(np.asarray(ray.maxt, dtype=np.float64)), (n,)))
-        t, _ = self.data.core.sample_sites(o.ravel(), d.ravel(), t_max)
+        # Only events that start new rays need remembering: Mitsuba spawns scattered rays with the
+        # largest float as t_max, shadow rays with their finite length, and an event ends a shadow ray.
+        t, _ = self.data.core.sample_sites(o.ravel(), d.ravel(), t_max, t_max >= SCATTERED_RAY_T_MAX)
         hit = np.isfinite(t)
         self.stats["intersect_calls"] += 1
         self.stats["rays"] += n
         mint = np.where(hit, t, np.inf).astype(np.float32)
         maxt = np.where(hit, np.inf, -np.inf).astype(np.float32)
-        if dr_jit():
+        if is_jit():
             return mi.Bool(hit), mi.Float(mint), mi.Float(maxt)
         return bool(hit[0]), float(mint[0]), float(maxt[0])
 
     def get_majorant(self, mei, active=True):
         # MAJORANT where intersect_aabb found a site, 0 elsewhere: integrators that weight by
         # exp(-t * majorant) over the whole segment (prbvolpath) then give escaping rays weight 1.
-        n = max(dr_width(mei.wi), np.size(np.asarray(active)))
+        n = max(dr.width(mei.wi), np.size(np.asarray(active)))
         return spectrum(np.where(mask(active, n), MAJORANT, 0.0)[:, None], n)
 
     def get_scattering_coefficients(self, mei, active=True):
@@ -246,23 +251,10 @@ class DiscreteMediumPlugin:
         self.stats["nulls"] += int((act & (sigma_n[:, 0] > 0)).sum())
         return (spectrum(albedo * sigma_t, n), spectrum(sigma_n, n), spectrum(sigma_t, n))
 
-    def traverse(self, callback):
-        mi.Medium.traverse(self, callback)
-
     def to_string(self):
         d = self.data
         return (f"DiscreteMedium[particles={len(d)}, bins={d.n_bins}, query_radius={d.query_radius:g}, "
                 f"scale_m={d.scale_m:g}, bytes={d.bytes}]")
-
-
-def dr_width(v) -> int:
-    import drjit as dr
-    return dr.width(v)
-
-
-def dr_jit() -> bool:
-    import drjit as dr
-    return dr.is_jit_v(mi.Float)
 
 
 _classes: dict = {}

@@ -31,7 +31,7 @@
 //! exactly and the weights f_c / pdf stay bounded.
 
 use crate::error::{require, OpticsError};
-use crate::grid::{ParticleGrid, Site};
+use crate::grid::{bounding_box, ParticleGrid, Site};
 use crate::phase_table::PhaseTable;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -72,9 +72,6 @@ impl EventMap {
 fn key(p: [f32; 3]) -> [u32; 3] {
     p.map(f32::to_bits)
 }
-
-/// Rays with a t_max below this are shadow rays (Mitsuba spawns scattered rays with the largest float).
-const SHADOW_RAY_LIMIT: f64 = 1e30;
 
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
 /// renders are reproducible whatever the thread schedule.
@@ -173,13 +170,7 @@ impl DiscreteMedium {
             })
             .collect();
         let reach = radius.iter().map(|r| (query_radius + r) as f32).collect();
-        let (lo, hi) = positions.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(mut lo, mut hi), p| {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-            (lo, hi)
-        });
+        let (lo, hi) = bounding_box(positions);
         let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) + grid.reach_max();
         // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
         // be ordered reliably, so they form one site.
@@ -231,8 +222,10 @@ impl DiscreteMedium {
     }
 
     /// Sample the next site along each ray (origin `o`, direction `d`, on (0, t_max)), skipping the
-    /// particles of the event the ray starts at. The sites are kept for [`Self::commit_events`].
-    pub fn sample_sites(&self, o: &[[f32; 3]], d: &[[f32; 3]], t_max: &[f64]) -> Vec<SiteSample> {
+    /// particles of the event the ray starts at. The sites are kept for [`Self::commit_events`], which
+    /// remembers the events of the lanes marked in `remember` (those whose events start new rays; an
+    /// event ends a shadow ray, so shadow rays need not be remembered).
+    pub fn sample_sites(&self, o: &[[f32; 3]], d: &[[f32; 3]], t_max: &[f64], remember: &[bool]) -> Vec<SiteSample> {
         let call = self.calls.fetch_add(1, Ordering::Relaxed);
         let events = self.events.read().unwrap();
         let res: Vec<(Option<Site>, f64)> = o
@@ -243,18 +236,16 @@ impl DiscreteMedium {
                 let (Some(dir), true) = (normalise(dd.map(|x| x as f64)), oo.iter().all(|x| x.is_finite())) else {
                     return (None, 0.0);
                 };
-                let exclude = events.get(&key(*oo)).map(|s| s.members().to_vec()).unwrap_or_default();
+                let excluded = events.get(&key(*oo)).copied().unwrap_or_default();
                 // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
                 let bits = oo.iter().chain(dd.iter()).fold(0u64, |h, x| (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3));
                 let u = uniform(self.seed ^ bits, call, lane as u64);
-                self.grid.sample_site(oo.map(|x| x as f64), dir, 0.0, tm, &exclude, u, self.coincide)
+                self.grid.sample_site(oo.map(|x| x as f64), dir, 0.0, tm, excluded.members(), u, self.coincide)
             })
             .collect();
         drop(events);
         let out = res.iter().map(|(s, tau)| SiteSample { t: s.map(|s| s.t), tau_before: *tau }).collect();
-        // Only events that start new rays need remembering: scattered rays have an unbounded t_max
-        // (Mitsuba's spawn_ray), shadow rays a finite one, and an event ends a shadow ray.
-        let pending = res.into_iter().zip(t_max).map(|(r, &tm)| (r.0, tm >= SHADOW_RAY_LIMIT)).collect();
+        let pending = res.into_iter().zip(remember).map(|(r, &keep)| (r.0, keep)).collect();
         self.pending.lock().unwrap().insert(std::thread::current().id(), pending);
         out
     }
@@ -308,10 +299,7 @@ impl DiscreteMedium {
             if site.len == 0 {
                 site.t = t;
             }
-            if (site.len as usize) < Site::CAPACITY {
-                site.particles[site.len as usize] = i;
-                site.len += 1;
-            }
+            site.push(i);
             true
         });
         (site.len > 0).then_some(site)
@@ -481,10 +469,7 @@ impl DiscreteMedium {
         let mut s = Site::default();
         for &i in particles {
             require("particle", i as f64, (i as usize) < self.tau.len(), "< number of particles")?;
-            if (s.len as usize) < Site::CAPACITY {
-                s.particles[s.len as usize] = i;
-                s.len += 1;
-            }
+            s.push(i);
         }
         require("particles (count)", particles.len() as f64, !particles.is_empty(), ">= 1")?;
         self.events.write().unwrap().insert(key(p), s);
@@ -531,7 +516,7 @@ mod tests {
         let tm = vec![1.4; lanes];
         let mut tau = [0.0];
         m.grid.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4, &mut tau);
-        let res = m.sample_sites(&o, &d, &tm);
+        let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
         let escaped = res.iter().filter(|r| r.t.is_none()).count() as f64 / lanes as f64;
         let p = (-tau[0]).exp();
         assert!(tau[0] > 0.2, "{}", tau[0]);
@@ -590,7 +575,7 @@ mod tests {
         let d = [[0.0f32, 0.0, 1.0]];
         let mut site = None;
         for _ in 0..100 {
-            let r = m.sample_sites(&o, &d, &[f64::INFINITY]);
+            let r = m.sample_sites(&o, &d, &[f64::INFINITY], &[true]);
             if let Some(t) = r[0].t {
                 site = Some(t);
                 break;
@@ -604,10 +589,10 @@ mod tests {
         assert!(s.len >= 1);
         // without the map entry the phase function finds the site from the geometry
         assert_eq!(m.site_near(p, [0.0, 0.0, 1.0]).map(|x| x.members().to_vec()), Some(s.members().to_vec()));
-        // a shadow ray (finite t_max) that interacts is not remembered
+        // an event of a lane not marked `remember` (a shadow ray) is not remembered
         let mut shadow_hit = None;
         for _ in 0..200 {
-            if let Some(t) = m.sample_sites(&[[0.5f32, 0.5, -0.2]], &[[0.0f32, 0.0, 1.0]], &[1.0])[0].t {
+            if let Some(t) = m.sample_sites(&[[0.5f32, 0.5, -0.2]], &[[0.0f32, 0.0, 1.0]], &[1.0], &[false])[0].t {
                 shadow_hit = Some(t);
                 break;
             }

@@ -29,7 +29,7 @@ use crate::error::{require, OpticsError};
 use rayon::prelude::*;
 
 /// Axis-aligned bounding box of the centres.
-fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+pub(crate) fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in positions {
@@ -112,7 +112,8 @@ pub struct Site {
 
 impl Site {
     pub const CAPACITY: usize = 4;
-    fn push(&mut self, i: u32) {
+    /// Add a particle (beyond the capacity it is dropped: it still counted in the free flight).
+    pub(crate) fn push(&mut self, i: u32) {
         if (self.len as usize) < Self::CAPACITY {
             self.particles[self.len as usize] = i;
             self.len += 1;

@@ -574,13 +574,14 @@ impl PyDiscreteMedium {
         Ok(PyDiscreteMedium { medium })
     }
 
-    /// Next site per ray on (0, t_max): (t or NaN, optical depth walked before it).
-    fn sample_sites<'py>(&self, py: Python<'py>, origins: F32In, directions: F32In, t_max: F64In) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let (o, d, tm) = (vec3s(&origins, "origins")?, vec3s(&directions, "directions")?, t_max.as_slice()?.to_vec());
-        if d.len() != o.len() || tm.len() != o.len() {
-            return Err(PyValueError::new_err("origins, directions and t_max must describe the same rays"));
+    /// Next site per ray on (0, t_max): (t or NaN, optical depth walked before it); the events of
+    /// lanes marked in `remember` are remembered at commit.
+    fn sample_sites<'py>(&self, py: Python<'py>, origins: F32In, directions: F32In, t_max: F64In, remember: PyReadonlyArray1<'_, bool>) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let (o, d, tm, keep) = (vec3s(&origins, "origins")?, vec3s(&directions, "directions")?, t_max.as_slice()?.to_vec(), remember.as_slice()?.to_vec());
+        if d.len() != o.len() || tm.len() != o.len() || keep.len() != o.len() {
+            return Err(PyValueError::new_err("origins, directions, t_max and remember must describe the same rays"));
         }
-        let res = py.detach(|| self.medium.sample_sites(&o, &d, &tm));
+        let res = py.detach(|| self.medium.sample_sites(&o, &d, &tm, &keep));
         let t: Vec<f64> = res.iter().map(|r| r.t.unwrap_or(f64::NAN)).collect();
         let tau: Vec<f64> = res.iter().map(|r| r.tau_before).collect();
         Ok((t.into_pyarray(py), tau.into_pyarray(py)))
