@@ -46,7 +46,7 @@ from . import psd  # noqa: E402
 from .particle_io import ParticleSet, load_particles, save_particles
 from .particles import Gradient, Noise, ParticleGrid, density_box, extinction_um2, nearest_depth, query_radius_from_camera, uniform_box
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
-from .ensemble import Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
+from .ensemble import DEFAULT_TRUNCATE_RAD, Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Radii, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
@@ -102,10 +102,10 @@ __all__ = [
 ]
 __version__ = "0.1.0"
 
-from .discrete import DiscreteMedium  # noqa: E402
+from .discrete import DEFAULT_TAU_MAX, DiscreteMedium  # noqa: E402
 from .plugins import register, set_evaluated_mode, set_variant  # noqa: E402
 
-__all__ += ["DiscreteMedium", "register", "set_evaluated_mode", "set_variant"]
+__all__ += ["DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "register", "set_evaluated_mode", "set_variant"]
 
 
 def _register_if_mitsuba_is_ready() -> None:

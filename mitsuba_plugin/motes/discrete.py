@@ -12,10 +12,16 @@ queries (``rust/motes-core/src/discrete.rs`` documents the model).
                             spectral samples (wavelengths in between are interpolated linearly)
 ``scale_m``                 metres per scene unit
 ``query_radius``            r_c, scene units (``motes.query_radius_from_camera`` gives Eq. 23's)
+``tau_max``                 cap on each particle's optical depth (``DEFAULT_TAU_MAX`` = 1): a particle
+                            whose disk r_c + r_i would be more opaque is given a wider one, and each
+                            disk's depth is -ln(1 - C/(pi R^2)) so that it removes exactly its C_ext
+                            from a beam whatever r_c (``rust/motes-core/src/discrete.rs``); inf: no cap
 ``size_bins``               radius bins per species (log-spaced over its particles' radii); each bin's
                             albedo, efficiencies and phase function are the ensemble of a uniform
                             distribution over the bin (Eq. 16-17), which also smooths Mie ripples
-``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``)
+``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``); default
+                            ``DEFAULT_TRUNCATE_RAD`` (0.031 rad, one bin of a 4096-value ``tabphase``,
+                            as ``homogeneous_equivalent``); None or 0: none
 ``cells_per_particle``      grid resolution (about one particle per voxel by default)
 ``seed``                    seed of the free-flight random numbers
 ``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
@@ -32,9 +38,14 @@ from __future__ import annotations
 
 import numpy as np
 
+import warnings
+
 from . import _motes
-from .ensemble import Species, bulk_properties
+from .ensemble import DEFAULT_TRUNCATE_RAD, Species, bulk_properties
 from .psd import Monodisperse, Uniform
+
+#: Default cap on each particle's optical depth (module docs; defined in the Rust core).
+DEFAULT_TAU_MAX: float = _motes.DEFAULT_TAU_MAX
 
 
 def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
@@ -50,8 +61,8 @@ class DiscreteMedium:
 
     def __init__(self, positions, radii_um, species_index, species, wavelength_um, *, scale_m: float = 1.0,
                  query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
-                 truncate_below_rad: float | None = None, cells_per_particle: float = 1.0, seed: int = 0,
-                 albedo: float | None = None):
+                 truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = 1.0, seed: int = 0,
+                 albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False):
         pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
         if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
             raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
@@ -81,6 +92,10 @@ class DiscreteMedium:
             raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
         if not (np.isfinite(query_radius) and query_radius >= 0):
             raise ValueError(f"invalid query_radius = {query_radius}: must be finite and >= 0")
+        if not (tau_max > 0):
+            raise ValueError(f"invalid tau_max = {tau_max}: must be > 0 (inf: no cap)")
+        if truncate_below_rad is not None and truncate_below_rad <= 0:
+            truncate_below_rad = None
 
         if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
             raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
@@ -129,7 +144,15 @@ class DiscreteMedium:
             pos.ravel(), np.ascontiguousarray(r * um), np.ascontiguousarray(c_ext), bin_of,
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
-            np.ascontiguousarray(lam * 1e3), float(query_radius), float(cells_per_particle), int(seed) & (2**64 - 1))
+            np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
+            int(seed) & (2**64 - 1))
+        #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
+        self.widened = self._core.widened
+        self.tau_max = float(tau_max)
+        if warn_widened and self.widened:
+            warnings.warn(f"query_radius = {query_radius:g} would give {self.widened} of {n} particles an optical "
+                          f"depth above tau_max = {tau_max:g} (up to {float(np.max(c_ext / (np.pi * (query_radius + r * um) ** 2))):.3g}); "
+                          "their disks were widened to keep it below (see the tau_max parameter)", stacklevel=2)
         self.positions = pos
         self.species_index = idx
         #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo).
@@ -137,7 +160,7 @@ class DiscreteMedium:
         self.radii_um = r
         self.c_ext_scene = c_ext
         lo_, hi_ = pos.min(axis=0), pos.max(axis=0)
-        reach = float(query_radius + r.max() * um)
+        reach = float(self._core.reach_max)
         self.bbox = (lo_ - reach, hi_ + reach)
 
     def __len__(self) -> int:

@@ -100,6 +100,12 @@ def pixel_footprint_rad(fov_deg: float, width_px: int) -> float:
     return float(np.radians(fov_deg) / int(width_px))
 
 
+#: Default forward-peak truncation angle (radians) of the discrete medium and of
+#: ``homogeneous_equivalent``: one bin of a 4096-value ``tabphase`` (acos(1 - 2/4095) = 0.0313 rad).
+#: Scattering by less than this is folded into unscattered transmission; it removes the diffraction
+#: lobe of grains above ~20 um that a delta light could otherwise only reach as fireflies (issue 9.4).
+DEFAULT_TRUNCATE_RAD: float = float(np.arccos(1.0 - 2.0 / 4095.0))
+
 _CACHE_FORMAT = 1
 _KEYS = ("wavelength_um", "sigma_t", "sigma_s", "sigma_a", "albedo", "g", "theta", "phase", "energy_ratio", "peak_fraction")
 
@@ -257,4 +263,4 @@ class PhaseTable:
         return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
-__all__ = ["cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]
+__all__ = ["DEFAULT_TRUNCATE_RAD", "cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]

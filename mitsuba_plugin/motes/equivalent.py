@@ -11,7 +11,10 @@ cloud (Eq. 16-17). It needs no Mitsuba import; load it in any variant.
 ``scale_m``                 metres per scene unit (sigma_t is per scene unit in the dict: the medium's
                             ``scale`` times its normalised ``sigma_t`` colour)
 ``tabphase_size``           number of tabphase values, regular in cos(theta) from backward to forward
-``truncate_below_rad``      forward-peak truncation angle; default: one tabphase bin (see below)
+``truncate_below_rad``      forward-peak truncation angle; default: the pixel footprint ``fov / film_width``
+                            when ``fov`` (degrees) and ``film_width`` (pixels) are given, otherwise one
+                            tabphase bin (``DEFAULT_TRUNCATE_RAD`` for 4096 values; see below) — the
+                            same defaults as the ``discrete`` medium
 ==========================  =========================================================================
 
 Notes:
@@ -33,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _motes
-from .ensemble import bulk_properties
+from .ensemble import bulk_properties, pixel_footprint_rad
 
 #: Representative wavelengths (um) of the R, G, B channels: the monochromatic primaries of ITU-R BT.2020
 #: (630, 532, 467 nm), which lie on the spectral locus. A documented choice, not an integration against
@@ -46,7 +49,8 @@ SPECTRAL_WAVELENGTHS_UM = tuple(np.linspace(0.38, 0.78, 8))
 
 def homogeneous_equivalent(species, number_density_m3: float, *, color: str = "rgb", wavelength_um=None,
                            eta_medium: float = 1.0, method: str = "auto", scale_m: float = 1.0,
-                           tabphase_size: int = 4096, truncate_below_rad: float | None = None) -> dict:
+                           tabphase_size: int = 4096, truncate_below_rad: float | None = None,
+                           fov: float | None = None, film_width: int | None = None) -> dict:
     """A ``mi.load_dict`` dict of the continuous medium equivalent to a particle cloud (module docs)."""
     if color not in ("rgb", "spectral"):
         raise ValueError(f'color must be "rgb" or "spectral", got {color!r}')
@@ -60,7 +64,10 @@ def homogeneous_equivalent(species, number_density_m3: float, *, color: str = "r
     if color == "rgb" and lam.size != 3:
         raise ValueError("color='rgb' needs exactly 3 wavelengths (R, G, B)")
     if truncate_below_rad is None:
-        truncate_below_rad = float(np.arccos(1.0 - 2.0 / (tabphase_size - 1)))
+        if (fov is None) != (film_width is None):
+            raise ValueError("fov and film_width go together (the pixel footprint fov / film_width)")
+        truncate_below_rad = (pixel_footprint_rad(fov, film_width) if fov is not None
+                              else float(np.arccos(1.0 - 2.0 / (tabphase_size - 1))))
     b = bulk_properties(species, number_density_m3, lam, eta_medium, method, truncate_below_rad=truncate_below_rad)
     weights = b["sigma_s"] / b["sigma_s"].sum() if b["sigma_s"].sum() > 0 else np.full(lam.size, 1.0 / lam.size)
     phase = weights @ b["phase"]

@@ -24,13 +24,19 @@ Parameter               Type       Meaning (default)
 ``scale_m``             float      metres per scene unit (the units after ``to_world``), so that um radii
                                    and positions combine (1e-3)
 ``query_radius``        float      r_c of the query cylinder in scene units (0: the particles' own
-                                   cross sections). Or Eq. 23 from a camera:
+                                   cross sections, widened where needed by ``tau_max``). Or Eq. 23:
 ``footprint_k``         float      k in (0, 2] (paper: 0.5-1), with ``fov`` (degrees), ``film_width``
                                    (pixels) and ``z_med`` (nearest depth of the medium, scene units)
+``tau_max``             float      cap on each particle's optical depth (1): a particle whose disk
+                                   r_c + r_i would be more opaque gets a wider disk; each disk removes
+                                   exactly its C_ext from a beam (see Notes)
 ``cells_per_particle``  float      grid resolution (1: about one particle per voxel, Sec. 6.5)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
-``truncate_below``      float      forward-peak truncation angle in radians (0: none)
+``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
+                                   footprint fov / film_width when ``fov`` and ``film_width`` are
+                                   given, else 0.0313 (one bin of a 4096-value tabphase, as
+                                   ``homogeneous_equivalent``); 0: none
 ``wavelengths``         string     tabulated wavelengths in um, comma-separated (spectral variants:
                                    8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
 ``seed``                integer    seed of generated positions and free flights (0)
@@ -38,6 +44,15 @@ Parameter               Type       Meaning (default)
 ``to_world``            transform  places the particle positions in the scene (radii stay physical)
 ``sample_emitters``     boolean    next-event estimation at scattering events (true)
 ======================  =========  ======================================================================
+
+Defaults are part of the physics. With the paper's normalisation (tau_i = C_ext / (pi R_i^2)) a disk
+R_i = r_c + r_i with r_c = 0 has tau_i ~ 2, lets rays through it 13 % of the time and removes only 43 %
+of C_ext: 57 % of the side scattering was lost against explicit spheres. Each disk's optical depth is
+therefore -ln(1 - C_ext / (pi R_i^2)), which removes exactly C_ext from a beam whatever r_c, and disks
+are widened until tau_i <= ``tau_max``. A ``query_radius`` that widening overrides raises a warning.
+Forward-peak truncation is on by default: a diffraction lobe a few mrad wide cannot be found by a delta
+light (spot, point) except as fireflies, so without it a spot-lit floor under 80 um grains renders
+~30 % dark at 64 spp (BENCHMARKS.md, issue 9).
 
 The phase function must be ``<phase type="particle"/>``. Unknown or misspelt parameters fail loading
 (Mitsuba's unreferenced-property check); invalid values raise ``ValueError`` naming the parameter and
@@ -54,7 +69,10 @@ sigma_t <= majorant everywhere (zero away from sites). A ray that leaves without
 ``hit = False``. ``m_has_spectral_extinction`` is false and the free flight is grey per particle (the
 mean of C_ext over the wavelengths); albedo and phase function are per channel. Events are remembered by
 their exact position so that the scattered ray and its shadow rays skip the particle that scattered
-them. Random numbers for the free flights come from the core (counter-based, reproducible).
+them (every event is remembered: a perspective camera's rays have a finite t_max too, so t_max cannot
+tell scattered rays from shadow rays). Events also carry the path's colour throughput, so that the
+phase function picks the channel it samples in proportion to it and colour weights stay bounded over
+hundreds of bounces. Random numbers for the free flights come from the core (counter-based, reproducible).
 """
 
 from __future__ import annotations
@@ -67,6 +85,8 @@ import numpy as np
 
 from ..discrete import DiscreteMedium
 from ..ensemble import Material, Species
+from ..ensemble import DEFAULT_TRUNCATE_RAD, pixel_footprint_rad
+from ..discrete import DEFAULT_TAU_MAX
 from ..equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
@@ -75,8 +95,6 @@ from ._bridge import bind_to_variant, channel_wavelengths, is_jit, mask, spectru
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
-#: Rays with at least this t_max are scattered rays (Mitsuba's spawn_ray), shorter ones shadow rays.
-SCATTERED_RAY_T_MAX = 1e30
 
 
 def _get(props, name, default, kind, check=None, allowed=""):
@@ -138,7 +156,8 @@ class DiscreteMediumPlugin:
         size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
         method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
                       "one of auto, mie, goa, hybrid")
-        truncate = _get(props, "truncate_below", 0.0, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
+        truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
+        tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float, lambda v: v > 0, "> 0 (inf: no cap)")
         wavelengths = _get(props, "wavelengths", None, str)
         seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
         albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
@@ -193,7 +212,11 @@ class DiscreteMediumPlugin:
             if query_radius is not None:
                 raise ValueError("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
             query_radius = query_radius_from_camera(k, fov, film_width, z_med)
+        user_radius = query_radius is not None
         query_radius = 0.0 if query_radius is None else query_radius
+        if truncate is None:
+            truncate = (pixel_footprint_rad(fov, film_width) if fov is not None and film_width is not None
+                        else DEFAULT_TRUNCATE_RAD)
 
         if wavelengths is not None:
             try:
@@ -208,7 +231,8 @@ class DiscreteMediumPlugin:
         self.data = DiscreteMedium(pos, radii, sidx, species, lam, scale_m=scale_m, query_radius=query_radius,
                                    size_bins=size_bins, eta_medium=eta_medium, method=method,
                                    truncate_below_rad=truncate if truncate > 0 else None,
-                                   cells_per_particle=cells, seed=seed, albedo=albedo)
+                                   cells_per_particle=cells, seed=seed, albedo=albedo, tau_max=tau_max,
+                                   warn_widened=user_radius)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
@@ -221,9 +245,8 @@ class DiscreteMediumPlugin:
         o, d = vec3(ray.o), vec3(ray.d)
         n = o.shape[0]
         t_max = np.ascontiguousarray(np.broadcast_to(np.atleast_1d(np.asarray(ray.maxt, dtype=np.float64)), (n,)))
-        # Only events that start new rays need remembering: Mitsuba spawns scattered rays with the
-        # largest float as t_max, shadow rays with their finite length, and an event ends a shadow ray.
-        t, _ = self.data.core.sample_sites(o.ravel(), d.ravel(), t_max, t_max >= SCATTERED_RAY_T_MAX)
+        # Every event is remembered (module docs): t_max cannot tell scattered from shadow rays.
+        t, _ = self.data.core.sample_sites(o.ravel(), d.ravel(), t_max, np.ones(n, dtype=bool))
         hit = np.isfinite(t)
         self.stats["intersect_calls"] += 1
         self.stats["rays"] += n

@@ -540,10 +540,11 @@ struct PyDiscreteMedium {
 #[pymethods]
 impl PyDiscreteMedium {
     /// positions (n*3), radius (n), c_ext (n, grey) in scene units; bin (n) into the bins; albedo
-    /// (bins*K); phase tables as flat theta/f with offsets (bins*K + 1); lambda (K, increasing).
+    /// (bins*K); phase tables as flat theta/f with offsets (bins*K + 1); lambda (K, increasing);
+    /// tau_max caps each particle's optical depth by widening its disk (inf: no cap).
     #[new]
     #[allow(clippy::too_many_arguments)]
-    fn new(py: Python<'_>, positions: F64In, radius: F64In, c_ext: F64In, bin: PyReadonlyArray1<'_, u32>, albedo: F64In, theta: F64In, f: F64In, offsets: PyReadonlyArray1<'_, u64>, lambda: F64In, query_radius: f64, cells_per_particle: f64, seed: u64) -> PyResult<Self> {
+    fn new(py: Python<'_>, positions: F64In, radius: F64In, c_ext: F64In, bin: PyReadonlyArray1<'_, u32>, albedo: F64In, theta: F64In, f: F64In, offsets: PyReadonlyArray1<'_, u64>, lambda: F64In, query_radius: f64, tau_max: f64, cells_per_particle: f64, seed: u64) -> PyResult<Self> {
         let p = positions.as_slice()?;
         if p.len() % 3 != 0 {
             return Err(PyValueError::new_err("positions must have shape (n, 3)"));
@@ -569,7 +570,7 @@ impl PyDiscreteMedium {
             bins.push(motes_core::discrete::BinOptics { albedo: al[bi * k..(bi + 1) * k].to_vec(), phase });
         }
         let medium = py
-            .detach(|| motes_core::discrete::DiscreteMedium::build(&pos, &r, &c, b, bins, lam, query_radius, cells_per_particle, seed))
+            .detach(|| motes_core::discrete::DiscreteMedium::build(&pos, &r, &c, b, bins, lam, query_radius, tau_max, cells_per_particle, seed))
             .map_err(to_py)?;
         Ok(PyDiscreteMedium { medium })
     }
@@ -644,6 +645,24 @@ impl PyDiscreteMedium {
         Ok((wo.into_pyarray(py), w.into_pyarray(py), pdf.into_pyarray(py)))
     }
 
+    /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
+    #[getter]
+    fn widened(&self) -> usize {
+        self.medium.widened()
+    }
+
+    /// Largest optical depth of a particle's disk.
+    #[getter]
+    fn tau_max(&self) -> f64 {
+        self.medium.tau_max()
+    }
+
+    /// Largest inclusion radius of a particle (scene units).
+    #[getter]
+    fn reach_max(&self) -> f64 {
+        self.medium.grid().reach_max()
+    }
+
     /// Remember an event of the given particles at `p` (tests and tools).
     fn insert_event(&self, p: (f32, f32, f32), particles: Vec<u32>) -> PyResult<()> {
         self.medium.insert_event([p.0, p.1, p.2], &particles).map_err(to_py)
@@ -700,5 +719,6 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(material_index, m)?)?;
     m.add_class::<PyParticleGrid>()?;
     m.add_class::<PyDiscreteMedium>()?;
+    m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
     Ok(())
 }
