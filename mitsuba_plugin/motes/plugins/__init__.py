@@ -41,6 +41,10 @@ def register() -> None:
     variant = mi.variant()
     if variant is None:
         raise RuntimeError("motes.register(): set a Mitsuba variant first (motes.set_variant(...))")
+    if variant.startswith(("llvm_", "cuda_")):
+        # The plugins hand numpy batches to Rust: evaluated mode, on this thread (Dr.Jit's flags are
+        # per thread; a render from another thread must call motes.set_evaluated_mode() there first).
+        set_evaluated_mode(True)
     if variant in _registered:
         return
     from . import discrete_medium, particle_phase

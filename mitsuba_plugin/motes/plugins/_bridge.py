@@ -12,6 +12,14 @@ def is_jit() -> bool:
     return dr.is_jit_v(mi.Float)
 
 
+def require_evaluated_mode() -> None:
+    """One-sentence error instead of Dr.Jit's ``jit_var_schedule ... not permitted`` when a JIT render runs
+    in symbolic mode (e.g. from a thread that never switched: Dr.Jit's flags are per thread)."""
+    if is_jit() and (dr.flag(dr.JitFlag.SymbolicLoops) or dr.flag(dr.JitFlag.SymbolicCalls)):
+        raise RuntimeError("motes: the discrete medium needs Dr.Jit's evaluated mode on the rendering thread; "
+                           "call motes.set_evaluated_mode() (or motes.set_variant(...)) in that thread first")
+
+
 def vec3(v, n: int = 0) -> np.ndarray:
     """(n, 3) float32 array of a Dr.Jit 3-vector (broadcast to at least n lanes; 1 in scalar variants)."""
     cols = [np.atleast_1d(np.asarray(c, dtype=np.float32)) for c in (v.x, v.y, v.z)]

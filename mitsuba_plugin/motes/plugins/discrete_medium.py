@@ -91,7 +91,7 @@ from ..equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod
-from ._bridge import bind_to_variant, channel_wavelengths, is_jit, mask, spectrum, vec3
+from ._bridge import bind_to_variant, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -242,6 +242,7 @@ class DiscreteMediumPlugin:
 
     # -- Mitsuba interface -------------------------------------------------------------------------
     def intersect_aabb(self, ray):
+        require_evaluated_mode()
         o, d = vec3(ray.o), vec3(ray.d)
         n = o.shape[0]
         t_max = np.ascontiguousarray(np.broadcast_to(np.atleast_1d(np.asarray(ray.maxt, dtype=np.float64)), (n,)))

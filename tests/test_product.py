@@ -1,0 +1,85 @@
+"""What a Mitsuba user meets first (issue 11): import order, threads, package metadata."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import threading
+import tomllib
+import pathlib
+
+import numpy as np
+import pytest
+
+import motes
+
+mi = pytest.importorskip("mitsuba")
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+
+
+def small_scene():
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath"},
+        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8},
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},
+        "env": {"type": "constant"},
+        "cube": {"type": "cube", "bsdf": {"type": "null"},
+                 "interior": {"type": "discrete", "count": 300, "phase": {"type": "particle"}}}})
+
+
+def test_mitsuba_variant_first_then_import_motes():
+    """`mi.set_variant(...)` then `import motes` (the README's second form) renders in a fresh process."""
+    code = textwrap.dedent("""
+        import os
+        os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
+        import mitsuba as mi
+        mi.set_variant("llvm_ad_rgb")
+        import motes
+        scene = mi.load_dict({"type": "scene", "integrator": {"type": "volpath"},
+            "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8}},
+            "env": {"type": "constant"},
+            "cube": {"type": "cube", "to_world": mi.ScalarTransform4f().translate([0, 0, 4]),
+                     "bsdf": {"type": "null"},
+                     "interior": {"type": "discrete", "count": 300, "phase": {"type": "particle"}}}})
+        import numpy as np
+        print("mean", float(np.mean(mi.render(scene, spp=2))))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "mean" in out.stdout
+
+
+def test_render_from_a_thread_fails_with_one_sentence():
+    """Dr.Jit's flags are per thread: a render from a thread that did not switch to evaluated mode fails
+    with motes' one-sentence instruction (and works once the thread calls set_evaluated_mode)."""
+    motes.set_variant("llvm_ad_rgb")
+    scene = small_scene()
+    errors, means = [], []
+
+    def work(switch: bool):
+        try:
+            if switch:
+                motes.set_evaluated_mode()
+            means.append(float(np.mean(mi.render(scene, spp=2))))
+        except Exception as e:  # noqa: BLE001 - the test inspects the chain
+            while e.__cause__ is not None:
+                e = e.__cause__
+            errors.append(str(e))
+
+    for switch in (False, True):
+        t = threading.Thread(target=work, args=(switch,))
+        t.start()
+        t.join()
+    assert len(errors) == 1 and "motes.set_evaluated_mode()" in errors[0], errors
+    assert len(means) == 1 and np.isfinite(means[0])
+
+
+def test_package_metadata():
+    """`pip install .` alone gives a working plugin: Mitsuba and Dr.Jit are runtime dependencies, the
+    licence file exists, and the plugins are declared under Mitsuba's entry-point group."""
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    names = [d.split(">")[0].split("=")[0].split("<")[0].strip() for d in meta["dependencies"]]
+    assert "mitsuba" in names and "drjit" in names
+    assert (ROOT / meta["license"]["file"]).is_file()
+    assert meta["entry-points"]["mitsuba"]["motes"] == "motes"
