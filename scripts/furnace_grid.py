@@ -69,6 +69,7 @@ TRANSFORMS = ["identity", "rotated_scaled"]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default="out", help="unused (run_benchmarks.sh passes it to every script)")
     args = ap.parse_args()
     import warnings  # noqa: PLC0415
 
