@@ -50,6 +50,15 @@ def import_motes(retries: int = 5, wait_s: float = 60.0):
     raise RuntimeError("unreachable")
 
 
+def choose_configs(ap: argparse.ArgumentParser, text: str, known) -> list[str]:
+    """The comma-separated configuration names of a ``--configs`` flag, each checked against ``known``."""
+    configs = [c.strip() for c in text.split(",") if c.strip()]
+    for c in configs:
+        if c not in known:
+            ap.error(f"unknown configuration {c!r}; choose from {list(known)}")
+    return configs
+
+
 def start(doc: str | None):
     """The common start of a script: parsed ``--out/--quick`` arguments, the output folder, a stopwatch
     and the imported ``motes``."""

@@ -257,10 +257,7 @@ def main() -> None:
     count = args.count or (300 if args.quick else 4000 if args.dense else 1000)
     spp = args.spp or (16 if args.quick else 64)
     res = args.res or (48 if args.quick else 96)
-    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
-    for c in configs:
-        if c not in CONFIGS:
-            ap.error(f"unknown configuration {c!r}; choose from {list(CONFIGS)}")
+    configs = C.choose_configs(ap, args.configs, CONFIGS)
     motes.set_variant("llvm_ad_rgb")
     import mitsuba as mi
 

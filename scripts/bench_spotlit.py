@@ -133,10 +133,7 @@ def main() -> None:
     height = width * 3 // 4
     spp = args.spp or (16 if args.quick else 64)
     ref_spp = args.ref_spp or (256 if args.quick else 4096)
-    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
-    for c in configs:
-        if c not in CONFIGS:
-            ap.error(f"unknown configuration {c!r}; choose from {list(CONFIGS)}")
+    configs = C.choose_configs(ap, args.configs, CONFIGS)
     motes.set_variant("llvm_ad_rgb")
     import mitsuba as mi
 
