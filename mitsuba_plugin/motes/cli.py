@@ -1,0 +1,209 @@
+"""The ``motes`` command (also ``python -m motes``): render scenes, look at optics and particle files.
+
+=====================================  ===================================================================
+``motes render SCENE.xml``             render with Mitsuba (flags as ``mitsuba``'s: ``-o``, ``-m``, ``-D``,
+                                       ``-s``) in passes with a progress bar; writes EXR (and ``--png``)
+``motes optics``                       cross sections, efficiencies and g of one particle
+``motes particles FILE``               summary of a particle file (count, bounds, radii, species, memory)
+``motes equivalent``                   the homogeneous + tabphase XML of a particle cloud (A/B reference)
+=====================================  ===================================================================
+
+Errors print one line (``motes: error: ...``) and exit with status 2; ``--debug`` shows the traceback.
+Ctrl-C during a render stops after the pass in flight and writes the passes done so far (exit 130).
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import resource
+import sys
+import time
+
+import numpy as np
+
+
+def _progress(done: int, total: int, elapsed: float) -> None:
+    width = 30
+    filled = int(width * done / max(total, 1))
+    eta = elapsed / done * (total - done) if done else float("nan")
+    sys.stderr.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] {done}/{total} passes  {elapsed:6.1f} s  ETA {eta:6.1f} s")
+    sys.stderr.flush()
+
+
+def _write_png(mi, path: pathlib.Path, img: np.ndarray) -> float:
+    """Auto-exposed sRGB PNG: the 99.7th percentile of luminance maps to white. Returns the exposure."""
+    lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722]) if img.shape[-1] >= 3 else img[..., 0]
+    scale = 1.0 / max(float(np.percentile(lum, 99.7)), 1e-12)
+    mi.util.write_bitmap(str(path), mi.TensorXf(np.clip(img * scale, 0, None).astype(np.float32)))
+    return scale
+
+
+def cmd_render(args) -> int:
+    import motes  # noqa: PLC0415
+
+    variant = motes.set_variant(args.variant)
+    import mitsuba as mi  # noqa: PLC0415
+
+    defines = {}
+    for d in args.define:
+        key, sep, value = d.partition("=")
+        if not sep or not key:
+            raise ValueError(f"-D expects key=value, got {d!r}")
+        defines[key] = value
+    scene_path = pathlib.Path(args.scene)
+    if not scene_path.is_file():
+        raise FileNotFoundError(f"no such scene file: {scene_path}")
+    t0 = time.perf_counter()
+    print(f"motes: loading {scene_path} ({variant}): particles, optics tables, grid ...", file=sys.stderr)
+    scene = mi.load_file(str(scene_path), **defines)
+    t_load = time.perf_counter() - t0
+    print(f"motes: loaded in {t_load:.1f} s", file=sys.stderr)
+    spp = args.spp or scene.sensors()[0].sampler().sample_count()
+    per_pass = max(1, min(args.pass_spp, spp))
+    passes = (spp + per_pass - 1) // per_pass
+    acc, done_spp, t1 = None, 0, time.perf_counter()
+    interrupted = False
+    try:
+        for i in range(passes):
+            k = min(per_pass, spp - done_spp)
+            img = np.asarray(mi.render(scene, spp=k, seed=args.seed * 100003 + i), dtype=np.float64)
+            acc = img * k if acc is None else acc + img * k
+            done_spp += k
+            _progress(i + 1, passes, time.perf_counter() - t1)
+    except KeyboardInterrupt:
+        interrupted = True
+    sys.stderr.write("\n")
+    if acc is None:
+        print("motes: interrupted before the first pass finished; nothing written", file=sys.stderr)
+        return 130
+    img = (acc / done_spp).astype(np.float32)
+    out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    mi.util.write_bitmap(str(out), mi.TensorXf(img))
+    written = [str(out)]
+    if args.png:
+        png = out.with_suffix(".png")
+        _write_png(mi, png, img.astype(np.float64))
+        written.append(str(png))
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    what = f"interrupted after {done_spp} of {spp} spp" if interrupted else f"{spp} spp"
+    print(f"motes: {what} in {time.perf_counter() - t1:.1f} s (load {t_load:.1f} s), peak memory {peak_mb:.0f} MB; "
+          f"wrote {', '.join(written)}", file=sys.stderr)
+    return 130 if interrupted else 0
+
+
+def _index(args):
+    import motes  # noqa: PLC0415
+
+    if args.material:
+        return motes.Material(args.material).index([args.wavelength])[0]
+    try:
+        return complex(args.eta.replace("i", "j").replace(" ", ""))
+    except ValueError:
+        raise ValueError(f"--eta must be a refractive index n or n+ki (e.g. 1.5+0.01i), got {args.eta!r}") from None
+
+
+def cmd_optics(args) -> int:
+    import motes  # noqa: PLC0415
+
+    eta = _index(args)
+    cs = motes.cross_sections([args.radius], args.wavelength, eta, eta_medium=args.eta_medium, method=args.method)
+    area = np.pi * args.radius**2
+    print(f"radius {args.radius:g} um, wavelength {args.wavelength:g} um, eta {eta.real:g}{eta.imag:+g}i, "
+          f"medium {args.eta_medium:g}, method {args.method}")
+    for key in ("ext", "sca", "abs"):
+        v = float(np.asarray(cs[key])[0])
+        print(f"  C_{key} = {v:.6g} um^2   Q_{key} = {v / area:.6g}")
+    print(f"  g = {float(np.asarray(cs['g'])[0]):.6g}")
+    return 0
+
+
+def cmd_particles(args) -> int:
+    import motes  # noqa: PLC0415
+
+    ps = motes.load_particles(args.file, scale_m=args.scale_m)
+    n = len(ps)
+    lo, hi = ps.positions.min(axis=0), ps.positions.max(axis=0)
+    q = np.percentile(ps.radii_um, [0, 1, 50, 99, 100])
+    print(f"{args.file}: {n} particles")
+    print(f"  bounds (scene units): min {lo.round(6).tolist()}  max {hi.round(6).tolist()}")
+    print(f"  radius um: min {q[0]:.4g}  p1 {q[1]:.4g}  median {q[2]:.4g}  p99 {q[3]:.4g}  max {q[4]:.4g}")
+    hist, edges = np.histogram(np.log10(ps.radii_um), bins=8)
+    for c, a, b in zip(hist, edges[:-1], edges[1:]):
+        print(f"    {10**a:9.4g} - {10**b:9.4g} um  {'#' * int(40 * c / max(hist.max(), 1)):40s} {c}")
+    species, counts = np.unique(ps.species, return_counts=True)
+    print("  species: " + ", ".join(f"{int(s)}: {int(c)}" for s, c in zip(species, counts)))
+    print(f"  memory of the medium's grid: about {n * 29 / 2**20:.1f} MiB (29 bytes per particle)")
+    return 0
+
+
+def cmd_equivalent(args) -> int:
+    import motes  # noqa: PLC0415
+
+    species = motes.Species(motes.LogNormal(args.radius_median, args.radius_sigma_g),
+                            motes.Material(args.material) if args.material else _index(args))
+    d = motes.homogeneous_equivalent(species, args.density, scale_m=args.scale_m, tabphase_size=args.tabphase_size)
+    sigma, albedo, values = d["sigma_t"], d["albedo"], d["phase"]["values"]
+    print(f'<medium type="homogeneous" name="{args.name}">')
+    print(f'    <rgb name="sigma_t" value="{", ".join(f"{v:.6g}" for v in sigma["value"])}"/>')
+    print(f'    <float name="scale" value="{d.get("scale", 1.0):.6g}"/>')
+    print(f'    <rgb name="albedo" value="{", ".join(f"{v:.6g}" for v in albedo["value"])}"/>')
+    print(f'    <phase type="tabphase"><string name="values" value="{values}"/></phase>')
+    print("</medium>")
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="motes", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--debug", action="store_true", help="show Python tracebacks")
+    sub = ap.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("render", help="render a Mitsuba XML scene in passes with progress")
+    r.add_argument("scene")
+    r.add_argument("-o", "--output", help="output EXR (default: <scene stem>.exr)")
+    r.add_argument("-m", "--variant", default="llvm_ad_rgb", help="Mitsuba variant (default llvm_ad_rgb)")
+    r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE", help="scene parameter")
+    r.add_argument("-s", "--spp", type=int, help="samples per pixel (default: the scene's)")
+    r.add_argument("--pass-spp", type=int, default=8, help="samples per pass (bounds memory; default 8)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--png", action="store_true", help="also write an auto-exposed PNG")
+    r.set_defaults(run=cmd_render)
+    o = sub.add_parser("optics", help="cross sections and g of one particle")
+    o.add_argument("--radius", type=float, required=True, help="um")
+    o.add_argument("--wavelength", type=float, default=0.55, help="um (default 0.55)")
+    o.add_argument("--eta", default="1.31", help="refractive index n or n+ki (default 1.31)")
+    o.add_argument("--material", choices=["ice", "water"], help="tabulated index instead of --eta")
+    o.add_argument("--eta-medium", type=float, default=1.0)
+    o.add_argument("--method", default="auto", choices=["auto", "mie", "goa", "hybrid"])
+    o.set_defaults(run=cmd_optics)
+    p = sub.add_parser("particles", help="summary of a particle file (.npz, .npy, .csv, .ply)")
+    p.add_argument("file")
+    p.add_argument("--scale-m", type=float, default=1.0, help="metres per unit of the file's positions")
+    p.set_defaults(run=cmd_particles)
+    e = sub.add_parser("equivalent", help="homogeneous + tabphase XML of a log-normal particle cloud")
+    e.add_argument("--radius-median", type=float, default=20.0, help="um")
+    e.add_argument("--radius-sigma-g", type=float, default=1.5)
+    e.add_argument("--eta", default="1.31")
+    e.add_argument("--material", choices=["ice", "water"])
+    e.add_argument("--wavelength", type=float, default=0.55, help=argparse.SUPPRESS)
+    e.add_argument("--density", type=float, required=True, help="particles per m^3")
+    e.add_argument("--scale-m", type=float, default=1.0, help="metres per scene unit")
+    e.add_argument("--tabphase-size", type=int, default=4096)
+    e.add_argument("--name", default="interior")
+    e.set_defaults(run=cmd_equivalent)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except (ValueError, RuntimeError, OSError, KeyError) as e:
+        if args.debug:
+            raise
+        print(f"motes: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
