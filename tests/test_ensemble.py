@@ -120,6 +120,49 @@ def test_errors_name_the_argument():
         motes.bulk_properties(sp, N0, 0.5, theta=[0.0, 0.2, 0.1])
 
 
+def test_caller_angles_only_choose_where_f_is_reported():
+    """Issue 9.2: ``theta=`` does not change the physics. g, the normalisation, energy_ratio and the
+    truncation come from the internal grid; f at an angle is the same whichever other angles are asked
+    for (8 angles, 50 uniform, the internal grid's own nodes), and g is Mie's for a monodisperse cloud
+    (water, r = 1.7 um, lambda = 0.55 um; miepython's g is normalisation free). Before the fix, 8 angles
+    gave g = 0.73 and 50 uniform angles f(10 deg) ~4x too high."""
+    import miepython
+
+    sp = motes.Species(motes.Monodisperse(1.7), 1.33)
+    run = lambda **kw: motes.bulk_properties(sp, N0, 0.55, cache=False, **kw)  # noqa: E731
+    table = run()
+    eight = np.radians([0.0, 10.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0])
+    uniform = np.linspace(0.0, np.pi, 50)
+    nodes = table["theta"][::97]
+    both = np.union1d(np.union1d(eight, uniform), nodes)
+    together = run(theta=both)
+    g_mie = miepython.efficiencies_mx(1.33, 2 * np.pi * 1.7 / 0.55)[3]
+    assert table["g"][0] == pytest.approx(g_mie, abs=1e-4)
+    for angles in (eight, uniform, nodes):
+        b = run(theta=angles)
+        np.testing.assert_array_equal(b["theta"], angles)
+        for key in ("g", "sigma_t", "sigma_s", "energy_ratio"):
+            assert b[key][0] == pytest.approx(table[key][0], rel=1e-6, abs=1e-12), key
+        f_together = together["phase"][0][np.searchsorted(both, angles)]
+        np.testing.assert_allclose(b["phase"][0], f_together, rtol=1e-6)
+    np.testing.assert_allclose(run(theta=nodes)["phase"][0], table["phase"][0][::97], rtol=1e-6)
+    # Exact values, not interpolation: the single-particle phase function (exact Mie normalisation).
+    np.testing.assert_allclose(run(theta=eight)["phase"][0], motes.phase_function(1.7, 0.55, 1.33, eight), rtol=1e-3)
+
+
+def test_caller_angles_with_truncation_and_refinement():
+    """With truncation and refinement the values at the caller's angles are those of the internal table at
+    its nodes (clipped at f(theta_c), divided by the kept fraction), with the same g and F."""
+    sp = motes.Species(motes.LogNormal(100.0, 1.5), 1.31)
+    for kw in (dict(truncate_below_rad=0.01), dict(refine_tol=0.01), dict(truncate_below_rad=0.003, refine_tol=0.01)):
+        table = motes.bulk_properties(sp, N0, 0.55, cache=False, **kw)
+        idx = np.arange(0, table["theta"].size, 53)
+        b = motes.bulk_properties(sp, N0, 0.55, cache=False, theta=table["theta"][idx], **kw)
+        np.testing.assert_allclose(b["phase"][0], table["phase"][0][idx], rtol=1e-9)
+        for key in ("g", "sigma_t", "sigma_s", "peak_fraction"):
+            assert b[key][0] == pytest.approx(table[key][0], rel=1e-12), key
+
+
 def test_forward_peak_truncation():
     """Truncation removes exactly the clipped fraction F from sigma_s and sigma_t, keeps sigma_a, keeps the
     phase function normalised, lowers g, and grows monotonically with the cone angle; theta_c = 0 is the

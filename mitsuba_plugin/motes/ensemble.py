@@ -7,11 +7,12 @@
 ``sigma_s``         scattering coefficient, 1/m
 ``sigma_a``         absorption coefficient, 1/m
 ``albedo``          sigma_s / sigma_t (0 where sigma_t = 0)
-``g``               asymmetry parameter of the ensemble phase function
-``theta``           the angle grid (radians): 0, log-spaced through the diffraction lobe of the largest
-                    particle, then uniform to pi (or the ``theta`` you pass)
+``g``               asymmetry parameter of the ensemble phase function (on the internal grid)
+``theta``           the angles of ``phase`` (radians): the internal grid — 0, log-spaced through the
+                    diffraction lobe of the largest particle, then uniform to pi, refined with
+                    ``refine_tol`` — or exactly the ``theta`` you pass
 ``phase``           ensemble phase function f(theta), 1/sr, shape (n_wavelengths, n_theta), with
-                    integral 1 over the sphere on that grid (Eq. 17)
+                    integral 1 over the sphere on the internal grid (Eq. 17)
 ``energy_ratio``    integral of the amplitudes' |S|^2 over the ensemble divided by its C_sca (a check:
                     1 for Mie up to grid error, slightly below 1 for GOA, which keeps p <= p_max)
 ``peak_fraction``   with ``truncate_below_rad``: the fraction F of scattering folded into unscattered
@@ -24,6 +25,11 @@ phase function is clipped at f(theta_c) inside the cone and the clipped fraction
 sigma_s and sigma_t (sigma_a unchanged) — the delta-M scaling of atmospheric radiative transfer. It saves
 the scattering events spent in the diffraction peak of large grains; ``scripts/truncation_experiment.py``
 measures what it saves and what it changes.
+
+``theta=`` only chooses where f is reported: the normalisation, g, ``energy_ratio`` and the truncation
+always come from the internal grid, and f at each of your angles is the exact ensemble intensity there
+divided by the internal-grid total (truncated the same way), so it does not depend on which other angles
+you ask for — a coarse list gives exact samples of the same f, not a coarser f.
 
 A ``Species`` is a particle material with a PSD: ``Species(psd, eta, share=1.0)``; ``eta`` is one complex
 index or one per wavelength; ``share`` is its share of the particle count. ``number_density_m3`` is the

@@ -5,8 +5,13 @@
 //! PSD `P_s` and a relative index `m_s`:
 //! * `σ_x = N0 Σ_s c_s ∫ C_x(r; m_s) dP_s(r)` for x = t, a (Eq. 16), `σ_s = σ_t − σ_a`, in m⁻¹;
 //! * the ensemble phase function (Eq. 17, second line): `f(θ) ∝ N0 Σ_s c_s ∫ (|S1|²+|S2|²)/(2k²) dP_s`,
-//!   normalised on the angle grid so that ∫ f dΩ = 1 — no per-particle normalisation is needed;
+//!   normalised on the internal angle grid so that ∫ f dΩ = 1 — no per-particle normalisation is needed;
 //! * `g = ∫ f cos θ dΩ` on the same grid.
+//!
+//! The normalisation, g, the energy ratio and the forward-peak truncation always come from the internal
+//! grid ([`default_angles`], refined when asked); a caller's own angles ([`PhaseAngles::At`]) only choose
+//! where f is reported, by exact evaluation of the amplitudes there divided by the internal-grid total,
+//! so f(θ) does not depend on which other angles are asked for.
 //!
 //! The integrals over r use `Psd::quadrature` (atoms exactly; Gauss–Legendre in ln r otherwise). The
 //! angle grid is graded: θ = 0, then log-spaced from 0.01/α_max to 0.1 rad (the diffraction lobe of
@@ -77,6 +82,12 @@ pub fn graded_angles(alpha_max: f64, n_forward: usize, n_rest: usize) -> Vec<f64
     t
 }
 
+/// The default internal grid of a bulk computation: [`graded_angles`] (400 log-spaced, 1400 uniform) for
+/// the size parameter of the largest particle `r_max_um` at the shortest wavelength `lam_min_um`.
+pub fn default_angles(r_max_um: f64, lam_min_um: f64, eta_medium: f64) -> Vec<f64> {
+    graded_angles(2.0 * PI * eta_medium * r_max_um / lam_min_um, 400, 1400)
+}
+
 /// Trapezoid weights for ∫ g(θ) 2π sin θ dθ on an increasing grid.
 pub fn solid_angle_weights(theta: &[f64]) -> Vec<f64> {
     let n = theta.len();
@@ -89,17 +100,8 @@ pub fn solid_angle_weights(theta: &[f64]) -> Vec<f64> {
     w
 }
 
-/// Bulk properties of `species` at one wavelength; `theta` must be increasing in [0, π] (use
-/// [`graded_angles`]); an empty `theta` skips the phase function and g.
-pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta_medium: f64, theta: &[f64], opts: &BulkOptions) -> Result<Bulk, OpticsError> {
-    require("number_density_m3", number_density_m3, number_density_m3.is_finite() && number_density_m3 >= 0.0, "finite and >= 0")?;
-    require("species (count)", species.len() as f64, !species.is_empty(), ">= 1")?;
-    let total_share: f64 = species.iter().map(|s| s.share).sum();
-    for s in species {
-        require("share", s.share, s.share.is_finite() && s.share >= 0.0, "finite and >= 0")?;
-        s.psd.validate()?;
-    }
-    require("share (sum)", total_share, total_share > 0.0, "> 0")?;
+/// Checks that `theta` is strictly increasing in [0, π].
+fn check_angles(theta: &[f64]) -> Result<(), OpticsError> {
     for w in theta.windows(2) {
         require("theta", w[1], w[1] > w[0], "strictly increasing")?;
     }
@@ -107,61 +109,229 @@ pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta
         require("theta", a, a >= 0.0, ">= 0")?;
         require("theta", b, b <= PI, "<= π")?;
     }
-    // Every (species, radius node) with its number weight per m³.
-    let mut nodes: Vec<(Particle, f64)> = Vec::new();
-    for s in species {
-        let (r, w) = s.psd.quadrature(opts.max_log_step);
-        for (ri, wi) in r.into_iter().zip(w) {
-            if wi > 0.0 {
-                nodes.push((Particle::new(ri, wavelength_um, s.eta, eta_medium)?, number_density_m3 * s.share / total_share * wi));
-            }
-        }
-    }
-    // Per-node values are computed in parallel but summed in node order, so results are bitwise
-    // reproducible whatever the thread scheduling.
-    let per_node: Vec<(f64, f64)> = nodes
-        .par_iter()
-        .map(|(p, w)| {
-            let (ce, ca) = optics::extinction_and_absorption(p, opts.method.theory(p, opts.goa.p_max), &opts.goa);
-            (w * ce, w * ca)
-        })
-        .collect();
-    let (ext, abs) = per_node.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-    let (theta, intensity) = if theta.is_empty() {
-        (Vec::new(), Vec::new())
-    } else {
-        let base = intensity_at(&nodes, theta, opts);
-        refine(&nodes, theta.to_vec(), base, opts)
-    };
-    let n_theta = theta.len();
-    // µm² × m⁻³ → m⁻¹.
-    let (sigma_t, sigma_a) = (ext * 1e-12, abs * 1e-12);
-    let sigma_s = (sigma_t - sigma_a).max(0.0);
-    let (mut phase, mut g, mut energy_ratio) = (Vec::new(), 0.0, 0.0);
-    if n_theta > 0 {
-        let wts = solid_angle_weights(&theta);
-        let total: f64 = intensity.iter().zip(&wts).map(|(i, w)| i * w).sum();
-        if total > 0.0 {
-            phase = intensity.iter().map(|i| i / total).collect();
-            g = phase.iter().zip(&wts).zip(&theta).map(|((f, w), t)| f * w * t.cos()).sum();
-        } else {
-            phase = vec![1.0 / (4.0 * PI); n_theta];
-        }
-        energy_ratio = if sigma_s > 0.0 { total * 1e-12 / sigma_s } else { 0.0 };
-    }
-    Ok(Bulk { sigma_t, sigma_s, sigma_a, g, phase, energy_ratio, theta })
+    Ok(())
 }
 
-/// `Σ w (|S1|²+|S2|²)/(2k²)` over the (species, radius) nodes at each angle. Deterministic: nodes are
-/// summed in fixed chunks of 16, in order, then the chunk sums in order (bitwise reproducible).
-fn intensity_at(nodes: &[(Particle, f64)], theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
-    let n = theta.len();
-    let add = |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
-    let chunks: Vec<Vec<f64>> = nodes
-        .par_chunks(16)
-        .map(|chunk| chunk.iter().map(|node| node_intensity(node, theta, opts)).fold(vec![0.0; n], add))
-        .collect();
-    chunks.into_iter().fold(vec![0.0; n], add)
+/// The (species, radius) quadrature nodes of a cloud at one wavelength, with the sums of Eq. 16 and the
+/// un-normalised ensemble intensity of Eq. 17 at any angles.
+struct Ensemble<'a> {
+    nodes: Vec<(Particle, f64)>,
+    opts: &'a BulkOptions,
+    /// Σ w C_ext and Σ w C_abs, µm² m⁻³.
+    ext: f64,
+    abs: f64,
+}
+
+impl<'a> Ensemble<'a> {
+    fn new(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta_medium: f64, opts: &'a BulkOptions) -> Result<Self, OpticsError> {
+        require("number_density_m3", number_density_m3, number_density_m3.is_finite() && number_density_m3 >= 0.0, "finite and >= 0")?;
+        require("species (count)", species.len() as f64, !species.is_empty(), ">= 1")?;
+        let total_share: f64 = species.iter().map(|s| s.share).sum();
+        for s in species {
+            require("share", s.share, s.share.is_finite() && s.share >= 0.0, "finite and >= 0")?;
+            s.psd.validate()?;
+        }
+        require("share (sum)", total_share, total_share > 0.0, "> 0")?;
+        // Every (species, radius node) with its number weight per m³.
+        let mut nodes: Vec<(Particle, f64)> = Vec::new();
+        for s in species {
+            let (r, w) = s.psd.quadrature(opts.max_log_step);
+            for (ri, wi) in r.into_iter().zip(w) {
+                if wi > 0.0 {
+                    nodes.push((Particle::new(ri, wavelength_um, s.eta, eta_medium)?, number_density_m3 * s.share / total_share * wi));
+                }
+            }
+        }
+        // Per-node values are computed in parallel but summed in node order, so results are bitwise
+        // reproducible whatever the thread scheduling.
+        let per_node: Vec<(f64, f64)> = nodes
+            .par_iter()
+            .map(|(p, w)| {
+                let (ce, ca) = optics::extinction_and_absorption(p, opts.method.theory(p, opts.goa.p_max), &opts.goa);
+                (w * ce, w * ca)
+            })
+            .collect();
+        let (ext, abs) = per_node.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        Ok(Ensemble { nodes, opts, ext, abs })
+    }
+
+    /// `Σ w (|S1|²+|S2|²)/(2k²)` over the nodes at each angle (Eq. 17 before normalisation).
+    /// Deterministic: nodes are summed in fixed chunks of 16, in order, then the chunk sums in order
+    /// (bitwise reproducible); the value at an angle does not depend on the other angles.
+    fn intensity(&self, theta: &[f64]) -> Vec<f64> {
+        let n = theta.len();
+        let add = |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
+        let chunks: Vec<Vec<f64>> = self
+            .nodes
+            .par_chunks(16)
+            .map(|chunk| chunk.iter().map(|node| node_intensity(node, theta, self.opts)).fold(vec![0.0; n], add))
+            .collect();
+        chunks.into_iter().fold(vec![0.0; n], add)
+    }
+}
+
+/// σ_t, σ_s, σ_a (m⁻¹) from the sums of Eq. 16.
+fn coefficients(ens: &Ensemble) -> (f64, f64, f64) {
+    // µm² × m⁻³ → m⁻¹.
+    let (sigma_t, sigma_a) = (ens.ext * 1e-12, ens.abs * 1e-12);
+    (sigma_t, (sigma_t - sigma_a).max(0.0), sigma_a)
+}
+
+/// The tabulated bulk properties on the internal grid `theta` (refined when asked), and the
+/// normaliser `∫ Σ w |S|²/(2k²) dΩ` of Eq. 17 on that grid.
+fn tabulate(ens: &Ensemble, theta: &[f64]) -> (Bulk, f64) {
+    let (sigma_t, sigma_s, sigma_a) = coefficients(ens);
+    if theta.is_empty() {
+        return (Bulk { sigma_t, sigma_s, sigma_a, g: 0.0, phase: Vec::new(), energy_ratio: 0.0, theta: Vec::new() }, 0.0);
+    }
+    let base = ens.intensity(theta);
+    let (theta, intensity) = refine(ens, theta.to_vec(), base);
+    let wts = solid_angle_weights(&theta);
+    let total: f64 = intensity.iter().zip(&wts).map(|(i, w)| i * w).sum();
+    let (phase, g) = if total > 0.0 {
+        let phase: Vec<f64> = intensity.iter().map(|i| i / total).collect();
+        let g = phase.iter().zip(&wts).zip(&theta).map(|((f, w), t)| f * w * t.cos()).sum();
+        (phase, g)
+    } else {
+        (vec![1.0 / (4.0 * PI); theta.len()], 0.0)
+    };
+    let energy_ratio = if sigma_s > 0.0 { total * 1e-12 / sigma_s } else { 0.0 };
+    (Bulk { sigma_t, sigma_s, sigma_a, g, phase, energy_ratio, theta }, total)
+}
+
+/// Bulk properties of `species` at one wavelength, tabulated on the internal grid `theta` (strictly
+/// increasing in [0, π]: use [`default_angles`]), refined when `opts.refine_tol > 0`; an empty `theta`
+/// skips the phase function and g.
+pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta_medium: f64, theta: &[f64], opts: &BulkOptions) -> Result<Bulk, OpticsError> {
+    check_angles(theta)?;
+    let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?;
+    Ok(tabulate(&ens, theta).0)
+}
+
+/// Bulk properties at one wavelength with everything that depends on the angular integral — the
+/// normalisation of Eq. 17, g, the energy ratio and the forward-peak truncation at `truncate_below_rad`
+/// (0: none) — measured on the internal grid `grid` (refined when asked), and the phase function
+/// reported on the grid or, with `query`, at those angles by exact evaluation of the amplitudes divided
+/// by the internal-grid total (truncated the same way: clipped at f(θ_c) inside the cone, divided by the
+/// kept fraction). Returns the properties and the truncated fraction F.
+#[allow(clippy::too_many_arguments)]
+pub fn bulk_at(
+    species: &[Species],
+    number_density_m3: f64,
+    wavelength_um: f64,
+    eta_medium: f64,
+    grid: &[f64],
+    query: Option<&[f64]>,
+    truncate_below_rad: f64,
+    opts: &BulkOptions,
+) -> Result<(Bulk, f64), OpticsError> {
+    check_angles(grid)?;
+    if let Some(q) = query {
+        check_angles(q)?;
+    }
+    let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?;
+    let (b, total) = tabulate(&ens, grid);
+    let (b, cut) = if truncate_below_rad > 0.0 && !b.theta.is_empty() {
+        let cut = Truncation::measure(&b, &b.theta, truncate_below_rad)?;
+        (cut.apply_to(&b, &b.theta), Some(cut))
+    } else {
+        (b, None)
+    };
+    let fraction = cut.map_or(0.0, |c| c.fraction);
+    let Some(q) = query.filter(|_| !b.theta.is_empty()) else {
+        return Ok((b, fraction));
+    };
+    let phase: Vec<f64> = if total > 0.0 {
+        ens.intensity(q).iter().zip(q).map(|(i, &t)| cut.map_or(i / total, |c| c.apply(t, i / total))).collect()
+    } else {
+        vec![1.0 / (4.0 * PI); q.len()]
+    };
+    Ok((Bulk { phase, theta: q.to_vec(), ..b }, fraction))
+}
+
+/// Where a bulk computation reports the phase function.
+#[derive(Clone, Copy, Debug)]
+pub enum PhaseAngles<'a> {
+    /// No phase function (and no g).
+    None,
+    /// On the internal grid ([`default_angles`], refined when asked).
+    Table,
+    /// At these angles (strictly increasing in [0, π]).
+    At(&'a [f64]),
+}
+
+/// Bulk properties at several wavelengths, the phase functions on one common angle grid.
+#[derive(Clone, Debug)]
+pub struct SpectralBulk {
+    /// One per wavelength (each with its own internal `theta` and `phase` when refined, or the query).
+    pub bulk: Vec<Bulk>,
+    /// The truncated fraction F per wavelength (0 without truncation).
+    pub peak_fraction: Vec<f64>,
+    /// The common angle grid: the query, the internal grid, or the union of the refined grids.
+    pub theta: Vec<f64>,
+    /// f(θ) per wavelength on `theta`, sr⁻¹.
+    pub phase: Vec<Vec<f64>>,
+}
+
+/// [`bulk_at`] at each wavelength `wavelength_um[j]` with the species `species[j]` (the same PSDs and
+/// shares, the indices at that wavelength). The internal grid is [`default_angles`] for the largest
+/// particle at the shortest wavelength. Without a query, refined grids that differ between wavelengths
+/// are merged and every phase function is resampled (linear in μ) onto the union.
+pub fn bulk_spectral(
+    species: &[Vec<Species>],
+    number_density_m3: f64,
+    wavelength_um: &[f64],
+    eta_medium: f64,
+    angles: PhaseAngles,
+    truncate_below_rad: f64,
+    opts: &BulkOptions,
+) -> Result<SpectralBulk, OpticsError> {
+    require("species (wavelengths)", species.len() as f64, species.len() == wavelength_um.len(), "one list per wavelength")?;
+    for &l in wavelength_um {
+        require("wavelength_um", l, l.is_finite() && l > 0.0, "finite and > 0")?;
+    }
+    require("truncate_below_rad", truncate_below_rad, truncate_below_rad.is_finite() && (0.0..PI).contains(&truncate_below_rad), "finite and in [0, π)")?;
+    let grid = match angles {
+        PhaseAngles::None => Vec::new(),
+        _ => {
+            let r_max = species.iter().flatten().map(|s| s.psd.support().1).fold(0.0, f64::max);
+            let lam_min = wavelength_um.iter().cloned().fold(f64::INFINITY, f64::min);
+            default_angles(r_max, lam_min, eta_medium)
+        }
+    };
+    let query = match angles {
+        PhaseAngles::At(q) => Some(q),
+        _ => None,
+    };
+    let results = wavelength_um
+        .iter()
+        .zip(species)
+        .map(|(&l, s)| bulk_at(s, number_density_m3, l, eta_medium, &grid, query, truncate_below_rad, opts))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (bulk, peak_fraction): (Vec<Bulk>, Vec<f64>) = results.into_iter().unzip();
+    let theta: Vec<f64> = if bulk.iter().all(|b| b.theta == bulk[0].theta) {
+        bulk.first().map(|b| b.theta.clone()).unwrap_or_default()
+    } else {
+        let mut u: Vec<f64> = bulk.iter().flat_map(|b| b.theta.iter().copied()).collect();
+        u.sort_by(f64::total_cmp);
+        u.dedup();
+        u
+    };
+    let phase = bulk.iter().map(|b| if b.theta == theta { b.phase.clone() } else { resample_linear_mu(&b.theta, &b.phase, &theta) }).collect();
+    Ok(SpectralBulk { bulk, peak_fraction, theta, phase })
+}
+
+/// Linear-in-μ interpolation of (theta, f) onto `target` (both increasing in θ).
+fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
+    target
+        .iter()
+        .map(|&t| {
+            let i = theta.partition_point(|&x| x <= t).clamp(1, theta.len() - 1);
+            let (m0, m1, m) = (theta[i - 1].cos(), theta[i].cos(), t.cos());
+            let w = if m1 != m0 { ((m - m0) / (m1 - m0)).clamp(0.0, 1.0) } else { 0.0 };
+            f[i - 1] + w * (f[i] - f[i - 1])
+        })
+        .collect()
 }
 
 /// One node's weighted intensity `w (|S1|²+|S2|²)/(2k²)` at every angle.
@@ -181,7 +351,8 @@ fn node_intensity((p, w): &(Particle, f64), theta: &[f64], opts: &BulkOptions) -
 /// than `refine_tol` (relative) and f > 1e-6 max, or where the misprediction moves more than 1e-5 of the
 /// total probability. Repeats on the new intervals, up to `refine_max_nodes`.
 /// The result stays a piecewise-linear table, so sampling remains exactly consistent with evaluation.
-fn refine(nodes: &[(Particle, f64)], mut theta: Vec<f64>, mut inten: Vec<f64>, opts: &BulkOptions) -> (Vec<f64>, Vec<f64>) {
+fn refine(ens: &Ensemble, mut theta: Vec<f64>, mut inten: Vec<f64>) -> (Vec<f64>, Vec<f64>) {
+    let opts = ens.opts;
     if opts.refine_tol <= 0.0 {
         return (theta, inten);
     }
@@ -203,7 +374,7 @@ fn refine(nodes: &[(Particle, f64)], mut theta: Vec<f64>, mut inten: Vec<f64>, o
         }
         candidates.truncate(opts.refine_max_nodes - theta.len());
         let mids: Vec<f64> = candidates.iter().map(|&i| ((mu(theta[i]) + mu(theta[i + 1])) * 0.5).clamp(-1.0, 1.0).acos()).collect();
-        let vals = intensity_at(nodes, &mids, opts);
+        let vals = ens.intensity(&mids);
         // Insert where the linear table is off; the new intervals on both sides become candidates.
         let mut inserts: Vec<(usize, f64, f64)> = Vec::new();
         for ((&i, &t), &v) in candidates.iter().zip(&mids).zip(&vals) {
@@ -245,27 +416,56 @@ fn refine(nodes: &[(Particle, f64)], mut theta: Vec<f64>, mut inten: Vec<f64>, o
 /// into unscattered transmission. The phase function is clipped at its value at θ_c inside the cone,
 /// the clipped fraction F = ∫_{θ<θc} (f − f(θc)) dΩ is removed, and
 /// `σ_s' = σ_s (1 − F)`, `σ_t' = σ_t − σ_s F`, `f' = min(f, f(θc)) / (1 − F)`; σ_a is unchanged.
-/// Returns the truncated properties and F.
+/// Measured once on a table ([`Truncation::measure`]), it applies at any angle ([`Truncation::apply`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Truncation {
+    pub theta_c: f64,
+    /// f(θ_c) of the table (linear interpolation between its nodes), the clipping level.
+    pub f_c: f64,
+    /// ∫ min(f, f_c) dΩ on the table: what f' is divided by (1 − F for a normalised table).
+    pub kept: f64,
+    /// The truncated fraction F.
+    pub fraction: f64,
+}
+
+impl Truncation {
+    /// Measures the truncation at `theta_c` on the table `b.phase` at the nodes `theta`.
+    pub fn measure(b: &Bulk, theta: &[f64], theta_c: f64) -> Result<Self, OpticsError> {
+        require("theta_c", theta_c, (0.0..PI).contains(&theta_c), "finite and in [0, π)")?;
+        require("phase (length)", b.phase.len() as f64, b.phase.len() == theta.len() && theta.len() >= 2, "len(theta) >= 2")?;
+        // f at θc by linear interpolation on the grid.
+        let i = theta.partition_point(|&t| t <= theta_c).clamp(1, theta.len() - 1);
+        let (t0, t1) = (theta[i - 1], theta[i]);
+        let w = ((theta_c - t0) / (t1 - t0)).clamp(0.0, 1.0);
+        let f_c = (b.phase[i - 1] + w * (b.phase[i] - b.phase[i - 1])).max(0.0);
+        let wts = solid_angle_weights(theta);
+        let clip = |f: f64, t: f64| if t < theta_c { f.min(f_c) } else { f };
+        let kept: f64 = b.phase.iter().zip(theta).zip(&wts).map(|((&f, &t), w)| clip(f, t) * w).sum();
+        let total: f64 = b.phase.iter().zip(&wts).map(|(f, w)| f * w).sum();
+        let fraction = ((total - kept) / total).clamp(0.0, 1.0);
+        Ok(Truncation { theta_c, f_c, kept, fraction })
+    }
+
+    /// The truncated phase function f' at angle `theta` from the untruncated value `f` there.
+    pub fn apply(&self, theta: f64, f: f64) -> f64 {
+        (if theta < self.theta_c { f.min(self.f_c) } else { f }) / self.kept
+    }
+
+    /// The truncated properties of the table `b` at the nodes `theta`: f' there, g of f', and σ_s, σ_t
+    /// without the fraction F (σ_a unchanged).
+    pub fn apply_to(&self, b: &Bulk, theta: &[f64]) -> Bulk {
+        let phase: Vec<f64> = b.phase.iter().zip(theta).map(|(&f, &t)| self.apply(t, f)).collect();
+        let wts = solid_angle_weights(theta);
+        let g = phase.iter().zip(&wts).zip(theta).map(|((f, w), t)| f * w * t.cos()).sum();
+        let removed = b.sigma_s * self.fraction;
+        Bulk { sigma_t: b.sigma_t - removed, sigma_s: b.sigma_s - removed, sigma_a: b.sigma_a, g, phase, energy_ratio: b.energy_ratio, theta: theta.to_vec() }
+    }
+}
+
+/// [`Truncation`] at `theta_c` of the table `b` on the nodes `theta`: the truncated properties and F.
 pub fn truncate_forward_peak(b: &Bulk, theta: &[f64], theta_c: f64) -> Result<(Bulk, f64), OpticsError> {
-    require("theta_c", theta_c, theta_c.is_finite() && theta_c >= 0.0 && theta_c < PI, "finite and in [0, π)")?;
-    require("phase (length)", b.phase.len() as f64, b.phase.len() == theta.len() && theta.len() >= 2, "len(theta) >= 2")?;
-    // f at θc by linear interpolation on the grid.
-    let i = theta.partition_point(|&t| t <= theta_c).clamp(1, theta.len() - 1);
-    let (t0, t1) = (theta[i - 1], theta[i]);
-    let w = ((theta_c - t0) / (t1 - t0)).clamp(0.0, 1.0);
-    let f_c = b.phase[i - 1] + w * (b.phase[i] - b.phase[i - 1]);
-    let clipped: Vec<f64> = b.phase.iter().zip(theta).map(|(&f, &t)| if t < theta_c { f.min(f_c.max(0.0)) } else { f }).collect();
-    let wts = solid_angle_weights(theta);
-    let kept: f64 = clipped.iter().zip(&wts).map(|(f, w)| f * w).sum();
-    let total: f64 = b.phase.iter().zip(&wts).map(|(f, w)| f * w).sum();
-    let fraction = ((total - kept) / total).clamp(0.0, 1.0);
-    let phase: Vec<f64> = clipped.iter().map(|f| f / kept).collect();
-    let g = phase.iter().zip(&wts).zip(theta).map(|((f, w), t)| f * w * t.cos()).sum();
-    let removed = b.sigma_s * fraction;
-    Ok((
-        Bulk { sigma_t: b.sigma_t - removed, sigma_s: b.sigma_s - removed, sigma_a: b.sigma_a, g, phase, energy_ratio: b.energy_ratio, theta: theta.to_vec() },
-        fraction,
-    ))
+    let cut = Truncation::measure(b, theta, theta_c)?;
+    Ok((cut.apply_to(b, theta), cut.fraction))
 }
 
 #[cfg(test)]

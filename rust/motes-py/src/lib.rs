@@ -225,23 +225,11 @@ fn psd_support(spec: &str) -> PyResult<((f64, f64), Vec<(f64, f64)>)> {
     Ok((d.support(), d.atoms()))
 }
 
-/// Linear-in-μ interpolation of (theta, f) onto `target` (both increasing in θ).
-fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
-    target
-        .iter()
-        .map(|&t| {
-            let i = theta.partition_point(|&x| x <= t).clamp(1, theta.len() - 1);
-            let (m0, m1, m) = (theta[i - 1].cos(), theta[i].cos(), t.cos());
-            let w = if m1 != m0 { ((m - m0) / (m1 - m0)).clamp(0.0, 1.0) } else { 0.0 };
-            f[i - 1] + w * (f[i] - f[i - 1])
-        })
-        .collect()
-}
-
 type BulkOut<'py> = (F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>, Bound<'py, numpy::PyArray2<f64>>, F64Out<'py>, F64Out<'py>, F64Out<'py>);
 
 /// Bulk properties (Eq. 16–17) per wavelength. `eta_re/eta_im` are (n_species × n_wavelengths), row-major.
-/// `theta` empty: the graded default grid (for the shortest wavelength's largest particle).
+/// `theta` empty: the phase function on the internal grid; otherwise at those angles (g and the
+/// normalisation still from the internal grid, `motes_core::ensemble::bulk_spectral`).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 fn bulk_properties<'py>(
@@ -263,7 +251,7 @@ fn bulk_properties<'py>(
     refine_tol: f64,
     refine_max_nodes: usize,
 ) -> PyResult<BulkOut<'py>> {
-    use motes_core::ensemble::{self, BulkOptions, Species};
+    use motes_core::ensemble::{self, BulkOptions, PhaseAngles, Species};
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
     let lam = wavelength_um.as_array().to_vec();
     let (er, ei) = (eta_re.as_array().to_vec(), eta_im.as_array().to_vec());
@@ -271,61 +259,23 @@ fn bulk_properties<'py>(
     if shares.len() != ns || er.len() != ns * nl || ei.len() != ns * nl {
         return Err(PyValueError::new_err("species, shares and eta must describe the same species and wavelengths"));
     }
-    for &l in &lam {
-        motes_core::error::require("wavelength_um", l, l.is_finite() && l > 0.0, "finite and > 0").map_err(to_py)?;
-    }
     motes_core::error::require("max_log_step", max_log_step, max_log_step.is_finite() && max_log_step > 0.0, "finite and > 0").map_err(to_py)?;
-    let psds = psd_specs.iter().map(|s| psd(s)).collect::<PyResult<Vec<_>>>()?;
-    let mut theta = theta.as_array().to_vec();
-    if with_phase && theta.is_empty() {
-        let r_max = psds.iter().map(|p| p.support().1).fold(0.0, f64::max);
-        let lam_min = lam.iter().cloned().fold(f64::INFINITY, f64::min);
-        theta = ensemble::graded_angles(2.0 * std::f64::consts::PI * eta_medium * r_max / lam_min, 400, 1400);
-    }
-    if !with_phase {
-        theta.clear();
-    }
     motes_core::error::require("refine_tol", refine_tol, refine_tol.is_finite() && refine_tol >= 0.0, "finite and >= 0").map_err(to_py)?;
-    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step, refine_tol, refine_max_nodes };
-    let results = py.detach(|| {
-        lam.iter()
-            .enumerate()
-            .map(|(j, &l)| {
-                let species: Vec<Species> = psds
-                    .iter()
-                    .enumerate()
-                    .map(|(i, p)| Species { psd: p.clone(), eta: C64::new(er[i * nl + j], ei[i * nl + j]), share: shares[i] })
-                    .collect();
-                let b = ensemble::bulk(&species, number_density_m3, l, eta_medium, &theta, &opts)?;
-                if truncate_below_rad > 0.0 && !theta.is_empty() {
-                    let grid = b.theta.clone();
-                    ensemble::truncate_forward_peak(&b, &grid, truncate_below_rad)
-                } else {
-                    Ok((b, 0.0))
-                }
-            })
-            .collect::<Result<Vec<_>, _>>()
-    })
-    .map_err(to_py)?;
-    let fractions: Vec<f64> = results.iter().map(|(_, f)| *f).collect();
-    let results: Vec<ensemble::Bulk> = results.into_iter().map(|(b, _)| b).collect();
-    let col = |f: fn(&ensemble::Bulk) -> f64| results.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
-    // Refinement may give each wavelength its own grid: resample all onto the union grid (linear in μ,
-    // exact at every wavelength's own nodes only where it refined; the union is at least as fine).
-    let theta: Vec<f64> = if results.iter().all(|b| b.theta == results[0].theta) || results.is_empty() {
-        results.first().map(|b| b.theta.clone()).unwrap_or_default()
-    } else {
-        let mut u: Vec<f64> = results.iter().flat_map(|b| b.theta.iter().copied()).collect();
-        u.sort_by(f64::total_cmp);
-        u.dedup();
-        u
-    };
-    let phase: Vec<Vec<f64>> = results
-        .iter()
-        .map(|b| if b.theta == theta { b.phase.clone() } else { resample_linear_mu(&b.theta, &b.phase, &theta) })
+    let psds = psd_specs.iter().map(|s| psd(s)).collect::<PyResult<Vec<_>>>()?;
+    let species: Vec<Vec<Species>> = (0..nl)
+        .map(|j| psds.iter().enumerate().map(|(i, p)| Species { psd: p.clone(), eta: C64::new(er[i * nl + j], ei[i * nl + j]), share: shares[i] }).collect())
         .collect();
-    let phase = if theta.is_empty() { numpy::PyArray2::zeros(py, [nl, 0], false) } else { numpy::PyArray2::from_vec2(py, &phase)? };
-    Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), theta.into_pyarray(py), fractions.into_pyarray(py)))
+    let theta = theta.as_array().to_vec();
+    let angles = match (with_phase, theta.is_empty()) {
+        (false, _) => PhaseAngles::None,
+        (true, true) => PhaseAngles::Table,
+        (true, false) => PhaseAngles::At(&theta),
+    };
+    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step, refine_tol, refine_max_nodes };
+    let out = py.detach(|| ensemble::bulk_spectral(&species, number_density_m3, &lam, eta_medium, angles, truncate_below_rad, &opts)).map_err(to_py)?;
+    let col = |f: fn(&ensemble::Bulk) -> f64| out.bulk.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
+    let phase = if out.theta.is_empty() { numpy::PyArray2::zeros(py, [nl, 0], false) } else { numpy::PyArray2::from_vec2(py, &out.phase)? };
+    Ok((col(|b| b.sigma_t), col(|b| b.sigma_s), col(|b| b.sigma_a), col(|b| b.g), phase, col(|b| b.energy_ratio), out.theta.clone().into_pyarray(py), out.peak_fraction.clone().into_pyarray(py)))
 }
 
 fn phase_table(theta: F64In, f: F64In) -> PyResult<motes_core::phase_table::PhaseTable> {
