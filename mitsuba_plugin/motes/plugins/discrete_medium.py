@@ -78,6 +78,7 @@ hundreds of bounces. Random numbers for the free flights come from the core (cou
 from __future__ import annotations
 
 import json
+import warnings
 
 import drjit as dr
 import mitsuba as mi
@@ -113,16 +114,42 @@ def _get(props, name, default, kind, check=None, allowed=""):
     return value
 
 
+#: Keys a species entry may hold (a misspelt key is an error, not silently ignored).
+SPECIES_KEYS = ("psd", "material", "eta", "share", "name")
+
+
 def _eta(entry, where):
+    if "material" in entry and "eta" in entry:
+        raise ValueError(f'discrete medium: {where} gives both "material" and "eta"; keep one')
     if "material" in entry:
         return Material(str(entry["material"]))
     if "eta" in entry:
         e = entry["eta"]
-        e = complex(e[0], e[1]) if isinstance(e, (list, tuple)) else complex(e)
+        try:
+            if isinstance(e, (list, tuple)):
+                if len(e) != 2:
+                    raise ValueError
+                e = complex(float(e[0]), float(e[1]))
+            else:
+                e = complex(float(e), 0.0)
+        except (TypeError, ValueError):
+            raise ValueError(f'discrete medium: {where} "eta" must be a number n or a pair [n, k], got {entry["eta"]!r}') from None
         if not (np.isfinite(e.real) and e.real > 0 and e.imag >= 0):
             raise ValueError(f"discrete medium: invalid eta {e} in {where}: real part > 0, imaginary >= 0")
         return e
     raise ValueError(f'discrete medium: {where} needs "material" or "eta"')
+
+
+def _species_entry(e: dict, i: int) -> Species:
+    where = f"species[{i}]"
+    unknown = sorted(set(e) - set(SPECIES_KEYS))
+    if unknown:
+        raise ValueError(f"discrete medium: {where} has unknown key(s) {', '.join(map(repr, unknown))}; "
+                         f"allowed: {', '.join(SPECIES_KEYS)}")
+    share = e.get("share", 1.0)
+    if isinstance(share, bool) or not isinstance(share, (int, float)) or not (np.isfinite(share) and share >= 0):
+        raise ValueError(f'discrete medium: {where} "share" must be a number >= 0, got {share!r}')
+    return Species(psd_mod.from_spec(e.get("psd", {})), _eta(e, where), float(share))
 
 
 class DiscreteMediumPlugin:
@@ -171,10 +198,11 @@ class DiscreteMediumPlugin:
                 raise ValueError(f"discrete medium: parameter 'species' is not valid JSON ({e})") from None
             if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
                 raise ValueError("discrete medium: parameter 'species' must be a non-empty JSON list of objects")
-            species = [Species(psd_mod.from_spec(e.get("psd", {})), _eta(e, f"species[{i}]"), float(e.get("share", 1.0)))
-                       for i, e in enumerate(entries)]
+            species = [_species_entry(e, i) for i, e in enumerate(entries)]
         else:
             psd = psd_mod.from_spec(psd_json) if psd_json is not None else psd_mod.LogNormal(median, sigma_g)
+            if material is not None and ("eta" in props or "eta_k" in props):
+                raise ValueError("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
             species = [Species(psd, Material(material) if material is not None else complex(eta, eta_k))]
 
         # Particles (local units), then to world.
@@ -183,7 +211,8 @@ class DiscreteMediumPlugin:
             if clash:
                 raise ValueError(f"discrete medium: {', '.join(clash)} set the generated particles; with filename "
                                  "the particles come from the file — remove one or the other")
-            pset = load_particles(filename, n_species=len(species))
+            # Relative to the scene file's folder, as Mitsuba resolves meshes and textures.
+            pset = load_particles(str(mi.file_resolver().resolve(filename)), n_species=len(species))
             pos, radii, sidx = pset.positions, pset.radii_um, pset.species
         else:
             lo, hi = np.full(3, -1.0), np.full(3, 1.0)
@@ -202,6 +231,8 @@ class DiscreteMediumPlugin:
                 density = Gradient(axis=2, start=1.0, end=0.0) if distribution == "gradient" else Noise(scale=0.5, seed=seed)
                 pos, _ = density_box(count, lo, hi, density, species[0].psd, seed=seed)
         m = np.array(to_world.matrix, dtype=np.float64)
+        if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
+            raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
         pos = pos @ m[:3, :3].T + m[:3, 3]
 
         # Query radius: explicit, or Eq. 23.
@@ -214,6 +245,10 @@ class DiscreteMediumPlugin:
             query_radius = query_radius_from_camera(k, fov, film_width, z_med)
         user_radius = query_radius is not None
         query_radius = 0.0 if query_radius is None else query_radius
+        extent = float(np.min(pos.max(axis=0) - pos.min(axis=0))) if len(pos) > 1 else 0.0
+        if extent > 0 and query_radius > 0.25 * extent:
+            warnings.warn(f"discrete medium: query_radius = {query_radius:g} is comparable to the particles' extent "
+                          f"({extent:g} scene units): disks reaching out of the box lose their extinction there", stacklevel=2)
         if truncate is None:
             truncate = (pixel_footprint_rad(fov, film_width) if fov is not None and film_width is not None
                         else DEFAULT_TRUNCATE_RAD)
