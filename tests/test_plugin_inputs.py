@@ -15,7 +15,9 @@ mi = pytest.importorskip("mitsuba")
 
 def load(**kw):
     motes.set_variant("scalar_rgb")
-    d = {"type": "discrete", "count": 200, "phase": {"type": "particle"}}
+    d = {"type": "discrete", "phase": {"type": "particle"}}
+    if "filename" not in kw:
+        d["count"] = 200
     d.update(kw)
     return mi.load_dict(d)
 
@@ -54,3 +56,25 @@ def test_relative_filename_resolves_against_the_scene_folder(tmp_path):
                                '<phase type="particle"/></medium></shape></scene>')
     scene = mi.load_file(str(sub / "s.xml"))
     assert len(scene.shapes()[0].interior_medium().data) == 100
+
+
+def test_houdini_pscale_is_scaled_the_same_both_ways(tmp_path):
+    """A PLY whose `pscale` radii are in scene units: load_particles(scale_m) and the plugin (scale_m) agree."""
+    meshio = pytest.importorskip("meshio")
+    motes.set_variant("scalar_rgb")
+    pos = np.random.default_rng(1).uniform(-1, 1, (50, 3))
+    path = tmp_path / "houdini.ply"
+    meshio.write_points_cells(str(path), pos, [], point_data={"pscale": np.full(50, 3e-4)})
+    api = motes.load_particles(path, scale_m=0.01).radii_um
+    med = load(filename=str(path), scale_m=0.01)
+    assert np.allclose(api, 3.0) and np.allclose(med.data.radii_um, api)
+
+
+def test_implausible_radius_names_the_file(tmp_path):
+    meshio = pytest.importorskip("meshio")
+    motes.set_variant("scalar_rgb")
+    path = tmp_path / "huge.ply"
+    meshio.write_points_cells(str(path), np.zeros((3, 3)) + [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [],
+                              point_data={"pscale": np.full(3, 3.0)})
+    with pytest.raises(RuntimeError, match="huge.ply.*implausible"):
+        load(filename=str(path), scale_m=1.0)

@@ -212,7 +212,13 @@ class DiscreteMediumPlugin:
                 raise ValueError(f"discrete medium: {', '.join(clash)} set the generated particles; with filename "
                                  "the particles come from the file — remove one or the other")
             # Relative to the scene file's folder, as Mitsuba resolves meshes and textures.
-            pset = load_particles(str(mi.file_resolver().resolve(filename)), n_species=len(species))
+            path = str(mi.file_resolver().resolve(filename))
+            # scale_m converts a PLY's Houdini `pscale` (radii in scene units) to micrometres.
+            pset = load_particles(path, scale_m=scale_m, n_species=len(species))
+            r_lo, r_hi = float(pset.radii_um.min()), float(pset.radii_um.max())
+            if r_hi > 1e5 or r_lo < 1e-3:
+                raise ValueError(f"discrete medium: {path}: particle radii from {r_lo:g} to {r_hi:g} um are implausible "
+                                 f"(field radius_um / radius in um, or a PLY pscale in scene units times scale_m = {scale_m:g} m)")
             pos, radii, sidx = pset.positions, pset.radii_um, pset.species
         else:
             lo, hi = np.full(3, -1.0), np.full(3, 1.0)
