@@ -78,3 +78,27 @@ def test_implausible_radius_names_the_file(tmp_path):
                               point_data={"pscale": np.full(3, 3.0)})
     with pytest.raises(RuntimeError, match="huge.ply.*implausible"):
         load(filename=str(path), scale_m=1.0)
+
+
+def test_radius_median_outside_the_psd_range_names_it():
+    with pytest.raises(Exception, match="radius_median"):
+        load(radius_median=50000.0)
+
+
+def test_particle_phase_outside_a_discrete_medium_fails_in_one_sentence():
+    motes.set_variant("scalar_rgb")
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath"},
+        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4},
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},
+        "env": {"type": "constant"},
+        "cube": {"type": "cube", "bsdf": {"type": "null"},
+                 "interior": {"type": "homogeneous", "sigma_t": 1.0, "phase": {"type": "particle"}}}})
+    with pytest.raises(Exception) as e:
+        mi.render(scene, spp=1)
+    chain = []
+    err = e.value
+    while err is not None:
+        chain.append(str(err))
+        err = err.__cause__ or err.__context__
+    assert any('works only inside a <medium type="discrete">' in c for c in chain), chain

@@ -165,7 +165,9 @@ class DiscreteMediumPlugin:
         count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
         distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
                             "one of uniform, gradient, noise")
-        median = _get(props, "radius_median", 20.0, float, pos_f, "finite and > 0 (um)")
+        lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um
+        median = _get(props, "radius_median", 20.0, float, lambda v: lo_um < v < hi_um,
+                      f"in ({lo_um:g}, {hi_um:g}) um (the log-normal PSD is truncated there; a wider one via psd)")
         sigma_g = _get(props, "radius_sigma_g", 1.5, float, lambda v: np.isfinite(v) and v >= 1, "finite and >= 1")
         psd_json = _get(props, "psd", None, str)
         material = _get(props, "material", None, str)

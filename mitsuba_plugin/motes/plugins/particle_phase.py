@@ -4,7 +4,7 @@
 Parameter      Type    Meaning
 =============  ======  ==========================================================================
 (none)                 Use it as the ``<phase>`` child of a ``discrete`` medium, which supplies the
-                       particles; alone it evaluates to 0.
+                       particles; used elsewhere it raises a one-sentence error at the first call.
 =============  ======  ==========================================================================
 
 Notes
@@ -30,6 +30,12 @@ import numpy as np
 from ._bridge import bind_to_variant, channel_wavelengths, floats, spectrum, vec3, vector3
 
 
+def _require_medium(medium) -> None:
+    if medium is None:
+        raise RuntimeError('motes: <phase type="particle"/> works only inside a <medium type="discrete">, which '
+                           "supplies its particles; use hg, tabphase or another phase function in other media")
+
+
 class ParticlePhase:
     """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.PhaseFunction``."""
 
@@ -49,8 +55,7 @@ class ParticlePhase:
     def sample(self, ctx, mei, sample1, sample2, active=True):
         n = max(np.size(np.asarray(sample1)), np.size(np.asarray(sample2.x)), dr.width(mei.p), dr.width(mei.wi))
         p, wi = vec3(mei.p, n), vec3(mei.wi, n)
-        if self._medium is None:
-            return vector3(np.zeros((n, 3))), spectrum(np.zeros((n, 1)), n), floats(np.zeros(n))
+        _require_medium(self._medium)
         lam, ch = self._channels(mei, n)
         u1 = np.ascontiguousarray(np.broadcast_to(np.asarray(sample1, dtype=np.float64).ravel(), (n,)))
         u2 = np.ascontiguousarray(np.stack([np.broadcast_to(np.asarray(sample2.x, dtype=np.float64).ravel(), (n,)),
@@ -61,8 +66,7 @@ class ParticlePhase:
     def eval_pdf(self, ctx, mei, wo, active=True):
         n = max(dr.width(mei.p), dr.width(mei.wi), dr.width(wo))
         p, wi, w = vec3(mei.p, n), vec3(mei.wi, n), vec3(wo, n)
-        if self._medium is None:
-            return spectrum(np.zeros((n, 1)), n), floats(np.zeros(n))
+        _require_medium(self._medium)
         lam, ch = self._channels(mei, n)
         v, pdf = self._medium.core.phase_eval(p.ravel(), wi.ravel(), w.ravel(), lam, ch)
         return spectrum(v.reshape(n, ch), n), floats(pdf)
