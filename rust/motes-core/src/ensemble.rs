@@ -13,14 +13,18 @@
 //! where f is reported, by exact evaluation of the amplitudes there divided by the internal-grid total,
 //! so f(θ) does not depend on which other angles are asked for.
 //!
-//! The integrals over r use `Psd::quadrature` (atoms exactly; Gauss–Legendre in ln r otherwise). The
+//! The integrals over r use `Psd::quadrature_resolving` (atoms exactly; Gauss–Legendre in ln r, and where
+//! Mie is used for 2 < x ≤ [`MIE_RIPPLE_X_MAX`] a midpoint grid [`MIE_RIPPLE_DX`] apart in x (wider ∝ x
+//! above 300) that averages Mie's ripple); those Mie nodes are summed in coefficient space ([`MieIntensitySums`]). The
 //! angle grid is graded: θ = 0, then log-spaced from 0.01/α_max to 0.1 rad (the diffraction lobe of
 //! the largest particle, width ~1/α, gets ~25 nodes across its core), then uniform to π.
 
 use crate::error::{require, OpticsError};
 use crate::goa::GoaOptions;
 use crate::optics::{self, Method, Particle, Theory};
-use crate::psd::Psd;
+use crate::mie::{series_length, MieCoefficients, MieIntensitySums};
+use crate::psd::{Psd, RippleResolution};
+use std::sync::OnceLock;
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::f64::consts::PI;
@@ -42,10 +46,40 @@ pub struct BulkOptions {
     pub goa: GoaOptions,
     /// Largest quadrature panel in ln r (see `Psd::quadrature`).
     pub max_log_step: f64,
+    /// Largest step in size parameter of the radius quadrature where Mie amplitudes are used, for
+    /// 2 < x < [`MIE_RIPPLE_X_MAX`] ([`MIE_RIPPLE_DX`] by default; 0: panels in ln r only).
+    pub mie_dx: f64,
     /// Relative accuracy the tabulated phase function must reach between its nodes (0: no refinement).
     pub refine_tol: f64,
     /// Cap on the number of angles after refinement.
     pub refine_max_nodes: usize,
+}
+
+/// Default [`BulkOptions::mie_dx`]. Mie's ripple (resonances in x = k r far narrower than a panel of
+/// `max_log_step` in ln r) dominates the ensemble's side- and back-scattering: 8-node Gauss–Legendre
+/// panels alias it (3–10 % errors at 180° for log-normal water droplets of r_g 1–10 µm), a uniform grid
+/// in x averages it. 0.02 keeps the tables within 1 % of a 20 000-radius reference at every angle
+/// (`scripts/ensemble_accuracy.py`, BENCHMARKS.md "Ensemble tables: default accuracy").
+pub const MIE_RIPPLE_DX: f64 = 0.02;
+/// Up to this size parameter the ripple is resolved and Mie nodes are summed in coefficient space
+/// ([`MieIntensitySums`], O(N²) per node); beyond, the cost of a fine grid (∝ x³) outgrows its use.
+pub const MIE_RIPPLE_X_MAX: f64 = 600.0;
+/// Above this size parameter the ripple grid's spacing grows ∝ x (`dx · x / MIE_RIPPLE_X_GROW`).
+const MIE_RIPPLE_X_GROW: f64 = 300.0;
+/// Below this size parameter the integrand is smooth (no resonances): Gauss–Legendre panels stay.
+const MIE_RIPPLE_X_MIN: f64 = 2.0;
+/// Panels carrying less than this share of the PSD's r²-weighted mass keep Gauss–Legendre nodes.
+const MIE_RIPPLE_MIN_SHARE: f64 = 1e-6;
+
+/// Largest size parameter below which `method` uses Mie for a particle of relative index `m`.
+fn mie_size_limit(method: Method, m: C64, k: f64, p_max: u32) -> f64 {
+    match method {
+        Method::Mie => f64::INFINITY,
+        Method::Goa => 0.0,
+        Method::Hybrid { radius_um } => k * radius_um,
+        Method::Auto if optics::has_axial_caustic(m, p_max) => f64::INFINITY,
+        Method::Auto => optics::AUTO_SIZE_PARAMETER,
+    }
 }
 
 /// Bulk properties at one wavelength.
@@ -120,22 +154,35 @@ struct Ensemble<'a> {
     /// Σ w C_ext and Σ w C_abs, µm² m⁻³.
     ext: f64,
     abs: f64,
+    /// The Mie nodes up to [`MIE_RIPPLE_X_MAX`], summed in coefficient space on first use.
+    mie: OnceLock<Option<MieIntensitySums>>,
 }
 
 impl<'a> Ensemble<'a> {
     fn new(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta_medium: f64, opts: &'a BulkOptions) -> Result<Self, OpticsError> {
         require("number_density_m3", number_density_m3, number_density_m3.is_finite() && number_density_m3 >= 0.0, "finite and >= 0")?;
         require("species (count)", species.len() as f64, !species.is_empty(), ">= 1")?;
+        require("mie_dx", opts.mie_dx, opts.mie_dx.is_finite() && opts.mie_dx >= 0.0, "finite and >= 0")?;
         let total_share: f64 = species.iter().map(|s| s.share).sum();
         for s in species {
             require("share", s.share, s.share.is_finite() && s.share >= 0.0, "finite and >= 0")?;
             s.psd.validate()?;
         }
         require("share (sum)", total_share, total_share > 0.0, "> 0")?;
-        // Every (species, radius node) with its number weight per m³.
+        // Every (species, radius node) with its number weight per m³; the radius integral (Eq. 16–17)
+        // resolves the ripple in x where this species is computed by Mie.
+        let k = 2.0 * PI * eta_medium / wavelength_um;
         let mut nodes: Vec<(Particle, f64)> = Vec::new();
         for s in species {
-            let (r, w) = s.psd.quadrature(opts.max_log_step);
+            let ripple = RippleResolution {
+                wavenumber_per_um: k,
+                dx: opts.mie_dx,
+                x_grow: MIE_RIPPLE_X_GROW,
+                x_min: MIE_RIPPLE_X_MIN,
+                x_max: mie_size_limit(opts.method, s.eta / eta_medium, k, opts.goa.p_max).min(MIE_RIPPLE_X_MAX),
+                min_share: MIE_RIPPLE_MIN_SHARE,
+            };
+            let (r, w) = s.psd.quadrature_resolving(opts.max_log_step, Some(&ripple));
             for (ri, wi) in r.into_iter().zip(w) {
                 if wi > 0.0 {
                     nodes.push((Particle::new(ri, wavelength_um, s.eta, eta_medium)?, number_density_m3 * s.share / total_share * wi));
@@ -152,21 +199,58 @@ impl<'a> Ensemble<'a> {
             })
             .collect();
         let (ext, abs) = per_node.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-        Ok(Ensemble { nodes, opts, ext, abs })
+        Ok(Ensemble { nodes, opts, ext, abs, mie: OnceLock::new() })
+    }
+
+    /// Whether a node is summed in coefficient space (Mie, x ≤ [`MIE_RIPPLE_X_MAX`]).
+    fn in_sums(&self, p: &Particle) -> bool {
+        p.size_parameter() <= MIE_RIPPLE_X_MAX && self.opts.method.theory(p, self.opts.goa.p_max) == Theory::Mie
     }
 
     /// `Σ w (|S1|²+|S2|²)/(2k²)` over the nodes at each angle (Eq. 17 before normalisation).
-    /// Deterministic: nodes are summed in fixed chunks of 16, in order, then the chunk sums in order
-    /// (bitwise reproducible); the value at an angle does not depend on the other angles.
+    /// Deterministic: nodes are summed in fixed chunks, in order, then the chunk sums in order (bitwise
+    /// reproducible); the value at an angle does not depend on the other angles.
     fn intensity(&self, theta: &[f64]) -> Vec<f64> {
         let n = theta.len();
         let add = |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
-        let chunks: Vec<Vec<f64>> = self
-            .nodes
+        let direct: Vec<&(Particle, f64)> = self.nodes.iter().filter(|(p, _)| !self.in_sums(p)).collect();
+        let chunks: Vec<Vec<f64>> = direct
             .par_chunks(16)
             .map(|chunk| chunk.iter().map(|node| node_intensity(node, theta, self.opts)).fold(vec![0.0; n], add))
             .collect();
-        chunks.into_iter().fold(vec![0.0; n], add)
+        let direct = chunks.into_iter().fold(vec![0.0; n], add);
+        match self.mie.get_or_init(|| self.mie_sums()) {
+            Some(sums) => {
+                let mie: Vec<f64> = theta.par_iter().map(|t| sums.intensity(t.cos())).collect();
+                add(direct, mie)
+            }
+            None => direct,
+        }
+    }
+
+    /// The coefficient-space sums of the Mie nodes, weights `w/(2k²)`; 16 fixed groups summed in order.
+    fn mie_sums(&self) -> Option<MieIntensitySums> {
+        let mie: Vec<&(Particle, f64)> = self.nodes.iter().filter(|(p, _)| self.in_sums(p)).collect();
+        if mie.is_empty() {
+            return None;
+        }
+        let size = |nodes: &[&(Particle, f64)]| nodes.iter().map(|(p, _)| series_length(p.size_parameter())).max().unwrap_or(0);
+        let groups: Vec<MieIntensitySums> = mie
+            .par_chunks(mie.len().div_ceil(16))
+            .map(|group| {
+                let mut sums = MieIntensitySums::new(size(group));
+                for (p, w) in group {
+                    let k = p.k();
+                    sums.add(&MieCoefficients::new(p.size_parameter(), p.relative_index()), w / (2.0 * k * k));
+                }
+                sums
+            })
+            .collect();
+        let mut total = MieIntensitySums::new(size(&mie));
+        for g in &groups {
+            total.merge(g);
+        }
+        Some(total)
     }
 }
 
@@ -473,7 +557,7 @@ mod tests {
     use super::*;
 
     fn opts(method: Method) -> BulkOptions {
-        BulkOptions { method, goa: GoaOptions::default(), max_log_step: 0.05, refine_tol: 0.0, refine_max_nodes: 0 }
+        BulkOptions { method, goa: GoaOptions::default(), max_log_step: 0.05, mie_dx: MIE_RIPPLE_DX, refine_tol: 0.0, refine_max_nodes: 0 }
     }
 
     /// The monodisperse limit equals the single-particle values exactly: σ_t = N0 C_t.

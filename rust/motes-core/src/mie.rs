@@ -175,6 +175,87 @@ impl MieAngularSeries {
     }
 }
 
+/// Weighted sums over many spheres (one wavelength) of the products of their Mie coefficients, from which
+/// `Σ_i w_i (|S1|² + |S2|²)` follows at any angle — the numerator of the ensemble phase function
+/// (paper Eq. 17) — at O(N²) per sphere and per angle instead of O(N) per sphere *and* angle.
+///
+/// With `A_n = c_n a_n`, `B_n = c_n b_n` (Eq. 26–27): `|S1|² + |S2|² = Σ_nm U_nm (π_n π_m + τ_n τ_m)
+/// + V_nm (π_n τ_m + τ_n π_m)`, `U_nm = Re(A_n A_m* + B_n B_m*)`, `V_nm = Re(A_n B_m* + B_n A_m*)`, both
+/// symmetric: the sums keep the upper triangles of `Σ w U` and `Σ w V`.
+#[derive(Clone, Debug)]
+pub struct MieIntensitySums {
+    n: usize,
+    u: Vec<f64>,
+    v: Vec<f64>,
+}
+
+impl MieIntensitySums {
+    /// Empty sums for spheres of series length up to `n_max` ([`series_length`]).
+    pub fn new(n_max: usize) -> Self {
+        MieIntensitySums { n: n_max, u: vec![0.0; n_max * n_max], v: vec![0.0; n_max * n_max] }
+    }
+
+    /// Adds one sphere with weight `w`.
+    pub fn add(&mut self, c: &MieCoefficients, w: f64) {
+        let k = c.a.len();
+        assert!(k <= self.n, "series length {k} beyond the sums' {}", self.n);
+        let s = c.weighted();
+        let (ar, ai): (Vec<f64>, Vec<f64>) = s.wa.iter().map(|z| (z.re, z.im)).unzip();
+        let (br, bi): (Vec<f64>, Vec<f64>) = s.wb.iter().map(|z| (z.re, z.im)).unzip();
+        for i in 0..k {
+            let (wr, wi, vr, vi) = (w * ar[i], w * ai[i], w * br[i], w * bi[i]);
+            let row = i * self.n;
+            let (u, v) = (&mut self.u[row + i..row + k], &mut self.v[row + i..row + k]);
+            for (j, (u, v)) in (i..k).zip(u.iter_mut().zip(v.iter_mut())) {
+                *u += wr * ar[j] + wi * ai[j] + vr * br[j] + vi * bi[j];
+                *v += wr * br[j] + wi * bi[j] + vr * ar[j] + vi * ai[j];
+            }
+        }
+    }
+
+    /// Adds the sums of `other` (of any size up to this one's).
+    pub fn merge(&mut self, other: &MieIntensitySums) {
+        assert!(other.n <= self.n);
+        for i in 0..other.n {
+            let (a, b) = (i * self.n, i * other.n);
+            for j in i..other.n {
+                self.u[a + j] += other.u[b + j];
+                self.v[a + j] += other.v[b + j];
+            }
+        }
+    }
+
+    /// `Σ w (|S1|² + |S2|²)` at `μ = cos θ`.
+    pub fn intensity(&self, mu: f64) -> f64 {
+        let n = self.n;
+        let (mut pi, mut tau) = (vec![0.0; n], vec![0.0; n]);
+        let (mut pi_prev, mut p) = (0.0f64, 1.0f64);
+        for i in 0..n {
+            let nf = i as f64 + 1.0;
+            if i > 0 {
+                let next = ((2.0 * nf - 1.0) * mu * p - nf * pi_prev) / (nf - 1.0);
+                pi_prev = p;
+                p = next;
+            }
+            pi[i] = p;
+            tau[i] = nf * mu * p - (nf + 1.0) * pi_prev;
+        }
+        let mut total = 0.0;
+        for i in 0..n {
+            let (a, b) = (pi[i], tau[i]);
+            let row = i * n;
+            let (u, v) = (&self.u[row + i..row + n], &self.v[row + i..row + n]);
+            // Off-diagonal pairs count twice, the diagonal once.
+            let mut acc = 0.5 * (u[0] * (a * a + b * b) + v[0] * 2.0 * a * b);
+            for ((u, v), (pj, tj)) in u[1..].iter().zip(&v[1..]).zip(pi[i + 1..].iter().zip(&tau[i + 1..])) {
+                acc += u * (a * pj + b * tj) + v * (a * tj + b * pj);
+            }
+            total += 2.0 * acc;
+        }
+        total
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -190,6 +271,31 @@ mod tests {
         let qabs = 4.0 * x * pol.im;
         assert!((c.q_sca() / qsca - 1.0).abs() < 1e-4, "{} vs {}", c.q_sca(), qsca);
         assert!(((c.q_ext() - c.q_sca()) / qabs - 1.0).abs() < 1e-4);
+    }
+
+    /// The coefficient-product sums give the same summed intensity as the amplitudes, at every angle.
+    #[test]
+    fn intensity_sums_match_amplitudes() {
+        let spheres = [(3.7, C64::new(1.33, 0.0), 0.3), (41.2, C64::new(1.31, 1e-4), 1.7), (0.4, C64::new(2.0, 0.5), 5.0)];
+        let n_max = spheres.iter().map(|s| series_length(s.0)).max().unwrap();
+        let mut sums = MieIntensitySums::new(n_max);
+        let mut half = MieIntensitySums::new(series_length(3.7));
+        half.add(&MieCoefficients::new(3.7, C64::new(1.33, 0.0)), 0.3);
+        sums.merge(&half);
+        for &(x, m, w) in &spheres[1..] {
+            sums.add(&MieCoefficients::new(x, m), w);
+        }
+        for theta in [0.0, 0.01, 0.7, 1.5707963, 2.9, 3.1, std::f64::consts::PI] {
+            let direct: f64 = spheres
+                .iter()
+                .map(|&(x, m, w)| {
+                    let (s1, s2) = MieCoefficients::new(x, m).weighted().amplitudes(f64::cos(theta));
+                    w * (s1.norm_sqr() + s2.norm_sqr())
+                })
+                .sum();
+            let got = sums.intensity(f64::cos(theta));
+            assert!((got / direct - 1.0).abs() < 1e-11, "theta {theta}: {got} vs {direct}");
+        }
     }
 
     /// Optical theorem in BH convention: Q_ext = 4/x² Re S(0), and S1(0) = S2(0), S2(π) = −S1(π).

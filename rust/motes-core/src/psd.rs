@@ -362,14 +362,55 @@ impl Psd {
     /// parts by Gauss–Legendre in ln r on panels no wider than `max_log_step` (in ln r), so that
     /// structure of g on that scale (e.g. the extinction ripple) is resolved where it matters.
     pub fn quadrature(&self, max_log_step: f64) -> (Vec<f64>, Vec<f64>) {
+        self.quadrature_resolving(max_log_step, None)
+    }
+
+    /// [`Psd::quadrature`], and with `ripple` the panels in its size-parameter range that carry
+    /// scattering (see [`RippleResolution`]) integrated by the midpoint rule on a grid uniform in
+    /// x = k r, at most `ripple.dx` apart: Mie's resonances in x are far narrower than any panel in ln r,
+    /// and equal weights on a fine uniform grid average them where Gauss–Legendre nodes alias them.
+    pub fn quadrature_resolving(&self, max_log_step: f64, ripple: Option<&RippleResolution>) -> (Vec<f64>, Vec<f64>) {
+        let step = max_log_step.clamp(1e-6, 1.0);
         let mut nodes = Vec::new();
         let mut weights = Vec::new();
-        self.push_quadrature(1.0, max_log_step.clamp(1e-6, 1.0), &mut nodes, &mut weights);
+        // The r²-weighted mass (∝ scattering) of the whole PSD, to skip panels that carry too little.
+        let ripple = ripple.filter(|q| q.dx > 0.0 && q.x_max > q.x_min).map(|q| {
+            self.push_quadrature(1.0, step, None, &mut nodes, &mut weights);
+            let m2: f64 = nodes.iter().zip(&weights).map(|(r, w)| w * r * r).sum();
+            nodes.clear();
+            weights.clear();
+            (q, q.min_share * m2)
+        });
+        self.push_quadrature(1.0, step, ripple, &mut nodes, &mut weights);
         (nodes, weights)
     }
 
-    fn push_quadrature(&self, scale: f64, step: f64, nodes: &mut Vec<f64>, weights: &mut Vec<f64>) {
+    fn push_quadrature(&self, scale: f64, step: f64, ripple: Option<(&RippleResolution, f64)>, nodes: &mut Vec<f64>, weights: &mut Vec<f64>) {
         let (x, w) = gauss_legendre(8);
+        // One panel [ta, tb] in t = ln r with `density(t)` per unit t (scale included): midpoints
+        // uniform in x where `ripple` asks for them, else the Gauss–Legendre nodes `gl`.
+        let emit = |ta: f64, tb: f64, gl: &[(f64, f64)], density: &dyn Fn(f64) -> f64, nodes: &mut Vec<f64>, weights: &mut Vec<f64>| {
+            if let Some((q, min_mass)) = ripple {
+                let (xa, xb) = (q.wavenumber_per_um * ta.exp(), q.wavenumber_per_um * tb.exp());
+                let m2: f64 = gl.iter().map(|(r, w)| w * r * r).sum();
+                if xb <= q.x_max && xb > q.x_min && m2 >= min_mass {
+                    let dx = q.dx * (xb / q.x_grow).max(1.0);
+                    let n = ((xb - xa) / dx).ceil().max(1.0) as usize;
+                    let h = (xb - xa) / n as f64;
+                    for i in 0..n {
+                        let xi = xa + (i as f64 + 0.5) * h;
+                        // ∫ g p dr = ∫ g density(t) dx / x.
+                        nodes.push(xi / q.wavenumber_per_um);
+                        weights.push(h * density((xi / q.wavenumber_per_um).ln()) / xi);
+                    }
+                    return;
+                }
+            }
+            for &(r, wt) in gl {
+                nodes.push(r);
+                weights.push(wt);
+            }
+        };
         // ∫_a^b g(r) p(r) dr with r = e^t.
         let panel = |a: f64, b: f64, density: &dyn Fn(f64) -> f64, nodes: &mut Vec<f64>, weights: &mut Vec<f64>| {
             let (ta, tb) = (a.ln(), b.ln());
@@ -377,11 +418,13 @@ impl Psd {
             let h = (tb - ta) / panels as f64;
             for k in 0..panels {
                 let t0 = ta + k as f64 * h;
-                for (xi, wi) in x.iter().zip(&w) {
-                    let r = (t0 + 0.5 * h * (1.0 + xi)).exp();
-                    nodes.push(r);
-                    weights.push(scale * 0.5 * h * wi * density(r) * r);
-                }
+                let per_t = |t: f64| scale * density(t.exp()) * t.exp();
+                let gl: Vec<(f64, f64)> = x.iter().zip(&w).map(|(xi, wi)| {
+                    let t = t0 + 0.5 * h * (1.0 + xi);
+                    let r = t.exp();
+                    (r, scale * 0.5 * h * wi * density(r) * r)
+                }).collect();
+                emit(t0, t0 + h, &gl, &per_t, nodes, weights);
             }
         };
         match self {
@@ -399,15 +442,22 @@ impl Psd {
                 let s_ln = sigma_g.ln();
                 let (zlo, zhi) = self.lognormal_z();
                 let mass = self.lognormal_mass();
+                let norm = scale / (2.0 * std::f64::consts::PI).sqrt() / mass;
                 let panels = (((zhi - zlo) * s_ln / step).ceil() as usize).max((2.0 * (zhi - zlo)).ceil() as usize).max(1);
                 let h = (zhi - zlo) / panels as f64;
+                let ln_med = median_um.ln();
+                // Density per unit ln r: φ(z) / (ln σ_g · mass).
+                let per_t = |t: f64| {
+                    let z = (t - ln_med) / s_ln;
+                    norm * (-0.5 * z * z).exp() / s_ln
+                };
                 for k in 0..panels {
                     let z0 = zlo + k as f64 * h;
-                    for (xi, wi) in x.iter().zip(&w) {
+                    let gl: Vec<(f64, f64)> = x.iter().zip(&w).map(|(xi, wi)| {
                         let z = z0 + 0.5 * h * (1.0 + xi);
-                        nodes.push(median_um * (z * s_ln).exp());
-                        weights.push(scale * 0.5 * h * wi * (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt() / mass);
-                    }
+                        (median_um * (z * s_ln).exp(), scale * 0.5 * h * wi * (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt() / mass)
+                    }).collect();
+                    emit(ln_med + z0 * s_ln, ln_med + (z0 + h) * s_ln, &gl, &per_t, nodes, weights);
                 }
             }
             Psd::Uniform { .. } => {
@@ -434,12 +484,28 @@ impl Psd {
                 let total: f64 = ws.iter().sum();
                 for (c, w) in components.iter().zip(ws) {
                     if *w > 0.0 {
-                        c.push_quadrature(scale * w / total, step, nodes, weights);
+                        c.push_quadrature(scale * w / total, step, ripple, nodes, weights);
                     }
                 }
             }
         }
     }
+}
+
+/// Where a radius quadrature must resolve Mie's ripple in the size parameter x = k r: panels that end in
+/// `x_min < x ≤ x_max` and carry at least `min_share` of the PSD's r²-weighted mass (∝ its
+/// scattering) are integrated on a grid uniform in x, `dx` apart (more above `x_grow`) (see [`Psd::quadrature_resolving`]).
+#[derive(Clone, Copy, Debug)]
+pub struct RippleResolution {
+    /// k = 2π η_medium / λ, µm⁻¹.
+    pub wavenumber_per_um: f64,
+    pub dx: f64,
+    /// Above this size parameter the spacing grows in proportion to x (`dx · x / x_grow`): the
+    /// resonances get denser and narrower, and a constant relative step samples them evenly.
+    pub x_grow: f64,
+    pub x_min: f64,
+    pub x_max: f64,
+    pub min_share: f64,
 }
 
 #[cfg(test)]
@@ -461,6 +527,26 @@ mod tests {
             let exact = 10f64.powi(k) * (0.5 * (k * k) as f64 * 2f64.ln().powi(2)).exp();
             let got: f64 = r.iter().zip(&w).map(|(r, w)| w * r.powi(k)).sum();
             assert!((got / exact - 1.0).abs() < 1e-10, "k={k}: {got} vs {exact}");
+        }
+    }
+
+    /// With ripple resolution the quadrature keeps the moments (midpoint rule, step ≤ dx in x) and puts
+    /// nodes at most dx/k apart across the resolved range (where the scattering is); beyond x_max the nodes are unchanged.
+    #[test]
+    fn ripple_resolution_keeps_moments() {
+        for psd in [lognormal(3.0, 1.5), Psd::Uniform { r_min_um: 0.5, r_max_um: 40.0 }] {
+            let k = 2.0 * std::f64::consts::PI / 0.55;
+            let q = RippleResolution { wavenumber_per_um: k, dx: 0.02, x_grow: 1e9, x_min: 2.0, x_max: 300.0, min_share: 1e-6 };
+            let (r0, w0) = psd.quadrature(0.05);
+            let (r, w) = psd.quadrature_resolving(0.05, Some(&q));
+            assert!(r.len() > 10 * r0.len());
+            for p in 0..=4 {
+                let m = |r: &[f64], w: &[f64]| r.iter().zip(w).map(|(r, w)| w * r.powi(p)).sum::<f64>();
+                assert!((m(&r, &w) / m(&r0, &w0) - 1.0).abs() < 1e-5, "moment {p}");
+            }
+            let inside: Vec<f64> = r.iter().map(|r| k * r).filter(|&x| x > 20.0 && x < 150.0).collect();
+            assert!(inside.windows(2).all(|x| x[1] > x[0] && x[1] - x[0] <= 0.02 * (1.0 + 1e-9)));
+            assert_eq!(r.iter().filter(|&&r| k * r > 320.0).count(), r0.iter().filter(|&&r| k * r > 320.0).count());
         }
     }
 

@@ -245,6 +245,7 @@ fn bulk_properties<'py>(
     hybrid_radius_um: f64,
     p_max: u32,
     max_log_step: f64,
+    mie_dx: Option<f64>,
     theta: F64In,
     with_phase: bool,
     truncate_below_rad: f64,
@@ -271,7 +272,8 @@ fn bulk_properties<'py>(
         (true, true) => PhaseAngles::Table,
         (true, false) => PhaseAngles::At(&theta),
     };
-    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step, refine_tol, refine_max_nodes };
+    let mie_dx = mie_dx.unwrap_or(ensemble::MIE_RIPPLE_DX);
+    let opts = BulkOptions { method, goa: GoaOptions { p_max, ..GoaOptions::default() }, max_log_step, mie_dx, refine_tol, refine_max_nodes };
     let out = py.detach(|| ensemble::bulk_spectral(&species, number_density_m3, &lam, eta_medium, angles, truncate_below_rad, &opts)).map_err(to_py)?;
     let col = |f: fn(&ensemble::Bulk) -> f64| out.bulk.iter().map(f).collect::<Vec<f64>>().into_pyarray(py);
     let phase = if out.theta.is_empty() { numpy::PyArray2::zeros(py, [nl, 0], false) } else { numpy::PyArray2::from_vec2(py, &out.phase)? };
