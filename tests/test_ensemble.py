@@ -3,6 +3,9 @@ sampled radii, ripple resolution against brute force, phase-function normalisati
 
 from __future__ import annotations
 
+import pathlib
+import re
+
 import numpy as np
 import pytest
 from hypothesis import example, given
@@ -253,6 +256,39 @@ def test_disk_cache(tmp_path, monkeypatch):
     assert motes.ensemble.cache_dir() is None
     motes.bulk_properties(sp, N0, [0.45])
     assert len(list(tmp_path.glob("bulk-*.npz"))) == 4
+
+
+def _source_hash() -> str:
+    """FNV-1a 64 of the Rust sources as rust/motes-py/build.rs computes it (paths relative to rust/)."""
+    rust = pathlib.Path(__file__).resolve().parents[1] / "rust"
+    files = sorted((p.relative_to(rust).as_posix(), p) for d in ("motes-core/src", "motes-py/src") for p in (rust / d).rglob("*") if p.is_file())
+    h = 0xCBF29CE484222325
+    for rel, path in files:
+        content = path.read_bytes()
+        for b in rel.encode() + b"\0" + len(content).to_bytes(8, "little") + content:
+            h = ((h ^ b) * 0x100000001B3) & 0xFFFFFFFFFFFFFFFF
+    return f"{h:016x}"
+
+
+def test_cache_is_keyed_by_the_core_sources(tmp_path, monkeypatch):
+    """Issue 9.5: the disk cache is keyed by a hash of the Rust sources embedded at build time, so a table
+    computed by other code is never served. The hash is that of the sources in this tree (fails if the
+    build script stops hashing them, or if the extension is stale: rebuild), and an entry written under
+    one hash is served under it but not under another."""
+    assert re.fullmatch(r"[0-9a-f]{16}", motes.CORE_HASH)
+    assert motes.CORE_HASH == motes._motes.core_hash() == _source_hash(), "extension built from other sources: rebuild"
+    monkeypatch.setenv("MOTES_CACHE_DIR", str(tmp_path))
+    sp = motes.Species(motes.LogNormal(5.0, 1.5), 1.33)
+    a = motes.bulk_properties(sp, N0, 0.5, phase=False)["sigma_t"][0]
+    (entry,) = tmp_path.glob("bulk-*.npz")
+    with np.load(entry) as z:
+        doctored = {k: z[k] for k in z.files}
+    doctored["sigma_t"] = 2 * doctored["sigma_t"]
+    np.savez(entry, **doctored)
+    assert motes.bulk_properties(sp, N0, 0.5, phase=False)["sigma_t"][0] == 2 * a  # served from the entry
+    monkeypatch.setattr(motes.ensemble, "CORE_HASH", "0123456789abcdef")
+    assert motes.bulk_properties(sp, N0, 0.5, phase=False)["sigma_t"][0] == a  # other code: recomputed
+    assert len(list(tmp_path.glob("bulk-*.npz"))) == 2
 
 
 def test_explicit_radius_lists():

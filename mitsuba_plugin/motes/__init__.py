@@ -46,7 +46,7 @@ from . import psd  # noqa: E402
 from .particle_io import ParticleSet, load_particles, save_particles
 from .particles import Gradient, Noise, ParticleGrid, density_box, extinction_um2, nearest_depth, query_radius_from_camera, uniform_box
 from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
-from .ensemble import DEFAULT_TRUNCATE_RAD, Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
+from .ensemble import CORE_HASH, DEFAULT_TRUNCATE_RAD, Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Radii, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,
@@ -74,6 +74,7 @@ __all__ = [
     "Noise",
     "query_radius_from_camera",
     "nearest_depth",
+    "CORE_HASH",
     "Material",
     "PhaseTable",
     "SpectralTable",

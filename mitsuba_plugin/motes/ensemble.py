@@ -125,10 +125,15 @@ def cache_dir() -> pathlib.Path | None:
     return pathlib.Path.home() / ".cache" / "motes"
 
 
+#: Hash of the Rust sources the extension was built from (``rust/motes-py/build.rs``): the disk cache is
+#: keyed by it, so a change of the physics never serves tables computed by older code.
+CORE_HASH: str = _motes.core_hash()
+
+
 def _cache_key(payload: dict) -> str:
     from . import __version__  # noqa: PLC0415
 
-    text = json.dumps({"format": _CACHE_FORMAT, "version": __version__, **payload}, sort_keys=True)
+    text = json.dumps({"format": _CACHE_FORMAT, "version": __version__, "core": CORE_HASH, **payload}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -158,7 +163,8 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
     """Bulk coefficients and the ensemble phase function of a cloud of ``species`` (see module docs).
 
     Results are cached on disk (``cache_dir()``), keyed by every argument, each species' PSD spec and
-    refractive index at each wavelength, and the package version; ``cache=False`` bypasses the cache.
+    refractive index at each wavelength, the package version and ``CORE_HASH`` (the Rust sources);
+    ``cache=False`` bypasses the cache.
 
     ``refine_tol`` (e.g. 0.01) refines the angle grid adaptively until the tabulated (piecewise-linear in
     cos theta) phase function is within that relative error of direct evaluation between its nodes,
@@ -274,4 +280,4 @@ class PhaseTable:
         return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
-__all__ = ["DEFAULT_TRUNCATE_RAD", "cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]
+__all__ = ["CORE_HASH", "DEFAULT_TRUNCATE_RAD", "cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]

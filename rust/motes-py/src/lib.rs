@@ -650,6 +650,13 @@ impl PyDiscreteMedium {
     }
 }
 
+/// FNV-1a 64 hash (hex) of the Rust sources this extension was built from (`build.rs`): it changes with
+/// the physics, so caches of computed tables key on it.
+#[pyfunction]
+fn core_hash() -> &'static str {
+    env!("MOTES_CORE_HASH")
+}
+
 #[pymodule]
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
@@ -669,6 +676,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(phase_table_sample, m)?)?;
     m.add_function(wrap_pyfunction!(phase_table_regular_mu, m)?)?;
     m.add_function(wrap_pyfunction!(material_index, m)?)?;
+    m.add_function(wrap_pyfunction!(core_hash, m)?)?;
     m.add_class::<PyParticleGrid>()?;
     m.add_class::<PyDiscreteMedium>()?;
     m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
