@@ -291,6 +291,22 @@ def test_cache_is_keyed_by_the_core_sources(tmp_path, monkeypatch):
     assert len(list(tmp_path.glob("bulk-*.npz"))) == 2
 
 
+def test_one_home_for_the_default_wavelengths():
+    """Issue 9.6: the default RGB and spectral wavelengths come from the Rust core, and every default
+    uses them: SpectralTable's default is SPECTRAL_WAVELENGTHS_UM (it was 0.36-0.83 um), as is
+    homogeneous_equivalent's spectral default; the values are the documented ones."""
+    assert motes.RGB_WAVELENGTHS_UM == (0.630, 0.532, 0.467)
+    assert motes.SPECTRAL_WAVELENGTHS_UM == tuple(np.linspace(0.38, 0.78, 8))
+    assert motes.RGB_WAVELENGTHS_UM == tuple(motes._motes.default_wavelengths()[0])
+    assert motes.equivalent.SPECTRAL_WAVELENGTHS_UM is motes.ensemble.SPECTRAL_WAVELENGTHS_UM
+    sp = motes.Species(motes.LogNormal(5.0, 1.5), motes.Material("water"))
+    table = motes.SpectralTable(sp, N0, phase=False)
+    np.testing.assert_array_equal(table.wavelength_um, motes.SPECTRAL_WAVELENGTHS_UM)
+    medium = motes.homogeneous_equivalent(sp, N0, color="spectral", tabphase_size=64)
+    nm = [w for w, _ in medium["sigma_t"]["value"]]
+    np.testing.assert_allclose(nm, np.array(motes.SPECTRAL_WAVELENGTHS_UM) * 1e3, rtol=1e-15)
+
+
 def test_explicit_radius_lists():
     """Bulk properties from an explicit list of radii equal the sum over those particles (the monodisperse
     values averaged); empty and one-particle lists raise errors saying what to do."""

@@ -45,8 +45,8 @@ _configure_llvm()  # before Dr.Jit loads (a no-op when DRJIT_LIBLLVM_PATH is set
 from . import psd  # noqa: E402
 from .particle_io import ParticleSet, load_particles, save_particles
 from .particles import Gradient, Noise, ParticleGrid, density_box, extinction_um2, nearest_depth, query_radius_from_camera, uniform_box
-from .equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, homogeneous_equivalent
-from .ensemble import CORE_HASH, DEFAULT_TRUNCATE_RAD, Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
+from .equivalent import homogeneous_equivalent
+from .ensemble import CORE_HASH, DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, PhaseTable, SpectralTable, Species, bulk_properties, pixel_footprint_rad
 from .psd import Histogram, LogNormal, Mixture, Monodisperse, Radii, Uniform
 from ._optics import (
     AUTO_SIZE_PARAMETER,

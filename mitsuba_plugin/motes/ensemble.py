@@ -99,6 +99,12 @@ class Species:
         return eta
 
 
+#: Representative wavelengths (um) of the R, G, B channels: the monochromatic primaries of ITU-R BT.2020
+#: (630, 532, 467 nm). ``SPECTRAL_WAVELENGTHS_UM``: the paper's 8 spectral samples over 380-780 nm
+#: (Sec. 6). Both from ``rust/motes-core/src/wavelengths.rs``, the one home of the defaults.
+RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM = (tuple(v) for v in _motes.default_wavelengths())
+
+
 def pixel_footprint_rad(fov_deg: float, width_px: int) -> float:
     """Angular size of one pixel (radians) of a camera with horizontal field of view ``fov_deg``."""
     if not (0 < fov_deg < 180) or int(width_px) < 1:
@@ -228,7 +234,7 @@ class SpectralTable:
 
     def __init__(self, species, number_density_m3: float, wavelength_um=None, **kwargs):
         if wavelength_um is None:
-            wavelength_um = np.linspace(0.36, 0.83, 8)
+            wavelength_um = SPECTRAL_WAVELENGTHS_UM
         lam = np.sort(np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64)))
         if lam.size < 2 or np.any(np.diff(lam) <= 0):
             raise ValueError("wavelength_um must hold at least 2 distinct wavelengths")
@@ -280,4 +286,4 @@ class PhaseTable:
         return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
-__all__ = ["CORE_HASH", "DEFAULT_TRUNCATE_RAD", "cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]
+__all__ = ["CORE_HASH", "DEFAULT_TRUNCATE_RAD", "RGB_WAVELENGTHS_UM", "SPECTRAL_WAVELENGTHS_UM", "cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]

@@ -36,15 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _motes
-from .ensemble import bulk_properties, pixel_footprint_rad
-
-#: Representative wavelengths (um) of the R, G, B channels: the monochromatic primaries of ITU-R BT.2020
-#: (630, 532, 467 nm), which lie on the spectral locus. A documented choice, not an integration against
-#: the channel responses.
-RGB_WAVELENGTHS_UM = (0.630, 0.532, 0.467)
-
-#: The paper's 8 spectral samples over the visible range (Sec. 6), in um.
-SPECTRAL_WAVELENGTHS_UM = tuple(np.linspace(0.38, 0.78, 8))
+from .ensemble import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, bulk_properties, pixel_footprint_rad
 
 
 def homogeneous_equivalent(species, number_density_m3: float, *, color: str = "rgb", wavelength_um=None,

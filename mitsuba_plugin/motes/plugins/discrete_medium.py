@@ -85,10 +85,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..discrete import DiscreteMedium
-from ..ensemble import Material, Species
-from ..ensemble import DEFAULT_TRUNCATE_RAD, pixel_footprint_rad
+from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import DEFAULT_TAU_MAX
-from ..equivalent import RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod

@@ -7,6 +7,7 @@
 //!   and the choice between Mie and GOA (`Method`), batched over many particles and angles.
 //! * [`grid`]: particles in space, optical depth along query cylinders and exact free flights.
 //! * [`discrete`]: the discrete medium as a renderer queries it (sites, albedo, phase function).
+//! * [`wavelengths`]: the default RGB and spectral wavelength sets.
 
 pub mod discrete;
 pub mod ensemble;
@@ -19,6 +20,7 @@ pub mod optics;
 pub mod phase_table;
 pub mod psd;
 pub mod quadrature;
+pub mod wavelengths;
 
 pub use error::OpticsError;
 pub use optics::{Method, Particle};

@@ -657,6 +657,12 @@ fn core_hash() -> &'static str {
     env!("MOTES_CORE_HASH")
 }
 
+/// The default wavelength sets (µm): (RGB, spectral), `motes_core::wavelengths`.
+#[pyfunction]
+fn default_wavelengths() -> (Vec<f64>, Vec<f64>) {
+    (motes_core::wavelengths::RGB_WAVELENGTHS_UM.to_vec(), motes_core::wavelengths::spectral_wavelengths_um().to_vec())
+}
+
 #[pymodule]
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mie_amplitudes, m)?)?;
@@ -677,6 +683,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(phase_table_regular_mu, m)?)?;
     m.add_function(wrap_pyfunction!(material_index, m)?)?;
     m.add_function(wrap_pyfunction!(core_hash, m)?)?;
+    m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;
     m.add_class::<PyParticleGrid>()?;
     m.add_class::<PyDiscreteMedium>()?;
     m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
