@@ -99,6 +99,11 @@ def _read_ply(path, scale_m):
 
     # meshio.read() ends the process (sys.exit) when no reader accepts a file; the PLY reader itself
     # raises ordinary exceptions, and SystemExit is caught too so that a bad file can never kill a render.
+    # meshio's header reader loops forever at end of file: a header cut before end_header must fail here.
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    if b"end_header" not in head:
+        _fail(path, "malformed PLY: no end_header line in the header (truncated or not a PLY file)")
     try:
         mesh = meshio.ply.read(path)
     except (Exception, SystemExit) as exc:  # noqa: BLE001
