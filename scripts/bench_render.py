@@ -146,7 +146,7 @@ def timing(motes, mi, out, quick):
         t_d, t_h, t_sym = [], [], []
         for rep in range(2):
             timer.seconds = bridge.seconds = 0.0
-            med.stats.update(intersect_calls=0, rays=0, events=0, nulls=0)
+            med._stats.update(intersect_calls=0, rays=0, events=0, nulls=0)
             td, img_d = render(mi, sd)
             t_d.append((td, timer.seconds, bridge.seconds))
             th, img_h = render(mi, sh)

@@ -6,9 +6,10 @@ cd "$(dirname "$0")/.."
 
 SUDO=""
 [ "$(id -u)" = 0 ] || SUDO="sudo"
-# libllvm19: Mitsuba's LLVM variants (Dr.Jit 1.5) need it; python3-venv for .venv; gcc for cc crates.
+# libllvm19: Mitsuba's LLVM variants (Dr.Jit 1.5) need it; python3-venv for .venv; gcc for cc crates;
+# g++ for the native render path (motes/native: a C++ Mitsuba plugin built against the installed wheel).
 need=""
-for pkg in libllvm19 python3-venv python3-dev gcc; do
+for pkg in libllvm19 python3-venv python3-dev gcc g++; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need="$need $pkg"
 done
 if [ -n "$need" ]; then
@@ -31,4 +32,5 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip
 # Editable install: maturin builds the extension in release mode into mitsuba_plugin/motes/.
 .venv/bin/python -m pip install -q -e '.[dev]'
-.venv/bin/python -c "import motes; print('motes', motes.__version__, 'ready')"
+# Compile the native render path now (cached per Mitsuba/Dr.Jit version) rather than at the first render.
+.venv/bin/python -c "import motes, motes.native as n; print('motes', motes.__version__, 'ready; native plugins in', n.build())"

@@ -104,9 +104,9 @@ __all__ = [
 __version__ = "0.1.0"
 
 from .discrete import DEFAULT_TAU_MAX, DiscreteMedium  # noqa: E402
-from .plugins import register, set_evaluated_mode, set_variant  # noqa: E402
+from .plugins import native_variants, register, set_evaluated_mode, set_variant  # noqa: E402
 
-__all__ += ["DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "register", "set_evaluated_mode", "set_variant"]
+__all__ += ["DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "native_variants", "register", "set_evaluated_mode", "set_variant"]
 
 
 def _register_if_mitsuba_is_ready() -> None:

@@ -144,13 +144,9 @@ def cmd_equivalent(args) -> int:
     species = motes.Species(motes.LogNormal(args.radius_median, args.radius_sigma_g),
                             motes.Material(args.material) if args.material else _index(args))
     d = motes.homogeneous_equivalent(species, args.density, scale_m=args.scale_m, tabphase_size=args.tabphase_size)
-    sigma, albedo, values = d["sigma_t"], d["albedo"], d["phase"]["values"]
-    print(f'<medium type="homogeneous" name="{args.name}">')
-    print(f'    <rgb name="sigma_t" value="{", ".join(f"{v:.6g}" for v in sigma["value"])}"/>')
-    print(f'    <float name="scale" value="{d.get("scale", 1.0):.6g}"/>')
-    print(f'    <rgb name="albedo" value="{", ".join(f"{v:.6g}" for v in albedo["value"])}"/>')
-    print(f'    <phase type="tabphase"><string name="values" value="{values}"/></phase>')
-    print("</medium>")
+    from motes.equivalent import equivalent_xml  # noqa: PLC0415
+
+    print(equivalent_xml(d, args.name))
     return 0
 
 

@@ -86,4 +86,19 @@ def homogeneous_equivalent(species, number_density_m3: float, *, color: str = "r
     }
 
 
-__all__ = ["RGB_WAVELENGTHS_UM", "SPECTRAL_WAVELENGTHS_UM", "homogeneous_equivalent"]
+
+
+def equivalent_xml(d: dict, name: str = "interior") -> str:
+    """The XML of a ``homogeneous_equivalent`` result (RGB): a ``homogeneous`` medium with a
+    ``tabphase`` phase function, to paste into a scene (``motes equivalent`` prints it)."""
+    sigma, albedo, values = d["sigma_t"], d["albedo"], d["phase"]["values"]
+    return "\n".join([
+        f'<medium type="homogeneous" name="{name}">',
+        f'    <rgb name="sigma_t" value="{", ".join(f"{v:.6g}" for v in sigma["value"])}"/>',
+        f'    <float name="scale" value="{d.get("scale", 1.0):.6g}"/>',
+        f'    <rgb name="albedo" value="{", ".join(f"{v:.6g}" for v in albedo["value"])}"/>',
+        f'    <phase type="tabphase"><string name="values" value="{values}"/></phase>',
+        "</medium>"])
+
+
+__all__ = ["RGB_WAVELENGTHS_UM", "SPECTRAL_WAVELENGTHS_UM", "equivalent_xml", "homogeneous_equivalent"]

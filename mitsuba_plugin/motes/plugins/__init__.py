@@ -6,8 +6,11 @@
   ``libLLVM-19.so`` when unset and present (it must happen before Dr.Jit loads, so ``import motes`` does it
   too); without a usable LLVM, a ``llvm_*`` request falls back to the matching ``scalar_*`` variant with a
   warning.
-* In JIT variants the plugins hand numpy batches to Rust, which needs the evaluated ("wavefront") mode:
-  ``SymbolicLoops`` and ``SymbolicCalls`` are switched off.
+* In ``scalar_rgb``, ``scalar_spectral``, ``llvm_ad_rgb`` and ``llvm_ad_spectral`` the plugins render through
+  the native C++ plugin (``motes.native``; built on first use), in Mitsuba's default symbolic mode. In the
+  other variants (or with ``MOTES_NATIVE=0``, or when it cannot be built: a warning says why) they hand
+  numpy batches to Rust, which in JIT variants needs the evaluated ("wavefront") mode: ``SymbolicLoops``
+  and ``SymbolicCalls`` are then switched off on the calling thread.
 * The plugins are registered for the variant (registration is per variant; ``register()`` does only that,
   and ``import motes`` calls it when a variant is already set).
 """
@@ -21,6 +24,13 @@ LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-l
                    "/usr/lib/llvm-19/lib/libLLVM.so")
 
 _registered: set[str] = set()
+_native: set[str] = set()
+
+
+def native_variants() -> frozenset[str]:
+    """Variants registered with the native render path (``motes.native``); the others use the
+    evaluated-mode Python path."""
+    return frozenset(_native)
 
 
 def configure_llvm() -> str | None:
@@ -41,8 +51,16 @@ def register() -> None:
     variant = mi.variant()
     if variant is None:
         raise RuntimeError("motes.register(): set a Mitsuba variant first (motes.set_variant(...))")
-    if variant.startswith(("llvm_", "cuda_")):
-        # The plugins hand numpy batches to Rust: evaluated mode, on this thread (Dr.Jit's flags are
+    if variant not in _registered:
+        from .. import native
+
+        if native.load(variant):
+            _native.add(variant)
+        elif variant in native.NATIVE_VARIANTS and native.requested():
+            warnings.warn(f"motes: the native render path is unavailable ({native.failure()}); {variant} renders "
+                          "through the slower evaluated-mode Python path", RuntimeWarning, stacklevel=2)
+    if variant.startswith(("llvm_", "cuda_")) and variant not in _native:
+        # The Python path hands numpy batches to Rust: evaluated mode, on this thread (Dr.Jit's flags are
         # per thread; a render from another thread must call motes.set_evaluated_mode() there first).
         set_evaluated_mode(True)
     if variant in _registered:
@@ -85,10 +103,8 @@ def set_variant(name: str = "llvm_ad_rgb") -> str:
                       "Install libllvm19 (apt) for the LLVM variants.", RuntimeWarning, stacklevel=2)
         mi.set_variant(fallback)
         name = fallback
-    if name.startswith(("llvm_", "cuda_")):
-        set_evaluated_mode(True)
     register()
     return name
 
 
-__all__ = ["configure_llvm", "register", "set_evaluated_mode", "set_variant"]
+__all__ = ["configure_llvm", "native_variants", "register", "set_evaluated_mode", "set_variant"]

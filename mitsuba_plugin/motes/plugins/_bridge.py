@@ -12,6 +12,13 @@ def is_jit() -> bool:
     return dr.is_jit_v(mi.Float)
 
 
+def symbolic_mode() -> bool:
+    """Whether Dr.Jit traces loops and calls symbolically on this thread (Mitsuba's default; scalar
+    variants count as symbolic: a path runs on one thread there too). The native plugins keep per-thread
+    state and need it (``rust/motes-core/src/discrete.rs``, "One packet at a time")."""
+    return not is_jit() or (dr.flag(dr.JitFlag.SymbolicLoops) and dr.flag(dr.JitFlag.SymbolicCalls))
+
+
 def require_evaluated_mode() -> None:
     """One-sentence error instead of Dr.Jit's ``jit_var_schedule ... not permitted`` when a JIT render runs
     in symbolic mode (e.g. from a thread that never switched: Dr.Jit's flags are per thread)."""

@@ -90,7 +90,7 @@ from ..discrete import DEFAULT_TAU_MAX
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod
-from ._bridge import bind_to_variant, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
+from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -278,11 +278,25 @@ class DiscreteMediumPlugin:
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
                              "(the medium supplies the particles it scatters from)")
-        phase.attach(self.data)
-        self.stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
+        self._native = self._native_phase = None
+        if native_in_use():
+            self._native, self._native_phase = _native_objects(self.data, bool(self.m_sample_emitters))
+        phase.attach(self.data, self._native_phase)
+        self._stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
+
+    @property
+    def stats(self) -> dict:
+        """Counters of the render path so far: rays and events (both paths), batched intersect calls
+        and null collisions (the evaluated-mode path)."""
+        rays, events = self.data.core.native_counts
+        return dict(self._stats, rays=self._stats["rays"] + rays, events=self._stats["events"] + events)
 
     # -- Mitsuba interface -------------------------------------------------------------------------
+    # Each method hands the whole call to the native plugin when there is one (traced once into
+    # Mitsuba's symbolic kernel in LLVM variants), else goes through numpy batches (evaluated mode).
     def intersect_aabb(self, ray):
+        if self._native is not None and symbolic_mode():
+            return self._native.intersect_aabb(ray)
         require_evaluated_mode()
         o, d = vec3(ray.o), vec3(ray.d)
         n = o.shape[0]
@@ -290,8 +304,8 @@ class DiscreteMediumPlugin:
         # Every event is remembered (module docs): t_max cannot tell scattered from shadow rays.
         t, _ = self.data.core.sample_sites(o.ravel(), d.ravel(), t_max, np.ones(n, dtype=bool))
         hit = np.isfinite(t)
-        self.stats["intersect_calls"] += 1
-        self.stats["rays"] += n
+        self._stats["intersect_calls"] += 1
+        self._stats["rays"] += n
         mint = np.where(hit, t, np.inf).astype(np.float32)
         maxt = np.where(hit, np.inf, -np.inf).astype(np.float32)
         if is_jit():
@@ -299,27 +313,54 @@ class DiscreteMediumPlugin:
         return bool(hit[0]), float(mint[0]), float(maxt[0])
 
     def get_majorant(self, mei, active=True):
+        if self._native is not None and symbolic_mode():
+            return self._native.get_majorant(mei, active)
         # MAJORANT where intersect_aabb found a site, 0 elsewhere: integrators that weight by
         # exp(-t * majorant) over the whole segment (prbvolpath) then give escaping rays weight 1.
         n = max(dr.width(mei.wi), np.size(np.asarray(active)))
         return spectrum(np.where(mask(active, n), MAJORANT, 0.0)[:, None], n)
 
     def get_scattering_coefficients(self, mei, active=True):
+        if self._native is not None and symbolic_mode():
+            return self._native.get_scattering_coefficients(mei, active)
         p = vec3(mei.p)
         n = p.shape[0]
         act = mask(active, n)
         lam, ch = channel_wavelengths(self.data, mei, n)
         albedo = self.data.core.commit_events(p.ravel(), act, lam, ch).reshape(n, ch)
-        self.stats["events"] += int(act.sum())
+        self._stats["events"] += int(act.sum())
         sigma_t = np.where(act, MAJORANT, 0.0)[:, None]
         sigma_n = np.zeros((n, 1))  # every tentative collision is real (module docs)
-        self.stats["nulls"] += int((act & (sigma_n[:, 0] > 0)).sum())
+        self._stats["nulls"] += int((act & (sigma_n[:, 0] > 0)).sum())
         return (spectrum(albedo * sigma_t, n), spectrum(sigma_n, n), spectrum(sigma_t, n))
 
     def to_string(self):
         d = self.data
         return (f"DiscreteMedium[particles={len(d)}, bins={d.n_bins}, query_radius={d.query_radius:g}, "
                 f"scale_m={d.scale_m:g}, bytes={d.bytes}]")
+
+
+def native_in_use() -> bool:
+    """Whether the current variant renders through the native plugins (``motes.native``)."""
+    from . import native_variants
+
+    return mi.variant() in native_variants()
+
+
+def _native_objects(data: DiscreteMedium, sample_emitters: bool):
+    """The native medium and phase function over ``data``'s Rust medium (``motes/native/motes_native.cpp``);
+    each holds its own reference to it."""
+    from .. import _motes
+
+    def common():
+        d = {"api": int(_motes.NATIVE_API), "medium": int(data.core.native_handle())}
+        if mi.is_rgb:
+            d.update({f"channel_nm_{c}": float(x) for c, x in enumerate(data.channel_wavelength_nm)})
+        return d
+
+    phase = mi.load_dict({"type": "motes_particle_native", **common()})
+    medium = mi.load_dict({"type": "motes_discrete_native", "sample_emitters": sample_emitters, "phase": phase, **common()})
+    return medium, phase
 
 
 _classes: dict = {}

@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ._bridge import bind_to_variant, channel_wavelengths, floats, spectrum, vec3, vector3
+from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, floats, spectrum, vec3, vector3
 
 
 def _require_medium(medium) -> None:
@@ -43,16 +43,20 @@ class ParticlePhase:
         mi.PhaseFunction.__init__(self, props)
         self.m_flags = mi.PhaseFunctionFlags.Anisotropic
         self._medium = None  # motes.discrete.DiscreteMedium, set by the discrete medium
+        self._native = None  # its native phase function (motes.native), when that path is in use
 
     is_motes_particle_phase = True
 
-    def attach(self, medium) -> None:
+    def attach(self, medium, native=None) -> None:
         self._medium = medium
+        self._native = native
 
     def _channels(self, mei, n):
         return channel_wavelengths(self._medium, mei, n)
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
+        if self._native is not None and symbolic_mode():
+            return self._native.sample(ctx, mei, sample1, sample2, active)
         n = max(np.size(np.asarray(sample1)), np.size(np.asarray(sample2.x)), dr.width(mei.p), dr.width(mei.wi))
         p, wi = vec3(mei.p, n), vec3(mei.wi, n)
         _require_medium(self._medium)
@@ -64,6 +68,8 @@ class ParticlePhase:
         return vector3(wo.reshape(n, 3)), spectrum(w.reshape(n, ch), n), floats(pdf)
 
     def eval_pdf(self, ctx, mei, wo, active=True):
+        if self._native is not None and symbolic_mode():
+            return self._native.eval_pdf(ctx, mei, wo, active)
         n = max(dr.width(mei.p), dr.width(mei.wi), dr.width(wo))
         p, wi, w = vec3(mei.p, n), vec3(mei.wi, n), vec3(wo, n)
         _require_medium(self._medium)

@@ -115,6 +115,23 @@ fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
     out.map(|x| if total > 0.0 { (x / total) as f32 } else { 0.0 })
 }
 
+/// The event remembered at a site: the path's channel throughput after the site's albedo `a` (module
+/// docs), from the throughput `parent` of the event the ray started at (zeros: unknown).
+fn event_after(site: Site, parent: &[f32; MAX_CHANNELS], a: &[f64]) -> Event {
+    let known = parent.iter().any(|&x| x > 0.0);
+    let t_in = if a.len() <= MAX_CHANNELS {
+        normalised_throughput(a.iter().enumerate().map(|(c, &x)| if known { parent[c] as f64 * x } else { x }))
+    } else {
+        [0.0; MAX_CHANNELS]
+    };
+    Event { site, t_in, t_out: t_in }
+}
+
+/// Bits of a ray's origin and direction, mixed (FNV-style): the ray's share of its random numbers.
+fn ray_bits(o: &[f32; 3], d: &[f32; 3]) -> u64 {
+    o.iter().chain(d.iter()).fold(0u64, |h, x| (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3))
+}
+
 /// Uniform channel choice.
 fn uniform_channels(channels: usize) -> Vec<f64> {
     vec![1.0 / channels as f64; channels]
@@ -225,6 +242,11 @@ pub struct DiscreteMedium {
     pending: Mutex<FxHashMap<std::thread::ThreadId, Vec<Pending>>>,
     seed: u64,
     calls: AtomicU64,
+    /// Identifies the medium's per-thread state in the packet interface.
+    id: u64,
+    /// Rays and events of the packet interface so far (statistics).
+    packet_rays: AtomicU64,
+    packet_events: AtomicU64,
 }
 
 /// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
@@ -293,7 +315,7 @@ impl DiscreteMedium {
         // be ordered reliably, so they form one site.
         let coincide = 1e-6 * extent.max(1e-30);
         let events = EventMap { current: FxHashMap::default(), previous: FxHashMap::default(), capacity: 1 << 16 };
-        Ok(DiscreteMedium { grid, tau, reach, c_ext, widened, bin, bins, lambda, coincide, events: RwLock::new(events), pending: Mutex::new(FxHashMap::default()), seed, calls: AtomicU64::new(0) })
+        Ok(DiscreteMedium { grid, tau, reach, c_ext, widened, bin, bins, lambda, coincide, events: RwLock::new(events), pending: Mutex::new(FxHashMap::default()), seed, calls: AtomicU64::new(0), id: MEDIUM_IDS.fetch_add(1, Ordering::Relaxed), packet_rays: AtomicU64::new(0), packet_events: AtomicU64::new(0) })
     }
 
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
@@ -359,16 +381,9 @@ impl DiscreteMedium {
             .zip(d.par_iter().zip(t_max.par_iter()))
             .enumerate()
             .map(|(lane, (oo, (dd, &tm)))| {
-                let (Some(dir), true) = (normalise(dd.map(|x| x as f64)), oo.iter().all(|x| x.is_finite())) else {
-                    return (None, 0.0, [0.0; MAX_CHANNELS]);
-                };
-                let parent = events.get(&key(*oo)).copied().unwrap_or_default();
-                let excluded = parent.site;
                 // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
-                let bits = oo.iter().chain(dd.iter()).fold(0u64, |h, x| (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3));
-                let u = uniform(self.seed ^ bits, call, lane as u64);
-                let (site, tau) = self.grid.sample_site(oo.map(|x| x as f64), dir, 0.0, tm, excluded.members(), u, self.coincide);
-                (site, tau, parent.t_out)
+                let u = uniform(self.seed ^ ray_bits(oo, dd), call, lane as u64);
+                self.lane_free_flight(&events, *oo, *dd, tm, u)
             })
             .collect();
         drop(events);
@@ -376,6 +391,17 @@ impl DiscreteMedium {
         let pending = res.into_iter().zip(remember).map(|(r, &keep)| (r.0, keep, r.2)).collect();
         self.pending.lock().unwrap().insert(std::thread::current().id(), pending);
         out
+    }
+
+    /// One ray's free flight to its next site (skipping the particles of the event it starts at), the
+    /// optical depth walked before it and the throughput of that parent event; `u` uniform in [0, 1).
+    fn lane_free_flight(&self, events: &EventMap, o: [f32; 3], d: [f32; 3], t_max: f64, u: f64) -> (Option<Site>, f64, [f32; MAX_CHANNELS]) {
+        let (Some(dir), true) = (normalise(d.map(|x| x as f64)), o.iter().all(|x| x.is_finite())) else {
+            return (None, 0.0, [0.0; MAX_CHANNELS]);
+        };
+        let parent = events.get(&key(o)).copied().unwrap_or_default();
+        let (site, tau) = self.grid.sample_site(o.map(|x| x as f64), dir, 0.0, t_max, parent.site.members(), u, self.coincide);
+        (site, tau, parent.t_out)
     }
 
     /// Record the events of this thread's last [`Self::sample_sites`] call at the positions the renderer placed
@@ -399,15 +425,7 @@ impl DiscreteMedium {
         events.capacity = events.capacity.max(4 * n);
         for i in 0..n {
             if let (true, (Some(site), true, parent)) = (active[i], pending[i]) {
-                // The path's channel throughput after this event's albedo (module docs).
-                let a = &albedo[i * channels..(i + 1) * channels];
-                let known = parent.iter().any(|&x| x > 0.0);
-                let t_in = if channels <= MAX_CHANNELS {
-                    normalised_throughput((0..channels).map(|c| if known { parent[c] as f64 * a[c] } else { a[c] }))
-                } else {
-                    [0.0; MAX_CHANNELS]
-                };
-                events.insert(key(p[i]), Event { site, t_in, t_out: t_in });
+                events.insert(key(p[i]), event_after(site, &parent, &albedo[i * channels..(i + 1) * channels]));
             }
         }
         Ok(albedo)
@@ -576,20 +594,26 @@ impl DiscreteMedium {
         let res: Vec<(Vec<f64>, f64)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let mut v = vec![0.0; channels];
-                let dirs = normalise(wi[i].map(|x| -(x as f64))).zip(normalise(wo[i].map(|x| x as f64)));
-                let Some((w_in, w_out)) = dirs else { return (v, 0.0) };
-                let Some(e) = self.event_or_geometry(&events, p[i], w_in) else { return (v, 0.0) };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
-                let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
-                let pi = event_channels(&e, channels);
-                let pdf = self.mixture_phase(e.site.members(), &|j| self.tau[j as usize] as f64, &ls, &pi, mu, &mut v);
+                let mut v = vec![0.0; channels];
+                let pdf = self.lane_phase_eval(&events, p[i], wi[i], wo[i], lam, &mut v);
                 (v, pdf)
             })
             .collect();
         let pdf = res.iter().map(|r| r.1).collect();
         (res.into_iter().flat_map(|r| r.0).collect(), pdf)
+    }
+
+    /// One lane of [`Self::phase_eval`]: the values into `v` (one per wavelength of `lam`), the pdf returned.
+    fn lane_phase_eval(&self, events: &EventMap, p: [f32; 3], wi: [f32; 3], wo: [f32; 3], lam: &[f64], v: &mut [f64]) -> f64 {
+        v.iter_mut().for_each(|x| *x = 0.0);
+        let dirs = normalise(wi.map(|x| -(x as f64))).zip(normalise(wo.map(|x| x as f64)));
+        let Some((w_in, w_out)) = dirs else { return 0.0 };
+        let Some(e) = self.event_or_geometry(events, p, w_in) else { return 0.0 };
+        let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+        let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
+        let pi = event_channels(&e, lam.len());
+        self.mixture_phase(e.site.members(), &|j| self.tau[j as usize] as f64, &ls, &pi, mu, v)
     }
 
     /// Sample the phase function of the event at `p` (module docs): outgoing directions, weights
@@ -600,17 +624,8 @@ impl DiscreteMedium {
         let res: Vec<(Sample, Option<[f32; MAX_CHANNELS]>)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let Some(w_in) = normalise(wi[i].map(|x| -(x as f64))) else { return (null_sample(channels), None) };
-                let Some(e) = self.event_or_geometry(&events, p[i], w_in) else { return (null_sample(channels), None) };
                 let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
-                let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                let pi = event_channels(&e, channels);
-                let sample = self.weighted_sample(e.site.members(), &|j| self.tau[j as usize] as f64, &ls, &pi, w_in, u1[i], u2[i]);
-                // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
-                let known = e.t_in.iter().any(|&x| x > 0.0);
-                let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0)
-                    .then(|| normalised_throughput((0..channels).map(|c| if known { e.t_in[c] as f64 } else { 1.0 } * sample.1[c])));
-                (sample, t_out)
+                self.lane_phase_sample(&events, p[i], wi[i], lam, u1[i], u2[i])
             })
             .collect();
         drop(events);
@@ -622,6 +637,22 @@ impl DiscreteMedium {
         }
         drop(events);
         unzip_samples(res.into_iter().map(|r| r.0).collect())
+    }
+
+    /// One lane of [`Self::phase_sample`]: the sample and the path's throughput after it (to store as
+    /// the event's `t_out`).
+    fn lane_phase_sample(&self, events: &EventMap, p: [f32; 3], wi: [f32; 3], lam: &[f64], u1: f64, u2: [f64; 2]) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
+        let channels = lam.len();
+        let Some(w_in) = normalise(wi.map(|x| -(x as f64))) else { return (null_sample(channels), None) };
+        let Some(e) = self.event_or_geometry(events, p, w_in) else { return (null_sample(channels), None) };
+        let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+        let pi = event_channels(&e, channels);
+        let sample = self.weighted_sample(e.site.members(), &|j| self.tau[j as usize] as f64, &ls, &pi, w_in, u1, u2);
+        // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
+        let known = e.t_in.iter().any(|&x| x > 0.0);
+        let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0)
+            .then(|| normalised_throughput((0..channels).map(|c| if known { e.t_in[c] as f64 } else { 1.0 } * sample.1[c])));
+        (sample, t_out)
     }
 
     /// The remembered event at `p`, or else the site found from the geometry (uniform channels).
@@ -639,6 +670,150 @@ impl DiscreteMedium {
         require("particles (count)", particles.len() as f64, !particles.is_empty(), ">= 1")?;
         self.events.write().unwrap().insert(key(p), Event { site: s, ..Event::default() });
         Ok(())
+    }
+}
+
+/// Lanes of one SIMD packet at most (Dr.Jit's widest LLVM vector; scalar variants use one).
+pub const PACKET_LANES: usize = 16;
+
+/// A lane's site awaiting its commit in the packet interface.
+#[derive(Clone, Copy, Default)]
+struct PendingLane {
+    site: Option<Site>,
+    parent: [f32; MAX_CHANNELS],
+}
+
+/// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
+const PACKET_EVENT_CAPACITY: usize = 4096;
+/// Media whose per-thread state a thread keeps before it forgets all but the one in use.
+const PACKET_MEDIA_KEPT: usize = 8;
+
+/// One thread's state of the packet interface for one medium: the pending sites of its last packet of
+/// free flights, and its events.
+struct PacketState {
+    pending: [PendingLane; PACKET_LANES],
+    events: EventMap,
+}
+
+impl Default for PacketState {
+    fn default() -> Self {
+        let events = EventMap { current: FxHashMap::default(), previous: FxHashMap::default(), capacity: PACKET_EVENT_CAPACITY };
+        PacketState { pending: [PendingLane::default(); PACKET_LANES], events }
+    }
+}
+
+thread_local! {
+    /// The packet interface's per-thread state, by medium id (see "One packet at a time").
+    static PACKET_STATE: std::cell::RefCell<FxHashMap<u64, PacketState>> = std::cell::RefCell::new(FxHashMap::default());
+}
+
+/// Ids of media (never reused, unlike addresses).
+static MEDIUM_IDS: AtomicU64 = AtomicU64::new(1);
+
+/// A ray of the packet interface: origin, direction, t_max.
+pub type PacketRay = ([f32; 3], [f32; 3], f32);
+
+/// # One packet at a time (the native render path)
+/// Mitsuba's symbolic LLVM kernels call native code once per SIMD packet (up to [`PACKET_LANES`] lanes;
+/// scalar variants once per ray). A packet runs its paths from start to end on one thread, and a
+/// medium's `sample_interaction` calls `intersect_aabb` and then `get_scattering_coefficients` with no
+/// other free flight of that thread in between. So the packet interface keeps its state per thread and
+/// medium, without locks: the sites of the last packet of free flights wait in a slot until
+/// [`Self::packet_commit`] remembers them, and the events live in a per-thread [`EventMap`] (a path's
+/// events are looked up by its own next rays only). This contract does not hold in Dr.Jit's evaluated
+/// mode, where a wavefront's kernels may run a lane on different threads: there the batch interface
+/// ([`Self::sample_sites`] and the rest) is the one to use. Inactive lanes are `None`. The free
+/// flight's random number is a hash of the ray and the seed: a render is a function of the scene, the
+/// sampler's seed and spp, whatever the thread schedule.
+impl DiscreteMedium {
+    /// Rays and events that went through the packet interface so far.
+    pub fn packet_counts(&self) -> (u64, u64) {
+        (self.packet_rays.load(Ordering::Relaxed), self.packet_events.load(Ordering::Relaxed))
+    }
+
+    /// This thread's packet state for this medium.
+    fn with_packet_state<R>(&self, f: impl FnOnce(&mut PacketState) -> R) -> R {
+        PACKET_STATE.with(|cell| {
+            let mut states = cell.borrow_mut();
+            if !states.contains_key(&self.id) && states.len() >= PACKET_MEDIA_KEPT {
+                states.clear(); // media come and go (tests, notebooks): forget the old ones
+            }
+            f(states.entry(self.id).or_default())
+        })
+    }
+
+    /// Free flights of a packet: the distance to each lane's next site (None: the ray leaves [0, t_max)).
+    pub fn packet_free_flights(&self, rays: &[Option<PacketRay>], t: &mut [Option<f64>]) {
+        self.packet_rays.fetch_add(rays.iter().filter(|r| r.is_some()).count() as u64, Ordering::Relaxed);
+        self.with_packet_state(|st| {
+            for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
+                st.pending[i] = PendingLane::default();
+                t[i] = None;
+                let Some((o, d, t_max)) = *ray else { continue };
+                let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
+                let (site, _, parent) = self.lane_free_flight(&st.events, o, d, t_max as f64, u);
+                st.pending[i] = PendingLane { site, parent };
+                t[i] = site.map(|s| s.t);
+            }
+        })
+    }
+
+    /// Remember the events of this thread's last packet of free flights at the positions the renderer
+    /// placed them (`p`, None for lanes without an event) and write each lane's albedo (`channels` per
+    /// lane into `albedo`) at its wavelengths (`lambda`: `channels` shared, or `channels` per lane).
+    pub fn packet_commit(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize, albedo: &mut [f64]) {
+        let shared = lambda.len() == channels;
+        self.with_packet_state(|st| {
+            let mut committed = 0;
+            for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
+                let a = &mut albedo[i * channels..(i + 1) * channels];
+                a.iter_mut().for_each(|x| *x = 0.0);
+                let (Some(pos), Some(site)) = (*pos, st.pending[i].site) else { continue };
+                let lam = if shared { lambda } else { &lambda[i * channels..(i + 1) * channels] };
+                for (c, &l) in lam.iter().enumerate() {
+                    a[c] = self.site_albedo(&site, self.bracket(l));
+                }
+                st.events.insert(key(pos), event_after(site, &st.pending[i].parent, a));
+                committed += 1;
+            }
+            self.packet_events.fetch_add(committed, Ordering::Relaxed);
+        })
+    }
+
+    /// Sample the phase functions of a packet's events: lanes (p, wi, u1, u2) → `wo` and `pdf` (0 where
+    /// there is no event); the events' throughputs are updated as [`Self::phase_sample`] does.
+    pub fn packet_phase_sample(&self, lanes: &[Option<([f32; 3], [f32; 3], f64, [f64; 2])>], lambda: &[f64], channels: usize, wo: &mut [[f64; 3]], pdf: &mut [f64]) {
+        let shared = lambda.len() == channels;
+        self.with_packet_state(|st| {
+            for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
+                (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
+                let Some((p, wi, u1, u2)) = *lane else { continue };
+                let lam = if shared { lambda } else { &lambda[i * channels..(i + 1) * channels] };
+                let (sample, t_out) = self.lane_phase_sample(&st.events, p, wi, lam, u1, u2);
+                (wo[i], pdf[i]) = (sample.0, sample.2);
+                if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(p))) {
+                    e.t_out = t;
+                }
+            }
+        })
+    }
+
+    /// Evaluate the phase functions of a packet's events: lanes (p, wi, wo) → `values` (`channels` per
+    /// lane) and `pdf`.
+    pub fn packet_phase_eval(&self, lanes: &[Option<([f32; 3], [f32; 3], [f32; 3])>], lambda: &[f64], channels: usize, values: &mut [f64], pdf: &mut [f64]) {
+        let shared = lambda.len() == channels;
+        self.with_packet_state(|st| {
+            for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
+                let v = &mut values[i * channels..(i + 1) * channels];
+                pdf[i] = 0.0;
+                let Some((p, wi, w)) = *lane else {
+                    v.iter_mut().for_each(|x| *x = 0.0);
+                    continue;
+                };
+                let lam = if shared { lambda } else { &lambda[i * channels..(i + 1) * channels] };
+                pdf[i] = self.lane_phase_eval(&st.events, p, wi, w, lam, v);
+            }
+        })
     }
 }
 

@@ -1,6 +1,8 @@
 //! `motes._motes`: the compiled extension. Every function takes flat, equally long float64 arrays
 //! (broadcasting happens in the Python layer), releases the GIL, and runs rayon inside.
 
+mod native;
+
 use motes_core::goa::GoaOptions;
 use motes_core::optics::{self, Method, ParticleColumns, Theory};
 use motes_core::OpticsError;
@@ -486,7 +488,7 @@ fn vec3s(a: &F32In, what: &str) -> PyResult<Vec<[f32; 3]>> {
 /// The discrete medium as the renderer queries it (see `motes_core::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
 struct PyDiscreteMedium {
-    medium: motes_core::discrete::DiscreteMedium,
+    medium: std::sync::Arc<motes_core::discrete::DiscreteMedium>,
 }
 
 #[pymethods]
@@ -524,7 +526,19 @@ impl PyDiscreteMedium {
         let medium = py
             .detach(|| motes_core::discrete::DiscreteMedium::build(&pos, &r, &c, b, bins, lam, query_radius, tau_max, cells_per_particle, seed))
             .map_err(to_py)?;
-        Ok(PyDiscreteMedium { medium })
+        Ok(PyDiscreteMedium { medium: std::sync::Arc::new(medium) })
+    }
+
+    /// A new strong reference to the core medium for the native plugins (an address; they release it
+    /// through the native API's `release`).
+    fn native_handle(&self) -> usize {
+        native::handle(&self.medium)
+    }
+
+    /// (rays, events) that went through the native render path so far.
+    #[getter]
+    fn native_counts(&self) -> (u64, u64) {
+        self.medium.packet_counts()
     }
 
     /// Next site per ray on (0, t_max): (t or NaN, optical depth walked before it); the events of
@@ -687,5 +701,9 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyParticleGrid>()?;
     m.add_class::<PyDiscreteMedium>()?;
     m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
+    // The native render path's C interface (rust/motes-py/src/native.rs): its address and version.
+    m.add("NATIVE_API", &native::API as *const native::NativeApi as usize)?;
+    m.add("NATIVE_ABI", native::NATIVE_ABI)?;
+
     Ok(())
 }

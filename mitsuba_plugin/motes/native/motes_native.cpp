@@ -1,0 +1,295 @@
+// motes_native: the native render path of the `discrete` medium and the `particle` phase function.
+//
+// Two Mitsuba 3.9 plugins in one library, built against the installed Mitsuba/Dr.Jit wheels by
+// motes/native/__init__.py (the library is symlinked as plugins/motes_discrete_native.so and
+// plugins/motes_particle_native.so; init_plugin registers the one it is loaded as):
+//
+// ======================  ========  =========================================================
+// Parameter               Type      Meaning
+// ======================  ========  =========================================================
+// api                     integer   address of the Rust core's NativeApi (motes._motes.NATIVE_API)
+// medium                  integer   a strong reference to the core medium (DiscreteMedium.native_handle())
+// channel_nm_0..2         float     RGB variants: the wavelength of each channel, nm
+// ======================  ========  =========================================================
+//
+// Users never write these: the Python `discrete` plugin parses the scene's parameters, builds the
+// particles and optics in Rust and creates these objects. All physics is in the Rust core
+// (rust/motes-core/src/discrete.rs); this file only moves rays in and results out:
+//
+// * LLVM variants: each query is one `jit_llvm_ray_trace` call, the hook Mitsuba's own CPU ray tracers
+//   use: inside Mitsuba's default *symbolic* kernels, drjit-core calls `packet<Width>` once per SIMD packet
+//   with Embree's ray/hit record (structure of arrays), which goes unchanged to Rust (`motes_packet`,
+//   rust/motes-py/src/native.rs, documents which fields each operation reads and writes). Outputs come
+//   back as the hit flag, t (= tfar), u, v, prim_id and inst_id.
+// * Scalar variants: the same Rust function is called directly with a one-lane record.
+//
+// Medium: `intersect_aabb` returns the next particle site as `mint` (Rust samples the free flight
+// exactly), `get_majorant` a huge constant so that Mitsuba's tentative distance lands on the site, and
+// `get_scattering_coefficients` sigma_t = that constant, sigma_n = 0 and sigma_s = albedo * sigma_t (the
+// site is committed as an event there): every tentative collision is real, sigma_t <= majorant.
+// Phase function: `sample` (a direction and pdf from Rust, then the values by `eval_pdf`) and `eval_pdf`.
+#include <mitsuba/core/properties.h>
+#include <mitsuba/render/medium.h>
+#include <mitsuba/render/phase.h>
+#include <drjit-core/jit.h>
+#include <cstddef>
+#include <cstring>
+
+NAMESPACE_BEGIN(mitsuba)
+
+/// The Rust core's C interface (rust/motes-py/src/native.rs: NativeApi); abi must match.
+struct MotesNativeApi {
+    uint32_t abi;
+    void (*packet)(const void *medium, uint32_t op, uint32_t width, const int32_t *valid, uint8_t *args,
+                   const double *lambda, uint32_t channels);
+    void (*release)(const void *medium);
+};
+static constexpr uint32_t MOTES_NATIVE_ABI = 1;
+enum MotesOp : uint32_t { FreeFlight = 0, Commit = 1, PhaseSample = 2, PhaseEval = 3 };
+/// sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
+static constexpr float MOTES_MAJORANT = 1e20f;
+/// Per-lane wavelengths travel as u16 in units of 1/50 nm (native.rs).
+static constexpr float MOTES_LAMBDA_UNITS_PER_NM = 50.f;
+
+/// What a packet call needs: the API, the medium, the operation and the shared wavelengths (or null).
+struct MotesPayload {
+    const MotesNativeApi *api = nullptr;
+    const void *medium = nullptr;
+    uint32_t op = 0, channels = 1;
+    const double *lambda = nullptr;
+};
+
+/// Called by the generated kernel once per packet of Width lanes.
+template <size_t Width>
+void motes_packet_fn(const int *valid, void *payload, void * /* ctx */, uint8_t *args) {
+    const MotesPayload &p = *(const MotesPayload *) payload;
+    p.api->packet(p.medium, p.op, (uint32_t) Width, Width > 1 ? (const int32_t *) valid : nullptr, args,
+                  p.lambda, p.channels);
+}
+
+/// The state shared by both plugins: the core medium (a strong reference), its API, the channel
+/// wavelengths of RGB variants, and one payload per operation.
+template <typename Float, typename Spectrum> struct MotesCall {
+    MI_IMPORT_TYPES()
+    static constexpr size_t Channels = dr::size_v<UnpolarizedSpectrum>;
+
+    const MotesNativeApi *api = nullptr;
+    const void *medium = nullptr;
+    double lambda[4] = { 0, 0, 0, 0 };
+    MotesPayload payload[4];
+    void *func = nullptr;
+
+    /// Everything one native call returns.
+    struct Out { Mask hit; Float t, u, v; UInt32 prim, inst; };
+
+    void init(const Properties &props, const char *who) {
+        api = (const MotesNativeApi *) (uintptr_t) props.get<int64_t>("api");
+        medium = (const void *) (uintptr_t) props.get<int64_t>("medium");
+        if (!api || !medium)
+            Throw("%s: needs the api and medium handles (created by the Python discrete plugin)", who);
+        if (api->abi != MOTES_NATIVE_ABI)
+            Throw("%s: the Rust core speaks native ABI %u, this plugin %u: rebuild it (motes.native.build())",
+                  who, api->abi, MOTES_NATIVE_ABI);
+        bool rgb = is_rgb_v<Spectrum>;
+        if (rgb)
+            for (size_t c = 0; c < Channels; ++c)
+                lambda[c] = props.get<ScalarFloat>("channel_nm_" + std::to_string(c));
+        for (uint32_t op = 0; op < 4; ++op)
+            payload[op] = MotesPayload{ api, medium, op, (uint32_t) Channels, rgb ? lambda : nullptr };
+        if constexpr (dr::is_llvm_v<Float>) {
+            switch (jit_llvm_vector_width()) {  // one instantiation per SIMD width the JIT may use
+                case 1: func = (void *) motes_packet_fn<1>; break;
+                case 4: func = (void *) motes_packet_fn<4>; break;
+                case 8: func = (void *) motes_packet_fn<8>; break;
+                case 16: func = (void *) motes_packet_fn<16>; break;
+                default: Throw("%s: unsupported LLVM vector width %u", who, jit_llvm_vector_width());
+            }
+        }
+    }
+
+    void release() {
+        if (api && medium)
+            api->release(medium);
+        medium = nullptr;
+    }
+
+    /// Per-lane wavelengths packed for Rust (spectral variants; zeros in RGB ones).
+    static std::pair<UInt32, UInt32> packed_wavelengths(const MediumInteraction3f &mi) {
+        if constexpr (is_spectral_v<Spectrum>) {
+            UInt32 w[4];
+            for (size_t c = 0; c < 4; ++c)
+                w[c] = c < Channels ? UInt32(dr::round(mi.wavelengths[c] * MOTES_LAMBDA_UNITS_PER_NM)) & 0xFFFFu
+                                    : UInt32(0);
+            return { w[0] | (w[1] << 16), w[2] | (w[3] << 16) };
+        } else {
+            return { UInt32(0), UInt32(0) };
+        }
+    }
+
+    /// One native call of operation `op` on the lanes `active`: the twelve inputs are the record's
+    /// o, tnear, d, time, tfar (floats) and mask, id, flags (u32).
+    Out call(uint32_t op, Mask active, const Vector3f &o, Float tnear, const Vector3f &d, Float time,
+             Float tfar, UInt32 mask, UInt32 id) const {
+        if constexpr (dr::is_llvm_v<Float>) {
+            UInt32 flags = dr::zeros<UInt32>();
+            Mask coherent = false;
+            // Lanes outside the enclosing symbolic loop/call mask (finished paths, other media) are
+            // skipped: combine `active` with Dr.Jit's mask stack, as Mitsuba's own ray tracers do.
+            size_t size = dr::width(o, tnear, d, time, tfar, mask, id, active);
+            active = Mask::steal(jit_var_mask_apply(active.index(), (uint32_t) size));
+            // Every input as its own variable of the full width (literals broadcast by the JIT).
+            uint32_t in[14] = { coherent.index(), active.index(), o.x().index(), o.y().index(), o.z().index(),
+                                tnear.index(), d.x().index(), d.y().index(), d.z().index(), time.index(),
+                                tfar.index(), mask.index(), id.index(), flags.index() };
+            uint32_t out[8] = {};
+            UInt64 func_v = UInt64::steal(jit_var_pointer(JitBackend::LLVM, func, 0, 0)),
+                   payload_v = UInt64::steal(jit_var_pointer(JitBackend::LLVM, &payload[op], 0, 0));
+            jit_llvm_ray_trace(func_v.index(), payload_v.index(), 0, in, out);
+            Out r{ Mask::steal(out[0]), Float::steal(out[1]), Float::steal(out[2]), Float::steal(out[3]),
+                   UInt32::steal(out[4]), UInt32::steal(out[6]) };
+            jit_var_dec_ref(out[5]);
+            jit_var_dec_ref(out[7]);
+            return r;
+        } else if constexpr (!dr::is_jit_v<Float>) {
+            // One lane: the record is 20 four-byte fields (Embree's RTCRayHit order).
+            uint32_t rec[20];
+            auto put = [&](int k, float x) { std::memcpy(&rec[k], &x, 4); };
+            auto get = [&](int k) { float x; std::memcpy(&x, &rec[k], 4); return x; };
+            put(0, o.x()); put(1, o.y()); put(2, o.z()); put(3, tnear);
+            put(4, d.x()); put(5, d.y()); put(6, d.z()); put(7, time); put(8, tfar);
+            rec[9] = mask; rec[10] = id; rec[11] = 0;
+            for (int k = 12; k < 20; ++k) rec[k] = 0;
+            rec[18] = (uint32_t) -1;  // geom_id: Rust writes 0 where it returns the lane
+            if (active)
+                api->packet(medium, op, 1, nullptr, (uint8_t *) rec, payload[op].lambda, (uint32_t) Channels);
+            bool hit = active && rec[18] != (uint32_t) -1;
+            return Out{ hit, hit ? get(8) : dr::Infinity<float>, get(15), get(16), rec[17], rec[19] };
+        } else {
+            Throw("motes: the native render path has no CUDA backend");
+        }
+    }
+
+    /// Up to four channel values from t, u, v, prim_id (as float bits).
+    static UnpolarizedSpectrum channels_of(const Out &r) {
+        UnpolarizedSpectrum s(0.f);
+        Float v[4] = { r.t, r.u, r.v, dr::reinterpret_array<Float>(r.prim) };
+        for (size_t c = 0; c < Channels && c < 4; ++c)
+            s[c] = dr::select(r.hit, v[c], 0.f);
+        return s;
+    }
+};
+
+template <typename Float, typename Spectrum>
+class MotesDiscreteNative final : public Medium<Float, Spectrum> {
+public:
+    MI_IMPORT_BASE(Medium, m_is_homogeneous, m_has_spectral_extinction)
+    MI_IMPORT_TYPES()
+
+    MotesDiscreteNative(const Properties &props) : Base(props) {
+        m_is_homogeneous = false;
+        m_has_spectral_extinction = false;  // grey free flights (discrete.rs, "Colour")
+        m_call.init(props, "motes_discrete_native");
+    }
+    ~MotesDiscreteNative() { m_call.release(); }
+
+    std::tuple<Mask, Float, Float> intersect_aabb(const Ray3f &ray) const override {
+        Float zero = dr::zeros<Float>();
+        UInt32 z = dr::zeros<UInt32>();
+        auto r = m_call.call(FreeFlight, Mask(true), ray.o, zero, ray.d, zero, Float(ray.maxt), z, z);
+        return { r.hit, dr::select(r.hit, r.t, dr::Infinity<Float>),
+                 dr::select(r.hit, dr::Infinity<Float>, -dr::Infinity<Float>) };
+    }
+
+    UnpolarizedSpectrum get_majorant(const MediumInteraction3f &, Mask active) const override {
+        // MAJORANT where intersect_aabb found a site, 0 elsewhere (see the file's notes).
+        return dr::select(active, UnpolarizedSpectrum(MOTES_MAJORANT), UnpolarizedSpectrum(0.f));
+    }
+
+    std::tuple<UnpolarizedSpectrum, UnpolarizedSpectrum, UnpolarizedSpectrum>
+    get_scattering_coefficients(const MediumInteraction3f &mi, Mask active) const override {
+        auto [w0, w1] = Call::packed_wavelengths(mi);
+        Float zero = dr::zeros<Float>();
+        auto r = m_call.call(Commit, active, mi.p, zero, mi.wi, zero, zero, w0, w1);
+        UnpolarizedSpectrum sigma_t = dr::select(active, UnpolarizedSpectrum(MOTES_MAJORANT), UnpolarizedSpectrum(0.f));
+        return { Call::channels_of(r) * sigma_t, UnpolarizedSpectrum(0.f), sigma_t };
+    }
+
+    std::string to_string() const override { return "MotesDiscreteNative[]"; }
+    MI_DECLARE_CLASS(MotesDiscreteNative)
+
+private:
+    using Call = MotesCall<Float, Spectrum>;
+    Call m_call;
+    MI_TRAVERSE_CB(Base)
+};
+
+template <typename Float, typename Spectrum>
+class MotesParticleNative final : public PhaseFunction<Float, Spectrum> {
+public:
+    MI_IMPORT_BASE(PhaseFunction, m_flags, m_components)
+    MI_IMPORT_TYPES(PhaseFunctionContext)
+
+    MotesParticleNative(const Properties &props) : Base(props) {
+        m_flags = +PhaseFunctionFlags::Anisotropic;
+        m_components.push_back(m_flags);
+        m_call.init(props, "motes_particle_native");
+    }
+    ~MotesParticleNative() { m_call.release(); }
+
+    std::tuple<Vector3f, Spectrum, Float> sample(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
+                                                 Float sample1, const Point2f &sample2,
+                                                 Mask active) const override {
+        auto [w0, w1] = Call::packed_wavelengths(mi);
+        auto r = m_call.call(PhaseSample, active, mi.p, sample1, mi.wi, sample2.x(), sample2.y(), w0, w1);
+        Vector3f wo(r.t, r.u, r.v);
+        Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.prim), 0.f);
+        Mask ok = active && r.hit && pdf > 0.f;
+        auto [value, pdf_eval] = eval_pdf(ctx, mi, wo, ok);
+        Spectrum weight = dr::select(ok, Spectrum(value) / dr::select(ok, pdf, 1.f), Spectrum(0.f));
+        return { dr::select(ok, wo, Vector3f(0.f, 0.f, 1.f)), weight, dr::select(ok, pdf, 0.f) };
+    }
+
+    std::pair<Spectrum, Float> eval_pdf(const PhaseFunctionContext &, const MediumInteraction3f &mi,
+                                        const Vector3f &wo, Mask active) const override {
+        auto [w0, w1] = Call::packed_wavelengths(mi);
+        auto r = m_call.call(PhaseEval, active, mi.p, wo.x(), mi.wi, wo.y(), wo.z(), w0, w1);
+        Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
+        return { Spectrum(Call::channels_of(r)), pdf };
+    }
+
+    std::string to_string() const override { return "MotesParticleNative[]"; }
+    MI_DECLARE_CLASS(MotesParticleNative)
+
+private:
+    using Call = MotesCall<Float, Spectrum>;
+    Call m_call;
+    MI_TRAVERSE_CB(Base)
+};
+
+NAMESPACE_END(mitsuba)
+
+using namespace mitsuba;
+
+template <template <typename, typename> class Cls, typename Float, typename Spectrum>
+static ref<Object> motes_make(void *, const Properties &p) { return new Cls<Float, Spectrum>(p); }
+
+template <template <typename, typename> class Cls>
+static void motes_register(std::string_view name, PluginRegisterFn fn) {
+    using LF = dr::DiffArray<JitBackend::LLVM, float>;
+    fn(name, "scalar_rgb", Cls<float, Color<float, 3>>::Type, motes_make<Cls, float, Color<float, 3>>);
+    fn(name, "scalar_spectral", Cls<float, Spectrum<float, 4>>::Type, motes_make<Cls, float, Spectrum<float, 4>>);
+    fn(name, "llvm_ad_rgb", Cls<LF, Color<LF, 3>>::Type, motes_make<Cls, LF, Color<LF, 3>>);
+    fn(name, "llvm_ad_spectral", Cls<LF, Spectrum<LF, 4>>::Type, motes_make<Cls, LF, Spectrum<LF, 4>>);
+}
+
+// Registers the variants built here (MI_EXPORT_PLUGIN would instantiate all 13), for the plugin name this
+// library was loaded as.
+extern "C" MI_EXPORT void init_plugin(std::string_view name, PluginRegisterFn fn) {
+    if (name == "motes_particle_native")
+        motes_register<MotesParticleNative>(name, fn);
+    else
+        motes_register<MotesDiscreteNative>(name, fn);
+}
+
+/// The Mitsuba version this library was compiled against (checked by motes/native/__init__.py).
+extern "C" MI_EXPORT const char *motes_native_mitsuba_version() { return MI_VERSION; }

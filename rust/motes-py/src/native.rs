@@ -1,0 +1,187 @@
+//! The C ABI of the native render path: the C++ Mitsuba plugins (`mitsuba_plugin/motes/native/`) call
+//! [`motes_packet`] once per SIMD packet from inside Mitsuba's symbolic LLVM kernels (through
+//! `jit_llvm_ray_trace`, the hook Mitsuba's own CPU ray tracers use), and once per ray in the scalar
+//! variants. They find it through [`NativeApi`], whose address Python hands them with a medium handle
+//! (an `Arc` of the core medium that [`NativeApi::release`] drops).
+//!
+//! A packet is Embree's ray/hit record in structure-of-arrays layout, `width` lanes per field, in the
+//! field order of [`Field`]. What each operation reads and writes (lanes the renderer marks inactive in
+//! `valid` are skipped; a lane counts as returned where `geom_id` is written):
+//!
+//! | op              | reads                                          | writes                                   |
+//! |-----------------|------------------------------------------------|------------------------------------------|
+//! | `FREE_FLIGHT`   | o, d, tfar = t_max                             | tfar = t of the site (hit lanes only)    |
+//! | `COMMIT`        | o = position of the event                      | albedo per channel in tfar, u, v, prim_id|
+//! | `PHASE_SAMPLE`  | o = p, d = wi, tnear = u1, time, tfar = u2     | tfar, u, v = wo; prim_id = pdf           |
+//! | `PHASE_EVAL`    | o = p, d = wi, tnear, time, tfar = wo          | values in tfar, u, v, prim_id; inst_id = pdf |
+//!
+//! Floats travel in u32 fields as their bits. Wavelengths: `lambda` (`channels` values shared by all
+//! lanes, RGB variants) or, when it is null, per lane in `mask` and `id` as two u16 each in units of
+//! 1/50 nm (spectral variants: 4 channels; the quantisation, 0.01 nm, is far below the tables'
+//! wavelength spacing).
+
+use motes_core::discrete::{DiscreteMedium, PacketRay, PACKET_LANES};
+use std::ffi::c_void;
+use std::sync::Arc;
+
+/// Version of this interface; the C++ plugin refuses another.
+pub const NATIVE_ABI: u32 = 1;
+
+pub const FREE_FLIGHT: u32 = 0;
+pub const COMMIT: u32 = 1;
+pub const PHASE_SAMPLE: u32 = 2;
+pub const PHASE_EVAL: u32 = 3;
+
+/// Wavelength units per nm in the packed per-lane wavelengths.
+const LAMBDA_UNITS_PER_NM: f64 = 50.0;
+
+/// Fields of the ray/hit record (Embree's RTCRayHitN order, as drjit-core lays it out).
+#[allow(dead_code)]
+#[derive(Clone, Copy)]
+enum Field {
+    Ox, Oy, Oz, Tnear, Dx, Dy, Dz, Time, Tfar, Mask, Id, Flags, NgX, NgY, NgZ, U, V, PrimId, GeomId, InstId,
+}
+
+/// What C++ receives: the interface version and two functions.
+#[repr(C)]
+pub struct NativeApi {
+    pub abi: u32,
+    pub packet: unsafe extern "C" fn(medium: *const c_void, op: u32, width: u32, valid: *const i32, args: *mut u8, lambda: *const f64, channels: u32),
+    pub release: unsafe extern "C" fn(medium: *const c_void),
+}
+
+pub static API: NativeApi = NativeApi { abi: NATIVE_ABI, packet: motes_packet, release: motes_release };
+
+/// A new strong reference to `medium` for C++ (dropped by [`NativeApi::release`]).
+pub fn handle(medium: &Arc<DiscreteMedium>) -> usize {
+    Arc::into_raw(Arc::clone(medium)) as usize
+}
+
+/// The record of one packet.
+struct Record {
+    args: *mut u8,
+    width: usize,
+}
+
+impl Record {
+    fn ptr(&self, f: Field, lane: usize) -> *mut u32 {
+        // SAFETY (callers): the record holds 20 fields of `width` 4-byte lanes.
+        unsafe { self.args.add((f as usize * self.width + lane) * 4) as *mut u32 }
+    }
+    fn f(&self, f: Field, lane: usize) -> f32 {
+        f32::from_bits(self.u(f, lane))
+    }
+    fn u(&self, f: Field, lane: usize) -> u32 {
+        unsafe { self.ptr(f, lane).read_unaligned() }
+    }
+    fn set_f(&self, f: Field, lane: usize, x: f64) {
+        self.set_u(f, lane, (x as f32).to_bits());
+    }
+    fn set_u(&self, f: Field, lane: usize, x: u32) {
+        unsafe { self.ptr(f, lane).write_unaligned(x) }
+    }
+    fn v3(&self, a: Field, lane: usize) -> [f32; 3] {
+        let k = a as usize;
+        let at = |i: usize| f32::from_bits(unsafe { self.args.add(((k + i) * self.width + lane) * 4).cast::<u32>().read_unaligned() });
+        [at(0), at(1), at(2)]
+    }
+    /// Marks the lane as returned (drjit-core reads geom_id != -1 as a hit).
+    fn returned(&self, lane: usize) {
+        self.set_u(Field::GeomId, lane, 0);
+        self.set_u(Field::InstId, lane, u32::MAX);
+    }
+}
+
+/// The packet's lanes as an array (inactive: None), without allocating.
+fn lanes<T: Copy>(width: usize, f: impl Fn(usize) -> Option<T>) -> [Option<T>; PACKET_LANES] {
+    std::array::from_fn(|i| if i < width { f(i) } else { None })
+}
+
+/// Per-lane wavelengths from the packed `mask`/`id` fields.
+fn lane_lambda(r: &Record, lane: usize, out: &mut [f64]) {
+    let words = [r.u(Field::Mask, lane), r.u(Field::Id, lane)];
+    for (c, x) in out.iter_mut().enumerate() {
+        let w = words[c / 2] >> (16 * (c % 2)) & 0xFFFF;
+        *x = w as f64 / LAMBDA_UNITS_PER_NM;
+    }
+}
+
+/// # Safety
+/// `medium` comes from [`handle`] and is alive; `args` holds a record of `width` ≤ 16 lanes; `valid` is
+/// null or holds `width` entries; `lambda` is null or holds `channels` ≤ 4 values.
+pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32, valid: *const i32, args: *mut u8, lambda: *const f64, channels: u32) {
+    let m = &*(medium as *const DiscreteMedium);
+    let width = (width as usize).min(PACKET_LANES);
+    let ch = (channels as usize).clamp(1, 4);
+    let r = Record { args, width };
+    let active = |i: usize| valid.is_null() || *valid.add(i) != 0;
+    let mut lam = [0.0f64; PACKET_LANES * 4];
+    let lam: &[f64] = if lambda.is_null() {
+        for i in (0..width).filter(|&i| active(i)) {
+            lane_lambda(&r, i, &mut lam[i * ch..(i + 1) * ch]);
+        }
+        &lam[..width * ch]
+    } else {
+        std::slice::from_raw_parts(lambda, ch)
+    };
+    match op {
+        FREE_FLIGHT => {
+            let rays: [Option<PacketRay>; PACKET_LANES] = lanes(width, |i| active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tfar, i))));
+            let mut t = [None; PACKET_LANES];
+            m.packet_free_flights(&rays[..width], &mut t);
+            for (i, t) in t.iter().enumerate().take(width) {
+                if let Some(t) = t {
+                    r.set_f(Field::Tfar, i, *t);
+                    r.returned(i);
+                }
+            }
+        }
+        COMMIT => {
+            let p = lanes(width, |i| active(i).then(|| r.v3(Field::Ox, i)));
+            let mut albedo = [0.0; PACKET_LANES * 4];
+            m.packet_commit(&p[..width], lam, ch, &mut albedo);
+            for i in (0..width).filter(|&i| active(i)) {
+                write_channels(&r, i, &albedo[i * ch..(i + 1) * ch]);
+                r.returned(i);
+            }
+        }
+        PHASE_SAMPLE => {
+            let l = lanes(width, |i| active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tnear, i) as f64, [r.f(Field::Time, i) as f64, r.f(Field::Tfar, i) as f64])));
+            let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
+            m.packet_phase_sample(&l[..width], lam, ch, &mut wo, &mut pdf);
+            for i in (0..width).filter(|&i| active(i)) {
+                r.set_f(Field::Tfar, i, wo[i][0]);
+                r.set_f(Field::U, i, wo[i][1]);
+                r.set_f(Field::V, i, wo[i][2]);
+                r.set_f(Field::PrimId, i, pdf[i]);
+                r.returned(i);
+            }
+        }
+        PHASE_EVAL => {
+            let l = lanes(width, |i| active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), [r.f(Field::Tnear, i), r.f(Field::Time, i), r.f(Field::Tfar, i)])));
+            let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
+            m.packet_phase_eval(&l[..width], lam, ch, &mut v, &mut pdf);
+            for i in (0..width).filter(|&i| active(i)) {
+                write_channels(&r, i, &v[i * ch..(i + 1) * ch]);
+                r.returned(i);
+                r.set_f(Field::InstId, i, pdf[i]);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// Up to four channel values into tfar, u, v, prim_id.
+fn write_channels(r: &Record, lane: usize, v: &[f64]) {
+    for (x, f) in v.iter().zip([Field::Tfar, Field::U, Field::V, Field::PrimId]) {
+        r.set_f(f, lane, *x);
+    }
+}
+
+/// # Safety
+/// `medium` comes from [`handle`] and is released once.
+pub unsafe extern "C" fn motes_release(medium: *const c_void) {
+    if !medium.is_null() {
+        drop(Arc::from_raw(medium as *const DiscreteMedium));
+    }
+}

@@ -1,0 +1,161 @@
+"""Issue 10: the native render path against Mitsuba's own `homogeneous` + `tabphase` equivalent, side by
+side in one process, interleaved (ratios only; this machine is shared).
+
+For each configuration -- `sparse` (the default scene's dust in the dust room), `dense` (haze: many
+larger grains, wider query cylinder) and `default` (scenes_xml/dust_box.xml itself; its homogeneous twin is
+the same XML with the medium replaced by `motes.equivalent.equivalent_xml`) -- and each variant
+(llvm_ad_rgb in Mitsuba's default symbolic mode; scalar_rgb), it renders at equal spp:
+
+* `homogeneous`: Mitsuba's `homogeneous` + `tabphase` (symbolic mode in LLVM);
+* `discrete native`: the `discrete` medium through the native C++ plugin (symbolic mode in LLVM);
+* `discrete evaluated`: the `discrete` medium through the evaluated-mode Python path (LLVM only; what
+  every render used before the native path: the "before" of issue 10).
+
+Reported: seconds (best of `--reps` interleaved repetitions after a warm-up render that compiles the
+kernels), the ratio to `homogeneous`, and the image means of the discrete paths with their standard
+errors (the two paths must agree). `--memory` also measures the peak resident memory of the default
+scene's main-job render (256 px, 48 spp) in a fresh process per path.
+
+    .venv/bin/python scripts/bench_native.py [--quick] [--configs sparse,dense,default] [--memory]
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import re
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import numpy as np  # noqa: E402
+
+import _common as C  # noqa: E402
+import bench_render as BR  # noqa: E402
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes_xml" / "dust_box.xml"
+KNOWN = ("sparse", "dense", "default")
+
+
+def default_scene_xml(motes, homogeneous: bool) -> str:
+    """dust_box.xml, or the same scene with its medium replaced by the homogeneous equivalent."""
+    text = SCENE.read_text()
+    if not homogeneous:
+        return text
+    cfg = BR.configs(True)["sparse"]  # the default scene's medium (dust_box.xml's parameters)
+    snippet = motes.equivalent.equivalent_xml(BR.homogeneous_dict(motes, cfg))
+    return re.sub(r'<medium type="discrete".*?</medium>', lambda _: snippet, text, flags=re.S)
+
+
+def scenes(motes, mi, name: str, res: int, spp: int):
+    """(homogeneous scene, discrete scene) of a configuration."""
+    if name == "default":
+        params = {"res": str(res), "spp": str(spp)}
+        load = lambda xml: mi.load_string(xml, **params)  # noqa: E731
+        # load_string resolves no relative paths: the scene uses none.
+        return load(default_scene_xml(motes, True)), load(default_scene_xml(motes, False))
+    cfg = BR.configs(True)[name]
+    return (mi.load_dict(BR.room(mi, BR.homogeneous_dict(motes, cfg), res, spp)),
+            mi.load_dict(BR.room(mi, BR.discrete_dict(mi, cfg, res), res, spp)))
+
+
+def render(mi, scene, spp: int, seed: int = 0):
+    t = time.perf_counter()
+    img = np.asarray(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
+    return time.perf_counter() - t, img
+
+
+def mean_se(img: np.ndarray) -> tuple[float, float]:
+    px = img.mean(axis=2).ravel()
+    return float(px.mean()), float(px.std() / np.sqrt(px.size))
+
+
+def run_variant(motes, mi, variant: str, names, res: int, spp: int, reps: int) -> list[dict]:
+    motes.set_variant(variant)
+    jit = variant.startswith("llvm_")
+    rows = []
+    for name in names:
+        sh, sd = scenes(motes, mi, name, res, spp)
+        paths = {"homogeneous": (sh, False), "discrete native": (sd, False)}
+        if jit:
+            paths["discrete evaluated"] = (sd, True)
+        best = {k: np.inf for k in paths}
+        imgs = {}
+        for rep in range(reps + 1):  # rep 0 compiles the kernels
+            for key, (scene, evaluated) in paths.items():
+                if jit:
+                    motes.set_evaluated_mode(evaluated)
+                t, img = render(mi, scene, spp, seed=rep)
+                if rep > 0:
+                    best[key] = min(best[key], t)
+                    imgs[key] = img
+        if jit:
+            motes.set_evaluated_mode(False)
+        row = {"config": name, "variant": variant, "res": res, "spp": spp}
+        for key in paths:
+            m, se = mean_se(imgs[key])
+            row[key] = {"seconds": best[key], "ratio": best[key] / best["homogeneous"], "mean": m, "se": se}
+        rows.append(row)
+        cells = "  ".join(f"{k} {v['seconds']:.2f} s ({v['ratio']:.2f}x, mean {v['mean']:.4g} +- {v['se']:.2g})"
+                          for k, v in row.items() if isinstance(v, dict))
+        print(f"[{variant} {name} {res}px {spp}spp] {cells}", flush=True)
+        del sh, sd
+    return rows
+
+
+MEMORY_CHILD = """
+import resource, sys, time
+import numpy as np
+import motes
+motes.set_variant("llvm_ad_rgb")
+motes.set_evaluated_mode(sys.argv[1] == "evaluated")
+import mitsuba as mi
+scene = mi.load_file(sys.argv[2])
+t = time.perf_counter()
+img = np.asarray(mi.render(scene))
+print("RESULT", time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, float(img.mean()))
+"""
+
+
+def memory() -> dict:
+    """Peak resident memory (MiB) and time of the main job's render, native vs evaluated path."""
+    out = {}
+    for path in ("native", "evaluated"):
+        res = subprocess.run([sys.executable, "-c", MEMORY_CHILD, path, str(SCENE)], capture_output=True, text=True, timeout=3600)
+        line = [ln for ln in res.stdout.splitlines() if ln.startswith("RESULT")]
+        if res.returncode != 0 or not line:
+            raise RuntimeError(f"memory child ({path}) failed:\n{res.stderr[-2000:]}")
+        _, secs, mib, mean = line[0].split()
+        out[path] = {"seconds": float(secs), "peak_mib": float(mib), "mean": float(mean)}
+        print(f"[memory] default scene 256 px 48 spp, {path} path: peak {float(mib):.0f} MiB, {float(secs):.1f} s, mean {float(mean):.4g}", flush=True)
+    out["ratio"] = out["evaluated"]["peak_mib"] / out["native"]["peak_mib"]
+    print(f"[memory] evaluated / native peak memory: {out['ratio']:.2f}x", flush=True)
+    return out
+
+
+def main() -> None:
+    ap = C.parser(__doc__)
+    ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--memory", action="store_true", help="also the default scene's peak memory (slow)")
+    ap.add_argument("--configs", default=",".join(KNOWN), help=f"configurations, of {list(KNOWN)}")
+    args = ap.parse_args()
+    names = C.choose_configs(ap, args.configs, KNOWN)
+    motes = C.import_motes()
+    motes.set_variant("llvm_ad_rgb")
+    import mitsuba as mi  # noqa: PLC0415
+    t0 = time.perf_counter()
+    res, spp = (96, 8) if args.quick else (128, 16)
+    rows = run_variant(motes, mi, "llvm_ad_rgb", names, res, spp, args.reps)
+    rows += run_variant(motes, mi, "scalar_rgb", names, 48 if args.quick else 64, 4, 1)
+    result = {"rows": rows, "meta": C.meta(args, time.perf_counter() - t0)}
+    if args.memory:
+        result["memory"] = memory()
+    out = C.out_dir(args.out)
+    C.write_json(out / "bench_native.json", result)
+    print(json.dumps({"written": str(out / "bench_native.json")}))
+
+
+if __name__ == "__main__":
+    main()
