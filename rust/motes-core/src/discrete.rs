@@ -244,7 +244,7 @@ pub struct DiscreteMedium {
     calls: AtomicU64,
     /// Identifies the medium's per-thread state in the packet interface.
     id: u64,
-    /// Rays and events of the packet interface so far (statistics).
+    /// Rays and interactions of the packet interface so far (statistics).
     packet_rays: AtomicU64,
     packet_events: AtomicU64,
 }
@@ -726,7 +726,9 @@ pub type PacketRay = ([f32; 3], [f32; 3], f32);
 /// flight's random number is a hash of the ray and the seed: a render is a function of the scene, the
 /// sampler's seed and spp, whatever the thread schedule.
 impl DiscreteMedium {
-    /// Rays and events that went through the packet interface so far.
+    /// Rays and interactions (sites found: scattering events and blocked shadow rays) of the packet
+    /// interface so far. Commits are not counted: Dr.Jit drops a shadow ray's commit from the kernel,
+    /// whose albedo nobody reads.
     pub fn packet_counts(&self) -> (u64, u64) {
         (self.packet_rays.load(Ordering::Relaxed), self.packet_events.load(Ordering::Relaxed))
     }
@@ -745,7 +747,8 @@ impl DiscreteMedium {
     /// Free flights of a packet: the distance to each lane's next site (None: the ray leaves [0, t_max)).
     pub fn packet_free_flights(&self, rays: &[Option<PacketRay>], t: &mut [Option<f64>]) {
         self.packet_rays.fetch_add(rays.iter().filter(|r| r.is_some()).count() as u64, Ordering::Relaxed);
-        self.with_packet_state(|st| {
+        let sites = self.with_packet_state(|st| {
+            let mut sites = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 st.pending[i] = PendingLane::default();
                 t[i] = None;
@@ -754,8 +757,11 @@ impl DiscreteMedium {
                 let (site, _, parent) = self.lane_free_flight(&st.events, o, d, t_max as f64, u);
                 st.pending[i] = PendingLane { site, parent };
                 t[i] = site.map(|s| s.t);
+                sites += site.is_some() as u64;
             }
-        })
+            sites
+        });
+        self.packet_events.fetch_add(sites, Ordering::Relaxed);
     }
 
     /// Remember the events of this thread's last packet of free flights at the positions the renderer
@@ -764,7 +770,6 @@ impl DiscreteMedium {
     pub fn packet_commit(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize, albedo: &mut [f64]) {
         let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
-            let mut committed = 0;
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
                 let a = &mut albedo[i * channels..(i + 1) * channels];
                 a.iter_mut().for_each(|x| *x = 0.0);
@@ -774,9 +779,7 @@ impl DiscreteMedium {
                     a[c] = self.site_albedo(&site, self.bracket(l));
                 }
                 st.events.insert(key(pos), event_after(site, &st.pending[i].parent, a));
-                committed += 1;
             }
-            self.packet_events.fetch_add(committed, Ordering::Relaxed);
         })
     }
 
