@@ -73,6 +73,16 @@ them (every event is remembered: a perspective camera's rays have a finite t_max
 tell scattered rays from shadow rays). Events also carry the path's colour throughput, so that the
 phase function picks the channel it samples in proportion to it and colour weights stay bounded over
 hundreds of bounces. Random numbers for the free flights come from the core (counter-based, reproducible).
+
+Render paths
+------------
+In ``llvm_ad_rgb``, ``llvm_ad_spectral``, ``scalar_rgb`` and ``scalar_spectral`` this plugin parses and
+validates its parameters and builds the particles and optics, then hands every call to the native C++
+medium and phase function (``motes/native/motes_native.cpp``), which run inside Mitsuba's default symbolic
+kernels: one call into Rust per SIMD packet, events kept per thread, free flights seeded by a hash of the
+ray (a render is a function of scene, seed and spp). In other variants, without a C++ compiler, with
+``MOTES_NATIVE=0``, or when Dr.Jit is switched to evaluated mode, the calls go through numpy batches
+instead (the evaluated-mode path below).
 """
 
 from __future__ import annotations
