@@ -116,7 +116,10 @@ pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32
     let r = Record { args, width };
     let active = |i: usize| valid.is_null() || *valid.add(i) != 0;
     let mut lam = [0.0f64; PACKET_LANES * 4];
-    let lam: &[f64] = if lambda.is_null() {
+    // Free flights are grey: only the other operations read wavelengths.
+    let lam: &[f64] = if op == FREE_FLIGHT {
+        &[]
+    } else if lambda.is_null() {
         for i in (0..width).filter(|&i| active(i)) {
             lane_lambda(&r, i, &mut lam[i * ch..(i + 1) * ch]);
         }
