@@ -7,7 +7,9 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 fn files_under(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = fs::read_dir(dir) else { return };
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
     for e in entries.flatten() {
         let p = e.path();
         if p.is_dir() {
@@ -37,7 +39,13 @@ fn main() {
     let mut named: Vec<(String, PathBuf)> = files
         .into_iter()
         .map(|f| {
-            let rel = f.strip_prefix(&rust).expect("under rust/").components().map(|c| c.as_os_str().to_string_lossy().into_owned()).collect::<Vec<_>>().join("/");
+            let rel = f
+                .strip_prefix(&rust)
+                .expect("under rust/")
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                .collect::<Vec<_>>()
+                .join("/");
             (rel, f)
         })
         .collect();

@@ -11,20 +11,38 @@ use std::time::Instant;
 struct Lcg(u64);
 impl Lcg {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((self.0 >> 11) as f64) / (1u64 << 53) as f64
     }
 }
 
 fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
     let mut r = Lcg(1);
-    let pos: Vec<[f64; 3]> = (0..n).map(|_| [20.0 * r.next() - 10.0, 20.0 * r.next() - 10.0, 20.0 * r.next() - 10.0]).collect();
+    let pos: Vec<[f64; 3]> = (0..n)
+        .map(|_| {
+            [
+                20.0 * r.next() - 10.0,
+                20.0 * r.next() - 10.0,
+                20.0 * r.next() - 10.0,
+            ]
+        })
+        .collect();
     let rad: Vec<f64> = (0..n).map(|_| r_min + r_span * r.next()).collect();
-    let c: Vec<f64> = rad.iter().map(|x| 2.0 * std::f64::consts::PI * x * x).collect();
+    let c: Vec<f64> = rad
+        .iter()
+        .map(|x| 2.0 * std::f64::consts::PI * x * x)
+        .collect();
     let g = ParticleGrid::build(&pos, &rad, &c, 1, query_radius, 1.0).unwrap();
     let rays: Vec<([f64; 3], [f64; 3])> = (0..200_000)
         .map(|_| {
-            let o = [20.0 * r.next() - 10.0, 20.0 * r.next() - 10.0, 20.0 * r.next() - 10.0];
+            let o = [
+                20.0 * r.next() - 10.0,
+                20.0 * r.next() - 10.0,
+                20.0 * r.next() - 10.0,
+            ];
             let d = [r.next() - 0.5, r.next() - 0.5, r.next() - 0.5];
             let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             (o, d.map(|x| x / l))

@@ -99,7 +99,11 @@ fn channel_probabilities(t: &[f32; MAX_CHANNELS], channels: usize) -> [f64; MAX_
     let c = channels.min(MAX_CHANNELS);
     let total: f64 = t[..c].iter().map(|&x| x as f64).sum();
     for k in 0..c {
-        let share = if total > 0.0 && total.is_finite() { t[k] as f64 / total } else { 1.0 / c as f64 };
+        let share = if total > 0.0 && total.is_finite() {
+            t[k] as f64 / total
+        } else {
+            1.0 / c as f64
+        };
         pi[k] = (1.0 - DEFENSIVE_MIX) * share + DEFENSIVE_MIX / c as f64;
     }
     pi
@@ -120,16 +124,28 @@ fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
 fn event_after(site: Site, parent: &[f32; MAX_CHANNELS], a: &[f64]) -> Event {
     let known = parent.iter().any(|&x| x > 0.0);
     let t_in = if a.len() <= MAX_CHANNELS {
-        normalised_throughput(a.iter().enumerate().map(|(c, &x)| if known { parent[c] as f64 * x } else { x }))
+        normalised_throughput(a.iter().enumerate().map(|(c, &x)| {
+            if known {
+                parent[c] as f64 * x
+            } else {
+                x
+            }
+        }))
     } else {
         [0.0; MAX_CHANNELS]
     };
-    Event { site, t_in, t_out: t_in }
+    Event {
+        site,
+        t_in,
+        t_out: t_in,
+    }
 }
 
 /// Bits of a ray's origin and direction, mixed (FNV-style): the ray's share of its random numbers.
 fn ray_bits(o: &[f32; 3], d: &[f32; 3]) -> u64 {
-    o.iter().chain(d.iter()).fold(0u64, |h, x| (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3))
+    o.iter().chain(d.iter()).fold(0u64, |h, x| {
+        (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3)
+    })
 }
 
 /// Uniform channel choice.
@@ -180,7 +196,8 @@ fn key(p: [f32; 3]) -> [u32; 3] {
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
 /// renders are reproducible whatever the thread schedule.
 fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
-    let mut z = seed ^ call.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    let mut z =
+        seed ^ call.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^= z >> 31;
@@ -192,7 +209,10 @@ fn frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
     let sign = if n[2] >= 0.0 { 1.0 } else { -1.0 };
     let a = -1.0 / (sign + n[2]);
     let b = n[0] * n[1] * a;
-    ([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]], [b, sign + n[1] * n[1] * a, -n[1]])
+    (
+        [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]],
+        [b, sign + n[1] * n[1] * a, -n[1]],
+    )
 }
 
 /// A sampled direction, its weights per channel (value / pdf) and pdf.
@@ -256,7 +276,11 @@ pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -
     let floor = (c_ext / (PI * fill_max)).sqrt();
     let reach = (query_radius + radius).max(floor);
     let fill = (c_ext / (PI * reach * reach)).min(1.0);
-    let tau = if fill >= 1.0 { TAU_OPAQUE } else { (-(-fill).ln_1p()).min(TAU_OPAQUE) };
+    let tau = if fill >= 1.0 {
+        TAU_OPAQUE
+    } else {
+        (-(-fill).ln_1p()).min(TAU_OPAQUE)
+    };
     (reach, tau)
 }
 
@@ -275,37 +299,106 @@ impl DiscreteMedium {
     /// (increasing), `query_radius` r_c (scene units), `tau_max` the cap on each disk's optical depth
     /// (module docs; [`DEFAULT_TAU_MAX`], `f64::INFINITY` for none).
     #[allow(clippy::too_many_arguments)]
-    pub fn build(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], bin: Vec<u32>, bins: Vec<BinOptics>, lambda: Vec<f64>, query_radius: f64, tau_max: f64, cells_per_particle: f64, seed: u64) -> Result<Self, OpticsError> {
+    pub fn build(
+        positions: &[[f64; 3]],
+        radius: &[f64],
+        c_ext: &[f64],
+        bin: Vec<u32>,
+        bins: Vec<BinOptics>,
+        lambda: Vec<f64>,
+        query_radius: f64,
+        tau_max: f64,
+        cells_per_particle: f64,
+        seed: u64,
+    ) -> Result<Self, OpticsError> {
         let n = positions.len();
-        require("bin (length)", bin.len() as f64, bin.len() == n, "one per particle")?;
-        require("radius (length)", radius.len() as f64, radius.len() == n, "one per particle")?;
-        require("c_ext (length)", c_ext.len() as f64, c_ext.len() == n, "one per particle")?;
+        require(
+            "bin (length)",
+            bin.len() as f64,
+            bin.len() == n,
+            "one per particle",
+        )?;
+        require(
+            "radius (length)",
+            radius.len() as f64,
+            radius.len() == n,
+            "one per particle",
+        )?;
+        require(
+            "c_ext (length)",
+            c_ext.len() as f64,
+            c_ext.len() == n,
+            "one per particle",
+        )?;
         require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
-        require("query_radius", query_radius, query_radius.is_finite() && query_radius >= 0.0, "finite and >= 0")?;
-        require("lambda (length)", lambda.len() as f64, !lambda.is_empty(), ">= 1")?;
+        require(
+            "query_radius",
+            query_radius,
+            query_radius.is_finite() && query_radius >= 0.0,
+            "finite and >= 0",
+        )?;
+        require(
+            "lambda (length)",
+            lambda.len() as f64,
+            !lambda.is_empty(),
+            ">= 1",
+        )?;
         for w in lambda.windows(2) {
             require("lambda", w[1], w[1] > w[0], "strictly increasing")?;
         }
         for (b, o) in bins.iter().enumerate() {
-            require("bins (albedo per wavelength)", b as f64, o.albedo.len() == lambda.len() && o.phase.len() == lambda.len(), "one albedo and one phase table per wavelength")?;
+            require(
+                "bins (albedo per wavelength)",
+                b as f64,
+                o.albedo.len() == lambda.len() && o.phase.len() == lambda.len(),
+                "one albedo and one phase table per wavelength",
+            )?;
             for &a in &o.albedo {
-                require("albedo", a, a.is_finite() && (0.0..=1.0 + 1e-9).contains(&a), "in [0, 1]")?;
+                require(
+                    "albedo",
+                    a,
+                    a.is_finite() && (0.0..=1.0 + 1e-9).contains(&a),
+                    "in [0, 1]",
+                )?;
             }
         }
         if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
             require("bin (index)", b as f64, false, "< number of bins")?;
         }
         for i in 0..n {
-            require("radius", radius[i], radius[i].is_finite() && radius[i] > 0.0, "finite and > 0")?;
-            require("c_ext", c_ext[i], c_ext[i].is_finite() && c_ext[i] >= 0.0, "finite and >= 0")?;
+            require(
+                "radius",
+                radius[i],
+                radius[i].is_finite() && radius[i] > 0.0,
+                "finite and > 0",
+            )?;
+            require(
+                "c_ext",
+                c_ext[i],
+                c_ext[i].is_finite() && c_ext[i] >= 0.0,
+                "finite and >= 0",
+            )?;
         }
-        let disks: Vec<(f64, f64)> = (0..n).map(|i| particle_disk(radius[i], c_ext[i], query_radius, tau_max)).collect();
-        let widened = (0..n).filter(|&i| disks[i].0 > query_radius + radius[i]).count();
+        let disks: Vec<(f64, f64)> = (0..n)
+            .map(|i| particle_disk(radius[i], c_ext[i], query_radius, tau_max))
+            .collect();
+        let widened = (0..n)
+            .filter(|&i| disks[i].0 > query_radius + radius[i])
+            .count();
         // The grid reaches r_c + radius and spreads c / (π reach²): hand it the widened disks as radii
         // and τ π R² as cross sections, so that it walks exactly these disks.
-        let grid_radius: Vec<f64> = (0..n).map(|i| (disks[i].0 - query_radius).max(radius[i])).collect();
+        let grid_radius: Vec<f64> = (0..n)
+            .map(|i| (disks[i].0 - query_radius).max(radius[i]))
+            .collect();
         let grid_c: Vec<f64> = disks.iter().map(|&(r, t)| t * PI * r * r).collect();
-        let grid = ParticleGrid::build(positions, &grid_radius, &grid_c, 1, query_radius, cells_per_particle)?;
+        let grid = ParticleGrid::build(
+            positions,
+            &grid_radius,
+            &grid_c,
+            1,
+            query_radius,
+            cells_per_particle,
+        )?;
         let tau = disks.iter().map(|d| d.1 as f32).collect();
         let reach = disks.iter().map(|d| d.0 as f32).collect();
         let c_ext = c_ext.iter().map(|&c| c as f32).collect();
@@ -314,8 +407,29 @@ impl DiscreteMedium {
         // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
         // be ordered reliably, so they form one site.
         let coincide = 1e-6 * extent.max(1e-30);
-        let events = EventMap { current: FxHashMap::default(), previous: FxHashMap::default(), capacity: 1 << 16 };
-        Ok(DiscreteMedium { grid, tau, reach, c_ext, widened, bin, bins, lambda, coincide, events: RwLock::new(events), pending: Mutex::new(FxHashMap::default()), seed, calls: AtomicU64::new(0), id: MEDIUM_IDS.fetch_add(1, Ordering::Relaxed), packet_rays: AtomicU64::new(0), packet_events: AtomicU64::new(0) })
+        let events = EventMap {
+            current: FxHashMap::default(),
+            previous: FxHashMap::default(),
+            capacity: 1 << 16,
+        };
+        Ok(DiscreteMedium {
+            grid,
+            tau,
+            reach,
+            c_ext,
+            widened,
+            bin,
+            bins,
+            lambda,
+            coincide,
+            events: RwLock::new(events),
+            pending: Mutex::new(FxHashMap::default()),
+            seed,
+            calls: AtomicU64::new(0),
+            id: MEDIUM_IDS.fetch_add(1, Ordering::Relaxed),
+            packet_rays: AtomicU64::new(0),
+            packet_events: AtomicU64::new(0),
+        })
     }
 
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
@@ -366,14 +480,24 @@ impl DiscreteMedium {
     fn phase_at(&self, particle: u32, l: (usize, usize, f64), mu: f64) -> f64 {
         let p = &self.bins[self.bin[particle as usize] as usize].phase;
         let lo = p[l.0].eval(mu);
-        if l.2 == 0.0 { lo } else { (1.0 - l.2) * lo + l.2 * p[l.1].eval(mu) }
+        if l.2 == 0.0 {
+            lo
+        } else {
+            (1.0 - l.2) * lo + l.2 * p[l.1].eval(mu)
+        }
     }
 
     /// Sample the next site along each ray (origin `o`, direction `d`, on (0, t_max)), skipping the
     /// particles of the event the ray starts at. The sites are kept for [`Self::commit_events`], which
     /// remembers the events of the lanes marked in `remember` (those whose events start new rays; an
     /// event ends a shadow ray, so shadow rays need not be remembered).
-    pub fn sample_sites(&self, o: &[[f32; 3]], d: &[[f32; 3]], t_max: &[f64], remember: &[bool]) -> Vec<SiteSample> {
+    pub fn sample_sites(
+        &self,
+        o: &[[f32; 3]],
+        d: &[[f32; 3]],
+        t_max: &[f64],
+        remember: &[bool],
+    ) -> Vec<SiteSample> {
         let call = self.calls.fetch_add(1, Ordering::Relaxed);
         let events = self.events.read().unwrap();
         let res: Vec<(Option<Site>, f64, [f32; MAX_CHANNELS])> = o
@@ -387,45 +511,105 @@ impl DiscreteMedium {
             })
             .collect();
         drop(events);
-        let out = res.iter().map(|(s, tau, _)| SiteSample { t: s.map(|s| s.t), tau_before: *tau }).collect();
-        let pending = res.into_iter().zip(remember).map(|(r, &keep)| (r.0, keep, r.2)).collect();
-        self.pending.lock().unwrap().insert(std::thread::current().id(), pending);
+        let out = res
+            .iter()
+            .map(|(s, tau, _)| SiteSample {
+                t: s.map(|s| s.t),
+                tau_before: *tau,
+            })
+            .collect();
+        let pending = res
+            .into_iter()
+            .zip(remember)
+            .map(|(r, &keep)| (r.0, keep, r.2))
+            .collect();
+        self.pending
+            .lock()
+            .unwrap()
+            .insert(std::thread::current().id(), pending);
         out
     }
 
     /// One ray's free flight to its next site (skipping the particles of the event it starts at), the
     /// optical depth walked before it and the throughput of that parent event; `u` uniform in [0, 1).
-    fn lane_free_flight(&self, events: &EventMap, o: [f32; 3], d: [f32; 3], t_max: f64, u: f64) -> (Option<Site>, f64, [f32; MAX_CHANNELS]) {
-        let (Some(dir), true) = (normalise(d.map(|x| x as f64)), o.iter().all(|x| x.is_finite())) else {
+    fn lane_free_flight(
+        &self,
+        events: &EventMap,
+        o: [f32; 3],
+        d: [f32; 3],
+        t_max: f64,
+        u: f64,
+    ) -> (Option<Site>, f64, [f32; MAX_CHANNELS]) {
+        let (Some(dir), true) = (
+            normalise(d.map(|x| x as f64)),
+            o.iter().all(|x| x.is_finite()),
+        ) else {
             return (None, 0.0, [0.0; MAX_CHANNELS]);
         };
         let parent = events.get(&key(o)).copied().unwrap_or_default();
-        let (site, tau) = self.grid.sample_site(o.map(|x| x as f64), dir, 0.0, t_max, parent.site.members(), u, self.coincide);
+        let (site, tau) = self.grid.sample_site(
+            o.map(|x| x as f64),
+            dir,
+            0.0,
+            t_max,
+            parent.site.members(),
+            u,
+            self.coincide,
+        );
         (site, tau, parent.t_out)
     }
 
     /// Record the events of this thread's last [`Self::sample_sites`] call at the positions the renderer placed
     /// them (`p`, one per lane of that call; `active` false for lanes without an event) and return each
     /// lane's albedo at its channel wavelengths (`lambda`: `channels` per lane, or `channels` shared).
-    pub fn commit_events(&self, p: &[[f32; 3]], active: &[bool], lambda: &[f64], channels: usize) -> Result<Vec<f64>, OpticsError> {
-        let pending = self.pending.lock().unwrap().remove(&std::thread::current().id()).unwrap_or_default();
+    pub fn commit_events(
+        &self,
+        p: &[[f32; 3]],
+        active: &[bool],
+        lambda: &[f64],
+        channels: usize,
+    ) -> Result<Vec<f64>, OpticsError> {
+        let pending = self
+            .pending
+            .lock()
+            .unwrap()
+            .remove(&std::thread::current().id())
+            .unwrap_or_default();
         let n = p.len();
-        require("lanes (must equal the last sample_sites call)", n as f64, pending.len() == n && active.len() == n, "the same lane count")?;
+        require(
+            "lanes (must equal the last sample_sites call)",
+            n as f64,
+            pending.len() == n && active.len() == n,
+            "the same lane count",
+        )?;
         let shared = lambda.len() == channels;
-        require("lambda (length)", lambda.len() as f64, shared || lambda.len() == n * channels, "channels or lanes × channels")?;
+        require(
+            "lambda (length)",
+            lambda.len() as f64,
+            shared || lambda.len() == n * channels,
+            "channels or lanes × channels",
+        )?;
         let albedo: Vec<f64> = (0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
                 let site = if active[i] { pending[i].0 } else { None };
-                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
-                (0..channels).map(move |c| site.map_or(0.0, |s| self.site_albedo(&s, self.bracket(lam[c]))))
+                let lam = if shared {
+                    &lambda[..]
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
+                (0..channels)
+                    .map(move |c| site.map_or(0.0, |s| self.site_albedo(&s, self.bracket(lam[c]))))
             })
             .collect();
         let mut events = self.events.write().unwrap();
         events.capacity = events.capacity.max(4 * n);
         for i in 0..n {
             if let (true, (Some(site), true, parent)) = (active[i], pending[i]) {
-                events.insert(key(p[i]), event_after(site, &parent, &albedo[i * channels..(i + 1) * channels]));
+                events.insert(
+                    key(p[i]),
+                    event_after(site, &parent, &albedo[i * channels..(i + 1) * channels]),
+                );
             }
         }
         Ok(albedo)
@@ -439,7 +623,11 @@ impl DiscreteMedium {
             num += t * self.albedo_at(j, l);
             den += t;
         }
-        if den > 0.0 { num / den } else { 0.0 }
+        if den > 0.0 {
+            num / den
+        } else {
+            0.0
+        }
     }
 
     /// The site at `p` found from the geometry when the event is not remembered: the particles whose
@@ -465,7 +653,15 @@ impl DiscreteMedium {
 
     /// Phase function of a mixture of particles per channel at μ = cos θ, and the pdf Σ_c π_c f_c of
     /// sampling it (module docs): particle j weighs `scale(j)` × its albedo in each channel.
-    fn mixture_phase(&self, members: &[u32], scale: &impl Fn(u32) -> f64, ls: &[(usize, usize, f64)], pi: &[f64], mu: f64, values: &mut [f64]) -> f64 {
+    fn mixture_phase(
+        &self,
+        members: &[u32],
+        scale: &impl Fn(u32) -> f64,
+        ls: &[(usize, usize, f64)],
+        pi: &[f64],
+        mu: f64,
+        values: &mut [f64],
+    ) -> f64 {
         let mut pdf = 0.0;
         for (c, &l) in ls.iter().enumerate() {
             let (mut num, mut den) = (0.0, 0.0);
@@ -485,7 +681,17 @@ impl DiscreteMedium {
     /// wavelength), each by rescaling `u1`; `u2` draws the direction. Returns (wo, pdf) and the channel
     /// values in `values`.
     #[allow(clippy::too_many_arguments)]
-    fn mixture_sample(&self, members: &[u32], scale: &impl Fn(u32) -> f64, ls: &[(usize, usize, f64)], pi: &[f64], w_in: [f64; 3], u1: f64, u2: [f64; 2], values: &mut [f64]) -> Option<([f64; 3], f64)> {
+    fn mixture_sample(
+        &self,
+        members: &[u32],
+        scale: &impl Fn(u32) -> f64,
+        ls: &[(usize, usize, f64)],
+        pi: &[f64],
+        w_in: [f64; 3],
+        u1: f64,
+        u2: [f64; 2],
+        values: &mut [f64],
+    ) -> Option<([f64; 3], f64)> {
         let mut u = u1.clamp(0.0, 1.0 - f64::EPSILON);
         let mut c = ls.len() - 1;
         let mut acc = 0.0;
@@ -498,7 +704,10 @@ impl DiscreteMedium {
             acc += p;
         }
         let l = ls[c];
-        let weights: Vec<f64> = members.iter().map(|&j| scale(j) * self.albedo_at(j, l)).collect();
+        let weights: Vec<f64> = members
+            .iter()
+            .map(|&j| scale(j) * self.albedo_at(j, l))
+            .collect();
         let total: f64 = weights.iter().sum();
         if !(total > 0.0) {
             return None;
@@ -527,18 +736,43 @@ impl DiscreteMedium {
     /// particles whose inclusion ball (R_i = r_c + r_i) contains p each add C_s,i / V_i with
     /// V_i = 4/3 π R_i³, so that E[σ_s(p)] is the bulk σ_s. Returns σ_s per channel and
     /// Q_c(μ) = σ_s,c f_c(μ) (1/sr per unit length) at the given μ = cos θ, each `n × channels`.
-    pub fn local_scattering(&self, p: &[[f64; 3]], mu: &[f64], lambda: &[f64], channels: usize) -> (Vec<f64>, Vec<f64>) {
+    pub fn local_scattering(
+        &self,
+        p: &[[f64; 3]],
+        mu: &[f64],
+        lambda: &[f64],
+        channels: usize,
+    ) -> (Vec<f64>, Vec<f64>) {
         let shared = lambda.len() == channels;
         let res: Vec<(Vec<f64>, Vec<f64>)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
                 let members = self.grid.containing(p[i]);
-                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let lam = if shared {
+                    &lambda[..]
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
                 let scale = |j: u32| self.local_weight(j);
-                let sigma: Vec<f64> = ls.iter().map(|&l| members.iter().map(|&j| scale(j) * self.albedo_at(j, l)).sum()).collect();
+                let sigma: Vec<f64> = ls
+                    .iter()
+                    .map(|&l| {
+                        members
+                            .iter()
+                            .map(|&j| scale(j) * self.albedo_at(j, l))
+                            .sum()
+                    })
+                    .collect();
                 let mut f = vec![0.0; channels];
-                self.mixture_phase(&members, &scale, &ls, &uniform_channels(channels), mu[i].clamp(-1.0, 1.0), &mut f);
+                self.mixture_phase(
+                    &members,
+                    &scale,
+                    &ls,
+                    &uniform_channels(channels),
+                    mu[i].clamp(-1.0, 1.0),
+                    &mut f,
+                );
                 let q = f.iter().zip(&sigma).map(|(a, b)| a * b).collect();
                 (sigma, q)
             })
@@ -557,16 +791,38 @@ impl DiscreteMedium {
     /// a particle with probability ∝ its local scattering weight, then its tabulated phase function.
     /// `w_in` is the propagation direction. Returns (wo, weight per channel = f_c / pdf, pdf); pdf 0
     /// where no particle is local.
-    pub fn sample_local(&self, p: &[[f64; 3]], w_in: &[[f64; 3]], lambda: &[f64], channels: usize, u1: &[f64], u2: &[[f64; 2]]) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+    pub fn sample_local(
+        &self,
+        p: &[[f64; 3]],
+        w_in: &[[f64; 3]],
+        lambda: &[f64],
+        channels: usize,
+        u1: &[f64],
+        u2: &[[f64; 2]],
+    ) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
         let shared = lambda.len() == channels;
         let res: Vec<Sample> = (0..p.len())
             .into_par_iter()
             .map(|i| {
                 let members = self.grid.containing(p[i]);
-                let Some(dir) = normalise(w_in[i]) else { return null_sample(channels) };
-                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let Some(dir) = normalise(w_in[i]) else {
+                    return null_sample(channels);
+                };
+                let lam = if shared {
+                    &lambda[..]
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                self.weighted_sample(&members, &|j| self.local_weight(j), &ls, &uniform_channels(channels), dir, u1[i], u2[i])
+                self.weighted_sample(
+                    &members,
+                    &|j| self.local_weight(j),
+                    &ls,
+                    &uniform_channels(channels),
+                    dir,
+                    u1[i],
+                    u2[i],
+                )
             })
             .collect();
         unzip_samples(res)
@@ -574,7 +830,16 @@ impl DiscreteMedium {
 
     /// One mixture sample as (wo, weight per channel = value / pdf, pdf), or the null sample.
     #[allow(clippy::too_many_arguments)]
-    fn weighted_sample(&self, members: &[u32], scale: &impl Fn(u32) -> f64, ls: &[(usize, usize, f64)], pi: &[f64], w_in: [f64; 3], u1: f64, u2: [f64; 2]) -> Sample {
+    fn weighted_sample(
+        &self,
+        members: &[u32],
+        scale: &impl Fn(u32) -> f64,
+        ls: &[(usize, usize, f64)],
+        pi: &[f64],
+        w_in: [f64; 3],
+        u1: f64,
+        u2: [f64; 2],
+    ) -> Sample {
         let mut v = vec![0.0; ls.len()];
         match self.mixture_sample(members, scale, ls, pi, w_in, u1, u2, &mut v) {
             Some((wo, pdf)) if pdf > 0.0 => {
@@ -588,13 +853,24 @@ impl DiscreteMedium {
     /// Evaluate the phase function of the event at `p` for incident direction `wi` (pointing back along
     /// the path, Mitsuba's convention) and outgoing `wo`: per-channel values (1/sr) and the pdf.
     /// Positions without a remembered event give 0 and 0.
-    pub fn phase_eval(&self, p: &[[f32; 3]], wi: &[[f32; 3]], wo: &[[f32; 3]], lambda: &[f64], channels: usize) -> (Vec<f64>, Vec<f64>) {
+    pub fn phase_eval(
+        &self,
+        p: &[[f32; 3]],
+        wi: &[[f32; 3]],
+        wo: &[[f32; 3]],
+        lambda: &[f64],
+        channels: usize,
+    ) -> (Vec<f64>, Vec<f64>) {
         let shared = lambda.len() == channels;
         let events = self.events.read().unwrap();
         let res: Vec<(Vec<f64>, f64)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let lam = if shared {
+                    &lambda[..]
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 let mut v = vec![0.0; channels];
                 let pdf = self.lane_phase_eval(&events, p[i], wi[i], wo[i], lam, &mut v);
                 (v, pdf)
@@ -605,26 +881,57 @@ impl DiscreteMedium {
     }
 
     /// One lane of [`Self::phase_eval`]: the values into `v` (one per wavelength of `lam`), the pdf returned.
-    fn lane_phase_eval(&self, events: &EventMap, p: [f32; 3], wi: [f32; 3], wo: [f32; 3], lam: &[f64], v: &mut [f64]) -> f64 {
+    fn lane_phase_eval(
+        &self,
+        events: &EventMap,
+        p: [f32; 3],
+        wi: [f32; 3],
+        wo: [f32; 3],
+        lam: &[f64],
+        v: &mut [f64],
+    ) -> f64 {
         v.iter_mut().for_each(|x| *x = 0.0);
         let dirs = normalise(wi.map(|x| -(x as f64))).zip(normalise(wo.map(|x| x as f64)));
-        let Some((w_in, w_out)) = dirs else { return 0.0 };
-        let Some(e) = self.event_or_geometry(events, p, w_in) else { return 0.0 };
+        let Some((w_in, w_out)) = dirs else {
+            return 0.0;
+        };
+        let Some(e) = self.event_or_geometry(events, p, w_in) else {
+            return 0.0;
+        };
         let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
         let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
         let pi = event_channels(&e, lam.len());
-        self.mixture_phase(e.site.members(), &|j| self.tau[j as usize] as f64, &ls, &pi, mu, v)
+        self.mixture_phase(
+            e.site.members(),
+            &|j| self.tau[j as usize] as f64,
+            &ls,
+            &pi,
+            mu,
+            v,
+        )
     }
 
     /// Sample the phase function of the event at `p` (module docs): outgoing directions, weights
     /// (value / pdf per channel) and pdfs; `u1` picks channel, particle and table, `u2` the direction.
-    pub fn phase_sample(&self, p: &[[f32; 3]], wi: &[[f32; 3]], lambda: &[f64], channels: usize, u1: &[f64], u2: &[[f64; 2]]) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+    pub fn phase_sample(
+        &self,
+        p: &[[f32; 3]],
+        wi: &[[f32; 3]],
+        lambda: &[f64],
+        channels: usize,
+        u1: &[f64],
+        u2: &[[f64; 2]],
+    ) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
         let shared = lambda.len() == channels;
         let events = self.events.read().unwrap();
         let res: Vec<(Sample, Option<[f32; MAX_CHANNELS]>)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let lam = if shared { &lambda[..] } else { &lambda[i * channels..(i + 1) * channels] };
+                let lam = if shared {
+                    &lambda[..]
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 self.lane_phase_sample(&events, p[i], wi[i], lam, u1[i], u2[i])
             })
             .collect();
@@ -641,34 +948,78 @@ impl DiscreteMedium {
 
     /// One lane of [`Self::phase_sample`]: the sample and the path's throughput after it (to store as
     /// the event's `t_out`).
-    fn lane_phase_sample(&self, events: &EventMap, p: [f32; 3], wi: [f32; 3], lam: &[f64], u1: f64, u2: [f64; 2]) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
+    fn lane_phase_sample(
+        &self,
+        events: &EventMap,
+        p: [f32; 3],
+        wi: [f32; 3],
+        lam: &[f64],
+        u1: f64,
+        u2: [f64; 2],
+    ) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
         let channels = lam.len();
-        let Some(w_in) = normalise(wi.map(|x| -(x as f64))) else { return (null_sample(channels), None) };
-        let Some(e) = self.event_or_geometry(events, p, w_in) else { return (null_sample(channels), None) };
+        let Some(w_in) = normalise(wi.map(|x| -(x as f64))) else {
+            return (null_sample(channels), None);
+        };
+        let Some(e) = self.event_or_geometry(events, p, w_in) else {
+            return (null_sample(channels), None);
+        };
         let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
         let pi = event_channels(&e, channels);
-        let sample = self.weighted_sample(e.site.members(), &|j| self.tau[j as usize] as f64, &ls, &pi, w_in, u1, u2);
+        let sample = self.weighted_sample(
+            e.site.members(),
+            &|j| self.tau[j as usize] as f64,
+            &ls,
+            &pi,
+            w_in,
+            u1,
+            u2,
+        );
         // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
-        let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0)
-            .then(|| normalised_throughput((0..channels).map(|c| if known { e.t_in[c] as f64 } else { 1.0 } * sample.1[c])));
+        let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0).then(|| {
+            normalised_throughput(
+                (0..channels).map(|c| if known { e.t_in[c] as f64 } else { 1.0 } * sample.1[c]),
+            )
+        });
         (sample, t_out)
     }
 
     /// The remembered event at `p`, or else the site found from the geometry (uniform channels).
     fn event_or_geometry(&self, events: &EventMap, p: [f32; 3], w_in: [f64; 3]) -> Option<Event> {
-        events.get(&key(p)).copied().or_else(|| self.site_near(p, w_in).map(|site| Event { site, ..Event::default() }))
+        events.get(&key(p)).copied().or_else(|| {
+            self.site_near(p, w_in).map(|site| Event {
+                site,
+                ..Event::default()
+            })
+        })
     }
 
     /// Remember an event directly (tests and tools: e.g. a chi-square test of a chosen mixture).
     pub fn insert_event(&self, p: [f32; 3], particles: &[u32]) -> Result<(), OpticsError> {
         let mut s = Site::default();
         for &i in particles {
-            require("particle", i as f64, (i as usize) < self.tau.len(), "< number of particles")?;
+            require(
+                "particle",
+                i as f64,
+                (i as usize) < self.tau.len(),
+                "< number of particles",
+            )?;
             s.push(i);
         }
-        require("particles (count)", particles.len() as f64, !particles.is_empty(), ">= 1")?;
-        self.events.write().unwrap().insert(key(p), Event { site: s, ..Event::default() });
+        require(
+            "particles (count)",
+            particles.len() as f64,
+            !particles.is_empty(),
+            ">= 1",
+        )?;
+        self.events.write().unwrap().insert(
+            key(p),
+            Event {
+                site: s,
+                ..Event::default()
+            },
+        );
         Ok(())
     }
 }
@@ -697,8 +1048,15 @@ struct PacketState {
 
 impl Default for PacketState {
     fn default() -> Self {
-        let events = EventMap { current: FxHashMap::default(), previous: FxHashMap::default(), capacity: PACKET_EVENT_CAPACITY };
-        PacketState { pending: [PendingLane::default(); PACKET_LANES], events }
+        let events = EventMap {
+            current: FxHashMap::default(),
+            previous: FxHashMap::default(),
+            capacity: PACKET_EVENT_CAPACITY,
+        };
+        PacketState {
+            pending: [PendingLane::default(); PACKET_LANES],
+            events,
+        }
     }
 }
 
@@ -730,7 +1088,10 @@ impl DiscreteMedium {
     /// interface so far. Commits are not counted: Dr.Jit drops a shadow ray's commit from the kernel,
     /// whose albedo nobody reads.
     pub fn packet_counts(&self) -> (u64, u64) {
-        (self.packet_rays.load(Ordering::Relaxed), self.packet_events.load(Ordering::Relaxed))
+        (
+            self.packet_rays.load(Ordering::Relaxed),
+            self.packet_events.load(Ordering::Relaxed),
+        )
     }
 
     /// This thread's packet state for this medium.
@@ -746,7 +1107,10 @@ impl DiscreteMedium {
 
     /// Free flights of a packet: the distance to each lane's next site (None: the ray leaves [0, t_max)).
     pub fn packet_free_flights(&self, rays: &[Option<PacketRay>], t: &mut [Option<f64>]) {
-        self.packet_rays.fetch_add(rays.iter().filter(|r| r.is_some()).count() as u64, Ordering::Relaxed);
+        self.packet_rays.fetch_add(
+            rays.iter().filter(|r| r.is_some()).count() as u64,
+            Ordering::Relaxed,
+        );
         let sites = self.with_packet_state(|st| {
             let mut sites = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
@@ -767,31 +1131,57 @@ impl DiscreteMedium {
     /// Remember the events of this thread's last packet of free flights at the positions the renderer
     /// placed them (`p`, None for lanes without an event) and write each lane's albedo (`channels` per
     /// lane into `albedo`) at its wavelengths (`lambda`: `channels` shared, or `channels` per lane).
-    pub fn packet_commit(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize, albedo: &mut [f64]) {
+    pub fn packet_commit(
+        &self,
+        p: &[Option<[f32; 3]>],
+        lambda: &[f64],
+        channels: usize,
+        albedo: &mut [f64],
+    ) {
         let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
                 let a = &mut albedo[i * channels..(i + 1) * channels];
                 a.iter_mut().for_each(|x| *x = 0.0);
-                let (Some(pos), Some(site)) = (*pos, st.pending[i].site) else { continue };
-                let lam = if shared { lambda } else { &lambda[i * channels..(i + 1) * channels] };
+                let (Some(pos), Some(site)) = (*pos, st.pending[i].site) else {
+                    continue;
+                };
+                let lam = if shared {
+                    lambda
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 for (c, &l) in lam.iter().enumerate() {
                     a[c] = self.site_albedo(&site, self.bracket(l));
                 }
-                st.events.insert(key(pos), event_after(site, &st.pending[i].parent, a));
+                st.events
+                    .insert(key(pos), event_after(site, &st.pending[i].parent, a));
             }
         })
     }
 
     /// Sample the phase functions of a packet's events: lanes (p, wi, u1, u2) → `wo` and `pdf` (0 where
     /// there is no event); the events' throughputs are updated as [`Self::phase_sample`] does.
-    pub fn packet_phase_sample(&self, lanes: &[Option<([f32; 3], [f32; 3], f64, [f64; 2])>], lambda: &[f64], channels: usize, wo: &mut [[f64; 3]], pdf: &mut [f64]) {
+    pub fn packet_phase_sample(
+        &self,
+        lanes: &[Option<([f32; 3], [f32; 3], f64, [f64; 2])>],
+        lambda: &[f64],
+        channels: usize,
+        wo: &mut [[f64; 3]],
+        pdf: &mut [f64],
+    ) {
         let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
-                let Some((p, wi, u1, u2)) = *lane else { continue };
-                let lam = if shared { lambda } else { &lambda[i * channels..(i + 1) * channels] };
+                let Some((p, wi, u1, u2)) = *lane else {
+                    continue;
+                };
+                let lam = if shared {
+                    lambda
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 let (sample, t_out) = self.lane_phase_sample(&st.events, p, wi, lam, u1, u2);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
                 if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(p))) {
@@ -803,7 +1193,14 @@ impl DiscreteMedium {
 
     /// Evaluate the phase functions of a packet's events: lanes (p, wi, wo) → `values` (`channels` per
     /// lane) and `pdf`.
-    pub fn packet_phase_eval(&self, lanes: &[Option<([f32; 3], [f32; 3], [f32; 3])>], lambda: &[f64], channels: usize, values: &mut [f64], pdf: &mut [f64]) {
+    pub fn packet_phase_eval(
+        &self,
+        lanes: &[Option<([f32; 3], [f32; 3], [f32; 3])>],
+        lambda: &[f64],
+        channels: usize,
+        values: &mut [f64],
+        pdf: &mut [f64],
+    ) {
         let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
@@ -813,7 +1210,11 @@ impl DiscreteMedium {
                     v.iter_mut().for_each(|x| *x = 0.0);
                     continue;
                 };
-                let lam = if shared { lambda } else { &lambda[i * channels..(i + 1) * channels] };
+                let lam = if shared {
+                    lambda
+                } else {
+                    &lambda[i * channels..(i + 1) * channels]
+                };
                 pdf[i] = self.lane_phase_eval(&st.events, p, wi, w, lam, v);
             }
         })
@@ -828,13 +1229,22 @@ mod tests {
     /// τ ≤ τ_max; with r_c = 0 and Q = 2 the paper's τ = C / (π R²) would be 2 (43 % of C removed).
     #[test]
     fn disks_remove_their_cross_section() {
-        for &(r, q, rc, tmax) in &[(1.0, 2.0, 0.0, DEFAULT_TAU_MAX), (1.0, 2.0, 0.0, f64::INFINITY), (1.0, 1.0, 0.0, f64::INFINITY), (1.0, 2.0, 10.0, 0.1), (0.5, 2.2, 0.1, 0.05)] {
+        for &(r, q, rc, tmax) in &[
+            (1.0, 2.0, 0.0, DEFAULT_TAU_MAX),
+            (1.0, 2.0, 0.0, f64::INFINITY),
+            (1.0, 1.0, 0.0, f64::INFINITY),
+            (1.0, 2.0, 10.0, 0.1),
+            (0.5, 2.2, 0.1, 0.05),
+        ] {
             let c = q * PI * r * r;
             let (reach, tau) = particle_disk(r, c, rc, tmax);
             assert!(reach >= rc + r);
             assert!(tau <= tmax.min(TAU_OPAQUE) + 1e-12, "{tau}");
             let removed = PI * reach * reach * (1.0 - (-tau).exp());
-            assert!((removed / c - 1.0).abs() < 1e-9, "{r} {q} {rc} {tmax}: {removed} vs {c}");
+            assert!(
+                (removed / c - 1.0).abs() < 1e-9,
+                "{r} {q} {rc} {tmax}: {removed} vs {c}"
+            );
         }
     }
 
@@ -859,7 +1269,14 @@ mod tests {
             let a = m.commit_events(&[p], &[true], &[500.0, 600.0], 2).unwrap();
             k += 1;
             let u = |s: u64| uniform(11, k, s);
-            let (wo, w, pdf) = m.phase_sample(&[p], &[d.map(|x| -x)], &[500.0, 600.0], 2, &[u(0)], &[[u(1), u(2)]]);
+            let (wo, w, pdf) = m.phase_sample(
+                &[p],
+                &[d.map(|x| -x)],
+                &[500.0, 600.0],
+                2,
+                &[u(0)],
+                &[[u(1), u(2)]],
+            );
             if pdf[0] <= 0.0 {
                 continue;
             }
@@ -867,7 +1284,10 @@ mod tests {
                 throughput[c] *= a[c] * w[c];
             }
             // Σ_c t_c is what the throughput-proportional choice preserves (up to albedo and ε).
-            assert!(throughput.iter().all(|x| x.is_finite() && *x < 50.0), "{throughput:?}");
+            assert!(
+                throughput.iter().all(|x| x.is_finite() && *x < 50.0),
+                "{throughput:?}"
+            );
             o = p;
             d = wo[0].map(|x| x as f32);
             bounces += 1;
@@ -878,25 +1298,48 @@ mod tests {
     fn table(g: f64) -> PhaseTable {
         // Henyey–Greenstein on a fine grid.
         let theta: Vec<f64> = (0..2001).map(|i| PI * i as f64 / 2000.0).collect();
-        let f: Vec<f64> = theta.iter().map(|t| (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * t.cos()).powf(1.5))).collect();
+        let f: Vec<f64> = theta
+            .iter()
+            .map(|t| (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * t.cos()).powf(1.5)))
+            .collect();
         PhaseTable::new(&theta, &f).unwrap()
     }
 
     fn medium(n: usize) -> DiscreteMedium {
         let mut s = 3u64;
         let mut r = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 11) as f64) / (1u64 << 53) as f64
         };
         let pos: Vec<[f64; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
         let rad: Vec<f64> = (0..n).map(|_| 0.002 + 0.004 * r()).collect();
         let c: Vec<f64> = rad.iter().map(|x| 2.0 * PI * x * x).collect();
         let bins = vec![
-            BinOptics { albedo: vec![1.0, 0.9], phase: vec![table(0.3), table(0.5)] },
-            BinOptics { albedo: vec![0.5, 0.7], phase: vec![table(-0.2), table(0.8)] },
+            BinOptics {
+                albedo: vec![1.0, 0.9],
+                phase: vec![table(0.3), table(0.5)],
+            },
+            BinOptics {
+                albedo: vec![0.5, 0.7],
+                phase: vec![table(-0.2), table(0.8)],
+            },
         ];
         let bin = (0..n).map(|i| (i % 2) as u32).collect();
-        DiscreteMedium::build(&pos, &rad, &c, bin, bins, vec![500.0, 600.0], 0.01, DEFAULT_TAU_MAX, 1.0, 7).unwrap()
+        DiscreteMedium::build(
+            &pos,
+            &rad,
+            &c,
+            bin,
+            bins,
+            vec![500.0, 600.0],
+            0.01,
+            DEFAULT_TAU_MAX,
+            1.0,
+            7,
+        )
+        .unwrap()
     }
 
     /// Sites are sampled with the exact escape probability exp(−τ) (binomial 5σ bound), and the
@@ -909,12 +1352,16 @@ mod tests {
         let d = vec![[0.0f32, 0.0, 1.0]; lanes];
         let tm = vec![1.4; lanes];
         let mut tau = [0.0];
-        m.grid.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4, &mut tau);
+        m.grid
+            .optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4, &mut tau);
         let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
         let escaped = res.iter().filter(|r| r.t.is_none()).count() as f64 / lanes as f64;
         let p = (-tau[0]).exp();
         assert!(tau[0] > 0.2, "{}", tau[0]);
-        assert!((escaped - p).abs() < 5.0 * (p * (1.0 - p) / lanes as f64).sqrt(), "{escaped} vs {p}");
+        assert!(
+            (escaped - p).abs() < 5.0 * (p * (1.0 - p) / lanes as f64).sqrt(),
+            "{escaped} vs {p}"
+        );
         for r in &res {
             assert!(r.tau_before <= tau[0] + 1e-6);
         }
@@ -927,20 +1374,32 @@ mod tests {
         let m = medium(4000);
         let mut s = 99u64;
         let mut r = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 11) as f64) / (1u64 << 53) as f64
         };
         // interior points, away from the faces of the particles' unit box
-        let pts: Vec<[f64; 3]> = (0..40000).map(|_| [0.1 + 0.8 * r(), 0.1 + 0.8 * r(), 0.1 + 0.8 * r()]).collect();
+        let pts: Vec<[f64; 3]> = (0..40000)
+            .map(|_| [0.1 + 0.8 * r(), 0.1 + 0.8 * r(), 0.1 + 0.8 * r()])
+            .collect();
         let mu = vec![0.3; pts.len()];
         let (sigma, q) = m.local_scattering(&pts, &mu, &[500.0], 1);
         let mean = sigma.iter().sum::<f64>() / sigma.len() as f64;
         let var = sigma.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (sigma.len() - 1) as f64;
         // bulk: Σ_i C_t,i a_i / V over the unit box (albedo 1.0 / 0.5 by bin at 500 nm)
-        let bulk: f64 = (0..m.len()).map(|i| m.c_ext[i] as f64 * m.bins[m.bin[i] as usize].albedo[0]).sum::<f64>();
+        let bulk: f64 = (0..m.len())
+            .map(|i| m.c_ext[i] as f64 * m.bins[m.bin[i] as usize].albedo[0])
+            .sum::<f64>();
         let se = (var / sigma.len() as f64).sqrt();
-        assert!((mean - bulk).abs() < 6.0 * se, "mean σ_s {mean} vs bulk {bulk} (se {se})");
-        assert!(q.iter().zip(&sigma).all(|(a, b)| *a >= 0.0 && (*b > 0.0 || *a == 0.0)));
+        assert!(
+            (mean - bulk).abs() < 6.0 * se,
+            "mean σ_s {mean} vs bulk {bulk} (se {se})"
+        );
+        assert!(q
+            .iter()
+            .zip(&sigma)
+            .all(|(a, b)| *a >= 0.0 && (*b > 0.0 || *a == 0.0)));
         let n = 2000;
         let w_in = vec![[0.0, 0.0, 1.0]; n];
         let u1: Vec<f64> = (0..n).map(|_| r()).collect();
@@ -952,7 +1411,12 @@ mod tests {
             }
             let (sg, qq) = m.local_scattering(&pts[i..i + 1], &[wo[i][2]], &[500.0, 600.0], 2);
             let expect = (qq[0] / sg[0] + qq[1] / sg[1]) / 2.0;
-            assert!((pdf[i] - expect).abs() < 1e-9 * expect.max(1.0), "{} {}", pdf[i], expect);
+            assert!(
+                (pdf[i] - expect).abs() < 1e-9 * expect.max(1.0),
+                "{} {}",
+                pdf[i],
+                expect
+            );
             assert!((w[2 * i] * pdf[i] - qq[0] / sg[0]).abs() < 1e-9 * expect.max(1.0));
         }
     }
@@ -979,11 +1443,22 @@ mod tests {
         let s = m.event_at(p).unwrap();
         assert!(s.len >= 1);
         // without the map entry the phase function finds the site from the geometry
-        assert_eq!(m.site_near(p, [0.0, 0.0, 1.0]).map(|x| x.members().to_vec()), Some(s.members().to_vec()));
+        assert_eq!(
+            m.site_near(p, [0.0, 0.0, 1.0])
+                .map(|x| x.members().to_vec()),
+            Some(s.members().to_vec())
+        );
         // an event of a lane not marked `remember` (a shadow ray) is not remembered
         let mut shadow_hit = None;
         for _ in 0..200 {
-            if let Some(t) = m.sample_sites(&[[0.5f32, 0.5, -0.2]], &[[0.0f32, 0.0, 1.0]], &[1.0], &[false])[0].t {
+            if let Some(t) = m.sample_sites(
+                &[[0.5f32, 0.5, -0.2]],
+                &[[0.0f32, 0.0, 1.0]],
+                &[1.0],
+                &[false],
+            )[0]
+            .t
+            {
                 shadow_hit = Some(t);
                 break;
             }
@@ -993,15 +1468,33 @@ mod tests {
             m.commit_events(&[q], &[true], &[500.0, 600.0], 2).unwrap();
             assert!(m.event_at(q).is_none());
         }
-        let (wo, w, pdf) = m.phase_sample(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &[500.0, 600.0], 2, &(0..64).map(|i| i as f64 / 64.0).collect::<Vec<_>>(), &(0..64).map(|i| [((i * 37) % 64) as f64 / 64.0, ((i * 11) % 64) as f64 / 64.0]).collect::<Vec<_>>());
+        let (wo, w, pdf) = m.phase_sample(
+            &[p; 64],
+            &[[0.0, 0.0, -1.0]; 64],
+            &[500.0, 600.0],
+            2,
+            &(0..64).map(|i| i as f64 / 64.0).collect::<Vec<_>>(),
+            &(0..64)
+                .map(|i| [((i * 37) % 64) as f64 / 64.0, ((i * 11) % 64) as f64 / 64.0])
+                .collect::<Vec<_>>(),
+        );
         let wo32: Vec<[f32; 3]> = wo.iter().map(|v| v.map(|x| x as f32)).collect();
-        let (vals, pdf2) = m.phase_eval(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &wo32, &[500.0, 600.0], 2);
+        let (vals, pdf2) =
+            m.phase_eval(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &wo32, &[500.0, 600.0], 2);
         for i in 0..64 {
             assert!(pdf[i] > 0.0);
-            assert!((pdf[i] - pdf2[i]).abs() < 1e-3 * pdf[i], "{} {}", pdf[i], pdf2[i]);
+            assert!(
+                (pdf[i] - pdf2[i]).abs() < 1e-3 * pdf[i],
+                "{} {}",
+                pdf[i],
+                pdf2[i]
+            );
             assert!((w[2 * i] * pdf[i] - vals[2 * i]).abs() < 1e-3 * vals[2 * i].max(1e-9));
             // the pdf is a mixture of the channel values (throughput-proportional weights, module docs)
-            let (lo, hi) = (vals[2 * i].min(vals[2 * i + 1]), vals[2 * i].max(vals[2 * i + 1]));
+            let (lo, hi) = (
+                vals[2 * i].min(vals[2 * i + 1]),
+                vals[2 * i].max(vals[2 * i + 1]),
+            );
             assert!(pdf2[i] >= lo * (1.0 - 1e-12) && pdf2[i] <= hi * (1.0 + 1e-12));
         }
     }

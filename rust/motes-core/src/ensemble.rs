@@ -21,13 +21,13 @@
 
 use crate::error::{require, OpticsError};
 use crate::goa::GoaOptions;
-use crate::optics::{self, Method, Particle, Theory};
 use crate::mie::{series_length, MieCoefficients, MieIntensitySums};
+use crate::optics::{self, Method, Particle, Theory};
 use crate::psd::{Psd, RippleResolution};
-use std::sync::OnceLock;
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::f64::consts::PI;
+use std::sync::OnceLock;
 
 /// One particle species of a medium.
 #[derive(Clone, Debug)]
@@ -159,13 +159,39 @@ struct Ensemble<'a> {
 }
 
 impl<'a> Ensemble<'a> {
-    fn new(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta_medium: f64, opts: &'a BulkOptions) -> Result<Self, OpticsError> {
-        require("number_density_m3", number_density_m3, number_density_m3.is_finite() && number_density_m3 >= 0.0, "finite and >= 0")?;
-        require("species (count)", species.len() as f64, !species.is_empty(), ">= 1")?;
-        require("mie_dx", opts.mie_dx, opts.mie_dx.is_finite() && opts.mie_dx >= 0.0, "finite and >= 0")?;
+    fn new(
+        species: &[Species],
+        number_density_m3: f64,
+        wavelength_um: f64,
+        eta_medium: f64,
+        opts: &'a BulkOptions,
+    ) -> Result<Self, OpticsError> {
+        require(
+            "number_density_m3",
+            number_density_m3,
+            number_density_m3.is_finite() && number_density_m3 >= 0.0,
+            "finite and >= 0",
+        )?;
+        require(
+            "species (count)",
+            species.len() as f64,
+            !species.is_empty(),
+            ">= 1",
+        )?;
+        require(
+            "mie_dx",
+            opts.mie_dx,
+            opts.mie_dx.is_finite() && opts.mie_dx >= 0.0,
+            "finite and >= 0",
+        )?;
         let total_share: f64 = species.iter().map(|s| s.share).sum();
         for s in species {
-            require("share", s.share, s.share.is_finite() && s.share >= 0.0, "finite and >= 0")?;
+            require(
+                "share",
+                s.share,
+                s.share.is_finite() && s.share >= 0.0,
+                "finite and >= 0",
+            )?;
             s.psd.validate()?;
         }
         require("share (sum)", total_share, total_share > 0.0, "> 0")?;
@@ -179,13 +205,17 @@ impl<'a> Ensemble<'a> {
                 dx: opts.mie_dx,
                 x_grow: MIE_RIPPLE_X_GROW,
                 x_min: MIE_RIPPLE_X_MIN,
-                x_max: mie_size_limit(opts.method, s.eta / eta_medium, k, opts.goa.p_max).min(MIE_RIPPLE_X_MAX),
+                x_max: mie_size_limit(opts.method, s.eta / eta_medium, k, opts.goa.p_max)
+                    .min(MIE_RIPPLE_X_MAX),
                 min_share: MIE_RIPPLE_MIN_SHARE,
             };
             let (r, w) = s.psd.quadrature_resolving(opts.max_log_step, Some(&ripple));
             for (ri, wi) in r.into_iter().zip(w) {
                 if wi > 0.0 {
-                    nodes.push((Particle::new(ri, wavelength_um, s.eta, eta_medium)?, number_density_m3 * s.share / total_share * wi));
+                    nodes.push((
+                        Particle::new(ri, wavelength_um, s.eta, eta_medium)?,
+                        number_density_m3 * s.share / total_share * wi,
+                    ));
                 }
             }
         }
@@ -194,17 +224,30 @@ impl<'a> Ensemble<'a> {
         let per_node: Vec<(f64, f64)> = nodes
             .par_iter()
             .map(|(p, w)| {
-                let (ce, ca) = optics::extinction_and_absorption(p, opts.method.theory(p, opts.goa.p_max), &opts.goa);
+                let (ce, ca) = optics::extinction_and_absorption(
+                    p,
+                    opts.method.theory(p, opts.goa.p_max),
+                    &opts.goa,
+                );
                 (w * ce, w * ca)
             })
             .collect();
-        let (ext, abs) = per_node.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-        Ok(Ensemble { nodes, opts, ext, abs, mie: OnceLock::new() })
+        let (ext, abs) = per_node
+            .iter()
+            .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        Ok(Ensemble {
+            nodes,
+            opts,
+            ext,
+            abs,
+            mie: OnceLock::new(),
+        })
     }
 
     /// Whether a node is summed in coefficient space (Mie, x ≤ [`MIE_RIPPLE_X_MAX`]).
     fn in_sums(&self, p: &Particle) -> bool {
-        p.size_parameter() <= MIE_RIPPLE_X_MAX && self.opts.method.theory(p, self.opts.goa.p_max) == Theory::Mie
+        p.size_parameter() <= MIE_RIPPLE_X_MAX
+            && self.opts.method.theory(p, self.opts.goa.p_max) == Theory::Mie
     }
 
     /// `Σ w (|S1|²+|S2|²)/(2k²)` over the nodes at each angle (Eq. 17 before normalisation).
@@ -212,11 +255,21 @@ impl<'a> Ensemble<'a> {
     /// reproducible); the value at an angle does not depend on the other angles.
     fn intensity(&self, theta: &[f64]) -> Vec<f64> {
         let n = theta.len();
-        let add = |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
-        let direct: Vec<&(Particle, f64)> = self.nodes.iter().filter(|(p, _)| !self.in_sums(p)).collect();
+        let add =
+            |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
+        let direct: Vec<&(Particle, f64)> = self
+            .nodes
+            .iter()
+            .filter(|(p, _)| !self.in_sums(p))
+            .collect();
         let chunks: Vec<Vec<f64>> = direct
             .par_chunks(16)
-            .map(|chunk| chunk.iter().map(|node| node_intensity(node, theta, self.opts)).fold(vec![0.0; n], add))
+            .map(|chunk| {
+                chunk
+                    .iter()
+                    .map(|node| node_intensity(node, theta, self.opts))
+                    .fold(vec![0.0; n], add)
+            })
             .collect();
         let direct = chunks.into_iter().fold(vec![0.0; n], add);
         match self.mie.get_or_init(|| self.mie_sums()) {
@@ -230,18 +283,28 @@ impl<'a> Ensemble<'a> {
 
     /// The coefficient-space sums of the Mie nodes, weights `w/(2k²)`; 16 fixed groups summed in order.
     fn mie_sums(&self) -> Option<MieIntensitySums> {
-        let mie: Vec<&(Particle, f64)> = self.nodes.iter().filter(|(p, _)| self.in_sums(p)).collect();
+        let mie: Vec<&(Particle, f64)> =
+            self.nodes.iter().filter(|(p, _)| self.in_sums(p)).collect();
         if mie.is_empty() {
             return None;
         }
-        let size = |nodes: &[&(Particle, f64)]| nodes.iter().map(|(p, _)| series_length(p.size_parameter())).max().unwrap_or(0);
+        let size = |nodes: &[&(Particle, f64)]| {
+            nodes
+                .iter()
+                .map(|(p, _)| series_length(p.size_parameter()))
+                .max()
+                .unwrap_or(0)
+        };
         let groups: Vec<MieIntensitySums> = mie
             .par_chunks(mie.len().div_ceil(16))
             .map(|group| {
                 let mut sums = MieIntensitySums::new(size(group));
                 for (p, w) in group {
                     let k = p.k();
-                    sums.add(&MieCoefficients::new(p.size_parameter(), p.relative_index()), w / (2.0 * k * k));
+                    sums.add(
+                        &MieCoefficients::new(p.size_parameter(), p.relative_index()),
+                        w / (2.0 * k * k),
+                    );
                 }
                 sums
             })
@@ -266,7 +329,18 @@ fn coefficients(ens: &Ensemble) -> (f64, f64, f64) {
 fn tabulate(ens: &Ensemble, theta: &[f64]) -> (Bulk, f64) {
     let (sigma_t, sigma_s, sigma_a) = coefficients(ens);
     if theta.is_empty() {
-        return (Bulk { sigma_t, sigma_s, sigma_a, g: 0.0, phase: Vec::new(), energy_ratio: 0.0, theta: Vec::new() }, 0.0);
+        return (
+            Bulk {
+                sigma_t,
+                sigma_s,
+                sigma_a,
+                g: 0.0,
+                phase: Vec::new(),
+                energy_ratio: 0.0,
+                theta: Vec::new(),
+            },
+            0.0,
+        );
     }
     let base = ens.intensity(theta);
     let (theta, intensity) = refine(ens, theta.to_vec(), base);
@@ -274,19 +348,46 @@ fn tabulate(ens: &Ensemble, theta: &[f64]) -> (Bulk, f64) {
     let total: f64 = intensity.iter().zip(&wts).map(|(i, w)| i * w).sum();
     let (phase, g) = if total > 0.0 {
         let phase: Vec<f64> = intensity.iter().map(|i| i / total).collect();
-        let g = phase.iter().zip(&wts).zip(&theta).map(|((f, w), t)| f * w * t.cos()).sum();
+        let g = phase
+            .iter()
+            .zip(&wts)
+            .zip(&theta)
+            .map(|((f, w), t)| f * w * t.cos())
+            .sum();
         (phase, g)
     } else {
         (vec![1.0 / (4.0 * PI); theta.len()], 0.0)
     };
-    let energy_ratio = if sigma_s > 0.0 { total * 1e-12 / sigma_s } else { 0.0 };
-    (Bulk { sigma_t, sigma_s, sigma_a, g, phase, energy_ratio, theta }, total)
+    let energy_ratio = if sigma_s > 0.0 {
+        total * 1e-12 / sigma_s
+    } else {
+        0.0
+    };
+    (
+        Bulk {
+            sigma_t,
+            sigma_s,
+            sigma_a,
+            g,
+            phase,
+            energy_ratio,
+            theta,
+        },
+        total,
+    )
 }
 
 /// Bulk properties of `species` at one wavelength, tabulated on the internal grid `theta` (strictly
 /// increasing in [0, π]: use [`default_angles`]), refined when `opts.refine_tol > 0`; an empty `theta`
 /// skips the phase function and g.
-pub fn bulk(species: &[Species], number_density_m3: f64, wavelength_um: f64, eta_medium: f64, theta: &[f64], opts: &BulkOptions) -> Result<Bulk, OpticsError> {
+pub fn bulk(
+    species: &[Species],
+    number_density_m3: f64,
+    wavelength_um: f64,
+    eta_medium: f64,
+    theta: &[f64],
+    opts: &BulkOptions,
+) -> Result<Bulk, OpticsError> {
     check_angles(theta)?;
     let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?;
     Ok(tabulate(&ens, theta).0)
@@ -326,11 +427,22 @@ pub fn bulk_at(
         return Ok((b, fraction));
     };
     let phase: Vec<f64> = if total > 0.0 {
-        ens.intensity(q).iter().zip(q).map(|(i, &t)| cut.map_or(i / total, |c| c.apply(t, i / total))).collect()
+        ens.intensity(q)
+            .iter()
+            .zip(q)
+            .map(|(i, &t)| cut.map_or(i / total, |c| c.apply(t, i / total)))
+            .collect()
     } else {
         vec![1.0 / (4.0 * PI); q.len()]
     };
-    Ok((Bulk { phase, theta: q.to_vec(), ..b }, fraction))
+    Ok((
+        Bulk {
+            phase,
+            theta: q.to_vec(),
+            ..b
+        },
+        fraction,
+    ))
 }
 
 /// Where a bulk computation reports the phase function.
@@ -370,15 +482,34 @@ pub fn bulk_spectral(
     truncate_below_rad: f64,
     opts: &BulkOptions,
 ) -> Result<SpectralBulk, OpticsError> {
-    require("species (wavelengths)", species.len() as f64, species.len() == wavelength_um.len(), "one list per wavelength")?;
+    require(
+        "species (wavelengths)",
+        species.len() as f64,
+        species.len() == wavelength_um.len(),
+        "one list per wavelength",
+    )?;
     for &l in wavelength_um {
-        require("wavelength_um", l, l.is_finite() && l > 0.0, "finite and > 0")?;
+        require(
+            "wavelength_um",
+            l,
+            l.is_finite() && l > 0.0,
+            "finite and > 0",
+        )?;
     }
-    require("truncate_below_rad", truncate_below_rad, truncate_below_rad.is_finite() && (0.0..PI).contains(&truncate_below_rad), "finite and in [0, π)")?;
+    require(
+        "truncate_below_rad",
+        truncate_below_rad,
+        truncate_below_rad.is_finite() && (0.0..PI).contains(&truncate_below_rad),
+        "finite and in [0, π)",
+    )?;
     let grid = match angles {
         PhaseAngles::None => Vec::new(),
         _ => {
-            let r_max = species.iter().flatten().map(|s| s.psd.support().1).fold(0.0, f64::max);
+            let r_max = species
+                .iter()
+                .flatten()
+                .map(|s| s.psd.support().1)
+                .fold(0.0, f64::max);
             let lam_min = wavelength_um.iter().cloned().fold(f64::INFINITY, f64::min);
             default_angles(r_max, lam_min, eta_medium)
         }
@@ -390,7 +521,18 @@ pub fn bulk_spectral(
     let results = wavelength_um
         .iter()
         .zip(species)
-        .map(|(&l, s)| bulk_at(s, number_density_m3, l, eta_medium, &grid, query, truncate_below_rad, opts))
+        .map(|(&l, s)| {
+            bulk_at(
+                s,
+                number_density_m3,
+                l,
+                eta_medium,
+                &grid,
+                query,
+                truncate_below_rad,
+                opts,
+            )
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let (bulk, peak_fraction): (Vec<Bulk>, Vec<f64>) = results.into_iter().unzip();
     let theta: Vec<f64> = if bulk.iter().all(|b| b.theta == bulk[0].theta) {
@@ -401,8 +543,22 @@ pub fn bulk_spectral(
         u.dedup();
         u
     };
-    let phase = bulk.iter().map(|b| if b.theta == theta { b.phase.clone() } else { resample_linear_mu(&b.theta, &b.phase, &theta) }).collect();
-    Ok(SpectralBulk { bulk, peak_fraction, theta, phase })
+    let phase = bulk
+        .iter()
+        .map(|b| {
+            if b.theta == theta {
+                b.phase.clone()
+            } else {
+                resample_linear_mu(&b.theta, &b.phase, &theta)
+            }
+        })
+        .collect();
+    Ok(SpectralBulk {
+        bulk,
+        peak_fraction,
+        theta,
+        phase,
+    })
 }
 
 /// Linear-in-μ interpolation of (theta, f) onto `target` (both increasing in θ).
@@ -412,7 +568,11 @@ fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
         .map(|&t| {
             let i = theta.partition_point(|&x| x <= t).clamp(1, theta.len() - 1);
             let (m0, m1, m) = (theta[i - 1].cos(), theta[i].cos(), t.cos());
-            let w = if m1 != m0 { ((m - m0) / (m1 - m0)).clamp(0.0, 1.0) } else { 0.0 };
+            let w = if m1 != m0 {
+                ((m - m0) / (m1 - m0)).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
             f[i - 1] + w * (f[i] - f[i - 1])
         })
         .collect()
@@ -421,7 +581,8 @@ fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
 /// One node's weighted intensity `w (|S1|²+|S2|²)/(2k²)` at every angle.
 fn node_intensity((p, w): &(Particle, f64), theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
     let theory = opts.method.theory(p, opts.goa.p_max);
-    let geo = (theory == Theory::Goa).then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
+    let geo = (theory == Theory::Goa)
+        .then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
     let k2 = p.k() * p.k();
     optics::particle_amplitudes(p, theory, geo.as_deref(), theta, &opts.goa)
         .into_iter()
@@ -447,7 +608,11 @@ fn refine(ens: &Ensemble, mut theta: Vec<f64>, mut inten: Vec<f64>) -> (Vec<f64>
     // probability is refined too, wherever f is (keeps the normalisation right when fine fringes
     // below the 1e-6 floor carry much of the energy, e.g. a single millimetre grain).
     const MASS_TOL: f64 = 1e-5;
-    let total: f64 = inten.iter().zip(solid_angle_weights(&theta)).map(|(f, w)| f * w).sum();
+    let total: f64 = inten
+        .iter()
+        .zip(solid_angle_weights(&theta))
+        .map(|(f, w)| f * w)
+        .sum();
     let mass_floor = MASS_TOL * total;
     // First pass: every interval is a candidate (a feature may lie entirely between two nodes, where
     // no curvature test on the nodes can see it); later passes only the halves of refined intervals.
@@ -457,14 +622,23 @@ fn refine(ens: &Ensemble, mut theta: Vec<f64>, mut inten: Vec<f64>) -> (Vec<f64>
             break;
         }
         candidates.truncate(opts.refine_max_nodes - theta.len());
-        let mids: Vec<f64> = candidates.iter().map(|&i| ((mu(theta[i]) + mu(theta[i + 1])) * 0.5).clamp(-1.0, 1.0).acos()).collect();
+        let mids: Vec<f64> = candidates
+            .iter()
+            .map(|&i| {
+                ((mu(theta[i]) + mu(theta[i + 1])) * 0.5)
+                    .clamp(-1.0, 1.0)
+                    .acos()
+            })
+            .collect();
         let vals = ens.intensity(&mids);
         // Insert where the linear table is off; the new intervals on both sides become candidates.
         let mut inserts: Vec<(usize, f64, f64)> = Vec::new();
         for ((&i, &t), &v) in candidates.iter().zip(&mids).zip(&vals) {
             let predicted = 0.5 * (inten[i] + inten[i + 1]);
-            let relative = v.max(predicted) > floor && (predicted - v).abs() > opts.refine_tol * v.max(floor);
-            let mass = (predicted - v).abs() * 2.0 * PI * (mu(theta[i]) - mu(theta[i + 1])).abs() > mass_floor;
+            let relative =
+                v.max(predicted) > floor && (predicted - v).abs() > opts.refine_tol * v.max(floor);
+            let mass = (predicted - v).abs() * 2.0 * PI * (mu(theta[i]) - mu(theta[i + 1])).abs()
+                > mass_floor;
             if (relative || mass) && t > theta[i] && t < theta[i + 1] {
                 inserts.push((i, t, v));
             }
@@ -515,39 +689,88 @@ pub struct Truncation {
 impl Truncation {
     /// Measures the truncation at `theta_c` on the table `b.phase` at the nodes `theta`.
     pub fn measure(b: &Bulk, theta: &[f64], theta_c: f64) -> Result<Self, OpticsError> {
-        require("theta_c", theta_c, (0.0..PI).contains(&theta_c), "finite and in [0, π)")?;
-        require("phase (length)", b.phase.len() as f64, b.phase.len() == theta.len() && theta.len() >= 2, "len(theta) >= 2")?;
+        require(
+            "theta_c",
+            theta_c,
+            (0.0..PI).contains(&theta_c),
+            "finite and in [0, π)",
+        )?;
+        require(
+            "phase (length)",
+            b.phase.len() as f64,
+            b.phase.len() == theta.len() && theta.len() >= 2,
+            "len(theta) >= 2",
+        )?;
         // f at θc by linear interpolation on the grid.
-        let i = theta.partition_point(|&t| t <= theta_c).clamp(1, theta.len() - 1);
+        let i = theta
+            .partition_point(|&t| t <= theta_c)
+            .clamp(1, theta.len() - 1);
         let (t0, t1) = (theta[i - 1], theta[i]);
         let w = ((theta_c - t0) / (t1 - t0)).clamp(0.0, 1.0);
         let f_c = (b.phase[i - 1] + w * (b.phase[i] - b.phase[i - 1])).max(0.0);
         let wts = solid_angle_weights(theta);
         let clip = |f: f64, t: f64| if t < theta_c { f.min(f_c) } else { f };
-        let kept: f64 = b.phase.iter().zip(theta).zip(&wts).map(|((&f, &t), w)| clip(f, t) * w).sum();
+        let kept: f64 = b
+            .phase
+            .iter()
+            .zip(theta)
+            .zip(&wts)
+            .map(|((&f, &t), w)| clip(f, t) * w)
+            .sum();
         let total: f64 = b.phase.iter().zip(&wts).map(|(f, w)| f * w).sum();
         let fraction = ((total - kept) / total).clamp(0.0, 1.0);
-        Ok(Truncation { theta_c, f_c, kept, fraction })
+        Ok(Truncation {
+            theta_c,
+            f_c,
+            kept,
+            fraction,
+        })
     }
 
     /// The truncated phase function f' at angle `theta` from the untruncated value `f` there.
     pub fn apply(&self, theta: f64, f: f64) -> f64 {
-        (if theta < self.theta_c { f.min(self.f_c) } else { f }) / self.kept
+        (if theta < self.theta_c {
+            f.min(self.f_c)
+        } else {
+            f
+        }) / self.kept
     }
 
     /// The truncated properties of the table `b` at the nodes `theta`: f' there, g of f', and σ_s, σ_t
     /// without the fraction F (σ_a unchanged).
     pub fn apply_to(&self, b: &Bulk, theta: &[f64]) -> Bulk {
-        let phase: Vec<f64> = b.phase.iter().zip(theta).map(|(&f, &t)| self.apply(t, f)).collect();
+        let phase: Vec<f64> = b
+            .phase
+            .iter()
+            .zip(theta)
+            .map(|(&f, &t)| self.apply(t, f))
+            .collect();
         let wts = solid_angle_weights(theta);
-        let g = phase.iter().zip(&wts).zip(theta).map(|((f, w), t)| f * w * t.cos()).sum();
+        let g = phase
+            .iter()
+            .zip(&wts)
+            .zip(theta)
+            .map(|((f, w), t)| f * w * t.cos())
+            .sum();
         let removed = b.sigma_s * self.fraction;
-        Bulk { sigma_t: b.sigma_t - removed, sigma_s: b.sigma_s - removed, sigma_a: b.sigma_a, g, phase, energy_ratio: b.energy_ratio, theta: theta.to_vec() }
+        Bulk {
+            sigma_t: b.sigma_t - removed,
+            sigma_s: b.sigma_s - removed,
+            sigma_a: b.sigma_a,
+            g,
+            phase,
+            energy_ratio: b.energy_ratio,
+            theta: theta.to_vec(),
+        }
     }
 }
 
 /// [`Truncation`] at `theta_c` of the table `b` on the nodes `theta`: the truncated properties and F.
-pub fn truncate_forward_peak(b: &Bulk, theta: &[f64], theta_c: f64) -> Result<(Bulk, f64), OpticsError> {
+pub fn truncate_forward_peak(
+    b: &Bulk,
+    theta: &[f64],
+    theta_c: f64,
+) -> Result<(Bulk, f64), OpticsError> {
     let cut = Truncation::measure(b, theta, theta_c)?;
     Ok((cut.apply_to(b, theta), cut.fraction))
 }
@@ -557,13 +780,24 @@ mod tests {
     use super::*;
 
     fn opts(method: Method) -> BulkOptions {
-        BulkOptions { method, goa: GoaOptions::default(), max_log_step: 0.05, mie_dx: MIE_RIPPLE_DX, refine_tol: 0.0, refine_max_nodes: 0 }
+        BulkOptions {
+            method,
+            goa: GoaOptions::default(),
+            max_log_step: 0.05,
+            mie_dx: MIE_RIPPLE_DX,
+            refine_tol: 0.0,
+            refine_max_nodes: 0,
+        }
     }
 
     /// The monodisperse limit equals the single-particle values exactly: σ_t = N0 C_t.
     #[test]
     fn monodisperse_limit() {
-        let s = Species { psd: Psd::Monodisperse { radius_um: 10.0 }, eta: C64::new(1.33, 1e-3), share: 1.0 };
+        let s = Species {
+            psd: Psd::Monodisperse { radius_um: 10.0 },
+            eta: C64::new(1.33, 1e-3),
+            share: 1.0,
+        };
         let theta = graded_angles(105.0, 200, 600);
         let b = bulk(&[s], 1e6, 0.6, 1.0, &theta, &opts(Method::Mie)).unwrap();
         let p = Particle::new(10.0, 0.6, C64::new(1.33, 1e-3), 1.0).unwrap();
@@ -579,14 +813,21 @@ mod tests {
     /// phase function, and is the identity at θc = 0.
     #[test]
     fn truncation_conserves() {
-        let s = Species { psd: Psd::Monodisperse { radius_um: 100.0 }, eta: C64::new(1.31, 1e-6), share: 1.0 };
+        let s = Species {
+            psd: Psd::Monodisperse { radius_um: 100.0 },
+            eta: C64::new(1.31, 1e-6),
+            share: 1.0,
+        };
         let theta = graded_angles(1100.0, 400, 1400);
         let b = bulk(&[s], 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
         let (same, f0) = truncate_forward_peak(&b, &theta, 0.0).unwrap();
         assert_eq!(f0, 0.0);
         assert!((same.sigma_t - b.sigma_t).abs() < 1e-15 * b.sigma_t);
         let (t, f) = truncate_forward_peak(&b, &theta, 0.01).unwrap();
-        assert!(f > 0.3 && f < 0.7, "diffraction lobe of a 100 µm grain inside 10 mrad: {f}");
+        assert!(
+            f > 0.3 && f < 0.7,
+            "diffraction lobe of a 100 µm grain inside 10 mrad: {f}"
+        );
         assert_eq!(t.sigma_a, b.sigma_a);
         assert!((t.sigma_s - b.sigma_s * (1.0 - f)).abs() < 1e-12 * b.sigma_s);
         let w = solid_angle_weights(&theta);
@@ -598,12 +839,40 @@ mod tests {
     /// Bulk properties are bitwise reproducible run to run (no scheduling-dependent reductions).
     #[test]
     fn bitwise_reproducible() {
-        let s = Species { psd: Psd::LogNormal { median_um: 800.0, sigma_g: 4.0, r_min_um: 1e-3, r_max_um: 2000.0 }, eta: C64::new(1.31, 1e-8), share: 1.0 };
+        let s = Species {
+            psd: Psd::LogNormal {
+                median_um: 800.0,
+                sigma_g: 4.0,
+                r_min_um: 1e-3,
+                r_max_um: 2000.0,
+            },
+            eta: C64::new(1.31, 1e-8),
+            share: 1.0,
+        };
         let theta = graded_angles(2e4, 100, 300);
-        let first = bulk(std::slice::from_ref(&s), 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
+        let first = bulk(
+            std::slice::from_ref(&s),
+            1e4,
+            0.55,
+            1.0,
+            &theta,
+            &opts(Method::Auto),
+        )
+        .unwrap();
         for _ in 0..5 {
-            let again = bulk(std::slice::from_ref(&s), 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
-            assert_eq!((again.sigma_t, again.sigma_a, again.g), (first.sigma_t, first.sigma_a, first.g));
+            let again = bulk(
+                std::slice::from_ref(&s),
+                1e4,
+                0.55,
+                1.0,
+                &theta,
+                &opts(Method::Auto),
+            )
+            .unwrap();
+            assert_eq!(
+                (again.sigma_t, again.sigma_a, again.g),
+                (first.sigma_t, first.sigma_a, first.g)
+            );
             assert_eq!(again.phase, first.phase);
         }
     }
@@ -611,8 +880,16 @@ mod tests {
     /// Species shares mix linearly: two species at shares c and 1 − c give the share-weighted σ's.
     #[test]
     fn species_mix_linearly() {
-        let a = Species { psd: Psd::Monodisperse { radius_um: 5.0 }, eta: C64::new(1.33, 0.0), share: 3.0 };
-        let b = Species { psd: Psd::Monodisperse { radius_um: 50.0 }, eta: C64::new(1.5, 0.01), share: 1.0 };
+        let a = Species {
+            psd: Psd::Monodisperse { radius_um: 5.0 },
+            eta: C64::new(1.33, 0.0),
+            share: 3.0,
+        };
+        let b = Species {
+            psd: Psd::Monodisperse { radius_um: 50.0 },
+            eta: C64::new(1.5, 0.01),
+            share: 1.0,
+        };
         let o = opts(Method::Auto);
         let both = bulk(&[a.clone(), b.clone()], 4e6, 0.55, 1.0, &[], &o).unwrap();
         let only_a = bulk(&[a], 3e6, 0.55, 1.0, &[], &o).unwrap();

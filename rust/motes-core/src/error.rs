@@ -6,19 +6,38 @@ use std::fmt;
 #[derive(Clone, Debug, PartialEq)]
 pub enum OpticsError {
     /// `argument` had `value`, which violates `requirement`.
-    InvalidArgument { argument: &'static str, value: f64, requirement: &'static str },
+    InvalidArgument {
+        argument: &'static str,
+        value: f64,
+        requirement: &'static str,
+    },
     /// An option outside its allowed set.
-    InvalidOption { argument: &'static str, value: String, allowed: &'static str },
+    InvalidOption {
+        argument: &'static str,
+        value: String,
+        allowed: &'static str,
+    },
 }
 
 impl fmt::Display for OpticsError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            OpticsError::InvalidArgument { argument, value, requirement } => {
+            OpticsError::InvalidArgument {
+                argument,
+                value,
+                requirement,
+            } => {
                 write!(f, "invalid {argument} = {value}: must be {requirement}")
             }
-            OpticsError::InvalidOption { argument, value, allowed } => {
-                write!(f, "invalid {argument} = {value:?}: allowed values are {allowed}")
+            OpticsError::InvalidOption {
+                argument,
+                value,
+                allowed,
+            } => {
+                write!(
+                    f,
+                    "invalid {argument} = {value:?}: allowed values are {allowed}"
+                )
             }
         }
     }
@@ -27,10 +46,19 @@ impl fmt::Display for OpticsError {
 impl std::error::Error for OpticsError {}
 
 /// Check `pred(value)`, else an `InvalidArgument` error.
-pub fn require(argument: &'static str, value: f64, ok: bool, requirement: &'static str) -> Result<(), OpticsError> {
+pub fn require(
+    argument: &'static str,
+    value: f64,
+    ok: bool,
+    requirement: &'static str,
+) -> Result<(), OpticsError> {
     if ok {
         Ok(())
     } else {
-        Err(OpticsError::InvalidArgument { argument, value, requirement })
+        Err(OpticsError::InvalidArgument {
+            argument,
+            value,
+            requirement,
+        })
     }
 }

@@ -63,7 +63,12 @@ pub struct GoaOptions {
 
 impl Default for GoaOptions {
     fn default() -> Self {
-        GoaOptions { p_max: 3, diffraction: true, regularise: true, edge_correction: true }
+        GoaOptions {
+            p_max: 3,
+            diffraction: true,
+            regularise: true,
+            edge_correction: true,
+        }
     }
 }
 
@@ -90,7 +95,10 @@ pub struct RayGeometry {
 #[inline]
 pub fn fresnel(m: C64, cos_i: f64, b: C64) -> [C64; 2] {
     let m2 = m * m;
-    [(cos_i - b) / (cos_i + b), (m2 * cos_i - b) / (m2 * cos_i + b)]
+    [
+        (cos_i - b) / (cos_i + b),
+        (m2 * cos_i - b) / (m2 * cos_i + b),
+    ]
 }
 
 /// `ε_j` of Eq. 8: `r` for p = 0, `(1 − r²)(−r)^{p−1}` otherwise.
@@ -123,13 +131,24 @@ pub fn ray_geometry(m: C64, p: u32, theta_i: f64) -> RayGeometry {
     let theta_t = s.atan2(br);
     let cos_t = if eta_eff > 0.0 { br / eta_eff } else { 0.0 };
     // dθt/dθi = (Re b · cos θi − sin θi · d(Re b)/dθi)/η'² with d b/dθi = −sinθi cosθi / b.
-    let inv_b = if b.norm_sqr() > 0.0 { 1.0 / b } else { C64::new(f64::INFINITY, 0.0) };
-    let dtheta_t = if eta_eff > 0.0 { (br * c + s * s * c * inv_b.re) / (eta_eff * eta_eff) } else { f64::INFINITY };
+    let inv_b = if b.norm_sqr() > 0.0 {
+        1.0 / b
+    } else {
+        C64::new(f64::INFINITY, 0.0)
+    };
+    let dtheta_t = if eta_eff > 0.0 {
+        (br * c + s * s * c * inv_b.re) / (eta_eff * eta_eff)
+    } else {
+        f64::INFINITY
+    };
     let (deflection, d_deflection) = if p == 0 {
         (PI - 2.0 * theta_i, -2.0)
     } else {
         let pf = p as f64;
-        (2.0 * pf * theta_t - 2.0 * theta_i - (pf - 1.0) * PI, 2.0 * pf * dtheta_t - 2.0)
+        (
+            2.0 * pf * theta_t - 2.0 * theta_i - (pf - 1.0) * PI,
+            2.0 * pf * dtheta_t - 2.0,
+        )
     };
     let r = fresnel(m, c, b);
     RayGeometry {
@@ -156,8 +175,15 @@ fn deflection(m: C64, p: u32, theta_i: f64) -> (f64, f64) {
         let st = (s / m.re).min(1.0);
         let ct = (1.0 - st * st).sqrt();
         let theta_t = st.asin();
-        let dtheta_t = if ct > 0.0 { c / (m.re * ct) } else { f64::INFINITY };
-        (2.0 * pf * theta_t - 2.0 * theta_i - (pf - 1.0) * PI, 2.0 * pf * dtheta_t - 2.0)
+        let dtheta_t = if ct > 0.0 {
+            c / (m.re * ct)
+        } else {
+            f64::INFINITY
+        };
+        (
+            2.0 * pf * theta_t - 2.0 * theta_i - (pf - 1.0) * PI,
+            2.0 * pf * dtheta_t - 2.0,
+        )
     } else {
         let g = ray_geometry(m, p, theta_i);
         (g.deflection, g.d_deflection)
@@ -241,7 +267,12 @@ impl OrderGeometry {
         cuts.push(hi);
         let sample = |t: f64| {
             let (th, d) = deflection(m, p, t);
-            Sample { theta_i: t, deflection: th, d, d2: d2_deflection(m, p, t, hi) }
+            Sample {
+                theta_i: t,
+                deflection: th,
+                d,
+                d2: d2_deflection(m, p, t, hi),
+            }
         };
         let mut branches = Vec::new();
         for w in cuts.windows(2) {
@@ -253,7 +284,10 @@ impl OrderGeometry {
             samples.extend(ti.iter().filter(|t| **t > a && **t < b).map(|&t| sample(t)));
             samples.push(sample(b));
             let increasing = samples.last().unwrap().deflection > samples[0].deflection;
-            branches.push(Branch { samples, increasing });
+            branches.push(Branch {
+                samples,
+                increasing,
+            });
         }
         OrderGeometry { p, branches }
     }
@@ -264,7 +298,11 @@ impl OrderGeometry {
         for br in &self.branches {
             let first = br.samples[0].deflection;
             let last = br.samples.last().unwrap().deflection;
-            let (lo, hi) = if first < last { (first, last) } else { (last, first) };
+            let (lo, hi) = if first < last {
+                (first, last)
+            } else {
+                (last, first)
+            };
             for q in [1i32, -1] {
                 let qt = q as f64 * theta;
                 let l_lo = ((lo - qt) / (2.0 * PI)).ceil() as i64;
@@ -338,14 +376,23 @@ fn solve_branch(m: C64, p: u32, br: &Branch, target: f64) -> Option<(f64, f64)> 
             a = x;
         }
         let newton = x - f / d;
-        let next = if newton.is_finite() && newton > a && newton < b { newton } else { 0.5 * (a + b) };
+        let next = if newton.is_finite() && newton > a && newton < b {
+            newton
+        } else {
+            0.5 * (a + b)
+        };
         let step = (next - x).abs();
         x = next;
-        if step <= 2.0 * f64::EPSILON * x.abs().max(1e-300) || b - a <= 2.0 * f64::EPSILON * b.abs() {
+        if step <= 2.0 * f64::EPSILON * x.abs().max(1e-300) || b - a <= 2.0 * f64::EPSILON * b.abs()
+        {
             break;
         }
     }
-    let w = if sb.theta_i > sa.theta_i { (x - sa.theta_i) / (sb.theta_i - sa.theta_i) } else { 0.0 };
+    let w = if sb.theta_i > sa.theta_i {
+        (x - sa.theta_i) / (sb.theta_i - sa.theta_i)
+    } else {
+        0.0
+    };
     Some((x, sa.d2 + w.clamp(0.0, 1.0) * (sb.d2 - sa.d2)))
 }
 
@@ -383,7 +430,13 @@ impl PreparedRay {
         }
         let (sin_i, cos_i) = g.theta_i.sin_cos();
         let pf = p as f64;
-        let sgn = if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 };
+        let sgn = if d > 0.0 {
+            1.0
+        } else if d < 0.0 {
+            -1.0
+        } else {
+            0.0
+        };
         Some(PreparedRay {
             eps: g.eps,
             sin2i: 2.0 * sin_i * cos_i,
@@ -405,16 +458,27 @@ impl PreparedRay {
             // Regularisations 2 (glory) and 3 (caustic), module docs.
             let glory = 2.0 * self.sin_i / alpha;
             let dc = (self.caustic * alpha_m13).max(2.0 / alpha);
-            (self.sin_th * self.sin_th + glory * glory, self.d * self.d + dc * dc)
+            (
+                self.sin_th * self.sin_th + glory * glory,
+                self.d * self.d + dc * dc,
+            )
         } else {
             (self.sin_th * self.sin_th, self.d * self.d)
         };
         let denom = 2.0 * (sin_eff2 * d_eff2).sqrt();
-        let ratio = if self.sin2i == 0.0 { 0.0 } else { self.sin2i / denom };
+        let ratio = if self.sin2i == 0.0 {
+            0.0
+        } else {
+            self.sin2i / denom
+        };
         if !(ratio > 0.0) || !ratio.is_finite() {
             return [C64::new(0.0, 0.0); 2];
         }
-        let xi = if self.attenuation > 0.0 { (-alpha * self.attenuation).exp() } else { 1.0 };
+        let xi = if self.attenuation > 0.0 {
+            (-alpha * self.attenuation).exp()
+        } else {
+            1.0
+        };
         let phase = C64::from_polar(alpha * xi * ratio.sqrt(), -(alpha * self.path + self.phi_f));
         let (a1, a2) = (self.eps[0] * phase, self.eps[1] * phase);
         if !regularise {
@@ -466,7 +530,11 @@ pub struct GoaGeometry {
 
 impl GoaGeometry {
     pub fn new(m: C64, p_max: u32) -> Self {
-        GoaGeometry { m, p_max, orders: (0..=p_max).map(|p| OrderGeometry::new(m, p)).collect() }
+        GoaGeometry {
+            m,
+            p_max,
+            orders: (0..=p_max).map(|p| OrderGeometry::new(m, p)).collect(),
+        }
     }
 
     /// Append the rays (orders ≤ p_max) leaving at θ ∈ [0, π].
@@ -497,11 +565,21 @@ impl GoaGeometry {
             rays.extend(v);
             offsets.push(rays.len());
         }
-        PreparedAngles { theta: theta.to_vec(), offsets, rays }
+        PreparedAngles {
+            theta: theta.to_vec(),
+            offsets,
+            rays,
+        }
     }
 
     /// Amplitudes (S1, S2) in the BH convention at one scattering angle θ ∈ [0, π] for size parameter α.
-    pub fn amplitudes(&self, alpha: f64, theta: f64, opts: &GoaOptions, scratch: &mut Vec<PreparedRay>) -> (C64, C64) {
+    pub fn amplitudes(
+        &self,
+        alpha: f64,
+        theta: f64,
+        opts: &GoaOptions,
+        scratch: &mut Vec<PreparedRay>,
+    ) -> (C64, C64) {
         scratch.clear();
         self.rays_at(theta, opts.p_max, scratch);
         SizeTerms::new(self.m, alpha, opts).sum(theta, scratch, opts)
@@ -519,8 +597,16 @@ struct SizeTerms {
 
 impl SizeTerms {
     fn new(m: C64, alpha: f64, opts: &GoaOptions) -> Self {
-        let diffraction_scale = if opts.edge_correction { (1.0 + edge_term(alpha, m)).sqrt() } else { 1.0 };
-        SizeTerms { alpha, alpha_m13: alpha.powf(-1.0 / 3.0), diffraction_scale }
+        let diffraction_scale = if opts.edge_correction {
+            (1.0 + edge_term(alpha, m)).sqrt()
+        } else {
+            1.0
+        };
+        SizeTerms {
+            alpha,
+            alpha_m13: alpha.powf(-1.0 / 3.0),
+            diffraction_scale,
+        }
     }
 
     /// Diffraction plus the given rays (Eq. 11).
@@ -542,7 +628,12 @@ impl SizeTerms {
 }
 
 /// Evaluate prepared angles at size parameter α: element i is (S1, S2) at `prepared.theta[i]`.
-pub fn evaluate_prepared(m: C64, prepared: &PreparedAngles, alpha: f64, opts: &GoaOptions) -> Vec<(C64, C64)> {
+pub fn evaluate_prepared(
+    m: C64,
+    prepared: &PreparedAngles,
+    alpha: f64,
+    opts: &GoaOptions,
+) -> Vec<(C64, C64)> {
     use rayon::prelude::*;
     let size = SizeTerms::new(m, alpha, opts);
     (0..prepared.len())
@@ -562,7 +653,11 @@ pub fn diffraction(alpha: f64, theta: f64) -> f64 {
         return 0.0;
     }
     let x = alpha * theta.sin();
-    let j1_over_x = if x < 1e-4 { 0.5 - x * x / 16.0 } else { libm::j1(x) / x };
+    let j1_over_x = if x < 1e-4 {
+        0.5 - x * x / 16.0
+    } else {
+        libm::j1(x) / x
+    };
     alpha * alpha * j1_over_x
 }
 
@@ -598,12 +693,22 @@ pub fn ray_optics_weight(alpha: f64, m: C64) -> f64 {
 fn axial_term(m: C64, p: u32, alpha: f64, regularise: bool) -> C64 {
     let g = ray_geometry(m, p, 0.0);
     let d = g.d_deflection;
-    let d_eff = if regularise { (d * d + 4.0 / (alpha * alpha)).sqrt() } else { d.abs() };
+    let d_eff = if regularise {
+        (d * d + 4.0 / (alpha * alpha)).sqrt()
+    } else {
+        d.abs()
+    };
     if d_eff == 0.0 {
         return C64::new(0.0, 0.0);
     }
     let pf = p as f64;
-    let sgn = if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 };
+    let sgn = if d > 0.0 {
+        1.0
+    } else if d < 0.0 {
+        -1.0
+    } else {
+        0.0
+    };
     // θ_p(0) = −(p−1)π = 2πl with q = s: φ_f = π/2 (2p − s) (Eq. 10).
     let phi_f = FRAC_PI_2 * (2.0 * pf - sgn);
     let phi_p = 2.0 * alpha * (1.0 - pf * g.eta_eff * g.cos_t);
@@ -626,15 +731,26 @@ fn adt_excess(alpha: f64, m: C64) -> f64 {
 /// GOA extinction efficiency `Q_t = C_t / πr²`, Eq. 12 (App. B) summed over odd p ≤ p_max.
 /// With `regularise`, the p = 1 term is the Fresnel-weighted ADT kernel (regularisation 4) and the
 /// higher terms use the bounded `D_eff`.
-pub fn extinction_efficiency(alpha: f64, m: C64, p_max: u32, regularise: bool, edge_correction: bool) -> f64 {
-    let mut q = if edge_correction { 2.0 + edge_term(alpha, m) } else { 2.0 };
+pub fn extinction_efficiency(
+    alpha: f64,
+    m: C64,
+    p_max: u32,
+    regularise: bool,
+    edge_correction: bool,
+) -> f64 {
+    let mut q = if edge_correction {
+        2.0 + edge_term(alpha, m)
+    } else {
+        2.0
+    };
     let mut p = 1;
     while p <= p_max {
         if p == 1 && regularise {
             let r0 = (1.0 - m) / (1.0 + m);
             // GOA's axial p = 1 amplitude is the ADT one times |m(1 − r0²)| = 4η²/(1+η)² (focusing and
             // Fresnel transmission); that factor fades to 1 in the ADT regime, so that Q → Q_ADT ≥ 0.
-            let fresnel_factor = 1.0 + ((m * (1.0 - r0 * r0)).norm() - 1.0) * ray_optics_weight(alpha, m);
+            let fresnel_factor =
+                1.0 + ((m * (1.0 - r0 * r0)).norm() - 1.0) * ray_optics_weight(alpha, m);
             q += fresnel_factor * adt_excess(alpha, m);
         } else {
             q += 4.0 / (alpha * alpha) * axial_term(m, p, alpha, regularise).re;
@@ -724,19 +840,33 @@ mod tests {
         assert!((split - ti_r).abs() < 1e-9, "{split} vs {ti_r}");
         let theta_r = PI + g.branches[0].samples.last().unwrap().deflection; // θ = −θ_2 with l = 0
         let theta_rainbow = PI - theta_r; // scattering angle of the rainbow (~137.9°)
-        assert!((theta_rainbow.to_degrees() - 137.5).abs() < 1.0, "{}", theta_rainbow.to_degrees());
+        assert!(
+            (theta_rainbow.to_degrees() - 137.5).abs() < 1.0,
+            "{}",
+            theta_rainbow.to_degrees()
+        );
         let mut rays = Vec::new();
         g.rays_at(real(m), theta_rainbow + 0.05, &mut rays);
         assert_eq!(rays.len(), 2, "bright side: two rays");
         rays.clear();
         g.rays_at(real(m), theta_rainbow - 0.05, &mut rays);
-        assert_eq!(rays.len(), 0, "dark side (Alexander's band side for p = 2): no ray");
+        assert_eq!(
+            rays.len(),
+            0,
+            "dark side (Alexander's band side for p = 2): no ray"
+        );
     }
 
     /// Every ray found satisfies Eq. 6 to rounding, for real, complex and bubble indices.
     #[test]
     fn roots_satisfy_eq6() {
-        for m in [real(1.33), real(1.56), real(0.75), C64::new(1.5, 0.05), real(2.5)] {
+        for m in [
+            real(1.33),
+            real(1.56),
+            real(0.75),
+            C64::new(1.5, 0.05),
+            real(2.5),
+        ] {
             let geo = GoaGeometry::new(m, 5);
             for k in 0..=90 {
                 let theta = PI * k as f64 / 90.0;
@@ -744,14 +874,24 @@ mod tests {
                     let th = theta.clamp(THETA_EPS, PI - THETA_EPS);
                     for br in &order.branches {
                         for q in [1i32, -1] {
-                            let (lo, hi) = (br.samples[0].deflection, br.samples.last().unwrap().deflection);
+                            let (lo, hi) = (
+                                br.samples[0].deflection,
+                                br.samples.last().unwrap().deflection,
+                            );
                             let (lo, hi) = (lo.min(hi), lo.max(hi));
                             let qt = q as f64 * th;
-                            for l in ((lo - qt) / (2.0 * PI)).ceil() as i64..=((hi - qt) / (2.0 * PI)).floor() as i64 {
+                            for l in ((lo - qt) / (2.0 * PI)).ceil() as i64
+                                ..=((hi - qt) / (2.0 * PI)).floor() as i64
+                            {
                                 let target = qt + 2.0 * PI * l as f64;
-                                let (ti, _) = solve_branch(m, order.p, br, target).expect("root in range");
+                                let (ti, _) =
+                                    solve_branch(m, order.p, br, target).expect("root in range");
                                 let (dev, _) = deflection(m, order.p, ti);
-                                assert!((dev - target).abs() < 1e-9, "m={m} p={} θ={theta} dev={dev} target={target}", order.p);
+                                assert!(
+                                    (dev - target).abs() < 1e-9,
+                                    "m={m} p={} θ={theta} dev={dev} target={target}",
+                                    order.p
+                                );
                             }
                         }
                     }
@@ -780,7 +920,10 @@ mod tests {
             let alpha = 2.0 * PI * r / lam;
             let q12 = extinction_efficiency(alpha, real(eta), 1, false, false);
             let q14 = extinction_eq14(r, lam, eta) / (PI * r * r);
-            assert!((q12 - q14).abs() < 1e-9 * q14.abs(), "r={r}: {q12} vs {q14}");
+            assert!(
+                (q12 - q14).abs() < 1e-9 * q14.abs(),
+                "r={r}: {q12} vs {q14}"
+            );
         }
     }
 
@@ -798,14 +941,23 @@ mod tests {
     #[test]
     fn finite_everywhere() {
         let opts = GoaOptions::default();
-        for m in [real(1.0), real(1.33), real(0.75), C64::new(2.5, 0.5), real(1.414)] {
+        for m in [
+            real(1.0),
+            real(1.33),
+            real(0.75),
+            C64::new(2.5, 0.5),
+            real(1.414),
+        ] {
             let geo = GoaGeometry::new(m, 3);
             let mut scratch = Vec::new();
             for alpha in [0.1, 10.0, 3e4] {
                 for k in 0..=2000 {
                     let theta = PI * k as f64 / 2000.0;
                     let (s1, s2) = geo.amplitudes(alpha, theta, &opts, &mut scratch);
-                    assert!(s1.norm().is_finite() && s2.norm().is_finite(), "m={m} α={alpha} θ={theta}");
+                    assert!(
+                        s1.norm().is_finite() && s2.norm().is_finite(),
+                        "m={m} α={alpha} θ={theta}"
+                    );
                 }
             }
         }

@@ -57,8 +57,15 @@ fn morton_ranks(dims: [usize; 3]) -> Vec<u32> {
     let mut keys: Vec<(u64, u32)> = (0..n)
         .into_par_iter()
         .map(|c| {
-            let (x, y, z) = (c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1]));
-            (spread3(x as u64) | spread3(y as u64) << 1 | spread3(z as u64) << 2, c as u32)
+            let (x, y, z) = (
+                c % dims[0],
+                (c / dims[0]) % dims[1],
+                c / (dims[0] * dims[1]),
+            );
+            (
+                spread3(x as u64) | spread3(y as u64) << 1 | spread3(z as u64) << 2,
+                c as u32,
+            )
         })
         .collect();
     keys.par_sort_unstable();
@@ -170,7 +177,16 @@ impl SubGrid {
     /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
     /// particles' original indices.
     #[allow(clippy::too_many_arguments)]
-    fn build_class(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], ids: &[u32], channels: usize, query_radius: f64, cells_per_particle: f64, volume_hint: Option<f64>) -> Result<Self, OpticsError> {
+    fn build_class(
+        positions: &[[f64; 3]],
+        radius: &[f64],
+        c_ext: &[f64],
+        ids: &[u32],
+        channels: usize,
+        query_radius: f64,
+        cells_per_particle: f64,
+        volume_hint: Option<f64>,
+    ) -> Result<Self, OpticsError> {
         let n = positions.len();
         let reach: Vec<f64> = radius.iter().map(|r| query_radius + r).collect();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
@@ -180,7 +196,9 @@ impl SubGrid {
             hi[a] += reach_max * 1.0001 + 1e-9;
         }
         let ext: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
-        let volume = volume_hint.unwrap_or(ext[0] * ext[1] * ext[2]).max(ext[0] * ext[1] * ext[2] * 1e-9);
+        let volume = volume_hint
+            .unwrap_or(ext[0] * ext[1] * ext[2])
+            .max(ext[0] * ext[1] * ext[2] * 1e-9);
         let target_cells = (n as f64 * cells_per_particle).clamp(1.0, 2.0e8);
         // About `cells_per_particle` cells per particle. Sparse classes (inclusion diameter below the
         // cell) reference each particle from every cell its ball overlaps (k = 0: a traversal tests only
@@ -226,7 +244,12 @@ impl SubGrid {
             .iter()
             .map(|&i| {
                 let p = positions[i as usize];
-                [p[0] as f32, p[1] as f32, p[2] as f32, reach[i as usize] as f32]
+                [
+                    p[0] as f32,
+                    p[1] as f32,
+                    p[2] as f32,
+                    reach[i as usize] as f32,
+                ]
             })
             .collect();
         let mut tau = vec![0f32; n * channels];
@@ -284,7 +307,19 @@ impl SubGrid {
             (start, refs)
         };
         let index = order.iter().map(|&i| ids[i as usize]).collect();
-        Ok(SubGrid { sphere, tau, index, channels, start, refs, lo, cell, dims, reach_max, k })
+        Ok(SubGrid {
+            sphere,
+            tau,
+            index,
+            channels,
+            start,
+            refs,
+            lo,
+            cell,
+            dims,
+            reach_max,
+            k,
+        })
     }
 
     pub fn len(&self) -> usize {
@@ -302,7 +337,11 @@ impl SubGrid {
 
     /// Heap bytes of the grid and the particles it stores.
     pub fn bytes(&self) -> usize {
-        self.sphere.len() * 16 + self.tau.len() * 4 + self.index.len() * 4 + self.start.len() * 4 + self.refs.len() * 4
+        self.sphere.len() * 16
+            + self.tau.len() * 4
+            + self.index.len() * 4
+            + self.start.len() * 4
+            + self.refs.len() * 4
     }
 
     /// Does stored particle j contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
@@ -314,7 +353,14 @@ impl SubGrid {
     /// Every contributing particle with t in [t0, t1), as `visit(stored index, t, step)`: steps are
     /// t-disjoint and come in increasing order (particles within a step are unsorted); `visit` returns
     /// false to stop early.
-    pub fn traverse(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, mut visit: impl FnMut(usize, f64, u32) -> bool) {
+    pub fn traverse(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+        mut visit: impl FnMut(usize, f64, u32) -> bool,
+    ) {
         if !(t1 > t0) {
             return;
         }
@@ -342,7 +388,8 @@ impl SubGrid {
         let mut t_next = [f64::INFINITY; 3];
         let mut t_delta = [f64::INFINITY; 3];
         for a in 0..3 {
-            c[a] = (((p[a] - self.lo[a]) / self.cell).floor() as i64).clamp(0, self.dims[a] as i64 - 1);
+            c[a] = (((p[a] - self.lo[a]) / self.cell).floor() as i64)
+                .clamp(0, self.dims[a] as i64 - 1);
             if d[a] > 0.0 {
                 step[a] = 1;
                 t_next[a] = ta + ((self.lo[a] + (c[a] + 1) as f64 * self.cell) - p[a]) / d[a];
@@ -366,7 +413,13 @@ impl SubGrid {
         while !done {
             let mut n = 0;
             while !done && n + ROWS_PER_STEP <= SEGMENTS_PER_BATCH {
-                let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] { 0 } else if t_next[1] <= t_next[2] { 1 } else { 2 };
+                let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+                    0
+                } else if t_next[1] <= t_next[2] {
+                    1
+                } else {
+                    2
+                };
                 // The step covers [t_enter, t_exit); the first starts at t0 (particles before the box
                 // entry are too far from the ray to count), the last ends at t1.
                 let t_exit = t_next[axis].min(tb);
@@ -399,7 +452,12 @@ impl SubGrid {
             for sg in batch.iter() {
                 for &j in &self.refs[sg.c0..sg.c1] {
                     if let Some(t) = self.contribution(j as usize, o, d) {
-                        if t >= sg.t_enter && t < sg.t_exit && t >= t0 && t < t1 && !visit(j as usize, t, sg.step) {
+                        if t >= sg.t_enter
+                            && t < sg.t_exit
+                            && t >= t0
+                            && t < t1
+                            && !visit(j as usize, t, sg.step)
+                        {
                             return;
                         }
                     }
@@ -410,7 +468,14 @@ impl SubGrid {
 
     /// The rows of cells one DDA step at cell `c` scans (k = 0: the cell; k = 1: the 3×3 rows of the
     /// 3×3×3 block around it), as segments [first cell, last cell + 1) of `start`; returns how many.
-    fn step_rows(&self, c: [i64; 3], t_enter: f64, t_exit: f64, step: u32, out: &mut [Segment]) -> usize {
+    fn step_rows(
+        &self,
+        c: [i64; 3],
+        t_enter: f64,
+        t_exit: f64,
+        step: u32,
+        out: &mut [Segment],
+    ) -> usize {
         let k = self.k;
         let mut n = 0;
         for dz in -k..=k {
@@ -427,7 +492,13 @@ impl SubGrid {
                 let row = (z as usize * self.dims[1] + y as usize) * self.dims[0];
                 let x0 = (c[0] - k).max(0) as usize;
                 let x1 = ((c[0] + k) as usize).min(self.dims[0] - 1);
-                out[n] = Segment { c0: row + x0, c1: row + x1 + 1, t_enter, t_exit, step };
+                out[n] = Segment {
+                    c0: row + x0,
+                    c1: row + x1 + 1,
+                    t_enter,
+                    t_exit,
+                    step,
+                };
                 n += 1;
             }
         }
@@ -450,7 +521,9 @@ impl SubGrid {
                 let row = (z as usize * self.dims[1] + y as usize) * self.dims[0];
                 let x0 = (c[0] - k).max(0) as usize;
                 let x1 = ((c[0] + k) as usize).min(self.dims[0] - 1);
-                for &j in &self.refs[self.start[row + x0] as usize..self.start[row + x1 + 1] as usize] {
+                for &j in
+                    &self.refs[self.start[row + x0] as usize..self.start[row + x1 + 1] as usize]
+                {
                     let j = j as usize;
                     let q = self.sphere[j];
                     let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
@@ -516,17 +589,54 @@ impl ParticleGrid {
     /// Build from centres (scene units), geometric radii (scene units), extinction cross sections
     /// (scene units², `[particle][channel]` row-major) and the query radius r_c (scene units).
     /// `cells_per_particle` sets the resolution (paper Sec. 6.5: about one particle per voxel).
-    pub fn build(positions: &[[f64; 3]], radius: &[f64], c_ext: &[f64], channels: usize, query_radius: f64, cells_per_particle: f64) -> Result<Self, OpticsError> {
+    pub fn build(
+        positions: &[[f64; 3]],
+        radius: &[f64],
+        c_ext: &[f64],
+        channels: usize,
+        query_radius: f64,
+        cells_per_particle: f64,
+    ) -> Result<Self, OpticsError> {
         let n = positions.len();
         require("positions (count)", n as f64, n >= 1, ">= 1")?;
-        require("radius (length)", radius.len() as f64, radius.len() == n, "one per particle")?;
+        require(
+            "radius (length)",
+            radius.len() as f64,
+            radius.len() == n,
+            "one per particle",
+        )?;
         require("channels", channels as f64, channels >= 1, ">= 1")?;
-        require("c_ext (length)", c_ext.len() as f64, c_ext.len() == n * channels, "particles × channels")?;
-        require("query_radius", query_radius, query_radius.is_finite() && query_radius >= 0.0, "finite and >= 0")?;
-        require("cells_per_particle", cells_per_particle, cells_per_particle.is_finite() && cells_per_particle > 0.0, "finite and > 0")?;
+        require(
+            "c_ext (length)",
+            c_ext.len() as f64,
+            c_ext.len() == n * channels,
+            "particles × channels",
+        )?;
+        require(
+            "query_radius",
+            query_radius,
+            query_radius.is_finite() && query_radius >= 0.0,
+            "finite and >= 0",
+        )?;
+        require(
+            "cells_per_particle",
+            cells_per_particle,
+            cells_per_particle.is_finite() && cells_per_particle > 0.0,
+            "finite and > 0",
+        )?;
         for (i, p) in positions.iter().enumerate() {
-            require("positions (index of the first non-finite particle)", i as f64, p.iter().all(|x| x.is_finite()), "finite coordinates")?;
-            require("radius", radius[i], radius[i].is_finite() && radius[i] > 0.0, "finite and > 0")?;
+            require(
+                "positions (index of the first non-finite particle)",
+                i as f64,
+                p.iter().all(|x| x.is_finite()),
+                "finite coordinates",
+            )?;
+            require(
+                "radius",
+                radius[i],
+                radius[i].is_finite() && radius[i] > 0.0,
+                "finite and > 0",
+            )?;
         }
         for &c in c_ext {
             require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
@@ -535,7 +645,11 @@ impl ParticleGrid {
         // Class c holds reach in (R_max 2^-(c+1), R_max 2^-c]; everything below 2^-12 R_max shares the last.
         let class_of = |r: f64| -> usize {
             let x = reach_max / (query_radius + r);
-            if x.is_finite() && x > 1.0 { (x.log2().floor() as usize).min(12) } else { 0 }
+            if x.is_finite() && x > 1.0 {
+                (x.log2().floor() as usize).min(12)
+            } else {
+                0
+            }
         };
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); 13];
         for i in 0..n {
@@ -548,10 +662,30 @@ impl ParticleGrid {
         for ids in members.into_iter().filter(|m| !m.is_empty()) {
             let pos: Vec<[f64; 3]> = ids.iter().map(|&i| positions[i as usize]).collect();
             let rad: Vec<f64> = ids.iter().map(|&i| radius[i as usize]).collect();
-            let ce: Vec<f64> = ids.iter().flat_map(|&i| c_ext[i as usize * channels..(i as usize + 1) * channels].iter().copied()).collect();
-            classes.push(SubGrid::build_class(&pos, &rad, &ce, &ids, channels, query_radius, cells_per_particle, Some(volume))?);
+            let ce: Vec<f64> = ids
+                .iter()
+                .flat_map(|&i| {
+                    c_ext[i as usize * channels..(i as usize + 1) * channels]
+                        .iter()
+                        .copied()
+                })
+                .collect();
+            classes.push(SubGrid::build_class(
+                &pos,
+                &rad,
+                &ce,
+                &ids,
+                channels,
+                query_radius,
+                cells_per_particle,
+                Some(volume),
+            )?);
         }
-        Ok(ParticleGrid { classes, channels, n })
+        Ok(ParticleGrid {
+            classes,
+            channels,
+            n,
+        })
     }
 
     pub fn len(&self) -> usize {
@@ -565,7 +699,11 @@ impl ParticleGrid {
     }
     /// Cells of the finest class (the one holding the most particles).
     pub fn dims(&self) -> [usize; 3] {
-        self.classes.iter().max_by_key(|c| c.len()).map(|c| c.dims).unwrap_or([0; 3])
+        self.classes
+            .iter()
+            .max_by_key(|c| c.len())
+            .map(|c| c.dims)
+            .unwrap_or([0; 3])
     }
     pub fn class_count(&self) -> usize {
         self.classes.len()
@@ -620,12 +758,26 @@ impl ParticleGrid {
     /// `visit(t, τ per channel, original index)`; `visit` returns false to stop. The ray is cut into
     /// windows of [`WINDOW_CELLS`] finest cells; each window's particles are gathered from every class and sorted, so
     /// a walk that stops early costs only the windows it reached.
-    pub fn walk(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, mut visit: impl FnMut(f64, &[f32], u32) -> bool) {
+    pub fn walk(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+        mut visit: impl FnMut(f64, &[f32], u32) -> bool,
+    ) {
         if !(t1 > t0) {
             return;
         }
-        let Some((ta, tb)) = self.clip(o, d, t0, t1) else { return };
-        let window = 32.0 * self.classes.iter().map(|c| c.cell).fold(f64::INFINITY, f64::min);
+        let Some((ta, tb)) = self.clip(o, d, t0, t1) else {
+            return;
+        };
+        let window = 32.0
+            * self
+                .classes
+                .iter()
+                .map(|c| c.cell)
+                .fold(f64::INFINITY, f64::min);
         let mut buf: Vec<(f64, usize, usize)> = Vec::new();
         // Windows start at t0 (particles before the box entry count, as in `traverse`) and the last
         // one ends at t1.
@@ -659,7 +811,15 @@ impl ParticleGrid {
     /// Exact free flight over [t0, t1) in `channel`: each particle interacts with probability
     /// 1 − exp(−τ_i); equivalently, particles are walked in t order and the path interacts where the accumulated optical depth first exceeds −ln(1 − u).
     /// Returns the hit (or None) and the transmittance up to it (or to t1).
-    pub fn free_flight(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, channel: usize, u: f64) -> (Option<Hit>, f64) {
+    pub fn free_flight(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+        channel: usize,
+        u: f64,
+    ) -> (Option<Hit>, f64) {
         let target = -(1.0 - u).ln();
         let mut acc = 0.0;
         let mut found = None;
@@ -679,7 +839,16 @@ impl ParticleGrid {
     /// within `coincide` of each other along the ray form one site (their optical depths add and the site
     /// scatters as their mixture), and the particles in `exclude` (the one that scattered the path at
     /// its origin) are skipped. Returns the site and the optical depth walked before it.
-    pub fn sample_site(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, exclude: &[u32], u: f64, coincide: f64) -> (Option<Site>, f64) {
+    pub fn sample_site(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+        exclude: &[u32],
+        u: f64,
+        coincide: f64,
+    ) -> (Option<Site>, f64) {
         let target = -(1.0 - u).ln();
         let mut acc = 0.0;
         let mut group = Site::default();
@@ -744,7 +913,13 @@ impl ParticleGrid {
     }
 
     /// First and last t in [t0, t1) where any particle contributes (for empty-space skipping), or None.
-    pub fn occupied_interval(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+    pub fn occupied_interval(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+    ) -> Option<(f64, f64)> {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for c in &self.classes {
             c.traverse(o, d, t0, t1, |_, t, _| {
@@ -757,7 +932,13 @@ impl ParticleGrid {
     }
 
     /// The same by a loop over every particle (test oracle).
-    pub fn occupied_interval_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+    pub fn occupied_interval_brute(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+    ) -> Option<(f64, f64)> {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         if t1 > t0 {
             for c in &self.classes {
@@ -793,7 +974,9 @@ mod tests {
     use super::*;
 
     fn lcg(seed: &mut u64) -> f64 {
-        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((*seed >> 11) as f64) / (1u64 << 53) as f64
     }
 
@@ -806,9 +989,14 @@ mod tests {
     fn free_flight_matches_transmittance() {
         let mut s = 11u64;
         let n = 2000;
-        let pos: Vec<[f64; 3]> = (0..n).map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)]).collect();
+        let pos: Vec<[f64; 3]> = (0..n)
+            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
+            .collect();
         let rad: Vec<f64> = (0..n).map(|_| 0.005 + 0.01 * lcg(&mut s)).collect();
-        let cext: Vec<f64> = rad.iter().map(|r| 2.0 * std::f64::consts::PI * r * r * 15.0).collect();
+        let cext: Vec<f64> = rad
+            .iter()
+            .map(|r| 2.0 * std::f64::consts::PI * r * r * 15.0)
+            .collect();
         let g = ParticleGrid::build(&pos, &rad, &cext, 1, 0.03, 1.0).unwrap();
         assert!(g.class_count() >= 1);
         let (o, d) = ([0.5, 0.5, -0.5], [0.0, 0.6, 0.8]);
@@ -830,29 +1018,43 @@ mod tests {
                     // accumulated depth before the hit ≤ target < accumulated + τ_hit
                     let before = -tr.ln();
                     let target = -(1.0 - u).ln();
-                    assert!(before <= target + 1e-9 && target < before + g.tau_of(h.particle, 0) + 1e-9);
+                    assert!(
+                        before <= target + 1e-9 && target < before + g.tau_of(h.particle, 0) + 1e-9
+                    );
                 }
             }
         }
         let p = escaped as f64 / trials as f64;
         let sd = (expected * (1.0 - expected) / trials as f64).sqrt();
-        assert!((p - expected).abs() < 5.0 * sd, "escape {p} vs exp(-τ) {expected}");
+        assert!(
+            (p - expected).abs() < 5.0 * sd,
+            "escape {p} vs exp(-τ) {expected}"
+        );
     }
 
     #[test]
     fn grid_equals_brute_force() {
         let mut s = 7u64;
         let n = 3000;
-        let pos: Vec<[f64; 3]> = (0..n).map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)]).collect();
+        let pos: Vec<[f64; 3]> = (0..n)
+            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
+            .collect();
         let rad: Vec<f64> = (0..n).map(|_| 0.001 + 0.02 * lcg(&mut s)).collect();
-        let cext: Vec<f64> = rad.iter().flat_map(|r| [2.0 * std::f64::consts::PI * r * r, 3.0 * r * r]).collect();
+        let cext: Vec<f64> = rad
+            .iter()
+            .flat_map(|r| [2.0 * std::f64::consts::PI * r * r, 3.0 * r * r])
+            .collect();
         for (rc, cpp) in [(0.0, 1.0), (0.01, 1.0), (0.05, 0.2), (0.2, 5.0)] {
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, rc, cpp).unwrap();
             let cell = g.classes[0].cell;
             let lo0 = g.classes[0].lo[0];
             let mut rays: Vec<([f64; 3], [f64; 3], f64, f64)> = Vec::new();
             for _ in 0..300 {
-                let o = [lcg(&mut s) * 3.0 - 1.0, lcg(&mut s) * 3.0 - 1.0, lcg(&mut s) * 3.0 - 1.0];
+                let o = [
+                    lcg(&mut s) * 3.0 - 1.0,
+                    lcg(&mut s) * 3.0 - 1.0,
+                    lcg(&mut s) * 3.0 - 1.0,
+                ];
                 let mut d = [lcg(&mut s) - 0.5, lcg(&mut s) - 0.5, lcg(&mut s) - 0.5];
                 let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 d = d.map(|x| x / l);
@@ -873,7 +1075,11 @@ mod tests {
                 }
             }
             for _ in 0..200 {
-                let p = [lcg(&mut s) * 1.4 - 0.2, lcg(&mut s) * 1.4 - 0.2, lcg(&mut s) * 1.4 - 0.2];
+                let p = [
+                    lcg(&mut s) * 1.4 - 0.2,
+                    lcg(&mut s) * 1.4 - 0.2,
+                    lcg(&mut s) * 1.4 - 0.2,
+                ];
                 let (mut a, mut b) = (g.containing(p), g.containing_brute(p));
                 a.sort();
                 b.sort();
@@ -883,11 +1089,19 @@ mod tests {
             rays.push(([5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0)); // misses
             let (mut a, mut b) = (vec![0.0; 2], vec![0.0; 2]);
             for (o, d, t0, t1) in rays {
-                assert_eq!(g.occupied_interval(o, d, t0, t1), g.occupied_interval_brute(o, d, t0, t1));
+                assert_eq!(
+                    g.occupied_interval(o, d, t0, t1),
+                    g.occupied_interval_brute(o, d, t0, t1)
+                );
                 g.optical_depth(o, d, t0, t1, &mut a);
                 g.optical_depth_brute(o, d, t0, t1, &mut b);
                 for ch in 0..2 {
-                    assert!((a[ch] - b[ch]).abs() <= 1e-9 * b[ch].abs().max(1e-300), "rc={rc} o={o:?} d={d:?} [{t0},{t1}) grid {} brute {}", a[ch], b[ch]);
+                    assert!(
+                        (a[ch] - b[ch]).abs() <= 1e-9 * b[ch].abs().max(1e-300),
+                        "rc={rc} o={o:?} d={d:?} [{t0},{t1}) grid {} brute {}",
+                        a[ch],
+                        b[ch]
+                    );
                 }
             }
         }

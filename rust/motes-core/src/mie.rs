@@ -192,7 +192,11 @@ pub struct MieIntensitySums {
 impl MieIntensitySums {
     /// Empty sums for spheres of series length up to `n_max` ([`series_length`]).
     pub fn new(n_max: usize) -> Self {
-        MieIntensitySums { n: n_max, u: vec![0.0; n_max * n_max], v: vec![0.0; n_max * n_max] }
+        MieIntensitySums {
+            n: n_max,
+            u: vec![0.0; n_max * n_max],
+            v: vec![0.0; n_max * n_max],
+        }
     }
 
     /// Adds one sphere with weight `w`.
@@ -247,7 +251,11 @@ impl MieIntensitySums {
             let (u, v) = (&self.u[row + i..row + n], &self.v[row + i..row + n]);
             // Off-diagonal pairs count twice, the diagonal once.
             let mut acc = 0.5 * (u[0] * (a * a + b * b) + v[0] * 2.0 * a * b);
-            for ((u, v), (pj, tj)) in u[1..].iter().zip(&v[1..]).zip(pi[i + 1..].iter().zip(&tau[i + 1..])) {
+            for ((u, v), (pj, tj)) in u[1..]
+                .iter()
+                .zip(&v[1..])
+                .zip(pi[i + 1..].iter().zip(&tau[i + 1..]))
+            {
                 acc += u * (a * pj + b * tj) + v * (a * tj + b * pj);
             }
             total += 2.0 * acc;
@@ -269,14 +277,23 @@ mod tests {
         let pol = (m * m - 1.0) / (m * m + 2.0);
         let qsca = 8.0 / 3.0 * x.powi(4) * pol.norm_sqr();
         let qabs = 4.0 * x * pol.im;
-        assert!((c.q_sca() / qsca - 1.0).abs() < 1e-4, "{} vs {}", c.q_sca(), qsca);
+        assert!(
+            (c.q_sca() / qsca - 1.0).abs() < 1e-4,
+            "{} vs {}",
+            c.q_sca(),
+            qsca
+        );
         assert!(((c.q_ext() - c.q_sca()) / qabs - 1.0).abs() < 1e-4);
     }
 
     /// The coefficient-product sums give the same summed intensity as the amplitudes, at every angle.
     #[test]
     fn intensity_sums_match_amplitudes() {
-        let spheres = [(3.7, C64::new(1.33, 0.0), 0.3), (41.2, C64::new(1.31, 1e-4), 1.7), (0.4, C64::new(2.0, 0.5), 5.0)];
+        let spheres = [
+            (3.7, C64::new(1.33, 0.0), 0.3),
+            (41.2, C64::new(1.31, 1e-4), 1.7),
+            (0.4, C64::new(2.0, 0.5), 5.0),
+        ];
         let n_max = spheres.iter().map(|s| series_length(s.0)).max().unwrap();
         let mut sums = MieIntensitySums::new(n_max);
         let mut half = MieIntensitySums::new(series_length(3.7));
@@ -289,19 +306,28 @@ mod tests {
             let direct: f64 = spheres
                 .iter()
                 .map(|&(x, m, w)| {
-                    let (s1, s2) = MieCoefficients::new(x, m).weighted().amplitudes(f64::cos(theta));
+                    let (s1, s2) = MieCoefficients::new(x, m)
+                        .weighted()
+                        .amplitudes(f64::cos(theta));
                     w * (s1.norm_sqr() + s2.norm_sqr())
                 })
                 .sum();
             let got = sums.intensity(f64::cos(theta));
-            assert!((got / direct - 1.0).abs() < 1e-11, "theta {theta}: {got} vs {direct}");
+            assert!(
+                (got / direct - 1.0).abs() < 1e-11,
+                "theta {theta}: {got} vs {direct}"
+            );
         }
     }
 
     /// Optical theorem in BH convention: Q_ext = 4/x² Re S(0), and S1(0) = S2(0), S2(π) = −S1(π).
     #[test]
     fn forward_and_backward_symmetry() {
-        for (x, m) in [(5.0, C64::new(1.33, 0.0)), (300.0, C64::new(1.5, 0.01)), (50.0, C64::new(0.75, 0.0))] {
+        for (x, m) in [
+            (5.0, C64::new(1.33, 0.0)),
+            (300.0, C64::new(1.5, 0.01)),
+            (50.0, C64::new(0.75, 0.0)),
+        ] {
             let c = MieCoefficients::new(x, m);
             let s = c.weighted();
             let (s1, s2) = s.amplitudes(1.0);

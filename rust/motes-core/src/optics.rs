@@ -49,15 +49,55 @@ pub struct Particle {
 }
 
 impl Particle {
-    pub fn new(radius_um: f64, wavelength_um: f64, eta: C64, eta_medium: f64) -> Result<Self, OpticsError> {
-        require("radius_um", radius_um, radius_um.is_finite() && radius_um > 0.0, "finite and > 0")?;
-        require("wavelength_um", wavelength_um, wavelength_um.is_finite() && wavelength_um > 0.0, "finite and > 0")?;
-        require("eta (real part)", eta.re, eta.re.is_finite() && eta.re > 0.0, "finite and > 0")?;
-        require("eta (imaginary part)", eta.im, eta.im.is_finite() && eta.im >= 0.0, "finite and >= 0")?;
-        require("eta_medium", eta_medium, eta_medium.is_finite() && eta_medium > 0.0, "finite and > 0")?;
-        let p = Particle { radius_um, wavelength_um, eta, eta_medium };
+    pub fn new(
+        radius_um: f64,
+        wavelength_um: f64,
+        eta: C64,
+        eta_medium: f64,
+    ) -> Result<Self, OpticsError> {
+        require(
+            "radius_um",
+            radius_um,
+            radius_um.is_finite() && radius_um > 0.0,
+            "finite and > 0",
+        )?;
+        require(
+            "wavelength_um",
+            wavelength_um,
+            wavelength_um.is_finite() && wavelength_um > 0.0,
+            "finite and > 0",
+        )?;
+        require(
+            "eta (real part)",
+            eta.re,
+            eta.re.is_finite() && eta.re > 0.0,
+            "finite and > 0",
+        )?;
+        require(
+            "eta (imaginary part)",
+            eta.im,
+            eta.im.is_finite() && eta.im >= 0.0,
+            "finite and >= 0",
+        )?;
+        require(
+            "eta_medium",
+            eta_medium,
+            eta_medium.is_finite() && eta_medium > 0.0,
+            "finite and > 0",
+        )?;
+        let p = Particle {
+            radius_um,
+            wavelength_um,
+            eta,
+            eta_medium,
+        };
         let x = p.size_parameter();
-        require("radius_um / wavelength_um", x, x <= MAX_SIZE_PARAMETER, "a size parameter 2π η_m r/λ <= 1e5")?;
+        require(
+            "radius_um / wavelength_um",
+            x,
+            x <= MAX_SIZE_PARAMETER,
+            "a size parameter 2π η_m r/λ <= 1e5",
+        )?;
         Ok(p)
     }
 
@@ -75,7 +115,6 @@ impl Particle {
     pub fn relative_index(&self) -> C64 {
         self.eta / self.eta_medium
     }
-
 }
 
 /// How single-particle optics are computed.
@@ -106,8 +145,15 @@ impl Method {
             "goa" => Ok(Method::Goa),
             "auto" => Ok(Method::Auto),
             "hybrid" => {
-                require("hybrid_radius_um", hybrid_radius_um, hybrid_radius_um.is_finite() && hybrid_radius_um >= 0.0, "finite and >= 0")?;
-                Ok(Method::Hybrid { radius_um: hybrid_radius_um })
+                require(
+                    "hybrid_radius_um",
+                    hybrid_radius_um,
+                    hybrid_radius_um.is_finite() && hybrid_radius_um >= 0.0,
+                    "finite and >= 0",
+                )?;
+                Ok(Method::Hybrid {
+                    radius_um: hybrid_radius_um,
+                })
             }
             other => Err(OpticsError::InvalidOption {
                 argument: "method",
@@ -129,7 +175,9 @@ impl Method {
                 }
             }
             Method::Auto => {
-                if p.size_parameter() < AUTO_SIZE_PARAMETER || has_axial_caustic(p.relative_index(), p_max) {
+                if p.size_parameter() < AUTO_SIZE_PARAMETER
+                    || has_axial_caustic(p.relative_index(), p_max)
+                {
                     Theory::Mie
                 } else {
                     Theory::Goa
@@ -176,7 +224,12 @@ mod prepared_cache {
     /// The branch geometry of index `m` up to `p_max` (cached: it is size and angle independent).
     pub fn geometry(m: C64, p_max: u32) -> Arc<GoaGeometry> {
         let k = (m.re.to_bits(), m.im.to_bits(), p_max);
-        if let Some((_, g)) = GEOMETRIES.lock().unwrap_or_else(|e| e.into_inner()).iter().find(|(kk, _)| *kk == k) {
+        if let Some((_, g)) = GEOMETRIES
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .find(|(kk, _)| *kk == k)
+        {
             return g.clone();
         }
         let g = Arc::new(GoaGeometry::new(m, p_max));
@@ -250,14 +303,26 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
     if nodes.len() <= CACHED_NODES {
         let prepared = prepared_cache::get(geo, &nodes, opts.p_max);
         let amps = goa::evaluate_prepared(geo.m, &prepared, alpha, opts);
-        amps.iter().zip(nodes.iter().zip(&weights)).map(|(a, (t, w))| moments(*a, *t, *w)).fold((0.0, 0.0), add)
+        amps.iter()
+            .zip(nodes.iter().zip(&weights))
+            .map(|(a, (t, w))| moments(*a, *t, *w))
+            .fold((0.0, 0.0), add)
     } else {
         // Fixed chunks summed in order: bitwise reproducible whatever the thread scheduling.
         let idx: Vec<usize> = (0..nodes.len()).collect();
         idx.par_chunks(1024)
             .map(|chunk| {
                 let mut scratch = Vec::new();
-                chunk.iter().map(|&i| moments(geo.amplitudes(alpha, nodes[i], opts, &mut scratch), nodes[i], weights[i])).fold((0.0, 0.0), add)
+                chunk
+                    .iter()
+                    .map(|&i| {
+                        moments(
+                            geo.amplitudes(alpha, nodes[i], opts, &mut scratch),
+                            nodes[i],
+                            weights[i],
+                        )
+                    })
+                    .fold((0.0, 0.0), add)
             })
             .collect::<Vec<_>>()
             .into_iter()
@@ -266,26 +331,53 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
 }
 
 /// (S1, S2) of one particle at the angles `theta` with the given theory.
-pub fn particle_amplitudes(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, theta: &[f64], opts: &GoaOptions) -> Vec<(C64, C64)> {
+pub fn particle_amplitudes(
+    p: &Particle,
+    theory: Theory,
+    geo: Option<&GoaGeometry>,
+    theta: &[f64],
+    opts: &GoaOptions,
+) -> Vec<(C64, C64)> {
     let alpha = p.size_parameter();
     match (theory, geo) {
-        (Theory::Goa, Some(geo)) => goa::evaluate_prepared(geo.m, &prepared_cache::get(geo, theta, opts.p_max), alpha, opts),
+        (Theory::Goa, Some(geo)) => goa::evaluate_prepared(
+            geo.m,
+            &prepared_cache::get(geo, theta, opts.p_max),
+            alpha,
+            opts,
+        ),
         (Theory::Goa, None) => {
             let geo = GoaGeometry::new(p.relative_index(), opts.p_max);
             goa::evaluate_prepared(geo.m, &geo.prepare(theta, opts.p_max), alpha, opts)
         }
-        (Theory::Mie, _) => MieCoefficients::new(alpha, p.relative_index()).weighted().amplitudes_many(theta),
+        (Theory::Mie, _) => MieCoefficients::new(alpha, p.relative_index())
+            .weighted()
+            .amplitudes_many(theta),
     }
 }
 
 /// `∫ (|S1|²+|S2|²) dΩ`, the normaliser of f_p (Eq. 1): `2π x² Q_sca` for Mie (exact), the
 /// quadrature of `goa_angular_integrals` for GOA (so that ∫ f dΩ = 1 whatever p_max keeps).
-fn phase_normaliser(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, opts: &GoaOptions) -> f64 {
+fn phase_normaliser(
+    p: &Particle,
+    theory: Theory,
+    geo: Option<&GoaGeometry>,
+    opts: &GoaOptions,
+) -> f64 {
     let alpha = p.size_parameter();
     match (theory, geo) {
-        (Theory::Mie, _) => 2.0 * PI * alpha * alpha * MieCoefficients::new(alpha, p.relative_index()).q_sca(),
+        (Theory::Mie, _) => {
+            2.0 * PI * alpha * alpha * MieCoefficients::new(alpha, p.relative_index()).q_sca()
+        }
         (Theory::Goa, Some(geo)) => goa_angular_integrals(geo, alpha, opts).0,
-        (Theory::Goa, None) => goa_angular_integrals(&GoaGeometry::new(p.relative_index(), opts.p_max), alpha, opts).0,
+        (Theory::Goa, None) => {
+            goa_angular_integrals(
+                &GoaGeometry::new(p.relative_index(), opts.p_max),
+                alpha,
+                opts,
+            )
+            .0
+        }
     }
 }
 
@@ -305,7 +397,14 @@ pub fn extinction_and_absorption(p: &Particle, theory: Theory, opts: &GoaOptions
             let qa = goa::absorption_efficiency(alpha, m);
             // Outside GOA's validity (α ≲ 1) Eq. 12 can dip below the absorption: clamp so that
             // C_ext ≥ C_abs and C_sca ≥ 0 always hold.
-            let qe = goa::extinction_efficiency(alpha, m, opts.p_max, opts.regularise, opts.edge_correction).max(qa);
+            let qe = goa::extinction_efficiency(
+                alpha,
+                m,
+                opts.p_max,
+                opts.regularise,
+                opts.edge_correction,
+            )
+            .max(qa);
             (qe * area, qa * area)
         }
     }
@@ -313,7 +412,12 @@ pub fn extinction_and_absorption(p: &Particle, theory: Theory, opts: &GoaOptions
 
 /// Cross sections of one particle with the given theory. For GOA the geometry (size independent)
 /// is passed in so that callers can share it across radii.
-pub fn cross_sections_with(p: &Particle, theory: Theory, geo: Option<&GoaGeometry>, opts: &GoaOptions) -> CrossSections {
+pub fn cross_sections_with(
+    p: &Particle,
+    theory: Theory,
+    geo: Option<&GoaGeometry>,
+    opts: &GoaOptions,
+) -> CrossSections {
     let area = PI * p.radius_um * p.radius_um;
     let m = p.relative_index();
     let alpha = p.size_parameter();
@@ -321,7 +425,12 @@ pub fn cross_sections_with(p: &Particle, theory: Theory, geo: Option<&GoaGeometr
         Theory::Mie => {
             let c = MieCoefficients::new(alpha, m);
             let (qe, qs) = (c.q_ext(), c.q_sca());
-            CrossSections { ext: qe * area, sca: qs * area, abs: ((qe - qs).max(0.0)) * area, g: c.g() }
+            CrossSections {
+                ext: qe * area,
+                sca: qs * area,
+                abs: ((qe - qs).max(0.0)) * area,
+                g: c.g(),
+            }
         }
         Theory::Goa => {
             let owned;
@@ -334,8 +443,17 @@ pub fn cross_sections_with(p: &Particle, theory: Theory, geo: Option<&GoaGeometr
             };
             let (ext, abs) = extinction_and_absorption(p, theory, opts);
             let (norm, first) = goa_angular_integrals(geo, alpha, opts);
-            let g = if norm > 0.0 { (first / norm).clamp(-1.0, 1.0) } else { 0.0 };
-            CrossSections { ext, sca: ext - abs, abs, g }
+            let g = if norm > 0.0 {
+                (first / norm).clamp(-1.0, 1.0)
+            } else {
+                0.0
+            };
+            CrossSections {
+                ext,
+                sca: ext - abs,
+                abs,
+                g,
+            }
         }
     }
 }
@@ -367,7 +485,11 @@ impl ParticleColumns<'_> {
             ("theta", extra.unwrap_or(n)),
         ] {
             if len != n {
-                return Err(OpticsError::InvalidArgument { argument: name, value: len as f64, requirement: "the same length as radius_um" });
+                return Err(OpticsError::InvalidArgument {
+                    argument: name,
+                    value: len as f64,
+                    requirement: "the same length as radius_um",
+                });
             }
         }
         Ok(())
@@ -397,7 +519,12 @@ impl ParticleColumns<'_> {
             let g = match index.get(&key) {
                 Some(&g) => g,
                 None => {
-                    let p = Particle::new(self.radius_um[i], self.wavelength_um[i], C64::new(self.eta_re[i], self.eta_im[i]), self.eta_medium[i])?;
+                    let p = Particle::new(
+                        self.radius_um[i],
+                        self.wavelength_um[i],
+                        C64::new(self.eta_re[i], self.eta_im[i]),
+                        self.eta_medium[i],
+                    )?;
                     groups.push((p, Vec::new()));
                     index.insert(key, groups.len() - 1);
                     groups.len() - 1
@@ -412,7 +539,12 @@ impl ParticleColumns<'_> {
 
 fn check_theta(theta: &[f64]) -> Result<(), OpticsError> {
     for &t in theta {
-        require("theta", t, t.is_finite() && (0.0..=PI).contains(&t), "finite and in [0, π]")?;
+        require(
+            "theta",
+            t,
+            t.is_finite() && (0.0..=PI).contains(&t),
+            "finite and in [0, π]",
+        )?;
     }
     Ok(())
 }
@@ -422,12 +554,25 @@ fn check_options(opts: &GoaOptions) -> Result<(), OpticsError> {
 }
 
 /// Shared GOA geometries for every distinct relative index of a batch.
-fn geometries(groups: &[(Particle, Vec<usize>)], opts: &GoaOptions, needed: impl Fn(&Particle) -> bool) -> HashMap<[u64; 2], Arc<GoaGeometry>> {
-    let mut ms: Vec<C64> = groups.iter().filter(|(p, _)| needed(p)).map(|(p, _)| p.relative_index()).collect();
+fn geometries(
+    groups: &[(Particle, Vec<usize>)],
+    opts: &GoaOptions,
+    needed: impl Fn(&Particle) -> bool,
+) -> HashMap<[u64; 2], Arc<GoaGeometry>> {
+    let mut ms: Vec<C64> = groups
+        .iter()
+        .filter(|(p, _)| needed(p))
+        .map(|(p, _)| p.relative_index())
+        .collect();
     ms.sort_by(|a, b| (a.re, a.im).partial_cmp(&(b.re, b.im)).unwrap());
     ms.dedup();
     ms.par_iter()
-        .map(|m| ([m.re.to_bits(), m.im.to_bits()], prepared_cache::geometry(*m, opts.p_max)))
+        .map(|m| {
+            (
+                [m.re.to_bits(), m.im.to_bits()],
+                prepared_cache::geometry(*m, opts.p_max),
+            )
+        })
         .collect::<Vec<_>>()
         .into_iter()
         .collect()
@@ -443,18 +588,30 @@ fn geo_key(p: &Particle) -> [u64; 2] {
 }
 
 /// Scattering amplitudes for every element `i` (particle i at angle theta[i]).
-pub fn amplitudes_batch(cols: &ParticleColumns, theta: &[f64], theory: Theory, opts: &GoaOptions) -> Result<Vec<(C64, C64)>, OpticsError> {
+pub fn amplitudes_batch(
+    cols: &ParticleColumns,
+    theta: &[f64],
+    theory: Theory,
+    opts: &GoaOptions,
+) -> Result<Vec<(C64, C64)>, OpticsError> {
     cols.check_lengths(Some(theta.len()))?;
     check_theta(theta)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = if theory == Theory::Goa { geometries(&groups, opts, |_| true) } else { HashMap::new() };
+    let geos = if theory == Theory::Goa {
+        geometries(&groups, opts, |_| true)
+    } else {
+        HashMap::new()
+    };
     let per_group: Vec<Vec<(usize, (C64, C64))>> = groups
         .par_iter()
         .map(|(p, idx)| {
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
             let geo = geos.get(&geo_key(p)).map(|g| g.as_ref());
-            idx.iter().copied().zip(particle_amplitudes(p, theory, geo, &th, opts)).collect()
+            idx.iter()
+                .copied()
+                .zip(particle_amplitudes(p, theory, geo, &th, opts))
+                .collect()
         })
         .collect();
     let mut out = vec![(C64::new(0.0, 0.0), C64::new(0.0, 0.0)); theta.len()];
@@ -468,20 +625,36 @@ pub fn amplitudes_batch(cols: &ParticleColumns, theta: &[f64], theory: Theory, o
 
 /// Cross sections for every particle of the batch (`with_g = false` skips GOA's angular integral and
 /// returns g = NaN).
-pub fn cross_sections_batch(cols: &ParticleColumns, method: Method, opts: &GoaOptions, with_g: bool) -> Result<Vec<CrossSections>, OpticsError> {
+pub fn cross_sections_batch(
+    cols: &ParticleColumns,
+    method: Method,
+    opts: &GoaOptions,
+    with_g: bool,
+) -> Result<Vec<CrossSections>, OpticsError> {
     cols.check_lengths(None)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| with_g && method.theory(p, opts.p_max) == Theory::Goa);
+    let geos = geometries(&groups, opts, |p| {
+        with_g && method.theory(p, opts.p_max) == Theory::Goa
+    });
     let per_group: Vec<CrossSections> = groups
         .par_iter()
         .map(|(p, _)| {
             let theory = method.theory(p, opts.p_max);
             if !with_g {
                 let (ext, abs) = extinction_and_absorption(p, theory, opts);
-                return CrossSections { ext, sca: ext - abs, abs, g: f64::NAN };
+                return CrossSections {
+                    ext,
+                    sca: ext - abs,
+                    abs,
+                    g: f64::NAN,
+                };
             }
-            let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].as_ref()) } else { None };
+            let geo = if theory == Theory::Goa {
+                Some(geos[&geo_key(p)].as_ref())
+            } else {
+                None
+            };
             cross_sections_with(p, theory, geo, opts)
         })
         .collect();
@@ -495,23 +668,43 @@ pub fn cross_sections_batch(cols: &ParticleColumns, method: Method, opts: &GoaOp
 }
 
 /// Normalised phase function f_p(θ) (sr⁻¹) for every element.
-pub fn phase_function_batch(cols: &ParticleColumns, theta: &[f64], method: Method, opts: &GoaOptions) -> Result<Vec<f64>, OpticsError> {
+pub fn phase_function_batch(
+    cols: &ParticleColumns,
+    theta: &[f64],
+    method: Method,
+    opts: &GoaOptions,
+) -> Result<Vec<f64>, OpticsError> {
     cols.check_lengths(Some(theta.len()))?;
     check_theta(theta)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| method.theory(p, opts.p_max) == Theory::Goa);
+    let geos = geometries(&groups, opts, |p| {
+        method.theory(p, opts.p_max) == Theory::Goa
+    });
     let per_group: Vec<Vec<(usize, f64)>> = groups
         .par_iter()
         .map(|(p, idx)| {
             let theory = method.theory(p, opts.p_max);
-            let geo = if theory == Theory::Goa { Some(geos[&geo_key(p)].as_ref()) } else { None };
+            let geo = if theory == Theory::Goa {
+                Some(geos[&geo_key(p)].as_ref())
+            } else {
+                None
+            };
             let norm = phase_normaliser(p, theory, geo, opts);
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
             let amps = particle_amplitudes(p, theory, geo, &th, opts);
             idx.iter()
                 .zip(amps)
-                .map(|(&i, (s1, s2))| (i, if norm > 0.0 { (s1.norm_sqr() + s2.norm_sqr()) / norm } else { 1.0 / (4.0 * PI) }))
+                .map(|(&i, (s1, s2))| {
+                    (
+                        i,
+                        if norm > 0.0 {
+                            (s1.norm_sqr() + s2.norm_sqr()) / norm
+                        } else {
+                            1.0 / (4.0 * PI)
+                        },
+                    )
+                })
                 .collect()
         })
         .collect();

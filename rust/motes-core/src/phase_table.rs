@@ -23,9 +23,19 @@ pub struct PhaseTable {
 impl PhaseTable {
     /// Build from angles θ (strictly increasing, spanning [0, π]) and values f(θ) ≥ 0.
     pub fn new(theta: &[f64], f: &[f64]) -> Result<Self, OpticsError> {
-        require("theta (length)", theta.len() as f64, theta.len() >= 2 && theta.len() == f.len(), ">= 2 and equal to len(f)")?;
+        require(
+            "theta (length)",
+            theta.len() as f64,
+            theta.len() >= 2 && theta.len() == f.len(),
+            ">= 2 and equal to len(f)",
+        )?;
         require("theta[0]", theta[0], theta[0] == 0.0, "0")?;
-        require("theta[-1]", theta[theta.len() - 1], (theta[theta.len() - 1] - PI).abs() < 1e-12, "π")?;
+        require(
+            "theta[-1]",
+            theta[theta.len() - 1],
+            (theta[theta.len() - 1] - PI).abs() < 1e-12,
+            "π",
+        )?;
         for w in theta.windows(2) {
             require("theta", w[1], w[1] > w[0], "strictly increasing")?;
         }
@@ -52,7 +62,10 @@ impl PhaseTable {
     }
 
     fn segment(&self, mu: f64) -> usize {
-        self.mu.partition_point(|&m| m <= mu).clamp(1, self.mu.len() - 1) - 1
+        self.mu
+            .partition_point(|&m| m <= mu)
+            .clamp(1, self.mu.len() - 1)
+            - 1
     }
 
     /// f(μ) in sr⁻¹ (also the pdf of sampled directions per unit solid angle).
@@ -66,14 +79,22 @@ impl PhaseTable {
     /// μ with P(μ' ≤ μ) = u: the segment by binary search on the CDF, then the quadratic CDF inverted.
     pub fn sample(&self, u: f64) -> f64 {
         let u = u.clamp(0.0, 1.0);
-        let i = self.cdf.partition_point(|&c| c <= u).clamp(1, self.cdf.len() - 1) - 1;
+        let i = self
+            .cdf
+            .partition_point(|&c| c <= u)
+            .clamp(1, self.cdf.len() - 1)
+            - 1;
         let (m0, m1) = (self.mu[i], self.mu[i + 1]);
         let dm = m1 - m0;
         let (a, b) = (self.f[i], self.f[i + 1] - self.f[i]);
         // 2π dm (a t + b t²/2) = u − cdf[i]
         let target = (u - self.cdf[i]) / (2.0 * PI * dm);
         let t = if b.abs() < 1e-12 * a.abs().max(1e-300) {
-            if a > 0.0 { target / a } else { 0.5 }
+            if a > 0.0 {
+                target / a
+            } else {
+                0.5
+            }
         } else {
             // Stable root of (b/2) t² + a t − target = 0 in [0, 1].
             let disc = (a * a + 2.0 * b * target).max(0.0);
@@ -118,13 +139,21 @@ mod tests {
     #[test]
     fn averages_conserve_energy() {
         let theta: Vec<f64> = (0..=400).map(|i| PI * (i as f64 / 400.0).powi(3)).collect();
-        let f: Vec<f64> = theta.iter().map(|th| (-50.0 * th).exp() * 1e3 + 0.05).collect();
+        let f: Vec<f64> = theta
+            .iter()
+            .map(|th| (-50.0 * th).exp() * 1e3 + 0.05)
+            .collect();
         let t = PhaseTable::new(&theta, &f).unwrap();
         let n = 37;
-        let total: f64 = (0..n).map(|i| {
-            let (lo, hi) = (-1.0 + 2.0 * i as f64 / n as f64, -1.0 + 2.0 * (i + 1) as f64 / n as f64);
-            2.0 * PI * t.average(lo, hi) * (hi - lo)
-        }).sum();
+        let total: f64 = (0..n)
+            .map(|i| {
+                let (lo, hi) = (
+                    -1.0 + 2.0 * i as f64 / n as f64,
+                    -1.0 + 2.0 * (i + 1) as f64 / n as f64,
+                );
+                2.0 * PI * t.average(lo, hi) * (hi - lo)
+            })
+            .sum();
         assert!((total - 1.0).abs() < 1e-12, "{total}");
         assert!((t.cdf_at(1.0) - 1.0).abs() < 1e-12 && t.cdf_at(-1.0) == 0.0);
     }
@@ -143,10 +172,12 @@ mod tests {
             let mu = t.sample(u);
             // CDF at mu by integrating the interpolant numerically.
             let n = 200_000;
-            let cdf: f64 = (0..n).map(|j| {
-                let m = -1.0 + (mu + 1.0) * (j as f64 + 0.5) / n as f64;
-                2.0 * PI * t.eval(m) * (mu + 1.0) / n as f64
-            }).sum();
+            let cdf: f64 = (0..n)
+                .map(|j| {
+                    let m = -1.0 + (mu + 1.0) * (j as f64 + 0.5) / n as f64;
+                    2.0 * PI * t.eval(m) * (mu + 1.0) / n as f64
+                })
+                .sum();
             assert!((cdf - u).abs() < 1e-6, "u={u}: {cdf}");
         }
     }

@@ -45,10 +45,16 @@ pub enum Psd {
     /// Uniform in r on [r_min, r_max] (the paper's Fig. 8 sampling).
     Uniform { r_min_um: f64, r_max_um: f64 },
     /// Piecewise-constant number density: `counts[i]` particles between `edges_um[i]` and `edges_um[i+1]`.
-    Histogram { edges_um: Vec<f64>, counts: Vec<f64> },
+    Histogram {
+        edges_um: Vec<f64>,
+        counts: Vec<f64>,
+    },
     /// Number-weighted mixture (e.g. the bimodal snow of Fig. 19): `weights[i]` is the share of
     /// particles in `components[i]`.
-    Mixture { weights: Vec<f64>, components: Vec<Psd> },
+    Mixture {
+        weights: Vec<f64>,
+        components: Vec<Psd>,
+    },
     /// An explicit list of particle radii (e.g. from a simulation), each one particle (an atom of mass
     /// 1/n). At least two radii: one radius is `Monodisperse`.
     Radii { radii_um: Vec<f64> },
@@ -61,8 +67,11 @@ fn std_normal() -> Normal {
 impl Psd {
     /// Parse and validate a JSON spec.
     pub fn from_json(spec: &str) -> Result<Self, OpticsError> {
-        let psd: Psd = serde_json::from_str(spec)
-            .map_err(|e| OpticsError::InvalidOption { argument: "psd", value: e.to_string(), allowed: "a PSD spec (see motes.psd)" })?;
+        let psd: Psd = serde_json::from_str(spec).map_err(|e| OpticsError::InvalidOption {
+            argument: "psd",
+            value: e.to_string(),
+            allowed: "a PSD spec (see motes.psd)",
+        })?;
         psd.validate()?;
         Ok(psd)
     }
@@ -76,16 +85,36 @@ impl Psd {
         let pos = |name, v: f64| require(name, v, v.is_finite() && v > 0.0, "finite and > 0");
         match self {
             Psd::Monodisperse { radius_um } => pos("radius_um", *radius_um),
-            Psd::LogNormal { median_um, sigma_g, r_min_um, r_max_um } => {
+            Psd::LogNormal {
+                median_um,
+                sigma_g,
+                r_min_um,
+                r_max_um,
+            } => {
                 pos("median_um", *median_um)?;
-                require("sigma_g", *sigma_g, sigma_g.is_finite() && *sigma_g >= 1.0, "finite and >= 1")?;
+                require(
+                    "sigma_g",
+                    *sigma_g,
+                    sigma_g.is_finite() && *sigma_g >= 1.0,
+                    "finite and >= 1",
+                )?;
                 pos("r_min_um", *r_min_um)?;
                 pos("r_max_um", *r_max_um)?;
                 require("r_max_um", *r_max_um, r_max_um > r_min_um, "> r_min_um")?;
                 if *sigma_g == 1.0 {
-                    require("median_um", *median_um, (*r_min_um..=*r_max_um).contains(median_um), "inside [r_min_um, r_max_um] when sigma_g = 1")?;
+                    require(
+                        "median_um",
+                        *median_um,
+                        (*r_min_um..=*r_max_um).contains(median_um),
+                        "inside [r_min_um, r_max_um] when sigma_g = 1",
+                    )?;
                 } else {
-                    require("r_min_um / r_max_um", 0.0, self.lognormal_mass() > 0.0, "an interval holding some of the log-normal's mass")?;
+                    require(
+                        "r_min_um / r_max_um",
+                        0.0,
+                        self.lognormal_mass() > 0.0,
+                        "an interval holding some of the log-normal's mass",
+                    )?;
                 }
                 Ok(())
             }
@@ -95,8 +124,18 @@ impl Psd {
                 require("r_max_um", *r_max_um, r_max_um > r_min_um, "> r_min_um")
             }
             Psd::Histogram { edges_um, counts } => {
-                require("edges_um (length)", edges_um.len() as f64, edges_um.len() >= 2, ">= 2")?;
-                require("counts (length)", counts.len() as f64, counts.len() + 1 == edges_um.len(), "len(edges_um) - 1")?;
+                require(
+                    "edges_um (length)",
+                    edges_um.len() as f64,
+                    edges_um.len() >= 2,
+                    ">= 2",
+                )?;
+                require(
+                    "counts (length)",
+                    counts.len() as f64,
+                    counts.len() + 1 == edges_um.len(),
+                    "len(edges_um) - 1",
+                )?;
                 for &e in edges_um {
                     pos("edges_um", e)?;
                 }
@@ -106,22 +145,50 @@ impl Psd {
                 for &c in counts {
                     require("counts", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
                 }
-                require("counts (sum)", counts.iter().sum(), counts.iter().sum::<f64>() > 0.0, "> 0")
+                require(
+                    "counts (sum)",
+                    counts.iter().sum(),
+                    counts.iter().sum::<f64>() > 0.0,
+                    "> 0",
+                )
             }
             Psd::Radii { radii_um } => {
-                require("radii_um (length)", radii_um.len() as f64, radii_um.len() >= 2, ">= 2 (an empty list has no particles; for one radius use Monodisperse)")?;
+                require(
+                    "radii_um (length)",
+                    radii_um.len() as f64,
+                    radii_um.len() >= 2,
+                    ">= 2 (an empty list has no particles; for one radius use Monodisperse)",
+                )?;
                 for &r in radii_um {
                     pos("radii_um", r)?;
                 }
                 Ok(())
             }
-            Psd::Mixture { weights, components } => {
-                require("components (length)", components.len() as f64, !components.is_empty(), ">= 1")?;
-                require("weights (length)", weights.len() as f64, weights.len() == components.len(), "len(components)")?;
+            Psd::Mixture {
+                weights,
+                components,
+            } => {
+                require(
+                    "components (length)",
+                    components.len() as f64,
+                    !components.is_empty(),
+                    ">= 1",
+                )?;
+                require(
+                    "weights (length)",
+                    weights.len() as f64,
+                    weights.len() == components.len(),
+                    "len(components)",
+                )?;
                 for &w in weights {
                     require("weights", w, w.is_finite() && w >= 0.0, "finite and >= 0")?;
                 }
-                require("weights (sum)", weights.iter().sum(), weights.iter().sum::<f64>() > 0.0, "> 0")?;
+                require(
+                    "weights (sum)",
+                    weights.iter().sum(),
+                    weights.iter().sum::<f64>() > 0.0,
+                    "> 0",
+                )?;
                 components.iter().try_for_each(Psd::validate)
             }
         }
@@ -129,9 +196,18 @@ impl Psd {
 
     /// Standardised truncation bounds of a log-normal: (z_lo, z_hi) clipped to ±Z_CUT.
     fn lognormal_z(&self) -> (f64, f64) {
-        if let Psd::LogNormal { median_um, sigma_g, r_min_um, r_max_um } = self {
+        if let Psd::LogNormal {
+            median_um,
+            sigma_g,
+            r_min_um,
+            r_max_um,
+        } = self
+        {
             let s = sigma_g.ln();
-            (((r_min_um / median_um).ln() / s).max(-Z_CUT), ((r_max_um / median_um).ln() / s).min(Z_CUT))
+            (
+                ((r_min_um / median_um).ln() / s).max(-Z_CUT),
+                ((r_max_um / median_um).ln() / s).min(Z_CUT),
+            )
         } else {
             unreachable!()
         }
@@ -150,19 +226,34 @@ impl Psd {
     pub fn support(&self) -> (f64, f64) {
         match self {
             Psd::Monodisperse { radius_um } => (*radius_um, *radius_um),
-            Psd::LogNormal { median_um, sigma_g, .. } if *sigma_g == 1.0 => (*median_um, *median_um),
-            Psd::LogNormal { median_um, sigma_g, .. } => {
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } if *sigma_g == 1.0 => (*median_um, *median_um),
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } => {
                 let (lo, hi) = self.lognormal_z();
-                (median_um * (lo * sigma_g.ln()).exp(), median_um * (hi * sigma_g.ln()).exp())
+                (
+                    median_um * (lo * sigma_g.ln()).exp(),
+                    median_um * (hi * sigma_g.ln()).exp(),
+                )
             }
             Psd::Uniform { r_min_um, r_max_um } => (*r_min_um, *r_max_um),
             Psd::Histogram { edges_um, counts } => {
                 let first = counts.iter().position(|&c| c > 0.0).unwrap_or(0);
-                let last = counts.iter().rposition(|&c| c > 0.0).unwrap_or(counts.len() - 1);
+                let last = counts
+                    .iter()
+                    .rposition(|&c| c > 0.0)
+                    .unwrap_or(counts.len() - 1);
                 (edges_um[first], edges_um[last + 1])
             }
-            Psd::Radii { radii_um } => radii_um.iter().fold((f64::INFINITY, 0.0), |a, &r| (a.0.min(r), a.1.max(r))),
-            Psd::Mixture { weights, components } => components
+            Psd::Radii { radii_um } => radii_um
+                .iter()
+                .fold((f64::INFINITY, 0.0), |a, &r| (a.0.min(r), a.1.max(r))),
+            Psd::Mixture {
+                weights,
+                components,
+            } => components
                 .iter()
                 .zip(weights)
                 .filter(|(_, w)| **w > 0.0)
@@ -175,14 +266,20 @@ impl Psd {
     pub fn cdf(&self, r: f64) -> f64 {
         match self {
             Psd::Monodisperse { radius_um } => (r >= *radius_um) as u8 as f64,
-            Psd::LogNormal { median_um, sigma_g, .. } if *sigma_g == 1.0 => (r >= *median_um) as u8 as f64,
-            Psd::LogNormal { median_um, sigma_g, .. } => {
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } if *sigma_g == 1.0 => (r >= *median_um) as u8 as f64,
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } => {
                 let (lo, hi) = self.lognormal_z();
                 let n = std_normal();
                 let z = ((r / median_um).ln() / sigma_g.ln()).clamp(lo, hi);
                 ((n.cdf(z) - n.cdf(lo)) / (n.cdf(hi) - n.cdf(lo))).clamp(0.0, 1.0)
             }
-            Psd::Uniform { r_min_um, r_max_um } => ((r - r_min_um) / (r_max_um - r_min_um)).clamp(0.0, 1.0),
+            Psd::Uniform { r_min_um, r_max_um } => {
+                ((r - r_min_um) / (r_max_um - r_min_um)).clamp(0.0, 1.0)
+            }
             Psd::Histogram { edges_um, counts } => {
                 let total: f64 = counts.iter().sum();
                 let mut acc = 0.0;
@@ -199,10 +296,20 @@ impl Psd {
                 }
                 acc / total
             }
-            Psd::Radii { radii_um } => radii_um.iter().filter(|&&x| x <= r).count() as f64 / radii_um.len() as f64,
-            Psd::Mixture { weights, components } => {
+            Psd::Radii { radii_um } => {
+                radii_um.iter().filter(|&&x| x <= r).count() as f64 / radii_um.len() as f64
+            }
+            Psd::Mixture {
+                weights,
+                components,
+            } => {
                 let total: f64 = weights.iter().sum();
-                components.iter().zip(weights).map(|(c, w)| w * c.cdf(r)).sum::<f64>() / total
+                components
+                    .iter()
+                    .zip(weights)
+                    .map(|(c, w)| w * c.cdf(r))
+                    .sum::<f64>()
+                    / total
             }
         }
     }
@@ -216,21 +323,36 @@ impl Psd {
         match self {
             Psd::Monodisperse { .. } | Psd::Radii { .. } => 0.0,
             Psd::LogNormal { sigma_g, .. } if *sigma_g == 1.0 => 0.0,
-            Psd::LogNormal { median_um, sigma_g, .. } => {
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } => {
                 // Eq. 15 divided by N0 and by the mass kept by the truncation.
                 let s = sigma_g.ln();
                 let z = (r / median_um).ln() / s;
-                (-0.5 * z * z).exp() / ((2.0 * std::f64::consts::PI).sqrt() * r * s) / self.lognormal_mass()
+                (-0.5 * z * z).exp()
+                    / ((2.0 * std::f64::consts::PI).sqrt() * r * s)
+                    / self.lognormal_mass()
             }
             Psd::Uniform { r_min_um, r_max_um } => 1.0 / (r_max_um - r_min_um),
             Psd::Histogram { edges_um, counts } => {
                 let total: f64 = counts.iter().sum();
-                let i = edges_um.partition_point(|&e| e <= r).saturating_sub(1).min(counts.len() - 1);
+                let i = edges_um
+                    .partition_point(|&e| e <= r)
+                    .saturating_sub(1)
+                    .min(counts.len() - 1);
                 counts[i] / (total * (edges_um[i + 1] - edges_um[i]))
             }
-            Psd::Mixture { weights, components } => {
+            Psd::Mixture {
+                weights,
+                components,
+            } => {
                 let total: f64 = weights.iter().sum();
-                components.iter().zip(weights).map(|(c, w)| w * c.pdf(r)).sum::<f64>() / total
+                components
+                    .iter()
+                    .zip(weights)
+                    .map(|(c, w)| w * c.pdf(r))
+                    .sum::<f64>()
+                    / total
             }
         }
     }
@@ -239,11 +361,20 @@ impl Psd {
     pub fn atoms(&self) -> Vec<(f64, f64)> {
         match self {
             Psd::Monodisperse { radius_um } => vec![(*radius_um, 1.0)],
-            Psd::LogNormal { median_um, sigma_g, .. } if *sigma_g == 1.0 => vec![(*median_um, 1.0)],
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } if *sigma_g == 1.0 => vec![(*median_um, 1.0)],
             Psd::Radii { .. } => self.radii_atoms(),
-            Psd::Mixture { weights, components } => {
+            Psd::Mixture {
+                weights,
+                components,
+            } => {
                 let total: f64 = weights.iter().sum();
-                components.iter().zip(weights).flat_map(|(c, w)| c.atoms().into_iter().map(move |(r, m)| (r, m * w / total))).collect()
+                components
+                    .iter()
+                    .zip(weights)
+                    .flat_map(|(c, w)| c.atoms().into_iter().map(move |(r, m)| (r, m * w / total)))
+                    .collect()
             }
             _ => Vec::new(),
         }
@@ -254,12 +385,20 @@ impl Psd {
         let u = u.clamp(0.0, 1.0);
         match self {
             Psd::Monodisperse { radius_um } => *radius_um,
-            Psd::LogNormal { median_um, sigma_g, .. } if *sigma_g == 1.0 => *median_um,
-            Psd::LogNormal { median_um, sigma_g, .. } => {
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } if *sigma_g == 1.0 => *median_um,
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } => {
                 let (lo, hi) = self.lognormal_z();
                 let n = std_normal();
                 let (clo, chi) = (n.cdf(lo), n.cdf(hi));
-                let z = n.inverse_cdf((clo + u * (chi - clo)).clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON)).clamp(lo, hi);
+                let z = n
+                    .inverse_cdf(
+                        (clo + u * (chi - clo)).clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON),
+                    )
+                    .clamp(lo, hi);
                 median_um * (z * sigma_g.ln()).exp()
             }
             Psd::Uniform { r_min_um, r_max_um } => r_min_um + u * (r_max_um - r_min_um),
@@ -303,7 +442,10 @@ impl Psd {
     /// then the component inverts its CDF at `u`.
     fn draw(&self, u_pick: f64, u: f64) -> f64 {
         match self {
-            Psd::Mixture { weights, components } => {
+            Psd::Mixture {
+                weights,
+                components,
+            } => {
                 let total: f64 = weights.iter().sum();
                 let mut acc = 0.0;
                 for (c, w) in components.iter().zip(weights) {
@@ -313,17 +455,26 @@ impl Psd {
                         return c.draw(local.clamp(0.0, 1.0), u);
                     }
                 }
-                let last = components.iter().zip(weights).rfind(|(_, w)| **w > 0.0).map(|(c, _)| c).unwrap();
+                let last = components
+                    .iter()
+                    .zip(weights)
+                    .rfind(|(_, w)| **w > 0.0)
+                    .map(|(c, _)| c)
+                    .unwrap();
                 last.draw(0.5, u)
             }
-            Psd::Radii { radii_um } => radii_um[((u * radii_um.len() as f64) as usize).min(radii_um.len() - 1)],
+            Psd::Radii { radii_um } => {
+                radii_um[((u * radii_um.len() as f64) as usize).min(radii_um.len() - 1)]
+            }
             _ => self.quantile(u),
         }
     }
 
     /// Equal-mass atoms of an explicit radius list, equal radii merged.
     fn radii_atoms(&self) -> Vec<(f64, f64)> {
-        let Psd::Radii { radii_um } = self else { return Vec::new() };
+        let Psd::Radii { radii_um } = self else {
+            return Vec::new();
+        };
         let mut r = radii_um.clone();
         r.sort_by(f64::total_cmp);
         let m = 1.0 / r.len() as f64;
@@ -346,14 +497,17 @@ impl Psd {
         (0..n.div_ceil(CHUNK))
             .into_par_iter()
             .flat_map_iter(|k| {
-                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(
+                    seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                );
                 let len = CHUNK.min(n - k * CHUNK);
-                (0..len).map(move |_| {
-                    let a = to_unit(rng.next_u64());
-                    let b = to_unit(rng.next_u64());
-                    self.draw(a, b)
-                })
-                .collect::<Vec<_>>()
+                (0..len)
+                    .map(move |_| {
+                        let a = to_unit(rng.next_u64());
+                        let b = to_unit(rng.next_u64());
+                        self.draw(a, b)
+                    })
+                    .collect::<Vec<_>>()
             })
             .collect()
     }
@@ -369,7 +523,11 @@ impl Psd {
     /// scattering (see [`RippleResolution`]) integrated by the midpoint rule on a grid uniform in
     /// x = k r, at most `ripple.dx` apart: Mie's resonances in x are far narrower than any panel in ln r,
     /// and equal weights on a fine uniform grid average them where Gauss–Legendre nodes alias them.
-    pub fn quadrature_resolving(&self, max_log_step: f64, ripple: Option<&RippleResolution>) -> (Vec<f64>, Vec<f64>) {
+    pub fn quadrature_resolving(
+        &self,
+        max_log_step: f64,
+        ripple: Option<&RippleResolution>,
+    ) -> (Vec<f64>, Vec<f64>) {
         let step = max_log_step.clamp(1e-6, 1.0);
         let mut nodes = Vec::new();
         let mut weights = Vec::new();
@@ -385,13 +543,28 @@ impl Psd {
         (nodes, weights)
     }
 
-    fn push_quadrature(&self, scale: f64, step: f64, ripple: Option<(&RippleResolution, f64)>, nodes: &mut Vec<f64>, weights: &mut Vec<f64>) {
+    fn push_quadrature(
+        &self,
+        scale: f64,
+        step: f64,
+        ripple: Option<(&RippleResolution, f64)>,
+        nodes: &mut Vec<f64>,
+        weights: &mut Vec<f64>,
+    ) {
         let (x, w) = gauss_legendre(8);
         // One panel [ta, tb] in t = ln r with `density(t)` per unit t (scale included): midpoints
         // uniform in x where `ripple` asks for them, else the Gauss–Legendre nodes `gl`.
-        let emit = |ta: f64, tb: f64, gl: &[(f64, f64)], density: &dyn Fn(f64) -> f64, nodes: &mut Vec<f64>, weights: &mut Vec<f64>| {
+        let emit = |ta: f64,
+                    tb: f64,
+                    gl: &[(f64, f64)],
+                    density: &dyn Fn(f64) -> f64,
+                    nodes: &mut Vec<f64>,
+                    weights: &mut Vec<f64>| {
             if let Some((q, min_mass)) = ripple {
-                let (xa, xb) = (q.wavenumber_per_um * ta.exp(), q.wavenumber_per_um * tb.exp());
+                let (xa, xb) = (
+                    q.wavenumber_per_um * ta.exp(),
+                    q.wavenumber_per_um * tb.exp(),
+                );
                 let m2: f64 = gl.iter().map(|(r, w)| w * r * r).sum();
                 if xb <= q.x_max && xb > q.x_min && m2 >= min_mass {
                     let dx = q.dx * (xb / q.x_grow).max(1.0);
@@ -412,18 +585,26 @@ impl Psd {
             }
         };
         // ∫_a^b g(r) p(r) dr with r = e^t.
-        let panel = |a: f64, b: f64, density: &dyn Fn(f64) -> f64, nodes: &mut Vec<f64>, weights: &mut Vec<f64>| {
+        let panel = |a: f64,
+                     b: f64,
+                     density: &dyn Fn(f64) -> f64,
+                     nodes: &mut Vec<f64>,
+                     weights: &mut Vec<f64>| {
             let (ta, tb) = (a.ln(), b.ln());
             let panels = (((tb - ta) / step).ceil() as usize).max(1);
             let h = (tb - ta) / panels as f64;
             for k in 0..panels {
                 let t0 = ta + k as f64 * h;
                 let per_t = |t: f64| scale * density(t.exp()) * t.exp();
-                let gl: Vec<(f64, f64)> = x.iter().zip(&w).map(|(xi, wi)| {
-                    let t = t0 + 0.5 * h * (1.0 + xi);
-                    let r = t.exp();
-                    (r, scale * 0.5 * h * wi * density(r) * r)
-                }).collect();
+                let gl: Vec<(f64, f64)> = x
+                    .iter()
+                    .zip(&w)
+                    .map(|(xi, wi)| {
+                        let t = t0 + 0.5 * h * (1.0 + xi);
+                        let r = t.exp();
+                        (r, scale * 0.5 * h * wi * density(r) * r)
+                    })
+                    .collect();
                 emit(t0, t0 + h, &gl, &per_t, nodes, weights);
             }
         };
@@ -432,18 +613,24 @@ impl Psd {
                 nodes.push(*radius_um);
                 weights.push(scale);
             }
-            Psd::LogNormal { sigma_g, median_um, .. } if *sigma_g == 1.0 => {
+            Psd::LogNormal {
+                sigma_g, median_um, ..
+            } if *sigma_g == 1.0 => {
                 nodes.push(*median_um);
                 weights.push(scale);
             }
-            Psd::LogNormal { median_um, sigma_g, .. } => {
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } => {
                 // In the standard variable z (r = r_g e^{z ln σ_g}) the weights φ(z)/mass are exact for
                 // any width, down to σ_g = 1 + 1e-15; panels ≤ 0.5 in z and ≤ `step` in ln r.
                 let s_ln = sigma_g.ln();
                 let (zlo, zhi) = self.lognormal_z();
                 let mass = self.lognormal_mass();
                 let norm = scale / (2.0 * std::f64::consts::PI).sqrt() / mass;
-                let panels = (((zhi - zlo) * s_ln / step).ceil() as usize).max((2.0 * (zhi - zlo)).ceil() as usize).max(1);
+                let panels = (((zhi - zlo) * s_ln / step).ceil() as usize)
+                    .max((2.0 * (zhi - zlo)).ceil() as usize)
+                    .max(1);
                 let h = (zhi - zlo) / panels as f64;
                 let ln_med = median_um.ln();
                 // Density per unit ln r: φ(z) / (ln σ_g · mass).
@@ -453,11 +640,27 @@ impl Psd {
                 };
                 for k in 0..panels {
                     let z0 = zlo + k as f64 * h;
-                    let gl: Vec<(f64, f64)> = x.iter().zip(&w).map(|(xi, wi)| {
-                        let z = z0 + 0.5 * h * (1.0 + xi);
-                        (median_um * (z * s_ln).exp(), scale * 0.5 * h * wi * (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt() / mass)
-                    }).collect();
-                    emit(ln_med + z0 * s_ln, ln_med + (z0 + h) * s_ln, &gl, &per_t, nodes, weights);
+                    let gl: Vec<(f64, f64)> = x
+                        .iter()
+                        .zip(&w)
+                        .map(|(xi, wi)| {
+                            let z = z0 + 0.5 * h * (1.0 + xi);
+                            (
+                                median_um * (z * s_ln).exp(),
+                                scale * 0.5 * h * wi * (-0.5 * z * z).exp()
+                                    / (2.0 * std::f64::consts::PI).sqrt()
+                                    / mass,
+                            )
+                        })
+                        .collect();
+                    emit(
+                        ln_med + z0 * s_ln,
+                        ln_med + (z0 + h) * s_ln,
+                        &gl,
+                        &per_t,
+                        nodes,
+                        weights,
+                    );
                 }
             }
             Psd::Uniform { .. } => {
@@ -480,7 +683,10 @@ impl Psd {
                     weights.push(scale * m);
                 }
             }
-            Psd::Mixture { weights: ws, components } => {
+            Psd::Mixture {
+                weights: ws,
+                components,
+            } => {
                 let total: f64 = ws.iter().sum();
                 for (c, w) in components.iter().zip(ws) {
                     if *w > 0.0 {
@@ -513,14 +719,24 @@ mod tests {
     use super::*;
 
     fn lognormal(median: f64, sigma: f64) -> Psd {
-        Psd::LogNormal { median_um: median, sigma_g: sigma, r_min_um: DEFAULT_R_MIN_UM, r_max_um: DEFAULT_R_MAX_UM }
+        Psd::LogNormal {
+            median_um: median,
+            sigma_g: sigma,
+            r_min_um: DEFAULT_R_MIN_UM,
+            r_max_um: DEFAULT_R_MAX_UM,
+        }
     }
 
     /// Quadrature weights sum to 1 and reproduce the log-normal moments E[r^k] = r_g^k exp(k² ln²σ_g / 2)
     /// (untruncated case: bounds far in the tails).
     #[test]
     fn lognormal_moments() {
-        let psd = Psd::LogNormal { median_um: 10.0, sigma_g: 2.0, r_min_um: 1e-6, r_max_um: 1e8 };
+        let psd = Psd::LogNormal {
+            median_um: 10.0,
+            sigma_g: 2.0,
+            r_min_um: 1e-6,
+            r_max_um: 1e8,
+        };
         let (r, w) = psd.quadrature(0.05);
         assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         for k in 1..=3 {
@@ -534,19 +750,42 @@ mod tests {
     /// nodes at most dx/k apart across the resolved range (where the scattering is); beyond x_max the nodes are unchanged.
     #[test]
     fn ripple_resolution_keeps_moments() {
-        for psd in [lognormal(3.0, 1.5), Psd::Uniform { r_min_um: 0.5, r_max_um: 40.0 }] {
+        for psd in [
+            lognormal(3.0, 1.5),
+            Psd::Uniform {
+                r_min_um: 0.5,
+                r_max_um: 40.0,
+            },
+        ] {
             let k = 2.0 * std::f64::consts::PI / 0.55;
-            let q = RippleResolution { wavenumber_per_um: k, dx: 0.02, x_grow: 1e9, x_min: 2.0, x_max: 300.0, min_share: 1e-6 };
+            let q = RippleResolution {
+                wavenumber_per_um: k,
+                dx: 0.02,
+                x_grow: 1e9,
+                x_min: 2.0,
+                x_max: 300.0,
+                min_share: 1e-6,
+            };
             let (r0, w0) = psd.quadrature(0.05);
             let (r, w) = psd.quadrature_resolving(0.05, Some(&q));
             assert!(r.len() > 10 * r0.len());
             for p in 0..=4 {
-                let m = |r: &[f64], w: &[f64]| r.iter().zip(w).map(|(r, w)| w * r.powi(p)).sum::<f64>();
+                let m =
+                    |r: &[f64], w: &[f64]| r.iter().zip(w).map(|(r, w)| w * r.powi(p)).sum::<f64>();
                 assert!((m(&r, &w) / m(&r0, &w0) - 1.0).abs() < 1e-5, "moment {p}");
             }
-            let inside: Vec<f64> = r.iter().map(|r| k * r).filter(|&x| x > 20.0 && x < 150.0).collect();
-            assert!(inside.windows(2).all(|x| x[1] > x[0] && x[1] - x[0] <= 0.02 * (1.0 + 1e-9)));
-            assert_eq!(r.iter().filter(|&&r| k * r > 320.0).count(), r0.iter().filter(|&&r| k * r > 320.0).count());
+            let inside: Vec<f64> = r
+                .iter()
+                .map(|r| k * r)
+                .filter(|&x| x > 20.0 && x < 150.0)
+                .collect();
+            assert!(inside
+                .windows(2)
+                .all(|x| x[1] > x[0] && x[1] - x[0] <= 0.02 * (1.0 + 1e-9)));
+            assert_eq!(
+                r.iter().filter(|&&r| k * r > 320.0).count(),
+                r0.iter().filter(|&&r| k * r > 320.0).count()
+            );
         }
     }
 
@@ -557,7 +796,10 @@ mod tests {
             let (r, w) = lognormal(800.0, sigma).quadrature(0.05);
             let mean: f64 = r.iter().zip(&w).map(|(r, w)| r * w).sum();
             assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12, "σ_g = {sigma}");
-            assert!((mean / (800.0 * (0.5 * sigma.ln().powi(2)).exp()) - 1.0).abs() < 1e-12, "σ_g = {sigma}: {mean}");
+            assert!(
+                (mean / (800.0 * (0.5 * sigma.ln().powi(2)).exp()) - 1.0).abs() < 1e-12,
+                "σ_g = {sigma}: {mean}"
+            );
         }
     }
 
@@ -575,13 +817,31 @@ mod tests {
     /// quantile inverts cdf, for every kind, including the mixture's bisection.
     #[test]
     fn quantile_inverts_cdf() {
-        let mix = Psd::Mixture { weights: vec![0.7, 0.3], components: vec![lognormal(100.0, 1.5), lognormal(800.0, 2.0)] };
-        let hist = Psd::Histogram { edges_um: vec![1.0, 2.0, 5.0, 10.0], counts: vec![1.0, 0.0, 3.0] };
-        for psd in [lognormal(800.0, 4.0), Psd::Uniform { r_min_um: 1.0, r_max_um: 3.0 }, hist, mix] {
+        let mix = Psd::Mixture {
+            weights: vec![0.7, 0.3],
+            components: vec![lognormal(100.0, 1.5), lognormal(800.0, 2.0)],
+        };
+        let hist = Psd::Histogram {
+            edges_um: vec![1.0, 2.0, 5.0, 10.0],
+            counts: vec![1.0, 0.0, 3.0],
+        };
+        for psd in [
+            lognormal(800.0, 4.0),
+            Psd::Uniform {
+                r_min_um: 1.0,
+                r_max_um: 3.0,
+            },
+            hist,
+            mix,
+        ] {
             for k in 1..20 {
                 let u = k as f64 / 20.0;
                 let r = psd.quantile(u);
-                assert!((psd.cdf(r) - u).abs() < 1e-9, "{psd:?} u={u} r={r} cdf={}", psd.cdf(r));
+                assert!(
+                    (psd.cdf(r) - u).abs() < 1e-9,
+                    "{psd:?} u={u} r={r} cdf={}",
+                    psd.cdf(r)
+                );
             }
         }
     }
@@ -589,7 +849,10 @@ mod tests {
     /// Sampling is reproducible, thread-count independent, and follows the CDF (KS distance).
     #[test]
     fn sampling_follows_cdf() {
-        let psd = Psd::Mixture { weights: vec![0.9, 0.1], components: vec![lognormal(100.0, 1.0), lognormal(800.0, 4.0)] };
+        let psd = Psd::Mixture {
+            weights: vec![0.9, 0.1],
+            components: vec![lognormal(100.0, 1.0), lognormal(800.0, 4.0)],
+        };
         let a = psd.sample(200_000, 7);
         assert_eq!(a, psd.sample(200_000, 7));
         assert_ne!(a, psd.sample(200_000, 8));
@@ -601,10 +864,20 @@ mod tests {
             let below = psd.cdf(r * (1.0 - 1e-12));
             let at = psd.cdf(r);
             let e = (i + 1) as f64 / n;
-            if e < below { below - e } else if e > at { e - at } else { 0.0 }
+            if e < below {
+                below - e
+            } else if e > at {
+                e - at
+            } else {
+                0.0
+            }
         });
         let d = ks.fold(0.0, f64::max);
-        assert!(d < 1.63 / n.sqrt() + 1e-9, "KS distance {d} (1% critical value {})", 1.63 / n.sqrt());
+        assert!(
+            d < 1.63 / n.sqrt() + 1e-9,
+            "KS distance {d} (1% critical value {})",
+            1.63 / n.sqrt()
+        );
     }
 
     /// JSON specs round-trip; unknown fields and bad values are rejected with the parameter's name.
@@ -612,11 +885,14 @@ mod tests {
     fn json_specs() {
         let p = Psd::from_json(r#"{"type": "lognormal", "median_um": 800, "sigma_g": 4}"#).unwrap();
         assert_eq!(Psd::from_json(&p.to_json()).unwrap(), p);
-        let e = Psd::from_json(r#"{"type": "lognormal", "median_um": 800, "sigma_g": 0.5}"#).unwrap_err();
+        let e = Psd::from_json(r#"{"type": "lognormal", "median_um": 800, "sigma_g": 0.5}"#)
+            .unwrap_err();
         assert!(e.to_string().contains("sigma_g"), "{e}");
-        let e = Psd::from_json(r#"{"type": "lognormal", "median_um": 800, "sigmag": 2}"#).unwrap_err();
+        let e =
+            Psd::from_json(r#"{"type": "lognormal", "median_um": 800, "sigmag": 2}"#).unwrap_err();
         assert!(e.to_string().contains("sigmag"), "{e}");
-        let e = Psd::from_json(r#"{"type": "histogram", "edges_um": [1, 2], "counts": [0]}"#).unwrap_err();
+        let e = Psd::from_json(r#"{"type": "histogram", "edges_um": [1, 2], "counts": [0]}"#)
+            .unwrap_err();
         assert!(e.to_string().contains("counts"), "{e}");
     }
 }

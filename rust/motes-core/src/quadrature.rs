@@ -53,7 +53,11 @@ mod tests {
         for n in [1usize, 2, 5, 8, 16, 32] {
             let (x, w) = gauss_legendre(n);
             for deg in 0..(2 * n) {
-                let exact = if deg % 2 == 1 { 0.0 } else { 2.0 / (deg as f64 + 1.0) };
+                let exact = if deg % 2 == 1 {
+                    0.0
+                } else {
+                    2.0 / (deg as f64 + 1.0)
+                };
                 let got: f64 = x.iter().zip(&w).map(|(x, w)| w * x.powi(deg as i32)).sum();
                 assert!((got - exact).abs() < 1e-13, "n={n} deg={deg} got={got}");
             }

@@ -26,6 +26,8 @@ mod tests {
     fn spectral_set_spans_the_visible() {
         let s = spectral_wavelengths_um();
         assert_eq!((s[0], s[7]), (0.38, 0.78));
-        assert!(s.windows(2).all(|w| (w[1] - w[0] - 0.4 / 7.0).abs() < 1e-15));
+        assert!(s
+            .windows(2)
+            .all(|w| (w[1] - w[0] - 0.4 / 7.0).abs() < 1e-15));
     }
 }

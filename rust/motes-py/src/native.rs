@@ -39,18 +39,49 @@ const LAMBDA_UNITS_PER_NM: f64 = 50.0;
 #[allow(dead_code)]
 #[derive(Clone, Copy)]
 enum Field {
-    Ox, Oy, Oz, Tnear, Dx, Dy, Dz, Time, Tfar, Mask, Id, Flags, NgX, NgY, NgZ, U, V, PrimId, GeomId, InstId,
+    Ox,
+    Oy,
+    Oz,
+    Tnear,
+    Dx,
+    Dy,
+    Dz,
+    Time,
+    Tfar,
+    Mask,
+    Id,
+    Flags,
+    NgX,
+    NgY,
+    NgZ,
+    U,
+    V,
+    PrimId,
+    GeomId,
+    InstId,
 }
 
 /// What C++ receives: the interface version and two functions.
 #[repr(C)]
 pub struct NativeApi {
     pub abi: u32,
-    pub packet: unsafe extern "C" fn(medium: *const c_void, op: u32, width: u32, valid: *const i32, args: *mut u8, lambda: *const f64, channels: u32),
+    pub packet: unsafe extern "C" fn(
+        medium: *const c_void,
+        op: u32,
+        width: u32,
+        valid: *const i32,
+        args: *mut u8,
+        lambda: *const f64,
+        channels: u32,
+    ),
     pub release: unsafe extern "C" fn(medium: *const c_void),
 }
 
-pub static API: NativeApi = NativeApi { abi: NATIVE_ABI, packet: motes_packet, release: motes_release };
+pub static API: NativeApi = NativeApi {
+    abi: NATIVE_ABI,
+    packet: motes_packet,
+    release: motes_release,
+};
 
 /// A new strong reference to `medium` for C++ (dropped by [`NativeApi::release`]).
 pub fn handle(medium: &Arc<DiscreteMedium>) -> usize {
@@ -82,7 +113,14 @@ impl Record {
     }
     fn v3(&self, a: Field, lane: usize) -> [f32; 3] {
         let k = a as usize;
-        let at = |i: usize| f32::from_bits(unsafe { self.args.add(((k + i) * self.width + lane) * 4).cast::<u32>().read_unaligned() });
+        let at = |i: usize| {
+            f32::from_bits(unsafe {
+                self.args
+                    .add(((k + i) * self.width + lane) * 4)
+                    .cast::<u32>()
+                    .read_unaligned()
+            })
+        };
         [at(0), at(1), at(2)]
     }
     /// Marks the lane as returned (drjit-core reads geom_id != -1 as a hit).
@@ -109,7 +147,15 @@ fn lane_lambda(r: &Record, lane: usize, out: &mut [f64]) {
 /// # Safety
 /// `medium` comes from [`handle`] and is alive; `args` holds a record of `width` ≤ 16 lanes; `valid` is
 /// null or holds `width` entries; `lambda` is null or holds `channels` ≤ 4 values.
-pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32, valid: *const i32, args: *mut u8, lambda: *const f64, channels: u32) {
+pub unsafe extern "C" fn motes_packet(
+    medium: *const c_void,
+    op: u32,
+    width: u32,
+    valid: *const i32,
+    args: *mut u8,
+    lambda: *const f64,
+    channels: u32,
+) {
     let m = &*(medium as *const DiscreteMedium);
     let width = (width as usize).min(PACKET_LANES);
     let ch = (channels as usize).clamp(1, 4);
@@ -129,7 +175,9 @@ pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32
     };
     match op {
         FREE_FLIGHT => {
-            let rays: [Option<PacketRay>; PACKET_LANES] = lanes(width, |i| active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tfar, i))));
+            let rays: [Option<PacketRay>; PACKET_LANES] = lanes(width, |i| {
+                active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tfar, i)))
+            });
             let mut t = [None; PACKET_LANES];
             m.packet_free_flights(&rays[..width], &mut t);
             for (i, t) in t.iter().enumerate().take(width) {
@@ -149,7 +197,16 @@ pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32
             }
         }
         PHASE_SAMPLE => {
-            let l = lanes(width, |i| active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tnear, i) as f64, [r.f(Field::Time, i) as f64, r.f(Field::Tfar, i) as f64])));
+            let l = lanes(width, |i| {
+                active(i).then(|| {
+                    (
+                        r.v3(Field::Ox, i),
+                        r.v3(Field::Dx, i),
+                        r.f(Field::Tnear, i) as f64,
+                        [r.f(Field::Time, i) as f64, r.f(Field::Tfar, i) as f64],
+                    )
+                })
+            });
             let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
             m.packet_phase_sample(&l[..width], lam, ch, &mut wo, &mut pdf);
             for i in (0..width).filter(|&i| active(i)) {
@@ -161,7 +218,19 @@ pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32
             }
         }
         PHASE_EVAL => {
-            let l = lanes(width, |i| active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), [r.f(Field::Tnear, i), r.f(Field::Time, i), r.f(Field::Tfar, i)])));
+            let l = lanes(width, |i| {
+                active(i).then(|| {
+                    (
+                        r.v3(Field::Ox, i),
+                        r.v3(Field::Dx, i),
+                        [
+                            r.f(Field::Tnear, i),
+                            r.f(Field::Time, i),
+                            r.f(Field::Tfar, i),
+                        ],
+                    )
+                })
+            });
             let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
             m.packet_phase_eval(&l[..width], lam, ch, &mut v, &mut pdf);
             for i in (0..width).filter(|&i| active(i)) {
@@ -176,7 +245,10 @@ pub unsafe extern "C" fn motes_packet(medium: *const c_void, op: u32, width: u32
 
 /// Up to four channel values into tfar, u, v, prim_id.
 fn write_channels(r: &Record, lane: usize, v: &[f64]) {
-    for (x, f) in v.iter().zip([Field::Tfar, Field::U, Field::V, Field::PrimId]) {
+    for (x, f) in v
+        .iter()
+        .zip([Field::Tfar, Field::U, Field::V, Field::PrimId])
+    {
         r.set_f(f, lane, *x);
     }
 }
