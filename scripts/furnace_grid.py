@@ -43,9 +43,19 @@ def box_transform(kind: str):
 def render_furnace(medium: dict, transform: str, res: int, spp: int) -> tuple[float, float]:
     import mitsuba as mi  # noqa: PLC0415
 
+    img = np.asarray(mi.render(furnace_scene(medium, transform, res, spp), spp=spp), dtype=np.float64)
+    pix = img.reshape(-1, img.shape[-1]).mean(axis=1)
+    return float(pix.mean()), float(pix.std(ddof=1) / np.sqrt(pix.size))
+
+
+def furnace_scene(medium: dict, transform: str, res: int, spp: int):
+    """The medium in a null-BSDF cube (`transform`) under a constant white environment, volpath without
+    depth limit or Russian roulette."""
+    import mitsuba as mi  # noqa: PLC0415
+
     to_world = box_transform(transform)
     medium = dict(medium, to_world=to_world)
-    scene = mi.load_dict({
+    return mi.load_dict({
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 1_000_000},
         "sensor": {"type": "perspective", "fov": 35,
@@ -55,9 +65,6 @@ def render_furnace(medium: dict, transform: str, res: int, spp: int) -> tuple[fl
         "env": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
         "cube": {"type": "cube", "to_world": to_world, "bsdf": {"type": "null"}, "interior": medium},
     })
-    img = np.asarray(mi.render(scene, spp=spp), dtype=np.float64)
-    pix = img.reshape(-1, img.shape[-1]).mean(axis=1)
-    return float(pix.mean()), float(pix.std(ddof=1) / np.sqrt(pix.size))
 
 
 # (count, radius / spacing): a sparse haze, grains a third of their spacing, overlapping inclusion balls.

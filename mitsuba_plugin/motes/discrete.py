@@ -23,6 +23,12 @@ queries (``rust/motes-core/src/discrete.rs`` documents the model).
                             ``DEFAULT_TRUNCATE_RAD`` (0.031 rad, one bin of a 4096-value ``tabphase``,
                             as ``homogeneous_equivalent``); None or 0: none
 ``cells_per_particle``      grid resolution (about one particle per voxel by default)
+``continuous_count``        size classes (factors of two in r_c + r_i) whose particles a query cylinder
+                            holds at least this many of, over one mean free path or across the cloud
+                            (``DEFAULT_CONTINUOUS_COUNT`` = 16), are sampled as a continuous medium of
+                            the same mean extinction and local phase mixture: no pixel resolves their
+                            grains, and they cost about what ``homogeneous`` costs
+                            (``rust/motes-core/src/continuous.rs``); inf: every particle discrete
 ``seed``                    seed of the free-flight random numbers
 ``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
                             default: the physical one)
@@ -46,6 +52,8 @@ from .psd import Monodisperse, Uniform
 
 #: Default cap on each particle's optical depth (module docs; defined in the Rust core).
 DEFAULT_TAU_MAX: float = _motes.DEFAULT_TAU_MAX
+#: Default particles per query cylinder from which a size class is continuous (module docs).
+DEFAULT_CONTINUOUS_COUNT: float = _motes.DEFAULT_CONTINUOUS_COUNT
 
 
 def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
@@ -62,7 +70,8 @@ class DiscreteMedium:
     def __init__(self, positions, radii_um, species_index, species, wavelength_um, *, scale_m: float = 1.0,
                  query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = 1.0, seed: int = 0,
-                 albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False):
+                 albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
+                 continuous_count: float = DEFAULT_CONTINUOUS_COUNT):
         pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
         if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
             raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
@@ -94,6 +103,8 @@ class DiscreteMedium:
             raise ValueError(f"invalid query_radius = {query_radius}: must be finite and >= 0")
         if not (tau_max > 0):
             raise ValueError(f"invalid tau_max = {tau_max}: must be > 0 (inf: no cap)")
+        if not (continuous_count > 0):
+            raise ValueError(f"invalid continuous_count = {continuous_count}: must be > 0 (inf: every particle discrete)")
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 
@@ -145,10 +156,12 @@ class DiscreteMedium:
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
-            int(seed) & (2**64 - 1))
+            float(continuous_count), int(seed) & (2**64 - 1))
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened
         self.tau_max = float(tau_max)
+        #: Particles sampled as a continuous medium (``continuous_count``).
+        self.continuous_particles = self._core.continuous_particles
         if warn_widened and self.widened:
             warnings.warn(f"query_radius = {query_radius:g} would give {self.widened} of {n} particles an optical "
                           f"depth above tau_max = {tau_max:g} (up to {float(np.max(c_ext / (np.pi * (query_radius + r * um) ** 2))):.3g}); "

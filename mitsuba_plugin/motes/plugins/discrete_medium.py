@@ -31,6 +31,9 @@ Parameter               Type       Meaning (default)
                                    r_c + r_i would be more opaque gets a wider disk; each disk removes
                                    exactly its C_ext from a beam (see Notes)
 ``cells_per_particle``  float      grid resolution (1: about one particle per voxel, Sec. 6.5)
+``continuous_count``    float      size classes with at least this many particles per query cylinder
+                                   (over a mean free path or across the cloud) are rendered as a
+                                   continuous medium: no pixel resolves their grains (16; inf: none)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
 ``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
@@ -53,6 +56,11 @@ are widened until tau_i <= ``tau_max``. A ``query_radius`` that widening overrid
 Forward-peak truncation is on by default: a diffraction lobe a few mrad wide cannot be found by a delta
 light (spot, point) except as fireflies, so without it a spot-lit floor under 80 um grains renders
 ~30 % dark at 64 spp (BENCHMARKS.md, issue 9).
+Grains nobody can see are not walked one by one: a size class whose particles a pixel's query cylinder
+holds many of (``continuous_count``) has each tau_i tiny and no resolvable grain, so it is sampled as a
+continuous medium with the same extinction per cell and the cell's phase mixture, combined exactly
+with the discrete classes (the nearer of the two sampled interactions). What it drops is the grain
+texture of relative size 1/sqrt(N) (BENCHMARKS.md, issue 10.3).
 
 The phase function must be ``<phase type="particle"/>``. Unknown or misspelt parameters fail loading
 (Mitsuba's unreferenced-property check); invalid values raise ``ValueError`` naming the parameter and
@@ -96,7 +104,7 @@ import numpy as np
 
 from ..discrete import DiscreteMedium
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
-from ..discrete import DEFAULT_TAU_MAX
+from ..discrete import DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import psd as psd_mod
@@ -195,6 +203,8 @@ class DiscreteMediumPlugin:
                       "one of auto, mie, goa, hybrid")
         truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
         tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float, lambda v: v > 0, "> 0 (inf: no cap)")
+        continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float, lambda v: v > 0,
+                          "> 0 (inf: every particle discrete)")
         wavelengths = _get(props, "wavelengths", None, str)
         seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
         albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
@@ -283,7 +293,7 @@ class DiscreteMediumPlugin:
                                    size_bins=size_bins, eta_medium=eta_medium, method=method,
                                    truncate_below_rad=truncate if truncate > 0 else None,
                                    cells_per_particle=cells, seed=seed, albedo=albedo, tau_max=tau_max,
-                                   warn_widened=user_radius)
+                                   warn_widened=user_radius, continuous_count=continuous)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '

@@ -55,6 +55,7 @@
 //! the mean over channels of f_c (one-sample MIS over channels), so `sample` and `eval` agree
 //! exactly and the weights f_c / pdf stay bounded.
 
+use crate::continuous::{resolvable, ContinuousField};
 use crate::error::{require, OpticsError};
 use crate::grid::{bounding_box, ParticleGrid, Site};
 use crate::phase_table::PhaseTable;
@@ -80,6 +81,9 @@ pub const DEFAULT_TAU_MAX: f64 = 1.0;
 pub const DEFENSIVE_MIX: f64 = 0.1;
 /// Optical depth of a disk whose fill reaches 1 (opaque; e^{−30} ≈ 1e-13).
 const TAU_OPAQUE: f64 = 30.0;
+/// Stream of [`uniform`] numbers, drawn from a free flight's own, that the continuous field uses (its
+/// distance, then the particle picked), independent of the discrete walk's.
+const FIELD_STREAM: u64 = 0xF1E1D;
 /// Channels whose throughput an event can carry (RGB: 3, Mitsuba's spectral variants: 4).
 pub const MAX_CHANNELS: usize = 4;
 
@@ -240,7 +244,12 @@ type Pending = (Option<Site>, bool, [f32; MAX_CHANNELS]);
 
 /// The discrete medium: particles in a grid with grey optical depths, and per-bin optics.
 pub struct DiscreteMedium {
-    grid: ParticleGrid,
+    /// The particles sampled one by one (None when every class is continuous).
+    grid: Option<ParticleGrid>,
+    /// The size classes no pixel resolves, sampled as a continuous medium (None when there are none).
+    field: Option<ContinuousField>,
+    /// Whether each particle (original index) lives in `field`.
+    in_field: Vec<bool>,
     /// Grey optical depth of each particle's disk, −ln(1 − x_i) (original index; module docs).
     tau: Vec<f32>,
     /// Inclusion radius R_i = max(r_c + r_i, floor) of each particle (original index), scene units.
@@ -299,6 +308,8 @@ impl DiscreteMedium {
     /// (increasing), `query_radius` r_c (scene units), `tau_max` the cap on each disk's optical depth
     /// (module docs; [`DEFAULT_TAU_MAX`], `f64::INFINITY` for none).
     #[allow(clippy::too_many_arguments)]
+    /// `continuous_count`: size classes holding at least this many particles per query cylinder are
+    /// sampled as a continuous medium ([`crate::continuous`]; `f64::INFINITY`: none).
     pub fn build(
         positions: &[[f64; 3]],
         radius: &[f64],
@@ -309,6 +320,7 @@ impl DiscreteMedium {
         query_radius: f64,
         tau_max: f64,
         cells_per_particle: f64,
+        continuous_count: f64,
         seed: u64,
     ) -> Result<Self, OpticsError> {
         let n = positions.len();
@@ -336,6 +348,12 @@ impl DiscreteMedium {
             query_radius,
             query_radius.is_finite() && query_radius >= 0.0,
             "finite and >= 0",
+        )?;
+        require(
+            "continuous_count",
+            continuous_count,
+            continuous_count > 0.0,
+            "> 0 (inf: every class discrete)",
         )?;
         require(
             "lambda (length)",
@@ -391,19 +409,56 @@ impl DiscreteMedium {
             .map(|i| (disks[i].0 - query_radius).max(radius[i]))
             .collect();
         let grid_c: Vec<f64> = disks.iter().map(|&(r, t)| t * PI * r * r).collect();
-        let grid = ParticleGrid::build(
-            positions,
-            &grid_radius,
-            &grid_c,
-            1,
-            query_radius,
-            cells_per_particle,
-        )?;
+        let reach: Vec<f64> = disks.iter().map(|d| d.0).collect();
+        let keep = resolvable(positions, &reach, c_ext, continuous_count);
+        let (discrete_ids, field_ids): (Vec<u32>, Vec<u32>) =
+            (0..n as u32).partition(|&i| keep[i as usize]);
+        let pick =
+            |ids: &[u32], v: &[f64]| ids.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>();
+        let grid = if discrete_ids.is_empty() {
+            None
+        } else if field_ids.is_empty() {
+            Some(ParticleGrid::build(
+                positions,
+                &grid_radius,
+                &grid_c,
+                1,
+                query_radius,
+                cells_per_particle,
+            )?)
+        } else {
+            // The grid reports original indices: build it on the discrete particles and map back.
+            let pos: Vec<[f64; 3]> = discrete_ids
+                .iter()
+                .map(|&i| positions[i as usize])
+                .collect();
+            let g = ParticleGrid::build(
+                &pos,
+                &pick(&discrete_ids, &grid_radius),
+                &pick(&discrete_ids, &grid_c),
+                1,
+                query_radius,
+                cells_per_particle,
+            )?;
+            Some(g.with_indices(&discrete_ids))
+        };
+        let field = (!field_ids.is_empty()).then(|| {
+            let pos: Vec<[f64; 3]> = field_ids.iter().map(|&i| positions[i as usize]).collect();
+            // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not
+            // by τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs).
+            ContinuousField::build(
+                &pos,
+                &pick(&field_ids, &reach),
+                &pick(&field_ids, c_ext),
+                &field_ids,
+            )
+        });
+        let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let tau = disks.iter().map(|d| d.1 as f32).collect();
         let reach = disks.iter().map(|d| d.0 as f32).collect();
         let c_ext = c_ext.iter().map(|&c| c as f32).collect();
         let (lo, hi) = bounding_box(positions);
-        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) + grid.reach_max();
+        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) + reach_max;
         // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
         // be ordered reliably, so they form one site.
         let coincide = 1e-6 * extent.max(1e-30);
@@ -414,6 +469,8 @@ impl DiscreteMedium {
         };
         Ok(DiscreteMedium {
             grid,
+            field,
+            in_field: keep.iter().map(|k| !k).collect(),
             tau,
             reach,
             c_ext,
@@ -441,8 +498,25 @@ impl DiscreteMedium {
         self.tau.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
     }
 
-    pub fn grid(&self) -> &ParticleGrid {
-        &self.grid
+    /// Largest inclusion radius of a particle (scene units).
+    pub fn reach_max(&self) -> f64 {
+        self.reach.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
+    }
+    /// Particles sampled as a continuous medium ([`crate::continuous`]).
+    pub fn continuous_len(&self) -> usize {
+        self.field.as_ref().map_or(0, ContinuousField::len)
+    }
+    /// Grey optical depth along [t0, t1) of a ray (|d| = 1) as the free flights see it: the discrete
+    /// particles' staircase plus the continuous field's mean.
+    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> f64 {
+        let mut v = [0.0];
+        if let Some(g) = &self.grid {
+            g.optical_depth(o, d, t0, t1, &mut v);
+        }
+        v[0] + self
+            .field
+            .as_ref()
+            .map_or(0.0, |f| f.optical_depth(o, d, t0, t1))
     }
     pub fn len(&self) -> usize {
         self.tau.len()
@@ -451,7 +525,10 @@ impl DiscreteMedium {
         self.tau.is_empty()
     }
     pub fn bytes(&self) -> usize {
-        self.grid.bytes() + self.tau.len() * 12 + self.bin.len() * 4
+        self.grid.as_ref().map_or(0, ParticleGrid::bytes)
+            + self.field.as_ref().map_or(0, ContinuousField::bytes)
+            + self.tau.len() * 13
+            + self.bin.len() * 4
     }
     pub fn lambda(&self) -> &[f64] {
         &self.lambda
@@ -507,7 +584,7 @@ impl DiscreteMedium {
             .map(|(lane, (oo, (dd, &tm)))| {
                 // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
                 let u = uniform(self.seed ^ ray_bits(oo, dd), call, lane as u64);
-                self.lane_free_flight(&events, *oo, *dd, tm, u)
+                self.lane_free_flight(&events, *oo, *dd, tm, u, true)
             })
             .collect();
         drop(events);
@@ -539,6 +616,7 @@ impl DiscreteMedium {
         d: [f32; 3],
         t_max: f64,
         u: f64,
+        want_tau: bool,
     ) -> (Option<Site>, f64, [f32; MAX_CHANNELS]) {
         let (Some(dir), true) = (
             normalise(d.map(|x| x as f64)),
@@ -547,16 +625,49 @@ impl DiscreteMedium {
             return (None, 0.0, [0.0; MAX_CHANNELS]);
         };
         let parent = events.get(&key(o)).copied().unwrap_or_default();
-        let (site, tau) = self.grid.sample_site(
-            o.map(|x| x as f64),
-            dir,
-            0.0,
-            t_max,
-            parent.site.members(),
-            u,
-            self.coincide,
-        );
-        (site, tau, parent.t_out)
+        let o = o.map(|x| x as f64);
+        // The continuous field first (one exponential per cell), then the particles up to its distance:
+        // the nearer of two independent processes' interactions (crate::continuous).
+        let (hit, tau_field) = match &self.field {
+            Some(f) => f.free_flight(
+                o,
+                dir,
+                0.0,
+                t_max,
+                -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln(),
+            ),
+            None => (None, 0.0),
+        };
+        let t_end = hit.map_or(t_max, |h| h.t);
+        let (site, tau) = match &self.grid {
+            Some(g) => g.sample_site(o, dir, 0.0, t_end, parent.site.members(), u, self.coincide),
+            None => (None, 0.0),
+        };
+        let site = match (site, hit, &self.field) {
+            (Some(s), _, _) => Some(s),
+            (None, Some(h), Some(f)) => {
+                f.pick(h.cell, uniform(u.to_bits(), FIELD_STREAM, 1))
+                    .map(|i| {
+                        let mut s = Site {
+                            t: h.t,
+                            ..Site::default()
+                        };
+                        s.push(i);
+                        s
+                    })
+            }
+            _ => None,
+        };
+        // The optical depth before the site: the field's up to a discrete site is walked again only when
+        // a caller asks for it (the packet interface does not).
+        let tau_field = match (&self.field, site, hit) {
+            (Some(f), Some(s), Some(h)) if want_tau && s.t < h.t => {
+                f.optical_depth(o, dir, 0.0, s.t)
+            }
+            (Some(f), Some(s), None) if want_tau => f.optical_depth(o, dir, 0.0, s.t),
+            _ => tau_field,
+        };
+        (site, tau + tau_field, parent.t_out)
     }
 
     /// Record the events of this thread's last [`Self::sample_sites`] call at the positions the renderer placed
@@ -636,13 +747,22 @@ impl DiscreteMedium {
         let o = p.map(|x| x as f64);
         let tol = 4.0 * self.coincide + 1e-6 * o.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         let mut site = Site::default();
-        self.grid.walk(o, w_in, -tol, tol, |t, _, i| {
-            if site.len == 0 {
-                site.t = t;
+        if let Some(g) = &self.grid {
+            g.walk(o, w_in, -tol, tol, |t, _, i| {
+                if site.len == 0 {
+                    site.t = t;
+                }
+                site.push(i);
+                true
+            });
+        }
+        // An interaction in the continuous field is at no particle's projection: its cell's particles
+        // (up to the site's capacity) stand in for the one picked there.
+        if let (0, Some(f)) = (site.len, &self.field) {
+            if let Some(c) = f.cell_at(o) {
+                f.members(c).iter().for_each(|&i| site.push(i));
             }
-            site.push(i);
-            true
-        });
+        }
         (site.len > 0).then_some(site)
     }
 
@@ -747,7 +867,7 @@ impl DiscreteMedium {
         let res: Vec<(Vec<f64>, Vec<f64>)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let members = self.grid.containing(p[i]);
+                let members = self.local_members(p[i]);
                 let lam = if shared {
                     &lambda[..]
                 } else {
@@ -781,10 +901,30 @@ impl DiscreteMedium {
         (sigma, res.into_iter().flat_map(|r| r.1).collect())
     }
 
-    /// C_t,i / V_i of particle i (grey), the weight of a particle in the query sphere of Eq. 24.
+    /// C_t,i / V_i of particle i (grey), the weight of a particle in the query sphere of Eq. 24 (a
+    /// particle of the continuous field is spread over its cell: V_i is the cell's volume).
     fn local_weight(&self, j: u32) -> f64 {
         let r = self.reach[j as usize] as f64;
-        self.c_ext[j as usize] as f64 / (4.0 / 3.0 * PI * r * r * r)
+        let volume = match (&self.field, self.in_field[j as usize]) {
+            (Some(f), true) => f.cell_volume(),
+            _ => 4.0 / 3.0 * PI * r * r * r,
+        };
+        self.c_ext[j as usize] as f64 / volume
+    }
+
+    /// The particles local to `p` (Eq. 24's query sphere): those whose ball contains it, and the
+    /// continuous field's particles of its cell.
+    fn local_members(&self, p: [f64; 3]) -> Vec<u32> {
+        let mut m = self
+            .grid
+            .as_ref()
+            .map_or_else(Vec::new, |g| g.containing(p));
+        if let Some(f) = &self.field {
+            if let Some(c) = f.cell_at(p) {
+                m.extend_from_slice(f.members(c));
+            }
+        }
+        m
     }
 
     /// Sample scattered directions from the local mixture at points (see [`Self::local_scattering`]):
@@ -804,7 +944,7 @@ impl DiscreteMedium {
         let res: Vec<Sample> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let members = self.grid.containing(p[i]);
+                let members = self.local_members(p[i]);
                 let Some(dir) = normalise(w_in[i]) else {
                     return null_sample(channels);
                 };
@@ -1118,7 +1258,8 @@ impl DiscreteMedium {
                 t[i] = None;
                 let Some((o, d, t_max)) = *ray else { continue };
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
-                let (site, _, parent) = self.lane_free_flight(&st.events, o, d, t_max as f64, u);
+                let (site, _, parent) =
+                    self.lane_free_flight(&st.events, o, d, t_max as f64, u, false);
                 st.pending[i] = PendingLane { site, parent };
                 t[i] = site.map(|s| s.t);
                 sites += site.is_some() as u64;
@@ -1306,6 +1447,12 @@ mod tests {
     }
 
     fn medium(n: usize) -> DiscreteMedium {
+        medium_with(n, f64::INFINITY)
+    }
+
+    /// The test medium with a `continuous_count` (1: its one size class, 1.7 particles per cylinder,
+    /// is continuous).
+    fn medium_with(n: usize, continuous_count: f64) -> DiscreteMedium {
         let mut s = 3u64;
         let mut r = || {
             s = s
@@ -1337,23 +1484,29 @@ mod tests {
             0.01,
             DEFAULT_TAU_MAX,
             1.0,
+            continuous_count,
             7,
         )
         .unwrap()
     }
 
     /// Sites are sampled with the exact escape probability exp(−τ) (binomial 5σ bound), and the
-    /// walked optical depth before a site never exceeds the segment's.
+    /// walked optical depth before a site never exceeds the segment's; the same with the particles
+    /// as a continuous field.
     #[test]
     fn site_escape_probability() {
-        let m = medium(4000);
+        site_escape_probability_with(f64::INFINITY);
+        site_escape_probability_with(1.0);
+    }
+
+    fn site_escape_probability_with(continuous_count: f64) {
+        let m = medium_with(4000, continuous_count);
+        assert_eq!(m.continuous_len() > 0, continuous_count.is_finite());
         let lanes = 40000;
         let o = vec![[0.5f32, 0.5, -0.2]; lanes];
         let d = vec![[0.0f32, 0.0, 1.0]; lanes];
         let tm = vec![1.4; lanes];
-        let mut tau = [0.0];
-        m.grid
-            .optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4, &mut tau);
+        let tau = [m.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4)];
         let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
         let escaped = res.iter().filter(|r| r.t.is_none()).count() as f64 / lanes as f64;
         let p = (-tau[0]).exp();
@@ -1371,7 +1524,12 @@ mod tests {
     /// and sampling the local mixture returns the pdf that evaluation gives (mean of Q_c / σ_s,c).
     #[test]
     fn local_scattering_is_unbiased_and_consistent() {
-        let m = medium(4000);
+        local_scattering_with(f64::INFINITY);
+        local_scattering_with(1.0);
+    }
+
+    fn local_scattering_with(continuous_count: f64) {
+        let m = medium_with(4000, continuous_count);
         let mut s = 99u64;
         let mut r = || {
             s = s

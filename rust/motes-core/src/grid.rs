@@ -79,7 +79,7 @@ fn morton_ranks(dims: [usize; 3]) -> Vec<u32> {
 /// Length of a walk's windows in finest cells: longer windows give the prefetching traversal more loads
 /// in flight, shorter ones waste less on a free flight that stops early (8: 7.0 us per dense ray, 16: 6.6,
 /// 32: 6.5 in examples/traverse_cost.rs).
-const WINDOW_CELLS: f64 = 16.0;
+const WINDOW_CELLS: f64 = 32.0;
 
 /// Row segments of cells a DDA batch gathers before its loads (see `SubGrid::traverse`).
 const SEGMENTS_PER_BATCH: usize = 36;
@@ -576,6 +576,20 @@ impl SubGrid {
     }
 }
 
+/// Size classes of a [`ParticleGrid`]: factors of two in inclusion radius, the last one open below.
+pub(crate) const SIZE_CLASSES: usize = 13;
+
+/// The size class of an inclusion radius `reach` among radii up to `reach_max`: class c holds reach in
+/// (R_max 2^-(c+1), R_max 2^-c]; everything below 2^-12 R_max shares the last.
+pub(crate) fn size_class(reach_max: f64, reach: f64) -> usize {
+    let x = reach_max / reach;
+    if x.is_finite() && x > 1.0 {
+        (x.log2().floor() as usize).min(SIZE_CLASSES - 1)
+    } else {
+        0
+    }
+}
+
 /// Particles of every size: one [`SubGrid`] per factor-of-two class of inclusion radius, so that a
 /// few large grains (a log-normal tail reaching 2 mm) do not force every traversal to scan wide
 /// neighbourhoods. Queries sum over the classes; free flights merge their contributions in t.
@@ -642,18 +656,9 @@ impl ParticleGrid {
             require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
         }
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
-        // Class c holds reach in (R_max 2^-(c+1), R_max 2^-c]; everything below 2^-12 R_max shares the last.
-        let class_of = |r: f64| -> usize {
-            let x = reach_max / (query_radius + r);
-            if x.is_finite() && x > 1.0 {
-                (x.log2().floor() as usize).min(12)
-            } else {
-                0
-            }
-        };
-        let mut members: Vec<Vec<u32>> = vec![Vec::new(); 13];
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
         for i in 0..n {
-            members[class_of(radius[i])].push(i as u32);
+            members[size_class(reach_max, query_radius + radius[i])].push(i as u32);
         }
         // Bounding volume of all centres, shared by the classes as the density reference.
         let (lo, hi) = bounding_box(positions);
@@ -686,6 +691,14 @@ impl ParticleGrid {
             channels,
             n,
         })
+    }
+
+    /// The same grid reporting `ids[i]` for the particle it was built with as index i.
+    pub fn with_indices(mut self, ids: &[u32]) -> Self {
+        for c in &mut self.classes {
+            c.index.iter_mut().for_each(|i| *i = ids[*i as usize]);
+        }
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -772,7 +785,7 @@ impl ParticleGrid {
         let Some((ta, tb)) = self.clip(o, d, t0, t1) else {
             return;
         };
-        let window = 32.0
+        let window = WINDOW_CELLS
             * self
                 .classes
                 .iter()

@@ -6,9 +6,13 @@
 //! * [`optics`]: one particle as the renderer sees it — cross sections, normalised phase function,
 //!   and the choice between Mie and GOA (`Method`), batched over many particles and angles.
 //! * [`grid`]: particles in space, optical depth along query cylinders and exact free flights.
+//! * [`dda`]: boxes and the 3D-DDA walk of a ray through a uniform grid.
+//! * [`continuous`]: size classes no pixel resolves, sampled as a continuous medium (issue 10.3).
 //! * [`discrete`]: the discrete medium as a renderer queries it (sites, albedo, phase function).
 //! * [`wavelengths`]: the default RGB and spectral wavelength sets.
 
+pub mod continuous;
+pub mod dda;
 pub mod discrete;
 pub mod ensemble;
 pub mod error;

@@ -803,7 +803,8 @@ struct PyDiscreteMedium {
 impl PyDiscreteMedium {
     /// positions (n*3), radius (n), c_ext (n, grey) in scene units; bin (n) into the bins; albedo
     /// (bins*K); phase tables as flat theta/f with offsets (bins*K + 1); lambda (K, increasing);
-    /// tau_max caps each particle's optical depth by widening its disk (inf: no cap).
+    /// tau_max caps each particle's optical depth by widening its disk (inf: no cap); size classes with
+    /// at least continuous_count particles per query cylinder are sampled as a continuous medium.
     #[new]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -820,6 +821,7 @@ impl PyDiscreteMedium {
         query_radius: f64,
         tau_max: f64,
         cells_per_particle: f64,
+        continuous_count: f64,
         seed: u64,
     ) -> PyResult<Self> {
         let p = positions.as_slice()?;
@@ -881,6 +883,7 @@ impl PyDiscreteMedium {
                     query_radius,
                     tau_max,
                     cells_per_particle,
+                    continuous_count,
                     seed,
                 )
             })
@@ -1108,7 +1111,13 @@ impl PyDiscreteMedium {
     /// Largest inclusion radius of a particle (scene units).
     #[getter]
     fn reach_max(&self) -> f64 {
-        self.medium.grid().reach_max()
+        self.medium.reach_max()
+    }
+
+    /// Particles sampled as a continuous medium (size classes no pixel resolves).
+    #[getter]
+    fn continuous_particles(&self) -> usize {
+        self.medium.continuous_len()
     }
 
     /// Remember an event of the given particles at `p` (tests and tools).
@@ -1134,15 +1143,11 @@ impl PyDiscreteMedium {
                 "t0 and t1 must have one value per ray",
             ));
         }
-        let g = self.medium.grid();
+        let m = &self.medium;
         let out: Vec<f64> = py.detach(|| {
             rs.par_iter()
                 .zip(t0.par_iter().zip(t1.par_iter()))
-                .map(|((o, d), (a, b))| {
-                    let mut v = [0.0];
-                    g.optical_depth(*o, *d, *a, *b, &mut v);
-                    v[0]
-                })
+                .map(|((o, d), (a, b))| m.optical_depth(*o, *d, *a, *b))
                 .collect()
         });
         Ok(out.into_pyarray(py))
@@ -1197,6 +1202,10 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyParticleGrid>()?;
     m.add_class::<PyDiscreteMedium>()?;
     m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
+    m.add(
+        "DEFAULT_CONTINUOUS_COUNT",
+        motes_core::continuous::DEFAULT_CONTINUOUS_COUNT,
+    )?;
     // The native render path's C interface (rust/motes-py/src/native.rs): its address and version.
     m.add(
         "NATIVE_API",

@@ -1,0 +1,354 @@
+//! Grains nobody can see (issue 10.3): size classes whose particles are many per query cylinder, each
+//! with a tiny optical depth τ_i, sampled as a continuous medium instead of particle by particle.
+//!
+//! ## Why this is the same medium
+//! A ray meets the particles of such a class as a staircase of many tiny jumps τ_i = −ln(1 − x_i);
+//! averaged over rays, its transmittance over a length L is exp(−n L Σ π R_i² (1 − e^{−τ_i})) =
+//! exp(−n C̄_t L) (`discrete.rs`: each disk removes exactly C_t,i from a beam). The field keeps Σ C_t,i
+//! per cell — σ_t of the cell is the extinction of the particles whose centre lies in it divided by
+//! the cell's volume — and samples free flights through it exactly (piecewise-constant σ_t along a
+//! 3D-DDA: one exponential per cell crossed). What is lost is the fluctuation of the staircase around
+//! its mean, relative size 1/√N for N particles per cylinder: the grain texture that no pixel
+//! resolves when N is large. [`resolvable`] decides which classes keep it.
+//!
+//! The discrete classes and this field are two independent processes along the ray, so the first
+//! interaction is the nearer of their two sampled distances (`discrete.rs` samples the field first
+//! and walks the particles only up to its distance). An interaction in the field picks one particle of
+//! its cell with probability ∝ w_i: the site's albedo and phase function are that particle's, so the
+//! expected phase function is the cell's mixture weighted by extinction (Eq. 24's Q(θ) of the cell).
+
+use crate::dda::Dda;
+use crate::grid::{bounding_box, size_class};
+use std::f64::consts::PI;
+
+/// Default number of a class's particles a query cylinder must hold (over one mean free path, or
+/// across the medium if that is shorter) for the class to be rendered as a continuous medium:
+/// the lost grain texture, of relative size 1/√N, is then at most 1/√16 = 25 % per pixel, below the
+/// Monte Carlo noise of a render at tens of spp (measured: `scripts/continuous_switch.py`).
+pub const DEFAULT_CONTINUOUS_COUNT: f64 = 16.0;
+
+/// Particles per cell of the field: larger cells are cheaper to walk and blur only structure that
+/// a class this dense does not resolve anyway.
+const PARTICLES_PER_CELL: f64 = 8.0;
+
+/// Most cells along one axis (and in all) of the field.
+const MAX_AXIS_CELLS: usize = 1 << 10;
+const MAX_CELLS: f64 = 1.0e8;
+
+/// For each particle (centre, inclusion radius R_i, extinction cross section w_i): is it
+/// in a size class (the grid's factor-of-two classes of R) whose particles a query cylinder holds
+/// fewer than `min_count` of, i.e. one that must stay discrete? The cylinder's length is the mean
+/// chord of the particles' box (4V/S) or one mean free path 1/σ_t of the whole medium, whichever is
+/// shorter (light seen by a pixel comes from about one mean free path deep): a class with n_c
+/// particles of mean disk area A holds N_c = n_c A L / V of them.
+pub fn resolvable(
+    positions: &[[f64; 3]],
+    reach: &[f64],
+    weight: &[f64],
+    min_count: f64,
+) -> Vec<bool> {
+    let n = positions.len();
+    if n == 0 || !(min_count.is_finite()) {
+        return vec![true; n];
+    }
+    let (lo, hi) = bounding_box(positions);
+    let e = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12 * (hi[a].abs() + lo[a].abs()).max(1e-300)));
+    let volume = e[0] * e[1] * e[2];
+    let chord = 4.0 * volume / (2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]));
+    let sigma = weight.iter().sum::<f64>() / volume;
+    let length = if sigma > 0.0 {
+        chord.min(1.0 / sigma)
+    } else {
+        chord
+    };
+    let reach_max = reach.iter().cloned().fold(0.0, f64::max);
+    let mut area = [0.0f64; crate::grid::SIZE_CLASSES];
+    for &r in reach {
+        area[size_class(reach_max, r)] += PI * r * r;
+    }
+    let keep: Vec<bool> = area
+        .iter()
+        .map(|a| a * length / volume < min_count)
+        .collect();
+    reach
+        .iter()
+        .map(|&r| keep[size_class(reach_max, r)])
+        .collect()
+}
+
+/// Where a free flight through the field interacts: its t and the cell it lies in.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FieldHit {
+    pub t: f64,
+    pub cell: usize,
+}
+
+/// The continuous part of a discrete medium (module docs).
+pub struct ContinuousField {
+    lo: [f64; 3],
+    cell: f64,
+    dims: [usize; 3],
+    /// σ_t of each cell (grey, per scene unit).
+    sigma: Vec<f32>,
+    /// Cell `c` holds `particle[start[c]..start[c + 1]]`.
+    start: Vec<u32>,
+    /// Original index of each particle, in cell order.
+    particle: Vec<u32>,
+    /// Running share of the cell's extinction up to and including each particle (for picking one).
+    cdf: Vec<f32>,
+}
+
+impl ContinuousField {
+    /// The field of the particles `ids` (original indices), with centres `positions`, inclusion radii
+    /// `reach` and extinction cross sections `weight` (scene units), all indexed like `ids`.
+    pub fn build(positions: &[[f64; 3]], reach: &[f64], weight: &[f64], ids: &[u32]) -> Self {
+        let n = ids.len();
+        let reach_max = reach.iter().cloned().fold(0.0, f64::max);
+        let (mut lo, mut hi) = bounding_box(positions);
+        // The box holds every ball (the discrete classes' grids do the same), and one more cell's
+        // margin keeps centres on the far faces inside.
+        for a in 0..3 {
+            lo[a] -= reach_max + 1e-9;
+            hi[a] += reach_max + 1e-9;
+        }
+        let ext = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        let volume = ext[0] * ext[1] * ext[2];
+        let cells = (n as f64 / PARTICLES_PER_CELL).clamp(1.0, MAX_CELLS);
+        let max_ext = ext.iter().cloned().fold(0.0, f64::max);
+        let cell = (volume / cells)
+            .cbrt()
+            .max(max_ext / MAX_AXIS_CELLS as f64)
+            .max(1e-12);
+        let dims = ext.map(|x| ((x / cell).ceil() as usize).clamp(1, MAX_AXIS_CELLS));
+        let n_cells = dims[0] * dims[1] * dims[2];
+        let cell_of = |p: &[f64; 3]| {
+            let idx =
+                [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell).max(0.0) as usize).min(dims[a] - 1));
+            (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
+        };
+        let which: Vec<usize> = positions.iter().map(cell_of).collect();
+        let mut start = vec![0u32; n_cells + 1];
+        for &c in &which {
+            start[c + 1] += 1;
+        }
+        for c in 0..n_cells {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut order = vec![0usize; n];
+        for (i, &c) in which.iter().enumerate() {
+            order[fill[c] as usize] = i;
+            fill[c] += 1;
+        }
+        let cell_volume = cell * cell * cell;
+        let mut sigma = vec![0f32; n_cells];
+        let mut cdf = vec![0f32; n];
+        for c in 0..n_cells {
+            let (a, b) = (start[c] as usize, start[c + 1] as usize);
+            let total: f64 = order[a..b].iter().map(|&i| weight[i]).sum();
+            sigma[c] = (total / cell_volume) as f32;
+            let mut acc = 0.0;
+            for j in a..b {
+                acc += weight[order[j]];
+                cdf[j] = if total > 0.0 {
+                    (acc / total) as f32
+                } else {
+                    (j + 1 - a) as f32 / (b - a) as f32
+                };
+            }
+        }
+        let particle = order.iter().map(|&i| ids[i]).collect();
+        ContinuousField {
+            lo,
+            cell,
+            dims,
+            sigma,
+            start,
+            particle,
+            cdf,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.particle.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.particle.is_empty()
+    }
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+    pub fn cell_volume(&self) -> f64 {
+        self.cell * self.cell * self.cell
+    }
+    /// Heap bytes.
+    pub fn bytes(&self) -> usize {
+        (self.sigma.len() + self.start.len() + self.particle.len() + self.cdf.len()) * 4
+    }
+
+    fn linear(&self, c: [usize; 3]) -> usize {
+        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
+    }
+
+    /// Exact free flight over [t0, t1) (|d| = 1): the first t where the optical depth walked exceeds
+    /// `target` (= −ln(1 − u)), and the optical depth walked up to it (or to t1).
+    pub fn free_flight(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+        target: f64,
+    ) -> (Option<FieldHit>, f64) {
+        let mut acc = 0.0;
+        for c in Dda::new(self.lo, self.cell, self.dims, o, d, t0, t1) {
+            let idx = self.linear(c.cell);
+            let s = self.sigma[idx] as f64;
+            if s > 0.0 {
+                let x = s * (c.t_exit - c.t_enter);
+                if acc + x > target {
+                    let t = (c.t_enter + (target - acc) / s).min(c.t_exit);
+                    return (Some(FieldHit { t, cell: idx }), target);
+                }
+                acc += x;
+            }
+        }
+        (None, acc)
+    }
+
+    /// Optical depth over [t0, t1) (|d| = 1).
+    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> f64 {
+        Dda::new(self.lo, self.cell, self.dims, o, d, t0, t1)
+            .map(|c| self.sigma[self.linear(c.cell)] as f64 * (c.t_exit - c.t_enter))
+            .sum()
+    }
+
+    /// The particle of cell `cell` that an interaction there scatters from: each with probability ∝
+    /// its extinction, by `u` in [0, 1). None for an empty cell.
+    pub fn pick(&self, cell: usize, u: f64) -> Option<u32> {
+        let (a, b) = (self.start[cell] as usize, self.start[cell + 1] as usize);
+        if a == b {
+            return None;
+        }
+        let k = self.cdf[a..b].partition_point(|&x| (x as f64) <= u);
+        Some(self.particle[a + k.min(b - a - 1)])
+    }
+
+    /// The cell holding point `p`, if inside the field.
+    pub fn cell_at(&self, p: [f64; 3]) -> Option<usize> {
+        let mut c = [0usize; 3];
+        for a in 0..3 {
+            let x = (p[a] - self.lo[a]) / self.cell;
+            if !(x >= 0.0 && x < self.dims[a] as f64) {
+                return None;
+            }
+            c[a] = x as usize;
+        }
+        Some(self.linear(c))
+    }
+
+    /// The particles of a cell (original indices).
+    pub fn members(&self, cell: usize) -> &[u32] {
+        &self.particle[self.start[cell] as usize..self.start[cell + 1] as usize]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(s: &mut u64) -> f64 {
+        *s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*s >> 11) as f64) / (1u64 << 53) as f64
+    }
+
+    /// The field's optical depth along long rays through a uniform random cloud equals σ_t L (the
+    /// particles' summed extinction over the volume), free flights escape with probability e^{−τ},
+    /// and picks follow each cell's extinction shares.
+    #[test]
+    fn field_is_the_mean_of_the_particles() {
+        let mut s = 5u64;
+        let n = 200_000;
+        let pos: Vec<[f64; 3]> = (0..n)
+            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
+            .collect();
+        let reach = vec![0.01; n];
+        let w: Vec<f64> = (0..n).map(|_| 1e-5 * (0.5 + lcg(&mut s))).collect();
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let f = ContinuousField::build(&pos, &reach, &w, &ids);
+        let sigma = w.iter().sum::<f64>(); // volume 1
+        let (o, d) = ([0.5, 0.5, -1.0], [0.0, 0.0, 1.0]);
+        let tau = f.optical_depth(o, d, 0.0, 3.0);
+        assert!((tau / sigma - 1.0).abs() < 0.1, "{tau} vs {sigma}");
+        let mut mean = 0.0;
+        for _ in 0..200 {
+            let o = [lcg(&mut s), lcg(&mut s), -1.0];
+            mean += f.optical_depth(o, d, 0.0, 3.0) / 200.0;
+        }
+        assert!((mean / sigma - 1.0).abs() < 0.02, "{mean} vs {sigma}");
+        let trials = 20_000;
+        let mut escaped = 0;
+        for _ in 0..trials {
+            let u: f64 = lcg(&mut s);
+            let (hit, walked) = f.free_flight(o, d, 0.0, 3.0, -(1.0 - u).ln());
+            match hit {
+                None => {
+                    escaped += 1;
+                    assert!((walked - tau).abs() < 1e-9);
+                }
+                Some(h) => {
+                    assert!(h.t >= 0.95 && h.t <= 2.05, "{}", h.t); // the box, to a cell (~0.034)
+                    assert!((f.optical_depth(o, d, 0.0, h.t) - walked).abs() < 1e-6 * tau.max(1.0));
+                }
+            }
+        }
+        let p = escaped as f64 / trials as f64;
+        let sd = ((-tau).exp() * (1.0 - (-tau).exp()) / trials as f64).sqrt();
+        assert!(
+            (p - (-tau).exp()).abs() < 5.0 * sd,
+            "{p} vs {}",
+            (-tau).exp()
+        );
+        let c = f.cell_at([0.5, 0.5, 0.5]).unwrap();
+        let m = f.members(c).to_vec();
+        assert!(!m.is_empty());
+        let total: f64 = m.iter().map(|&i| w[i as usize]).sum();
+        let mut counts = vec![0usize; m.len()];
+        let picks = 40_000;
+        for _ in 0..picks {
+            let i = f.pick(c, lcg(&mut s)).unwrap();
+            counts[m.iter().position(|&x| x == i).unwrap()] += 1;
+        }
+        for (k, &i) in m.iter().enumerate() {
+            let p = w[i as usize] / total;
+            let sd = (p * (1.0 - p) / picks as f64).sqrt();
+            assert!((counts[k] as f64 / picks as f64 - p).abs() < 5.0 * sd);
+        }
+    }
+
+    /// Sparse grains stay discrete, dense small-τ ones become continuous; an infinite threshold keeps all.
+    #[test]
+    fn resolvable_classes() {
+        let mut s = 9u64;
+        let n = 20_000;
+        let pos: Vec<[f64; 3]> = (0..n)
+            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
+            .collect();
+        // Half the particles with R = 0.05 (many per cylinder: 1e4 π 0.05² ≈ 79), half with R = 0.002 (0.13).
+        let reach: Vec<f64> = (0..n)
+            .map(|i| if i % 2 == 0 { 0.05 } else { 0.002 })
+            .collect();
+        let w: Vec<f64> = reach.iter().map(|r| PI * r * r * 1e-3).collect();
+        let keep = resolvable(&pos, &reach, &w, 16.0);
+        assert!((0..n).all(|i| keep[i] == (i % 2 == 1)));
+        assert!(resolvable(&pos, &reach, &w, f64::INFINITY)
+            .iter()
+            .all(|&k| k));
+        // Optically thick: the mean free path limits the cylinder (σ_t = 1e4·π·0.05²·0.5 ≈ 39 per unit).
+        let w_thick: Vec<f64> = reach.iter().map(|r| PI * r * r * 0.5).collect();
+        let keep = resolvable(&pos, &reach, &w_thick, 16.0);
+        assert!(keep.iter().all(|&k| k));
+    }
+}

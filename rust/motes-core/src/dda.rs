@@ -1,0 +1,203 @@
+//! Walking a ray through a uniform grid: an axis-aligned box with one slab test ([`Bounds3`]) and a
+//! 3D-DDA iterator over the cells a ray crosses ([`Dda`], Amanatides & Woo 1987), in t order, each
+//! with the t interval the ray spends inside it (as pbrt-v4's `DDAMajorantIterator` does).
+
+/// An axis-aligned box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds3 {
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+}
+
+impl Bounds3 {
+    /// The part [ta, tb) of [t0, t1) where the ray o + t d is inside the box (slab test), or None.
+    /// A direction component of 0 keeps the slab whole when o lies within it, else misses.
+    pub fn clip(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+        let (mut ta, mut tb) = (t0, t1);
+        for a in 0..3 {
+            if d[a] == 0.0 {
+                if o[a] < self.lo[a] || o[a] > self.hi[a] {
+                    return None;
+                }
+            } else {
+                let (u, v) = ((self.lo[a] - o[a]) / d[a], (self.hi[a] - o[a]) / d[a]);
+                ta = ta.max(u.min(v));
+                tb = tb.min(u.max(v));
+            }
+        }
+        (tb > ta).then_some((ta, tb))
+    }
+}
+
+/// One cell a ray crosses: its integer coordinates and the t interval [t_enter, t_exit) inside it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DdaCell {
+    pub cell: [usize; 3],
+    pub t_enter: f64,
+    pub t_exit: f64,
+}
+
+/// The cells of a grid (`lo`, cubic cells of edge `cell`, `dims`) that the ray o + t d crosses on
+/// [t0, t1), in order. The first interval starts at the box entry and the last ends at the box exit
+/// (both clipped to [t0, t1)).
+pub struct Dda {
+    c: [i64; 3],
+    step: [i64; 3],
+    t_next: [f64; 3],
+    t_delta: [f64; 3],
+    dims: [i64; 3],
+    t_enter: f64,
+    t_end: f64,
+    done: bool,
+}
+
+impl Dda {
+    pub fn new(
+        lo: [f64; 3],
+        cell: f64,
+        dims: [usize; 3],
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+    ) -> Self {
+        let hi = [0, 1, 2].map(|a| lo[a] + dims[a] as f64 * cell);
+        let dims_i = dims.map(|x| x as i64);
+        let Some((ta, tb)) = Bounds3 { lo, hi }.clip(o, d, t0, t1) else {
+            return Dda {
+                c: [0; 3],
+                step: [0; 3],
+                t_next: [0.0; 3],
+                t_delta: [0.0; 3],
+                dims: dims_i,
+                t_enter: 0.0,
+                t_end: 0.0,
+                done: true,
+            };
+        };
+        let p = [0, 1, 2].map(|a| o[a] + ta * d[a]);
+        let (mut c, mut step, mut t_next, mut t_delta) =
+            ([0i64; 3], [0i64; 3], [f64::INFINITY; 3], [f64::INFINITY; 3]);
+        for a in 0..3 {
+            // The entry point rounds into the box: clamp its cell.
+            c[a] = (((p[a] - lo[a]) / cell).floor() as i64).clamp(0, dims_i[a] - 1);
+            if d[a] > 0.0 {
+                step[a] = 1;
+                t_next[a] = ta + ((lo[a] + (c[a] + 1) as f64 * cell) - p[a]) / d[a];
+                t_delta[a] = cell / d[a];
+            } else if d[a] < 0.0 {
+                step[a] = -1;
+                t_next[a] = ta + ((lo[a] + c[a] as f64 * cell) - p[a]) / d[a];
+                t_delta[a] = -cell / d[a];
+            }
+        }
+        Dda {
+            c,
+            step,
+            t_next,
+            t_delta,
+            dims: dims_i,
+            t_enter: ta,
+            t_end: tb,
+            done: false,
+        }
+    }
+}
+
+impl Iterator for Dda {
+    type Item = DdaCell;
+
+    #[inline]
+    fn next(&mut self) -> Option<DdaCell> {
+        if self.done {
+            return None;
+        }
+        let axis = if self.t_next[0] <= self.t_next[1] && self.t_next[0] <= self.t_next[2] {
+            0
+        } else if self.t_next[1] <= self.t_next[2] {
+            1
+        } else {
+            2
+        };
+        let t_exit = self.t_next[axis].min(self.t_end);
+        let out = DdaCell {
+            cell: self.c.map(|x| x as usize),
+            t_enter: self.t_enter,
+            t_exit,
+        };
+        if self.t_next[axis] >= self.t_end {
+            self.done = true;
+        } else {
+            self.t_enter = t_exit;
+            self.c[axis] += self.step[axis];
+            self.t_next[axis] += self.t_delta[axis];
+            self.done = self.c[axis] < 0 || self.c[axis] >= self.dims[axis];
+        }
+        Some(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cells' intervals tile the clipped segment without gaps, each cell holds the midpoint of its
+    /// interval, and rays along the axes, on cell faces and missing the box behave.
+    #[test]
+    fn cells_tile_the_segment() {
+        let (lo, cell, dims) = ([-1.0, 0.0, 2.0], 0.25, [8usize, 5, 7]);
+        let mut s = 3u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64) / (1u64 << 53) as f64
+        };
+        let mut rays = Vec::new();
+        for _ in 0..500 {
+            let o = [rnd() * 4.0 - 3.0, rnd() * 3.0 - 1.0, rnd() * 4.0];
+            let mut d = [rnd() - 0.5, rnd() - 0.5, rnd() - 0.5];
+            let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            d = d.map(|x| x / l);
+            rays.push((o, d));
+        }
+        for a in 0..3 {
+            let mut d = [0.0; 3];
+            d[a] = 1.0;
+            rays.push(([-0.5, 0.5, 2.5], d)); // on cell faces
+            rays.push(([-0.4, 0.6, 3.1], d.map(|x| -x)));
+        }
+        let hi = [lo[0] + 2.0, 1.25, 3.75];
+        for (o, d) in rays {
+            let cells: Vec<DdaCell> = Dda::new(lo, cell, dims, o, d, 0.0, 10.0).collect();
+            match (Bounds3 { lo, hi }).clip(o, d, 0.0, 10.0) {
+                None => assert!(cells.is_empty()),
+                Some((ta, tb)) => {
+                    assert_eq!(cells[0].t_enter, ta);
+                    assert!((cells.last().unwrap().t_exit - tb).abs() < 1e-12);
+                    for w in cells.windows(2) {
+                        assert_eq!(w[0].t_exit, w[1].t_enter);
+                    }
+                    for c in &cells {
+                        assert!(c.t_exit >= c.t_enter);
+                        let t = 0.5 * (c.t_enter + c.t_exit);
+                        for a in 0..3 {
+                            let x = ((o[a] + t * d[a] - lo[a]) / cell).floor() as i64;
+                            assert!(
+                                (x - c.cell[a] as i64).abs() <= 1 && c.cell[a] < dims[a],
+                                "{c:?}"
+                            );
+                            if c.t_exit - c.t_enter > 1e-9 {
+                                assert_eq!(x.clamp(0, dims[a] as i64 - 1), c.cell[a] as i64);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert_eq!(
+            Dda::new(lo, cell, dims, [5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0).count(),
+            0
+        );
+    }
+}
