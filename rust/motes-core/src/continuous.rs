@@ -86,7 +86,8 @@ pub struct FieldHit {
 /// The continuous part of a discrete medium (module docs).
 pub struct ContinuousField {
     lo: [f64; 3],
-    cell: f64,
+    /// Cell edges per axis.
+    cell: [f64; 3],
     dims: [usize; 3],
     /// σ_t of each cell (grey, per scene unit).
     sigma: Vec<f32>,
@@ -105,25 +106,26 @@ impl ContinuousField {
         let n = ids.len();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let (mut lo, mut hi) = bounding_box(positions);
-        // The box holds every ball (the discrete classes' grids do the same), and one more cell's
-        // margin keeps centres on the far faces inside.
+        // The field fills the centres' box exactly, cells fitted to it per axis: a cell straddling the
+        // box face would spread its particles' extinction over volume a bounded medium (a null-BSDF
+        // cube around generated particles) never reaches, and darken the cloud's edges (measured:
+        // 1.6-2.7 % less light in the dust room before). An axis the centres do not span gets the
+        // thickness of a ball, 2 R_max.
         for a in 0..3 {
-            lo[a] -= reach_max + 1e-9;
-            hi[a] += reach_max + 1e-9;
+            let pad = (reach_max - 0.5 * (hi[a] - lo[a])).max(0.0) + 1e-9 * (hi[a] - lo[a]).max(1e-300);
+            lo[a] -= pad;
+            hi[a] += pad;
         }
-        let ext = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12));
         let volume = ext[0] * ext[1] * ext[2];
         let cells = (n as f64 / PARTICLES_PER_CELL).clamp(1.0, MAX_CELLS);
-        let max_ext = ext.iter().cloned().fold(0.0, f64::max);
-        let cell = (volume / cells)
-            .cbrt()
-            .max(max_ext / MAX_AXIS_CELLS as f64)
-            .max(1e-12);
-        let dims = ext.map(|x| ((x / cell).ceil() as usize).clamp(1, MAX_AXIS_CELLS));
+        let edge = (volume / cells).cbrt();
+        let dims = ext.map(|x| ((x / edge).round() as usize).clamp(1, MAX_AXIS_CELLS));
+        let cell = [0, 1, 2].map(|a| ext[a] / dims[a] as f64);
         let n_cells = dims[0] * dims[1] * dims[2];
         let cell_of = |p: &[f64; 3]| {
             let idx =
-                [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell).max(0.0) as usize).min(dims[a] - 1));
+                [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell[a]).max(0.0) as usize).min(dims[a] - 1));
             (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
         };
         let which: Vec<usize> = positions.iter().map(cell_of).collect();
@@ -140,7 +142,7 @@ impl ContinuousField {
             order[fill[c] as usize] = i;
             fill[c] += 1;
         }
-        let cell_volume = cell * cell * cell;
+        let cell_volume = cell[0] * cell[1] * cell[2];
         let mut sigma = vec![0f32; n_cells];
         let mut cdf = vec![0f32; n];
         for c in 0..n_cells {
@@ -179,7 +181,7 @@ impl ContinuousField {
         self.dims
     }
     pub fn cell_volume(&self) -> f64 {
-        self.cell * self.cell * self.cell
+        self.cell[0] * self.cell[1] * self.cell[2]
     }
     /// Heap bytes.
     pub fn bytes(&self) -> usize {
@@ -238,7 +240,7 @@ impl ContinuousField {
     pub fn cell_at(&self, p: [f64; 3]) -> Option<usize> {
         let mut c = [0usize; 3];
         for a in 0..3 {
-            let x = (p[a] - self.lo[a]) / self.cell;
+            let x = (p[a] - self.lo[a]) / self.cell[a];
             if !(x >= 0.0 && x < self.dims[a] as f64) {
                 return None;
             }

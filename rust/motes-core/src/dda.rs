@@ -37,7 +37,7 @@ pub struct DdaCell {
     pub t_exit: f64,
 }
 
-/// The cells of a grid (`lo`, cubic cells of edge `cell`, `dims`) that the ray o + t d crosses on
+/// The cells of a grid (`lo`, cells of edges `cell` per axis, `dims`) that the ray o + t d crosses on
 /// [t0, t1), in order. The first interval starts at the box entry and the last ends at the box exit
 /// (both clipped to [t0, t1)).
 pub struct Dda {
@@ -54,14 +54,14 @@ pub struct Dda {
 impl Dda {
     pub fn new(
         lo: [f64; 3],
-        cell: f64,
+        cell: [f64; 3],
         dims: [usize; 3],
         o: [f64; 3],
         d: [f64; 3],
         t0: f64,
         t1: f64,
     ) -> Self {
-        let hi = [0, 1, 2].map(|a| lo[a] + dims[a] as f64 * cell);
+        let hi = [0, 1, 2].map(|a| lo[a] + dims[a] as f64 * cell[a]);
         let dims_i = dims.map(|x| x as i64);
         let Some((ta, tb)) = Bounds3 { lo, hi }.clip(o, d, t0, t1) else {
             return Dda {
@@ -80,15 +80,15 @@ impl Dda {
             ([0i64; 3], [0i64; 3], [f64::INFINITY; 3], [f64::INFINITY; 3]);
         for a in 0..3 {
             // The entry point rounds into the box: clamp its cell.
-            c[a] = (((p[a] - lo[a]) / cell).floor() as i64).clamp(0, dims_i[a] - 1);
+            c[a] = (((p[a] - lo[a]) / cell[a]).floor() as i64).clamp(0, dims_i[a] - 1);
             if d[a] > 0.0 {
                 step[a] = 1;
-                t_next[a] = ta + ((lo[a] + (c[a] + 1) as f64 * cell) - p[a]) / d[a];
-                t_delta[a] = cell / d[a];
+                t_next[a] = ta + ((lo[a] + (c[a] + 1) as f64 * cell[a]) - p[a]) / d[a];
+                t_delta[a] = cell[a] / d[a];
             } else if d[a] < 0.0 {
                 step[a] = -1;
-                t_next[a] = ta + ((lo[a] + c[a] as f64 * cell) - p[a]) / d[a];
-                t_delta[a] = -cell / d[a];
+                t_next[a] = ta + ((lo[a] + c[a] as f64 * cell[a]) - p[a]) / d[a];
+                t_delta[a] = -cell[a] / d[a];
             }
         }
         Dda {
@@ -145,7 +145,7 @@ mod tests {
     /// interval, and rays along the axes, on cell faces and missing the box behave.
     #[test]
     fn cells_tile_the_segment() {
-        let (lo, cell, dims) = ([-1.0, 0.0, 2.0], 0.25, [8usize, 5, 7]);
+        let (lo, cell, dims) = ([-1.0, 0.0, 2.0], [0.25, 0.2, 0.3], [8usize, 5, 7]);
         let mut s = 3u64;
         let mut rnd = || {
             s = s
@@ -167,7 +167,7 @@ mod tests {
             rays.push(([-0.5, 0.5, 2.5], d)); // on cell faces
             rays.push(([-0.4, 0.6, 3.1], d.map(|x| -x)));
         }
-        let hi = [lo[0] + 2.0, 1.25, 3.75];
+        let hi = [lo[0] + 2.0, 1.0, 4.1];
         for (o, d) in rays {
             let cells: Vec<DdaCell> = Dda::new(lo, cell, dims, o, d, 0.0, 10.0).collect();
             match (Bounds3 { lo, hi }).clip(o, d, 0.0, 10.0) {
@@ -182,7 +182,7 @@ mod tests {
                         assert!(c.t_exit >= c.t_enter);
                         let t = 0.5 * (c.t_enter + c.t_exit);
                         for a in 0..3 {
-                            let x = ((o[a] + t * d[a] - lo[a]) / cell).floor() as i64;
+                            let x = ((o[a] + t * d[a] - lo[a]) / cell[a]).floor() as i64;
                             assert!(
                                 (x - c.cell[a] as i64).abs() <= 1 && c.cell[a] < dims[a],
                                 "{c:?}"
