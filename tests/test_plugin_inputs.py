@@ -102,3 +102,31 @@ def test_particle_phase_outside_a_discrete_medium_fails_in_one_sentence():
         chain.append(str(err))
         err = err.__cause__ or err.__context__
     assert any('works only inside a <medium type="discrete">' in c for c in chain), chain
+
+
+def test_no_aborts_memory_is_estimated_first():
+    """Issue 11: inputs that used to abort the process in the Rust allocator raise MemoryError naming the
+    input and the estimate (or a ValueError for a range tightened to what is usable)."""
+    import subprocess
+    import sys
+
+    code = """
+import motes
+motes.set_variant("scalar_rgb")
+import mitsuba as mi
+for f in (lambda: motes.LogNormal(10.0, 1.5).sample(10**12),
+          lambda: mi.load_dict({"type": "discrete", "count": 10**9, "phase": {"type": "particle"}}),
+          lambda: motes.goa_amplitudes(100.0, 0.5, 1.33, [0.1], p_max=1000)):
+    try:
+        f()
+        print("no error")
+    except (MemoryError, ValueError, RuntimeError) as e:  # Mitsuba's loader wraps a plugin's error
+        print(type(e).__name__, str(e).strip().splitlines()[-1][:200])
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.strip().splitlines()
+    assert len(lines) == 3 and "no error" not in r.stdout, r.stdout
+    assert lines[0].startswith("MemoryError") and "sample(n=1000000000000)" in lines[0]
+    assert "MemoryError: discrete medium: count = 1000000000" in lines[1] and "GiB" in lines[1]
+    assert lines[2].startswith("ValueError") and "p_max" in lines[2]

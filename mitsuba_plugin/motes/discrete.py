@@ -46,7 +46,7 @@ import numpy as np
 
 import warnings
 
-from . import _motes
+from . import _memory, _motes
 from .ensemble import DEFAULT_TRUNCATE_RAD, Species, bulk_properties
 from .psd import Monodisperse, Uniform
 
@@ -76,6 +76,7 @@ class DiscreteMedium:
         if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
             raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
         n = pos.shape[0]
+        _memory.require(_memory.BYTES_PER_PARTICLE * n, f"a discrete medium of {n} particles")
         r = np.asarray(radii_um, dtype=np.float64).ravel()
         idx = np.asarray(species_index, dtype=np.int64).ravel()
         if r.size != n or idx.size != n:

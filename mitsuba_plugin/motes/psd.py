@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import _motes
+from . import _memory, _motes
 
 
 def _check_finite(spec: dict) -> None:
@@ -77,6 +77,7 @@ class Psd:
             raise ValueError(f"n must be a non-negative integer, got {n!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
             raise ValueError(f"seed must be an integer in [0, 2**64), got {seed!r}")
+        _memory.require(16.0 * n, f"sample(n={n})")
         return _motes.psd_sample(self._json(), int(n), int(seed))
 
     def quadrature(self, max_log_step: float = 0.05) -> tuple[np.ndarray, np.ndarray]:

@@ -107,6 +107,7 @@ from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELE
 from ..discrete import DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
+from .. import _memory
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 
@@ -179,6 +180,7 @@ class DiscreteMediumPlugin:
 
         filename = _get(props, "filename", None, str)
         count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
+        _memory.require(_memory.BYTES_PER_PARTICLE * count, f"discrete medium: count = {count}")
         distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
                             "one of uniform, gradient, noise")
         lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um

@@ -1,0 +1,34 @@
+"""Memory estimates checked before large allocations: an input that would not fit raises ``MemoryError``
+with the estimate, instead of the process aborting inside the Rust allocator (issue 11)."""
+
+from __future__ import annotations
+
+import os
+
+#: Peak bytes per particle of building a discrete medium: the caller's arrays (positions, radii, species),
+#: the core's copies while it sorts them into the grid, and the grid itself (~50 B); measured peak RSS
+#: per particle of `scripts/bench_native.py --memory` rounded up.
+BYTES_PER_PARTICLE = 320
+
+
+def available_bytes() -> int | None:
+    """Memory the system can give without swapping (Linux ``MemAvailable``), else physical memory."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def require(nbytes: float, what: str) -> None:
+    """Raise ``MemoryError`` naming ``what`` when ``nbytes`` exceeds the memory available."""
+    avail = available_bytes()
+    if avail is not None and nbytes > avail:
+        raise MemoryError(f"{what} needs about {nbytes / 2**30:.1f} GiB, more than the {avail / 2**30:.1f} GiB "
+                          "of memory available")
