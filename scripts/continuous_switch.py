@@ -76,6 +76,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default="out", help="accepted for run_benchmarks.sh; the table goes to stdout")
     a = ap.parse_args()
     spp = 16 if a.quick else a.spp
     res = 64 if a.quick else a.res
