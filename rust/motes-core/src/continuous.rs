@@ -112,7 +112,8 @@ impl ContinuousField {
         // 1.6-2.7 % less light in the dust room before). An axis the centres do not span gets the
         // thickness of a ball, 2 R_max.
         for a in 0..3 {
-            let pad = (reach_max - 0.5 * (hi[a] - lo[a])).max(0.0) + 1e-9 * (hi[a] - lo[a]).max(1e-300);
+            let pad =
+                (reach_max - 0.5 * (hi[a] - lo[a])).max(0.0) + 1e-9 * (hi[a] - lo[a]).max(1e-300);
             lo[a] -= pad;
             hi[a] += pad;
         }
@@ -259,12 +260,7 @@ impl ContinuousField {
 mod tests {
     use super::*;
 
-    fn lcg(s: &mut u64) -> f64 {
-        *s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*s >> 11) as f64) / (1u64 << 53) as f64
-    }
+    use crate::test_rng::lcg;
 
     /// The field's optical depth along long rays through a uniform random cloud equals σ_t L (the
     /// particles' summed extinction over the volume), free flights escape with probability e^{−τ},

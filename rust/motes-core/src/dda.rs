@@ -147,12 +147,7 @@ mod tests {
     fn cells_tile_the_segment() {
         let (lo, cell, dims) = ([-1.0, 0.0, 2.0], [0.25, 0.2, 0.3], [8usize, 5, 7]);
         let mut s = 3u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64) / (1u64 << 53) as f64
-        };
+        let mut rnd = || crate::test_rng::lcg(&mut s);
         let mut rays = Vec::new();
         for _ in 0..500 {
             let o = [rnd() * 4.0 - 3.0, rnd() * 3.0 - 1.0, rnd() * 4.0];

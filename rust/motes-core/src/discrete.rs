@@ -643,28 +643,21 @@ impl DiscreteMedium {
             Some(g) => g.sample_site(o, dir, 0.0, t_end, parent.site.members(), u, self.coincide),
             None => (None, 0.0),
         };
-        let site = match (site, hit, &self.field) {
-            (Some(s), _, _) => Some(s),
-            (None, Some(h), Some(f)) => {
-                f.pick(h.cell, uniform(u.to_bits(), FIELD_STREAM, 1))
-                    .map(|i| {
-                        let mut s = Site {
-                            t: h.t,
-                            ..Site::default()
-                        };
-                        s.push(i);
-                        s
-                    })
-            }
-            _ => None,
-        };
-        // The optical depth before the site: the field's up to a discrete site is walked again only when
-        // a caller asks for it (the packet interface does not).
-        let tau_field = match (&self.field, site, hit) {
-            (Some(f), Some(s), Some(h)) if want_tau && s.t < h.t => {
+        let site = site.or_else(|| {
+            let (h, f) = (hit?, self.field.as_ref()?);
+            let mut s = Site {
+                t: h.t,
+                ..Site::default()
+            };
+            s.push(f.pick(h.cell, uniform(u.to_bits(), FIELD_STREAM, 1))?);
+            Some(s)
+        });
+        // Before a discrete site nearer than the field's interaction, the field's depth counts only up to
+        // the site: walked again when a caller asks for it (the packet interface does not).
+        let tau_field = match (&self.field, site) {
+            (Some(f), Some(s)) if want_tau && hit.map_or(true, |h| s.t < h.t) => {
                 f.optical_depth(o, dir, 0.0, s.t)
             }
-            (Some(f), Some(s), None) if want_tau => f.optical_depth(o, dir, 0.0, s.t),
             _ => tau_field,
         };
         (site, tau + tau_field, parent.t_out)
@@ -1454,12 +1447,7 @@ mod tests {
     /// is continuous).
     fn medium_with(n: usize, continuous_count: f64) -> DiscreteMedium {
         let mut s = 3u64;
-        let mut r = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64) / (1u64 << 53) as f64
-        };
+        let mut r = || crate::test_rng::lcg(&mut s);
         let pos: Vec<[f64; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
         let rad: Vec<f64> = (0..n).map(|_| 0.002 + 0.004 * r()).collect();
         let c: Vec<f64> = rad.iter().map(|x| 2.0 * PI * x * x).collect();
@@ -1531,16 +1519,15 @@ mod tests {
     fn local_scattering_with(continuous_count: f64) {
         let m = medium_with(4000, continuous_count);
         let mut s = 99u64;
-        let mut r = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64) / (1u64 << 53) as f64
-        };
+        let mut r = || crate::test_rng::lcg(&mut s);
         // Discrete: interior points, away from the faces of the particles' unit box (balls stick out).
         // Continuous: the whole box, because a sub-box's mean differs from the box's by the cells'
         // own fluctuation (~8 particles per cell: 35 % per cell, ~2 % over a sub-box).
-        let (a, w) = if continuous_count.is_finite() { (0.0, 1.0) } else { (0.1, 0.8) };
+        let (a, w) = if continuous_count.is_finite() {
+            (0.0, 1.0)
+        } else {
+            (0.1, 0.8)
+        };
         let pts: Vec<[f64; 3]> = (0..40000)
             .map(|_| [a + w * r(), a + w * r(), a + w * r()])
             .collect();

@@ -986,12 +986,7 @@ impl ParticleGrid {
 mod tests {
     use super::*;
 
-    fn lcg(seed: &mut u64) -> f64 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*seed >> 11) as f64) / (1u64 << 53) as f64
-    }
+    use crate::test_rng::lcg;
 
     /// Grid traversal equals the O(N) loop for random rays, axis-aligned rays, rays starting inside,
     /// rays on cell faces, zero-length segments and rays missing the grid.

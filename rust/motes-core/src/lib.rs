@@ -26,6 +26,18 @@ pub mod psd;
 pub mod quadrature;
 pub mod wavelengths;
 
+/// The tests' random numbers: one 64-bit LCG (Knuth's MMIX constants), uniform in [0, 1) from its top
+/// 53 bits, so that every test's particles and rays are reproducible and share one generator.
+#[cfg(test)]
+pub(crate) mod test_rng {
+    pub fn lcg(s: &mut u64) -> f64 {
+        *s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*s >> 11) as f64) / (1u64 << 53) as f64
+    }
+}
+
 pub use error::OpticsError;
 pub use optics::{Method, Particle};
 pub use psd::Psd;
