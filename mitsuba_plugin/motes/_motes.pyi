@@ -94,4 +94,5 @@ class DiscreteMedium:
 DEFAULT_TAU_MAX: float
 #: Default particles per query cylinder from which a size class is sampled as a continuous medium
 #: (rust/motes-core/src/continuous.rs).
+DEFAULT_CELLS_PER_PARTICLE: float
 DEFAULT_CONTINUOUS_COUNT: float

@@ -22,7 +22,7 @@ queries (``rust/motes-core/src/discrete.rs`` documents the model).
 ``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``); default
                             ``DEFAULT_TRUNCATE_RAD`` (0.031 rad, one bin of a 4096-value ``tabphase``,
                             as ``homogeneous_equivalent``); None or 0: none
-``cells_per_particle``      grid resolution (about one particle per voxel by default)
+``cells_per_particle``      grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.25: about four particles per cell)
 ``continuous_count``        size classes (factors of two in r_c + r_i) whose particles a query cylinder
                             holds at least this many of, over one mean free path or across the cloud
                             (``DEFAULT_CONTINUOUS_COUNT`` = 16), are sampled as a continuous medium of
@@ -54,6 +54,7 @@ from .psd import Monodisperse, Uniform
 DEFAULT_TAU_MAX: float = _motes.DEFAULT_TAU_MAX
 #: Default particles per query cylinder from which a size class is continuous (module docs).
 DEFAULT_CONTINUOUS_COUNT: float = _motes.DEFAULT_CONTINUOUS_COUNT
+DEFAULT_CELLS_PER_PARTICLE: float = _motes.DEFAULT_CELLS_PER_PARTICLE
 
 
 def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
@@ -69,7 +70,7 @@ class DiscreteMedium:
 
     def __init__(self, positions, radii_um, species_index, species, wavelength_um, *, scale_m: float = 1.0,
                  query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
-                 truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = 1.0, seed: int = 0,
+                 truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT):
         pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))

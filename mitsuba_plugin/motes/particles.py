@@ -2,7 +2,7 @@
 query cylinders (Eq. 18) and exact free-flight sampling; generators of particle sets and the query radius
 from a camera (Eq. 23).
 
-``ParticleGrid(positions, radii_um, c_ext_um2, scale_m=1.0, query_radius=..., cells_per_particle=1.0)``
+``ParticleGrid(positions, radii_um, c_ext_um2, scale_m=1.0, query_radius=..., cells_per_particle=0.25)``
 
 ==============================  ======================================================================
 ``positions``                   (n, 3) particle centres, scene units
@@ -12,7 +12,8 @@ from a camera (Eq. 23).
 ``scale_m``                     metres per scene unit, so um radii and scene positions combine correctly
 ``query_radius``                r_c of the query cylinder, scene units (Eq. 23 gives it from a camera:
                                 ``query_radius_from_camera``)
-``cells_per_particle``          grid resolution; the paper's optimum is about one particle per voxel
+``cells_per_particle``          grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.25: about four particles
+                                per cell, each cell's spheres tested four at a time)
 ``uniform_box``                 ``(n, lo, hi, psd, seed)``: n centres uniform in the box [lo, hi], radii
                                 (um) from ``psd``
 ``density_box``                 ``(n, lo, hi, density, psd, seed, max_density)``: n centres in [lo, hi]
@@ -66,7 +67,7 @@ class ParticleGrid:
     """Uniform grid over particles with batched optical-depth and free-flight queries (module docs)."""
 
     def __init__(self, positions, radii_um, c_ext_um2, *, scale_m: float = 1.0, query_radius: float = 0.0,
-                 cells_per_particle: float = 1.0):
+                 cells_per_particle: float = _motes.DEFAULT_CELLS_PER_PARTICLE):
         pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
         if pos.ndim != 2 or pos.shape[1] != 3:
             raise ValueError(f"positions must have shape (n, 3), got {pos.shape}")

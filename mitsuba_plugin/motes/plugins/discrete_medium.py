@@ -30,7 +30,7 @@ Parameter               Type       Meaning (default)
 ``tau_max``             float      cap on each particle's optical depth (1): a particle whose disk
                                    r_c + r_i would be more opaque gets a wider disk; each disk removes
                                    exactly its C_ext from a beam (see Notes)
-``cells_per_particle``  float      grid resolution (1: about one particle per voxel, Sec. 6.5)
+``cells_per_particle``  float      grid resolution (0.25: about four particles per cell)
 ``continuous_count``    float      size classes with at least this many particles per query cylinder
                                    (over a mean free path or across the cloud) are rendered as a
                                    continuous medium: no pixel resolves their grains (16; inf: none)
@@ -104,7 +104,7 @@ import numpy as np
 
 from ..discrete import DiscreteMedium
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
-from ..discrete import DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX
+from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import _memory
@@ -199,7 +199,7 @@ class DiscreteMediumPlugin:
         fov = _get(props, "fov", None, float)
         film_width = _get(props, "film_width", None, int)
         z_med = _get(props, "z_med", None, float)
-        cells = _get(props, "cells_per_particle", 1.0, float, pos_f, "finite and > 0")
+        cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float, pos_f, "finite and > 0")
         size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
         method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
                       "one of auto, mie, goa, hybrid")

@@ -104,6 +104,14 @@ impl Dda {
     }
 }
 
+impl Dda {
+    /// Has the ray left the grid (the last cell returned was the last one)?
+    #[inline]
+    pub fn finished(&self) -> bool {
+        self.done
+    }
+}
+
 impl Iterator for Dda {
     type Item = DdaCell;
 
@@ -112,12 +120,13 @@ impl Iterator for Dda {
         if self.done {
             return None;
         }
-        let axis = if self.t_next[0] <= self.t_next[1] && self.t_next[0] <= self.t_next[2] {
-            0
-        } else if self.t_next[1] <= self.t_next[2] {
-            1
-        } else {
+        // The axis whose next face comes first, by selects rather than branches (the branch is a coin
+        // toss per step and mispredicts).
+        let a01 = usize::from(self.t_next[1] < self.t_next[0]);
+        let axis = if self.t_next[2] < self.t_next[a01] {
             2
+        } else {
+            a01
         };
         let t_exit = self.t_next[axis].min(self.t_end);
         let out = DdaCell {

@@ -1203,6 +1203,10 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyDiscreteMedium>()?;
     m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
     m.add(
+        "DEFAULT_CELLS_PER_PARTICLE",
+        motes_core::grid::DEFAULT_CELLS_PER_PARTICLE,
+    )?;
+    m.add(
         "DEFAULT_CONTINUOUS_COUNT",
         motes_core::continuous::DEFAULT_CONTINUOUS_COUNT,
     )?;

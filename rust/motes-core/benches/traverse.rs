@@ -1,0 +1,112 @@
+//! Cost of one traversal per ray, single-threaded (issue 10.2), in the two clouds of
+//! `scripts/bench_native.py`: `sparse` (the default scene's dust: 60 000 grains in a box of 20 units,
+//! query radius 0.064) and `dense` (haze: 1e6 grains, R ~ 0.07). Rays start inside the box in random
+//! directions and run 40 units (out of it): a full walk (every contributing particle), the grey optical
+//! depth, and free flights to the first site (`sample_site`, what the renderer calls).
+//!
+//! Each grid resolution (cells per particle; the default first) is timed in interleaved rounds and the
+//! median round is reported, so a busy machine shifts all columns alike.
+//!
+//!     cargo bench -p motes-core --bench traverse [-- sparse|dense]
+use motes_core::grid::{ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
+use std::time::Instant;
+
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64) / (1u64 << 53) as f64
+    }
+}
+
+const ROUNDS: usize = 5;
+
+/// Microseconds per ray of `f` over all rays.
+fn per_ray(rays: usize, f: impl FnOnce()) -> f64 {
+    let t = Instant::now();
+    f();
+    t.elapsed().as_secs_f64() / rays as f64 * 1e6
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
+    let mut r = Lcg(1);
+    let point = |r: &mut Lcg| [0; 3].map(|_| 20.0 * r.next() - 10.0);
+    let pos: Vec<[f64; 3]> = (0..n).map(|_| point(&mut r)).collect();
+    let rad: Vec<f64> = (0..n).map(|_| r_min + r_span * r.next()).collect();
+    let c: Vec<f64> = rad
+        .iter()
+        .map(|x| 2.0 * std::f64::consts::PI * x * x)
+        .collect();
+    let rays: Vec<([f64; 3], [f64; 3])> = (0..200_000)
+        .map(|_| {
+            let o = point(&mut r);
+            let d = [r.next() - 0.5, r.next() - 0.5, r.next() - 0.5];
+            let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            (o, d.map(|x| x / l))
+        })
+        .collect();
+    let resolutions = [DEFAULT_CELLS_PER_PARTICLE, 1.0, 0.5, 0.125];
+    let grids: Vec<ParticleGrid> = resolutions
+        .iter()
+        .map(|&cpp| ParticleGrid::build(&pos, &rad, &c, 1, query_radius, cpp).unwrap())
+        .collect();
+    let mut times = vec![[const { Vec::new() }; 3]; grids.len()];
+    let (mut hits, mut sites) = (0usize, 0usize);
+    for _ in 0..ROUNDS {
+        for (g, t) in grids.iter().zip(times.iter_mut()) {
+            hits = 0;
+            t[0].push(per_ray(rays.len(), || {
+                for (o, d) in &rays {
+                    g.walk(*o, *d, 0.0, 40.0, |_, _, _| {
+                        hits += 1;
+                        true
+                    });
+                }
+            }));
+            let mut v = [0.0];
+            t[1].push(per_ray(rays.len(), || {
+                for (o, d) in &rays {
+                    g.optical_depth(*o, *d, 0.0, 40.0, &mut v);
+                }
+            }));
+            sites = 0;
+            t[2].push(per_ray(rays.len(), || {
+                for (k, (o, d)) in rays.iter().enumerate() {
+                    let u = (k as f64 + 0.5) / rays.len() as f64;
+                    sites += g.sample_site(*o, *d, 0.0, 40.0, &[], u, 1e-6).0.is_some() as usize;
+                }
+            }));
+        }
+    }
+    println!(
+        "{name}: {n} particles, {:.1} contributing and {:.0} % interacting per ray (median of {ROUNDS} rounds)",
+        hits as f64 / rays.len() as f64,
+        100.0 * sites as f64 / rays.len() as f64
+    );
+    for ((cpp, g), t) in resolutions.iter().zip(&grids).zip(times) {
+        let [w, o, f] = t.map(median);
+        println!(
+            "  cells/particle {cpp:<5} cells {:?}, {:.1} bytes/particle | walk {w:.2} us/ray, optical_depth {o:.2} us/ray, free flight {f:.2} us/ray",
+            g.dims(),
+            g.bytes() as f64 / n as f64,
+        );
+    }
+}
+
+fn main() {
+    let only = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    if only.as_deref() != Some("dense") {
+        run("sparse", 60_000, 0.0005, 0.004, 0.064);
+    }
+    if only.as_deref() != Some("sparse") {
+        run("dense", 1_000_000, 0.008, 0.004, 0.06);
+    }
+}
