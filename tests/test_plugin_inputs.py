@@ -160,3 +160,21 @@ print((status("VmHWM:") - base) / n, _memory.BYTES_PER_PARTICLE)
     assert r.returncode == 0, r.stderr[-2000:]
     used, estimate = map(float, r.stdout.split())
     assert 100 <= used <= estimate, (used, estimate)
+
+
+def _cube_scene(integrator: str) -> dict:
+    return {"type": "scene", "integrator": {"type": integrator},
+            "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8}},
+            "cube": {"type": "cube", "bsdf": {"type": "null"},
+                     "interior": {"type": "discrete", "count": 100, "phase": {"type": "particle"}}}}
+
+
+def test_prbvolpath_warns_that_it_is_unsupported():
+    import warnings
+
+    motes.set_variant("llvm_ad_rgb")
+    with pytest.warns(RuntimeWarning, match="prbvolpath does not support the discrete medium"):
+        mi.render(mi.load_dict(_cube_scene("prbvolpath")), spp=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mi.render(mi.load_dict(_cube_scene("volpath")), spp=1)
