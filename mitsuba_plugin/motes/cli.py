@@ -190,14 +190,29 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+def one_line(e: BaseException) -> str:
+    """An error as one line. Mitsuba's loader wraps a Python plugin's exception in a RuntimeError whose text
+    holds the plugin's traceback: keep where (file, line) and what (the last line), drop the frames and the
+    loader's source locations."""
+    import re
+
+    text = str(e)
+    head, sep, tail = text.partition("Traceback (most recent call last):")
+    if sep:
+        last = [ln for ln in tail.strip().splitlines() if ln.strip()][-1]
+        text = f"{head.strip()} {last.strip()}"
+    text = re.sub(r"\[[\w.]+\.cpp:\d+\]\s*", "", text).removeprefix("motes: ")
+    return " ".join(text.split()) or type(e).__name__
+
+
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.run(args)
-    except (ValueError, RuntimeError, OSError, KeyError) as e:
+    except (ValueError, RuntimeError, OSError, KeyError, MemoryError) as e:
         if args.debug:
             raise
-        print(f"motes: error: {e}", file=sys.stderr)
+        print(f"motes: error: {one_line(e)}", file=sys.stderr)
         return 2
 
 

@@ -63,6 +63,8 @@ def register() -> None:
         # The Python path hands numpy batches to Rust: evaluated mode, on this thread (Dr.Jit's flags are
         # per thread; a render from another thread must call motes.set_evaluated_mode() there first).
         set_evaluated_mode(True)
+    # Mitsuba may re-import its Python integrators on a variant change: guard the class in use each time.
+    _warn_under_prbvolpath()
     if variant in _registered:
         return
     from . import discrete_medium, particle_phase
@@ -72,7 +74,6 @@ def register() -> None:
     mi.register_phase("particle", lambda props: phase(props))
     _registered.add(variant)
     _media_classes.add(medium)
-    _warn_under_prbvolpath()
 
 
 _media_classes: set = set()
@@ -87,7 +88,7 @@ def _scene_has_discrete_medium(scene) -> bool:
 
 
 def _warn_under_prbvolpath() -> None:
-    """Make Mitsuba's prbvolpath warn (once per scene) when a scene holds a ``discrete`` medium: it runs but
+    """Make Mitsuba's prbvolpath warn when a scene holds a ``discrete`` medium: it runs but
     is not supported. Its ``sample`` is wrapped once per process (under both names Mitsuba imports the class
     by); other scenes are untouched."""
     import importlib
@@ -102,11 +103,11 @@ def _warn_under_prbvolpath() -> None:
 def _guard(cls) -> None:
     if getattr(cls.sample, "_motes_guard", False):
         return
-    sample, warned = cls.sample, set()
+    sample = cls.sample
 
     def guarded(self, mode, scene, *args, **kwargs):
-        if id(scene) not in warned and _scene_has_discrete_medium(scene):
-            warned.add(id(scene))
+        # Every render (Python's warning filters show it once per call site by default).
+        if _scene_has_discrete_medium(scene):
             warnings.warn(PRBVOLPATH_WARNING, RuntimeWarning, stacklevel=2)
         return sample(self, mode, scene, *args, **kwargs)
 

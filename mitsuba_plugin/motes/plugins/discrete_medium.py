@@ -196,9 +196,9 @@ class DiscreteMediumPlugin:
         scale_m = _get(props, "scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
         query_radius = _get(props, "query_radius", None, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
         k = _get(props, "footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
-        fov = _get(props, "fov", None, float)
-        film_width = _get(props, "film_width", None, int)
-        z_med = _get(props, "z_med", None, float)
+        fov = _get(props, "fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
+        film_width = _get(props, "film_width", None, int, lambda v: v >= 1, "an integer >= 1 (pixels)")
+        z_med = _get(props, "z_med", None, float, pos_f, "finite and > 0 (scene units)")
         cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float, pos_f, "finite and > 0")
         size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
         method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
