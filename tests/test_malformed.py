@@ -22,6 +22,8 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 
+from test_plugin_inputs import load as _load  # noqa: E402  (a discrete medium of 200 grains, from a dict)
+
 MONO = {"type": "monodisperse", "radius_um": 5}
 
 
@@ -86,14 +88,6 @@ def _ply(path: pathlib.Path, pscale: float) -> str:
     pts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     meshio.write_points_cells(str(path), pts, [], point_data={"pscale": np.full(3, pscale)})
     return str(path)
-
-
-def _load(**kw):
-    d = {"type": "discrete", "phase": {"type": "particle"}}
-    if "filename" not in kw:
-        d["count"] = 200
-    d.update(kw)
-    return mi.load_dict(d)
 
 
 SINGULAR = '<transform name="to_world"><scale value="1, 0, 1"/></transform>'

@@ -56,7 +56,7 @@
 //! exactly and the weights f_c / pdf stay bounded.
 
 use crate::continuous::{resolvable, ContinuousField};
-use crate::error::{require, OpticsError};
+use crate::error::{require, require_len, OpticsError};
 use crate::grid::{bounding_box, ParticleGrid, Site};
 use crate::phase_table::PhaseTable;
 use rayon::prelude::*;
@@ -324,24 +324,9 @@ impl DiscreteMedium {
         seed: u64,
     ) -> Result<Self, OpticsError> {
         let n = positions.len();
-        require(
-            "bin (length)",
-            bin.len() as f64,
-            bin.len() == n,
-            "one per particle",
-        )?;
-        require(
-            "radius (length)",
-            radius.len() as f64,
-            radius.len() == n,
-            "one per particle",
-        )?;
-        require(
-            "c_ext (length)",
-            c_ext.len() as f64,
-            c_ext.len() == n,
-            "one per particle",
-        )?;
+        require_len("bin (length)", bin.len(), n, "one per particle")?;
+        require_len("radius (length)", radius.len(), n, "one per particle")?;
+        require_len("c_ext (length)", c_ext.len(), n, "one per particle")?;
         require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
         require(
             "query_radius",

@@ -62,3 +62,13 @@ pub fn require(
         })
     }
 }
+
+/// An array argument whose length must equal `expected` (e.g. one entry per particle).
+pub fn require_len(
+    argument: &'static str,
+    len: usize,
+    expected: usize,
+    requirement: &'static str,
+) -> Result<(), OpticsError> {
+    require(argument, len as f64, len == expected, requirement)
+}

@@ -26,7 +26,7 @@
 //! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
 
 use crate::dda::{Bounds3, Dda};
-use crate::error::{require, OpticsError};
+use crate::error::{require, require_len, OpticsError};
 use rayon::prelude::*;
 
 /// Axis-aligned bounding box of the centres.
@@ -462,27 +462,22 @@ impl SubGrid {
         // in `benches/traverse.rs`).
         let mut segs = [Segment::default(); SEGMENTS_PER_BATCH];
         let mut n = 0;
+        // Infinity unless the batch fills up before the ray leaves the grid.
         let mut frontier = f64::INFINITY;
         while n + ROWS_PER_STEP <= SEGMENTS_PER_BATCH {
-            let Some(step) = cur.dda.next() else {
-                frontier = f64::INFINITY;
-                break;
-            };
+            let Some(step) = cur.dda.next() else { break };
             // The first step starts at t0 (particles before the box entry are too far from the ray
             // to count), the last ends at t1.
+            let last = cur.dda.finished();
             let t_enter = if cur.first { cur.t0 } else { step.t_enter };
-            let t_exit = if cur.dda.finished() {
-                cur.t1
-            } else {
-                step.t_exit
-            };
+            let t_exit = if last { cur.t1 } else { step.t_exit };
             cur.first = false;
             n += self.step_rows(step.cell, t_enter, t_exit, &mut segs[n..]);
-            frontier = t_exit;
-            if cur.dda.finished() {
+            if last {
                 frontier = f64::INFINITY;
                 break;
             }
+            frontier = t_exit;
         }
         let batch = &mut segs[..n];
         for sg in batch.iter() {
@@ -691,12 +686,7 @@ impl ParticleGrid {
     ) -> Result<Self, OpticsError> {
         let n = positions.len();
         require("positions (count)", n as f64, n >= 1, ">= 1")?;
-        require(
-            "radius (length)",
-            radius.len() as f64,
-            radius.len() == n,
-            "one per particle",
-        )?;
+        require_len("radius (length)", radius.len(), n, "one per particle")?;
         require("channels", channels as f64, channels >= 1, ">= 1")?;
         require(
             "c_ext (length)",
@@ -858,10 +848,9 @@ impl ParticleGrid {
                         return;
                     }
                 }
-                if frontier != Some(f64::INFINITY) {
-                    continue;
+                if frontier == Some(f64::INFINITY) {
+                    return;
                 }
-                return;
             }
         }
         let mut cursors: Vec<(Cursor, f64)> = self
@@ -1133,7 +1122,13 @@ mod tests {
             .iter()
             .flat_map(|r| [2.0 * std::f64::consts::PI * r * r, 3.0 * r * r])
             .collect();
-        for (rc, cpp) in [(0.0, 1.0), (0.01, 1.0), (0.05, 0.2), (0.2, 5.0), (0.0, 0.25)] {
+        for (rc, cpp) in [
+            (0.0, 1.0),
+            (0.01, 1.0),
+            (0.05, 0.2),
+            (0.2, 5.0),
+            (0.0, 0.25),
+        ] {
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, rc, cpp).unwrap();
             if rc == 0.0 {
                 assert!(g.class_count() > 1, "the test needs several size classes");
@@ -1192,7 +1187,10 @@ mod tests {
                     walked.push((t, i));
                     true
                 });
-                assert!(walked.windows(2).all(|w| w[0].0 <= w[1].0), "walk out of order");
+                assert!(
+                    walked.windows(2).all(|w| w[0].0 <= w[1].0),
+                    "walk out of order"
+                );
                 let mut expect = Vec::new();
                 for c in &g.classes {
                     for j in 0..c.len() {
