@@ -14,7 +14,7 @@ the same XML with the medium replaced by `motes.equivalent.equivalent_xml`) -- a
 Reported: seconds (best of `--reps` interleaved repetitions after a warm-up render that compiles the
 kernels), the ratio to `homogeneous`, and the image means of the discrete paths with their standard
 errors (the two paths must agree). `--memory` also measures the peak resident memory of the default
-scene's main-job render (256 px, 48 spp) in a fresh process per path.
+scene's render in a fresh process per path (see `memory`).
 
     .venv/bin/python scripts/bench_native.py [--quick] [--configs sparse,dense,default] [--memory]
 """
@@ -39,13 +39,32 @@ SCENE = ROOT / "scenes_xml" / "dust_box.xml"
 KNOWN = ("sparse", "dense", "default")
 
 
+def default_medium_density_m3() -> tuple[dict, float]:
+    """The default scene's dust (median, sigma_g, count) and its number density, read from dust_box.xml:
+    generated particles fill the medium's local cube [-1, 1]^3 placed by its to_world scale (cm)."""
+    import xml.etree.ElementTree as ET  # noqa: PLC0415
+
+    root = ET.parse(SCENE).getroot()
+    defaults = {d.get("name"): d.get("value") for d in root.iter("default")}
+    medium = next(m for m in root.iter("medium") if m.get("type") == "discrete")
+    value = lambda name: next(c.get("value") for c in medium if c.get("name") == name)  # noqa: E731
+    scale = next(medium.iter("scale"))
+    half = [float(scale.get(a, scale.get("value", 1))) for a in "xyz"]
+    count = int(defaults[value("count").lstrip("$")] if value("count").startswith("$") else value("count"))
+    volume_m3 = float(np.prod([2 * h * float(value("scale_m")) for h in half]))
+    cfg = dict(count=count, median=float(value("radius_median")), sigma_g=float(value("radius_sigma_g")))
+    return cfg, count / volume_m3
+
+
 def default_scene_xml(motes, homogeneous: bool) -> str:
     """dust_box.xml, or the same scene with its medium replaced by the homogeneous equivalent."""
     text = SCENE.read_text()
     if not homogeneous:
         return text
-    cfg = BR.configs(True)["sparse"]  # the default scene's medium (dust_box.xml's parameters)
-    snippet = motes.equivalent.equivalent_xml(BR.homogeneous_dict(motes, cfg))
+    cfg, n_m3 = default_medium_density_m3()
+    sp = motes.Species(motes.LogNormal(cfg["median"], cfg["sigma_g"]), complex(1.55, 0.0005))
+    d = motes.homogeneous_equivalent(sp, n_m3, color="rgb", scale_m=0.01, tabphase_size=BR.TAB_SIZE)
+    snippet = motes.equivalent.equivalent_xml(d)
     return re.sub(r'<medium type="discrete".*?</medium>', lambda _: snippet, text, flags=re.S)
 
 
@@ -112,7 +131,8 @@ import motes
 motes.set_variant("llvm_ad_rgb")
 motes.set_evaluated_mode(sys.argv[1] == "evaluated")
 import mitsuba as mi
-scene = mi.load_file(sys.argv[2])
+params = {"res": sys.argv[3], "spp": sys.argv[4]} if len(sys.argv) > 3 else {}
+scene = mi.load_file(sys.argv[2], **params)
 t = time.perf_counter()
 img = np.asarray(mi.render(scene))
 print("RESULT", time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, float(img.mean()))
@@ -120,18 +140,22 @@ print("RESULT", time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF
 
 
 def memory() -> dict:
-    """Peak resident memory (MiB) and time of the main job's render, native vs evaluated path."""
+    """Peak resident memory (MiB) and time of the main job's render: the native path at the scene's own
+    settings (what `motes render` does, but in one pass), and both paths at 256 px, 48 spp (the evaluated
+    path keeps ~1.7 kB per sample: at the scene's own settings it would need ~20 GB)."""
     out = {}
-    for path in ("native", "evaluated"):
-        res = subprocess.run([sys.executable, "-c", MEMORY_CHILD, path, str(SCENE)], capture_output=True, text=True, timeout=3600)
-        line = [ln for ln in res.stdout.splitlines() if ln.startswith("RESULT")]
-        if res.returncode != 0 or not line:
-            raise RuntimeError(f"memory child ({path}) failed:\n{res.stderr[-2000:]}")
+    for path, res, spp in (("native", None, None), ("native", "256", "48"), ("evaluated", "256", "48")):
+        extra = [res, spp] if res else []
+        res_ = subprocess.run([sys.executable, "-c", MEMORY_CHILD, path, str(SCENE), *extra], capture_output=True, text=True, timeout=3600)
+        line = [ln for ln in res_.stdout.splitlines() if ln.startswith("RESULT")]
+        if res_.returncode != 0 or not line:
+            raise RuntimeError(f"memory child ({path}) failed:\n{res_.stderr[-2000:]}")
         _, secs, mib, mean = line[0].split()
-        out[path] = {"seconds": float(secs), "peak_mib": float(mib), "mean": float(mean)}
-        print(f"[memory] default scene 256 px 48 spp, {path} path: peak {float(mib):.0f} MiB, {float(secs):.1f} s, mean {float(mean):.4g}", flush=True)
-    out["ratio"] = out["evaluated"]["peak_mib"] / out["native"]["peak_mib"]
-    print(f"[memory] evaluated / native peak memory: {out['ratio']:.2f}x", flush=True)
+        key = f"{path} {res or 'scene'} px {spp or 'scene'} spp"
+        out[key] = {"seconds": float(secs), "peak_mib": float(mib), "mean": float(mean)}
+        print(f"[memory] default scene, {key}: peak {float(mib):.0f} MiB, {float(secs):.1f} s, mean {float(mean):.4g}", flush=True)
+    out["ratio"] = out["evaluated 256 px 48 spp"]["peak_mib"] / out["native 256 px 48 spp"]["peak_mib"]
+    print(f"[memory] evaluated / native peak memory at 256 px 48 spp: {out['ratio']:.2f}x", flush=True)
     return out
 
 

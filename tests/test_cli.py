@@ -16,7 +16,7 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["render", "--help"], ["optics", "--help"], ["particles", "--help"],
-                                  ["equivalent", "--help"]])
+                                  ["equivalent", "--help"], ["scenes", "--help"]])
 def test_help(argv, capsys):
     with pytest.raises(SystemExit) as e:
         main(argv)
@@ -73,3 +73,42 @@ def test_equivalent_xml_loads_in_mitsuba(tmp_path, capsys):
     motes.set_variant("scalar_rgb")
     scene = f'<scene version="3.0.0"><shape type="cube"><bsdf type="null"/>{xml}</shape></scene>'
     assert mi.load_string(scene) is not None
+
+
+def test_scenes_lists_and_copies_the_shipped_scenes(tmp_path, capsys):
+    """The package ships the example scenes (a link to scenes_xml/ in the source tree, a file in the wheel)."""
+    assert main(["scenes"]) == 0
+    assert "dust_box" in capsys.readouterr().out
+    assert main(["scenes", "-o", str(tmp_path)]) == 0
+    assert (tmp_path / "dust_box.xml").read_bytes() == (ROOT / "scenes_xml" / "dust_box.xml").read_bytes()
+
+
+def test_render_by_the_name_of_a_shipped_scene(tmp_path):
+    pytest.importorskip("mitsuba")
+    r = subprocess.run([sys.executable, "-m", "motes", "render", "dust_box", "-s", "1", "-D", "res=8", "-D", "count=500",
+                        "-o", str(tmp_path / "d.exr")], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "shipped scene" in r.stderr and (tmp_path / "d.exr").is_file()
+
+
+def test_unknown_scene_names_the_shipped_ones(capsys):
+    assert main(["render", "no_such_scene"]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_scene" in err and "dust_box" in err
+
+
+def test_tonemap_keeps_a_dim_room_readable_beside_a_bright_patch():
+    """Reinhard's operator: the patch (1000x the room) saturates, the room lands near mid grey instead of
+    black, order is kept, and NaN/negative input cannot leak into the PNG."""
+    from motes.cli import tonemap
+
+    img = np.full((64, 64, 3), 0.01)
+    img[:8, :8] = 10.0
+    img[60:, 60:] = 0.02
+    img[0, 63] = np.nan
+    img[1, 63] = -1.0
+    out = tonemap(img)
+    assert np.all(np.isfinite(out)) and out.min() >= 0 and out.max() <= 1
+    assert out[0, 0, 0] > 0.99 and 0.1 < out[32, 32, 0] < 0.5
+    assert out[62, 62, 0] > out[32, 32, 0]
+    assert out[0, 63, 0] == 0 and out[1, 63, 0] == 0

@@ -45,6 +45,22 @@ def test_query_radius_as_large_as_the_box_warns():
         load(query_radius=1.5)
 
 
+def test_query_radius_overridden_by_tau_max_warns():
+    """r_c far below the grains' own radius: every disk would be opaque and is widened, which is said."""
+    with pytest.warns(UserWarning, match=r"widened.*tau_max"):
+        load(query_radius=1e-9)
+
+
+def test_default_scene_loads_without_warnings():
+    """What a user gets from the main job: no warning (a few widened tail grains are not worth one)."""
+    import warnings
+
+    motes.set_variant("llvm_ad_rgb")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mi.load_file(str(pathlib.Path(__file__).resolve().parents[1] / "scenes_xml" / "dust_box.xml"))
+
+
 def test_relative_filename_resolves_against_the_scene_folder(tmp_path):
     motes.set_variant("scalar_rgb")
     sub = tmp_path / "scene"

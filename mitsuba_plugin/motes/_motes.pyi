@@ -96,3 +96,8 @@ DEFAULT_TAU_MAX: float
 #: (rust/motes-core/src/continuous.rs).
 DEFAULT_CELLS_PER_PARTICLE: float
 DEFAULT_CONTINUOUS_COUNT: float
+
+# Ctrl-C of the `motes` command (rust/motes-py/src/interrupt.rs): a native thread reads the wakeup socket
+# of signal.set_wakeup_fd and, on byte `signum`, prints the exit message and _exit()s with `status`.
+def exit_on_wakeup(fd: int, signum: int, status: int) -> None: ...
+def set_exit_message(message: str) -> None: ...

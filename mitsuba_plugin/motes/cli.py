@@ -6,17 +6,23 @@
 ``motes optics``                       cross sections, efficiencies and g of one particle
 ``motes particles FILE``               summary of a particle file (count, bounds, radii, species, memory)
 ``motes equivalent``                   the homogeneous + tabphase XML of a particle cloud (A/B reference)
+``motes scenes [-o DIR]``              the example scenes shipped in the package (list, or copy out)
 =====================================  ===================================================================
 
 Errors print one line (``motes: error: ...``) and exit with status 2; ``--debug`` shows the traceback.
-Ctrl-C during a render stops after the pass in flight and writes the passes done so far (exit 130).
+Ctrl-C during ``motes render`` stops within a second (loading, table builds and the kernel in flight
+included), writes the passes done so far and exits with status 130.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import resource
+import shutil
+import signal
+import socket
 import sys
 import time
 
@@ -31,12 +37,99 @@ def _progress(done: int, total: int, elapsed: float) -> None:
     sys.stderr.flush()
 
 
-def _write_png(mi, path: pathlib.Path, img: np.ndarray) -> float:
-    """Auto-exposed sRGB PNG: the 99.7th percentile of luminance maps to white. Returns the exposure."""
-    lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722]) if img.shape[-1] >= 3 else img[..., 0]
-    scale = 1.0 / max(float(np.percentile(lum, 99.7)), 1e-12)
-    mi.util.write_bitmap(str(path), mi.TensorXf(np.clip(img * scale, 0, None).astype(np.float32)))
-    return scale
+# Rec. 709 luminance of linear RGB.
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def tonemap(img: np.ndarray, key: float = 0.18, white_percentile: float = 99.5) -> np.ndarray:
+    """Linear RGB (H, W, C) to display values in [0, 1]: Reinhard et al.'s global photographic operator.
+    The log-average luminance maps to ``key`` (mid grey) and the ``white_percentile``-th luminance to
+    white; brighter pixels (a floor patch lit by a spot) saturate smoothly instead of setting the
+    exposure of the whole picture, so a dim room stays readable beside a bright beam."""
+    rgb = np.nan_to_num(np.asarray(img, dtype=np.float64), nan=0.0, posinf=0.0)
+    rgb = np.clip(rgb, 0.0, None)
+    lum = rgb[..., :3] @ _LUMINANCE if rgb.shape[-1] >= 3 else rgb[..., 0]
+    log_avg = float(np.exp(np.mean(np.log(1e-6 + lum))))
+    scaled = lum * (key / max(log_avg, 1e-12))
+    white = max(float(np.percentile(scaled, white_percentile)), 1e-6)
+    display = scaled * (1.0 + scaled / white**2) / (1.0 + scaled)
+    gain = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
+    return np.clip(rgb * gain[..., None], 0.0, 1.0)
+
+
+def _write_atomically(path: pathlib.Path, write) -> None:
+    """Write through a temporary file and rename, so that Ctrl-C never leaves a truncated image."""
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    write(str(tmp))
+    os.replace(tmp, path)
+
+
+def _write_images(mi, exr: pathlib.Path, img: np.ndarray, png: bool) -> list[str]:
+    """The EXR (linear) and, if asked, a tone-mapped sRGB PNG beside it."""
+    exr.parent.mkdir(parents=True, exist_ok=True)
+    _write_atomically(exr, mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write)
+    written = [str(exr)]
+    if png:
+        path = exr.with_suffix(".png")
+        bmp = mi.Bitmap(np.ascontiguousarray(tonemap(img), dtype=np.float32))
+        fmt = mi.Bitmap.PixelFormat.RGB if img.shape[-1] >= 3 else mi.Bitmap.PixelFormat.Y
+        _write_atomically(path, bmp.convert(fmt, mi.Struct.Type.UInt8, srgb_gamma=True).write)
+        written.append(str(path))
+    return written
+
+
+class _CtrlC:
+    """Ctrl-C that ends ``motes render`` within a second whatever it is in. A Mitsuba kernel holds the GIL
+    until it returns (seconds per pass) and a table build until its Rust call returns, so no Python code
+    can react in time. SIGINT is routed through ``signal.set_wakeup_fd`` to a native thread
+    (``_motes.exit_on_wakeup``) that prints the current message (``say``) and ends the process with
+    status 130. The passes done so far are already on disk: they are written after each pass."""
+
+    def __init__(self, message: str):
+        self.message = message
+
+    def say(self, message: str) -> None:
+        from . import _motes  # noqa: PLC0415
+
+        _motes.set_exit_message(message)
+
+    def __enter__(self):
+        from . import _motes  # noqa: PLC0415
+
+        self._read, self._write = socket.socketpair()
+        self._write.setblocking(False)
+        self.say(self.message)
+        _motes.exit_on_wakeup(self._read.fileno(), int(signal.SIGINT), 130)
+        self._old_fd = signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
+        # The Python handler does nothing: the native thread ends the process.
+        self._old_handler = signal.signal(signal.SIGINT, lambda *_: None)
+        return self
+
+    def __exit__(self, *exc):
+        signal.signal(signal.SIGINT, self._old_handler)
+        signal.set_wakeup_fd(self._old_fd)
+        self._write.close()  # the native thread reads end-of-file and ends
+        self._read.close()
+        return False
+
+
+def shipped_scenes() -> dict[str, pathlib.Path]:
+    """The example scenes in the package (``motes/scenes``), by stem."""
+    folder = pathlib.Path(__file__).resolve().parent / "scenes"
+    return {p.stem: p for p in sorted(folder.glob("*.xml"))}
+
+
+def _scene_path(name: str) -> pathlib.Path:
+    path = pathlib.Path(name)
+    if path.is_file():
+        return path
+    shipped = shipped_scenes()
+    stem = path.name.removesuffix(".xml")
+    if path.parent == pathlib.Path(".") and stem in shipped:
+        print(f"motes: {name} is not a file here; rendering the shipped scene {shipped[stem]}", file=sys.stderr)
+        return shipped[stem]
+    known = ", ".join(shipped) or "none"
+    raise FileNotFoundError(f"no such scene file: {path} (shipped scenes, usable by name: {known})")
 
 
 def cmd_render(args) -> int:
@@ -51,46 +144,47 @@ def cmd_render(args) -> int:
         if not sep or not key:
             raise ValueError(f"-D expects key=value, got {d!r}")
         defines[key] = value
-    scene_path = pathlib.Path(args.scene)
-    if not scene_path.is_file():
-        raise FileNotFoundError(f"no such scene file: {scene_path}")
-    t0 = time.perf_counter()
-    print(f"motes: loading {scene_path} ({variant}): particles, optics tables, grid ...", file=sys.stderr)
-    scene = mi.load_file(str(scene_path), **defines)
-    t_load = time.perf_counter() - t0
-    print(f"motes: loaded in {t_load:.1f} s", file=sys.stderr)
-    spp = args.spp or scene.sensors()[0].sampler().sample_count()
-    per_pass = max(1, min(args.pass_spp, spp))
-    passes = (spp + per_pass - 1) // per_pass
-    acc, done_spp, t1 = None, 0, time.perf_counter()
-    interrupted = False
-    try:
+    scene_path = _scene_path(args.scene)
+    out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
+    with _CtrlC("motes: interrupted (Ctrl-C) before the first pass finished; nothing written") as ctrl_c:
+        t0 = time.perf_counter()
+        print(f"motes: loading {scene_path} ({variant}): particles, optics tables, grid ...", file=sys.stderr)
+        scene = mi.load_file(str(scene_path), **defines)
+        t_load = time.perf_counter() - t0
+        print(f"motes: loaded in {t_load:.1f} s", file=sys.stderr)
+        spp = args.spp or scene.sensors()[0].sampler().sample_count()
+        per_pass = max(1, min(args.pass_spp, spp))
+        passes = (spp + per_pass - 1) // per_pass
+        acc, done_spp, t1 = None, 0, time.perf_counter()
         for i in range(passes):
             k = min(per_pass, spp - done_spp)
             img = np.asarray(mi.render(scene, spp=k, seed=args.seed * 100003 + i), dtype=np.float64)
             acc = img * k if acc is None else acc + img * k
             done_spp += k
+            # Each pass's average is written at once, so that Ctrl-C keeps what is done.
+            written = _write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
+            if done_spp < spp:
+                ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done_spp} of {spp} spp; wrote {', '.join(written)}")
             _progress(i + 1, passes, time.perf_counter() - t1)
-    except KeyboardInterrupt:
-        interrupted = True
-    sys.stderr.write("\n")
-    if acc is None:
-        print("motes: interrupted before the first pass finished; nothing written", file=sys.stderr)
-        return 130
-    img = (acc / done_spp).astype(np.float32)
-    out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    mi.util.write_bitmap(str(out), mi.TensorXf(img))
-    written = [str(out)]
-    if args.png:
-        png = out.with_suffix(".png")
-        _write_png(mi, png, img.astype(np.float64))
-        written.append(str(png))
+        sys.stderr.write("\n")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    what = f"interrupted after {done_spp} of {spp} spp" if interrupted else f"{spp} spp"
-    print(f"motes: {what} in {time.perf_counter() - t1:.1f} s (load {t_load:.1f} s), peak memory {peak_mb:.0f} MB; "
+    print(f"motes: {spp} spp in {time.perf_counter() - t1:.1f} s (load {t_load:.1f} s), peak memory {peak_mb:.0f} MB; "
           f"wrote {', '.join(written)}", file=sys.stderr)
-    return 130 if interrupted else 0
+    return 0
+
+
+def cmd_scenes(args) -> int:
+    shipped = shipped_scenes()
+    if args.output is None:
+        for stem, path in shipped.items():
+            print(f"{stem:16s} {path}")
+        return 0
+    folder = pathlib.Path(args.output)
+    folder.mkdir(parents=True, exist_ok=True)
+    for path in shipped.values():
+        shutil.copyfile(path, folder / path.name)
+        print(f"wrote {folder / path.name}")
+    return 0
 
 
 def _index(args):
@@ -155,15 +249,18 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--debug", action="store_true", help="show Python tracebacks")
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render a Mitsuba XML scene in passes with progress")
-    r.add_argument("scene")
+    r.add_argument("scene", help="XML scene file, or the name of a shipped scene (see 'motes scenes')")
     r.add_argument("-o", "--output", help="output EXR (default: <scene stem>.exr)")
     r.add_argument("-m", "--variant", default="llvm_ad_rgb", help="Mitsuba variant (default llvm_ad_rgb)")
     r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE", help="scene parameter")
     r.add_argument("-s", "--spp", type=int, help="samples per pixel (default: the scene's)")
     r.add_argument("--pass-spp", type=int, default=8, help="samples per pass (bounds memory; default 8)")
     r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--png", action="store_true", help="also write an auto-exposed PNG")
+    r.add_argument("--png", action="store_true", help="also write a tone-mapped sRGB PNG beside the EXR")
     r.set_defaults(run=cmd_render)
+    sc = sub.add_parser("scenes", help="list the example scenes shipped with motes, or copy them out")
+    sc.add_argument("-o", "--output", help="folder to copy the scenes to")
+    sc.set_defaults(run=cmd_scenes)
     o = sub.add_parser("optics", help="cross sections and g of one particle")
     o.add_argument("--radius", type=float, required=True, help="um")
     o.add_argument("--wavelength", type=float, default=0.55, help="um (default 0.55)")
@@ -209,6 +306,9 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
         return args.run(args)
+    except KeyboardInterrupt:
+        print("\nmotes: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
     except (ValueError, RuntimeError, OSError, KeyError, MemoryError) as e:
         if args.debug:
             raise

@@ -55,6 +55,9 @@ DEFAULT_TAU_MAX: float = _motes.DEFAULT_TAU_MAX
 #: Default particles per query cylinder from which a size class is continuous (module docs).
 DEFAULT_CONTINUOUS_COUNT: float = _motes.DEFAULT_CONTINUOUS_COUNT
 DEFAULT_CELLS_PER_PARTICLE: float = _motes.DEFAULT_CELLS_PER_PARTICLE
+#: A query radius that tau_max overrides for more than this share of the particles raises a warning (a few
+#: of the largest grains in a log-normal tail are widened silently: they change nothing a user could see).
+WIDENED_WARN_SHARE: float = 1e-3
 
 
 def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
@@ -164,10 +167,12 @@ class DiscreteMedium:
         self.tau_max = float(tau_max)
         #: Particles sampled as a continuous medium (``continuous_count``).
         self.continuous_particles = self._core.continuous_particles
-        if warn_widened and self.widened:
+        if warn_widened and self.widened > WIDENED_WARN_SHARE * n:
+            frac = float(np.max(c_ext / (np.pi * (query_radius + r * um) ** 2)))
+            tau = -np.log1p(-frac) if frac < 1 else np.inf
             warnings.warn(f"query_radius = {query_radius:g} would give {self.widened} of {n} particles an optical "
-                          f"depth above tau_max = {tau_max:g} (up to {float(np.max(c_ext / (np.pi * (query_radius + r * um) ** 2))):.3g}); "
-                          "their disks were widened to keep it below (see the tau_max parameter)", stacklevel=2)
+                          f"depth above tau_max = {tau_max:g} (up to {tau:.3g}); their disks were widened to keep it "
+                          "below (see the tau_max parameter)", stacklevel=2)
         self.positions = pos
         self.species_index = idx
         #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo).

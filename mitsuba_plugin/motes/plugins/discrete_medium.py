@@ -52,7 +52,8 @@ Defaults are part of the physics. With the paper's normalisation (tau_i = C_ext 
 R_i = r_c + r_i with r_c = 0 has tau_i ~ 2, lets rays through it 13 % of the time and removes only 43 %
 of C_ext: 57 % of the side scattering was lost against explicit spheres. Each disk's optical depth is
 therefore -ln(1 - C_ext / (pi R_i^2)), which removes exactly C_ext from a beam whatever r_c, and disks
-are widened until tau_i <= ``tau_max``. A ``query_radius`` that widening overrides raises a warning.
+are widened until tau_i <= ``tau_max``. A ``query_radius`` that widening overrides for more than 0.1 % of
+the particles raises a warning.
 Forward-peak truncation is on by default: a diffraction lobe a few mrad wide cannot be found by a delta
 light (spot, point) except as fireflies, so without it a spot-lit floor under 80 um grains renders
 ~30 % dark at 64 spp (BENCHMARKS.md, issue 9).

@@ -19,6 +19,7 @@
 //! angle grid is graded: θ = 0, then log-spaced from 0.01/α_max to 0.1 rad (the diffraction lobe of
 //! the largest particle, width ~1/α, gets ~25 nodes across its core), then uniform to π.
 
+use crate::cancel;
 use crate::error::{require, OpticsError};
 use crate::goa::GoaOptions;
 use crate::mie::{series_length, MieCoefficients, MieIntensitySums};
@@ -224,6 +225,9 @@ impl<'a> Ensemble<'a> {
         let per_node: Vec<(f64, f64)> = nodes
             .par_iter()
             .map(|(p, w)| {
+                if cancel::requested() {
+                    return (0.0, 0.0);
+                }
                 let (ce, ca) = optics::extinction_and_absorption(
                     p,
                     opts.method.theory(p, opts.goa.p_max),
@@ -300,6 +304,9 @@ impl<'a> Ensemble<'a> {
             .map(|group| {
                 let mut sums = MieIntensitySums::new(size(group));
                 for (p, w) in group {
+                    if cancel::requested() {
+                        break;
+                    }
                     let k = p.k();
                     sums.add(
                         &MieCoefficients::new(p.size_parameter(), p.relative_index()),
@@ -580,6 +587,9 @@ fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
 
 /// One node's weighted intensity `w (|S1|²+|S2|²)/(2k²)` at every angle.
 fn node_intensity((p, w): &(Particle, f64), theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
+    if cancel::requested() {
+        return vec![0.0; theta.len()];
+    }
     let theory = opts.method.theory(p, opts.goa.p_max);
     let geo = (theory == Theory::Goa)
         .then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
@@ -618,7 +628,7 @@ fn refine(ens: &Ensemble, mut theta: Vec<f64>, mut inten: Vec<f64>) -> (Vec<f64>
     // no curvature test on the nodes can see it); later passes only the halves of refined intervals.
     let mut candidates: Vec<usize> = (0..theta.len() - 1).collect();
     for _pass in 0..40 {
-        if candidates.is_empty() || theta.len() >= opts.refine_max_nodes {
+        if candidates.is_empty() || theta.len() >= opts.refine_max_nodes || cancel::requested() {
             break;
         }
         candidates.truncate(opts.refine_max_nodes - theta.len());

@@ -10,7 +10,9 @@
 //! * [`continuous`]: size classes no pixel resolves, sampled as a continuous medium (issue 10.3).
 //! * [`discrete`]: the discrete medium as a renderer queries it (sites, albedo, phase function).
 //! * [`wavelengths`]: the default RGB and spectral wavelength sets.
+//! * [`cancel`]: cooperative cancellation of long table builds (Ctrl-C from the binding).
 
+pub mod cancel;
 pub mod continuous;
 pub mod dda;
 pub mod discrete;

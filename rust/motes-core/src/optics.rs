@@ -2,6 +2,7 @@
 //! function `f_p` (Eq. 1) and the asymmetry g — computed by Lorenz–Mie, GOA, or a hybrid of the two,
 //! batched over many particles and angles (rayon inside; no Python here).
 
+use crate::cancel;
 use crate::error::{require, OpticsError};
 use crate::goa::{self, GoaGeometry, GoaOptions};
 use crate::mie::MieCoefficients;
@@ -312,6 +313,9 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
         let idx: Vec<usize> = (0..nodes.len()).collect();
         idx.par_chunks(1024)
             .map(|chunk| {
+                if cancel::requested() {
+                    return (0.0, 0.0);
+                }
                 let mut scratch = Vec::new();
                 chunk
                     .iter()
@@ -606,6 +610,9 @@ pub fn amplitudes_batch(
     let per_group: Vec<Vec<(usize, (C64, C64))>> = groups
         .par_iter()
         .map(|(p, idx)| {
+            if cancel::requested() {
+                return Vec::new();
+            }
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
             let geo = geos.get(&geo_key(p)).map(|g| g.as_ref());
             idx.iter()
@@ -640,6 +647,9 @@ pub fn cross_sections_batch(
     let per_group: Vec<CrossSections> = groups
         .par_iter()
         .map(|(p, _)| {
+            if cancel::requested() {
+                return CrossSections::default();
+            }
             let theory = method.theory(p, opts.p_max);
             if !with_g {
                 let (ext, abs) = extinction_and_absorption(p, theory, opts);
@@ -684,6 +694,9 @@ pub fn phase_function_batch(
     let per_group: Vec<Vec<(usize, f64)>> = groups
         .par_iter()
         .map(|(p, idx)| {
+            if cancel::requested() {
+                return Vec::new();
+            }
             let theory = method.theory(p, opts.p_max);
             let geo = if theory == Theory::Goa {
                 Some(geos[&geo_key(p)].as_ref())

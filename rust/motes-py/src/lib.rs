@@ -1,7 +1,10 @@
 //! `motes._motes`: the compiled extension. Every function takes flat, equally long float64 arrays
 //! (broadcasting happens in the Python layer), releases the GIL, and runs rayon inside.
 
+mod interrupt;
 mod native;
+
+use interrupt::interruptible;
 
 use motes_core::goa::GoaOptions;
 use motes_core::optics::{self, Method, ParticleColumns, Theory};
@@ -66,9 +69,10 @@ fn amplitudes(
     theory: Theory,
     opts: GoaOptions,
 ) -> PyResult<Amps<'_>> {
-    let out = py
-        .detach(|| optics::amplitudes_batch(&cols.view(), &theta, theory, &opts))
-        .map_err(to_py)?;
+    let out = interruptible(py, || {
+        optics::amplitudes_batch(&cols.view(), &theta, theory, &opts)
+    })?
+    .map_err(to_py)?;
     let (s1, s2): (Vec<C64>, Vec<C64>) = out.into_iter().unzip();
     Ok((s1.into_pyarray(py), s2.into_pyarray(py)))
 }
@@ -143,9 +147,10 @@ fn cross_sections<'py>(
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
     let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
     let opts = options(p_max, true, regularise, edge_correction);
-    let cs = py
-        .detach(|| optics::cross_sections_batch(&cols.view(), method, &opts, with_g))
-        .map_err(to_py)?;
+    let cs = interruptible(py, || {
+        optics::cross_sections_batch(&cols.view(), method, &opts, with_g)
+    })?
+    .map_err(to_py)?;
     let col = |f: fn(&optics::CrossSections) -> f64| {
         cs.iter().map(f).collect::<Vec<f64>>().into_pyarray(py)
     };
@@ -173,9 +178,10 @@ fn phase_function<'py>(
     let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
     let theta = theta.as_array().to_vec();
     let opts = options(p_max, true, regularise, edge_correction);
-    let f = py
-        .detach(|| optics::phase_function_batch(&cols.view(), &theta, method, &opts))
-        .map_err(to_py)?;
+    let f = interruptible(py, || {
+        optics::phase_function_batch(&cols.view(), &theta, method, &opts)
+    })?
+    .map_err(to_py)?;
     Ok(f.into_pyarray(py))
 }
 
@@ -442,19 +448,18 @@ fn bulk_properties<'py>(
         refine_tol,
         refine_max_nodes,
     };
-    let out = py
-        .detach(|| {
-            ensemble::bulk_spectral(
-                &species,
-                number_density_m3,
-                &lam,
-                eta_medium,
-                angles,
-                truncate_below_rad,
-                &opts,
-            )
-        })
-        .map_err(to_py)?;
+    let out = interruptible(py, || {
+        ensemble::bulk_spectral(
+            &species,
+            number_density_m3,
+            &lam,
+            eta_medium,
+            angles,
+            truncate_below_rad,
+            &opts,
+        )
+    })?
+    .map_err(to_py)?;
     let col = |f: fn(&ensemble::Bulk) -> f64| {
         out.bulk
             .iter()
@@ -1199,6 +1204,8 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(material_index, m)?)?;
     m.add_function(wrap_pyfunction!(core_hash, m)?)?;
     m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;
+    m.add_function(wrap_pyfunction!(interrupt::exit_on_wakeup, m)?)?;
+    m.add_function(wrap_pyfunction!(interrupt::set_exit_message, m)?)?;
     m.add_class::<PyParticleGrid>()?;
     m.add_class::<PyDiscreteMedium>()?;
     m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
