@@ -74,7 +74,8 @@ class BridgeTimer:
 
 
 def room(mi, medium: dict, res: int, spp: int, seed: int = 0, max_depth: int = 6) -> dict:
-    """The dust room of scenes_xml/dust_box.xml as a dict (centimetres), with the cube's medium given."""
+    """The dust room (centimetres; the default scene before its room grew walls and a ceiling) as a dict,
+    with the cube's medium given."""
     T = mi.ScalarTransform4f
     wall = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.52, 0.48]}}
     return {

@@ -22,7 +22,7 @@ queries (``rust/motes-core/src/discrete.rs`` documents the model).
 ``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``); default
                             ``DEFAULT_TRUNCATE_RAD`` (0.031 rad, one bin of a 4096-value ``tabphase``,
                             as ``homogeneous_equivalent``); None or 0: none
-``cells_per_particle``      grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.25: about four particles per cell)
+``cells_per_particle``      grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.125: about eight particles per cell)
 ``continuous_count``        size classes (factors of two in r_c + r_i) whose particles a query cylinder
                             holds at least this many of, over one mean free path or across the cloud
                             (``DEFAULT_CONTINUOUS_COUNT`` = 16), are sampled as a continuous medium of

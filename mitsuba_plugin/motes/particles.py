@@ -2,7 +2,7 @@
 query cylinders (Eq. 18) and exact free-flight sampling; generators of particle sets and the query radius
 from a camera (Eq. 23).
 
-``ParticleGrid(positions, radii_um, c_ext_um2, scale_m=1.0, query_radius=..., cells_per_particle=0.25)``
+``ParticleGrid(positions, radii_um, c_ext_um2, scale_m=1.0, query_radius=..., cells_per_particle=0.125)``
 
 ==============================  ======================================================================
 ``positions``                   (n, 3) particle centres, scene units
@@ -12,8 +12,8 @@ from a camera (Eq. 23).
 ``scale_m``                     metres per scene unit, so um radii and scene positions combine correctly
 ``query_radius``                r_c of the query cylinder, scene units (Eq. 23 gives it from a camera:
                                 ``query_radius_from_camera``)
-``cells_per_particle``          grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.25: about four particles
-                                per cell, each cell's spheres tested four at a time)
+``cells_per_particle``          grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.125: about eight
+                                particles per cell, each cell's spheres tested four at a time)
 ``uniform_box``                 ``(n, lo, hi, psd, seed)``: n centres uniform in the box [lo, hi], radii
                                 (um) from ``psd``
 ``density_box``                 ``(n, lo, hi, density, psd, seed, max_density)``: n centres in [lo, hi]

@@ -30,7 +30,7 @@ Parameter               Type       Meaning (default)
 ``tau_max``             float      cap on each particle's optical depth (1): a particle whose disk
                                    r_c + r_i would be more opaque gets a wider disk; each disk removes
                                    exactly its C_ext from a beam (see Notes)
-``cells_per_particle``  float      grid resolution (0.25: about four particles per cell)
+``cells_per_particle``  float      grid resolution (0.125: about eight particles per cell)
 ``continuous_count``    float      size classes with at least this many particles per query cylinder
                                    (over a mean free path or across the cloud) are rendered as a
                                    continuous medium: no pixel resolves their grains (16; inf: none)

@@ -53,7 +53,7 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
             (o, d.map(|x| x / l))
         })
         .collect();
-    let resolutions = [DEFAULT_CELLS_PER_PARTICLE, 1.0, 0.5, 0.125];
+    let resolutions = [DEFAULT_CELLS_PER_PARTICLE, 1.0, 0.5, 0.25, 0.0625];
     let grids: Vec<ParticleGrid> = resolutions
         .iter()
         .map(|&cpp| ParticleGrid::build(&pos, &rad, &c, 1, query_radius, cpp).unwrap())

@@ -58,6 +58,8 @@ const BOX_MARGIN: (f64, f64) = (1.0001, 1e-9);
 /// cached and the prefetches only cost: sparse dust 0.47 -> 0.55 us per ray; dense haze 4.3 -> 3.7, in
 /// `benches/traverse.rs`).
 const PREFETCH_SLOTS_ABOVE_BYTES: usize = 4 << 20;
+/// `slot_particle` of a padding slot (k = 0 cells are padded to whole blocks; see `build_class`).
+const PADDING_SLOT: u32 = u32::MAX;
 /// Most cells per axis (the counting sorts index cells with u32).
 const MAX_CELLS_PER_AXIS: usize = 1 << 20;
 /// Most cells in all (a sparse cloud of 2e8 particles at one cell each: 800 MB of cell starts).
@@ -341,13 +343,25 @@ impl SubGrid {
                     }
                 }
             }
-            let (start, slot_order) = counting_sort(&ref_cell, n_cells);
-            let slot_particle: Vec<u32> = slot_order
-                .iter()
-                .map(|&s| ref_particle[s as usize])
-                .collect();
-            let inline = Spheres::from_iter(slot_particle.len(), |s| {
-                particles.get(slot_particle[s] as usize)
+            let (refs_start, slot_order) = counting_sort(&ref_cell, n_cells);
+            // Each cell's run padded to whole blocks, so that a step tests whole blocks of its own
+            // (no lane masks, and a cell of four never straddles two blocks). Padding lanes have NaN
+            // centres: every comparison with them is false, so they contribute to no ray.
+            let mut start = vec![0u32; n_cells + 1];
+            for c in 0..n_cells {
+                let len = refs_start[c + 1] - refs_start[c];
+                start[c + 1] = start[c] + len.div_ceil(4) * 4;
+            }
+            let mut slot_particle = vec![PADDING_SLOT; start[n_cells] as usize];
+            for c in 0..n_cells {
+                let (from, to) = (refs_start[c] as usize, refs_start[c + 1] as usize);
+                for (k, &r) in slot_order[from..to].iter().enumerate() {
+                    slot_particle[start[c] as usize + k] = ref_particle[r as usize];
+                }
+            }
+            let inline = Spheres::from_iter(slot_particle.len(), |s| match slot_particle[s] {
+                PADDING_SLOT => [f32::NAN, f32::NAN, f32::NAN, 0.0],
+                j => particles.get(j as usize),
             });
             (start, inline, slot_particle)
         };
@@ -460,11 +474,16 @@ impl SubGrid {
         // segments to test, and each level of loads of the whole batch is prefetched before the next
         // is read (many misses in flight instead of one after the other: 14.1 -> 4.8 us per dense ray
         // in `benches/traverse.rs`).
+        if self.k == 0 && !self.prefetch_slots {
+            return self.advance_cached_sparse(cur, o, d, found);
+        }
         let mut segs = [Segment::default(); SEGMENTS_PER_BATCH];
         let mut n = 0;
         // Infinity unless the batch fills up before the ray leaves the grid.
         let mut frontier = f64::INFINITY;
-        while n + ROWS_PER_STEP <= SEGMENTS_PER_BATCH {
+        // A step adds one row (k = 0) or up to nine (k = 1).
+        let rows_per_step = if self.k == 0 { 1 } else { ROWS_PER_STEP };
+        while n + rows_per_step <= SEGMENTS_PER_BATCH {
             let Some(step) = cur.dda.next() else { break };
             // The first step starts at t0 (particles before the box entry are too far from the ray
             // to count), the last ends at t1.
@@ -494,15 +513,82 @@ impl SubGrid {
             }
         }
         for sg in batch.iter() {
-            if sg.c0 == sg.c1 {
-                continue;
+            if !self.test_slots(slots, sg, cur, o, d, found) {
+                return None;
             }
-            for blk in sg.c0 / 4..=(sg.c1 - 1) / 4 {
-                // Lanes of this block inside the segment's slot range.
-                let first = (sg.c0.max(4 * blk) - 4 * blk) as u32;
-                let end = (sg.c1.min(4 * blk + 4) - 4 * blk) as u32;
-                let lanes = (0xF >> (4 - end)) & (0xF << first);
-                let mut m = lanes & block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
+        }
+        Some(frontier)
+    }
+
+    /// Test the slots `sg.c0..sg.c1` (a step's spheres) against the ray and report each contribution
+    /// whose t lies in the step's range as `found(t, stored index)`; false when `found` asked to stop.
+    #[inline(always)]
+    fn test_slots(
+        &self,
+        slots: &Spheres,
+        sg: &Segment,
+        cur: &Cursor,
+        o: [f64; 3],
+        d: [f64; 3],
+        found: &mut impl FnMut(f64, usize) -> bool,
+    ) -> bool {
+        if sg.c0 == sg.c1 {
+            return true;
+        }
+        for blk in sg.c0 / 4..=(sg.c1 - 1) / 4 {
+            // Lanes of this block inside the segment's slot range.
+            let first = (sg.c0.max(4 * blk) - 4 * blk) as u32;
+            let end = (sg.c1.min(4 * blk + 4) - 4 * blk) as u32;
+            let lanes = (0xF >> (4 - end)) & (0xF << first);
+            let mut m = lanes & block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
+            while m != 0 {
+                let s = 4 * blk + m.trailing_zeros() as usize;
+                m &= m - 1;
+                if let Some(t) = sphere_contribution(slots.get(s), o, d) {
+                    if t >= sg.t_enter
+                        && t < sg.t_exit
+                        && t >= cur.t0
+                        && t < cur.t1
+                        && !found(t, self.slot_particle(s))
+                    {
+                        return false;
+                    }
+                }
+            }
+        }
+        true
+    }
+
+    /// [`Self::advance`] for a class that references its particles from every cell their balls
+    /// overlap (k = 0) with slots that stay cached: one pass per step (DDA, the cell's slot range, its
+    /// whole blocks), no batch of segments to gather and prefetch. The same contract as `advance`
+    /// (measured in `benches/traverse.rs`: sparse free flight 0.49 -> 0.39 us per ray without the
+    /// batch; cells padded to whole blocks then make larger cells pay, see DEFAULT_CELLS_PER_PARTICLE).
+    #[inline]
+    fn advance_cached_sparse(
+        &self,
+        cur: &mut Cursor,
+        o: [f64; 3],
+        d: [f64; 3],
+        found: &mut impl FnMut(f64, usize) -> bool,
+    ) -> Option<f64> {
+        let slots = &self.inline;
+        let mut frontier = cur.t0;
+        for _ in 0..SEGMENTS_PER_BATCH {
+            let Some(step) = cur.dda.next() else {
+                return Some(f64::INFINITY);
+            };
+            let last = cur.dda.finished();
+            let c = (step.cell[2] * self.dims[1] + step.cell[1]) * self.dims[0] + step.cell[0];
+            let sg = Segment {
+                c0: self.start[c] as usize,
+                c1: self.start[c + 1] as usize,
+                t_enter: if cur.first { cur.t0 } else { step.t_enter },
+                t_exit: if last { cur.t1 } else { step.t_exit },
+            };
+            cur.first = false;
+            for blk in sg.c0 / 4..sg.c1 / 4 {
+                let mut m = block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
                 while m != 0 {
                     let s = 4 * blk + m.trailing_zeros() as usize;
                     m &= m - 1;
@@ -511,14 +597,19 @@ impl SubGrid {
                             && t < sg.t_exit
                             && t >= cur.t0
                             && t < cur.t1
-                            && !found(t, self.slot_particle(s))
+                            && !found(t, self.slot_particle[s] as usize)
                         {
                             return None;
                         }
                     }
                 }
             }
+            if last {
+                return Some(f64::INFINITY);
+            }
+            frontier = sg.t_exit;
         }
+        // The batch is full: everything before the last step's exit is reported.
         Some(frontier)
     }
 
@@ -642,12 +733,13 @@ impl SubGrid {
     }
 }
 
-/// Default grid resolution, in cells per particle: about four particles per cell. A step's cell is
-/// tested four spheres per SIMD operation, so larger cells than the paper's one particle per voxel
-/// (Sec. 6.5) pay: fewer DDA steps for a few more (cheap) sphere tests (measured in
-/// `cargo bench -p motes-core --bench traverse` over 1, 0.5, 0.25, 0.125: free flights 0.60, 0.53, 0.48,
-/// 0.47 us per sparse ray; 3.93, 3.60, 3.46, 3.53 us per dense one; memory falls with the cell count).
-pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.25;
+/// Default grid resolution, in cells per particle: about eight particles per cell. A step tests its
+/// cell's spheres four per SIMD operation in whole blocks, so larger cells than the paper's one particle
+/// per voxel (Sec. 6.5) pay: fewer DDA steps for a few more (cheap) sphere tests (measured in
+/// `cargo bench -p motes-core --bench traverse` over 1, 0.5, 0.25, 0.125, 0.0625: free flights 0.49,
+/// 0.44, 0.38, 0.34, 0.36 us per sparse ray; 3.98, 3.76, 3.66, 3.74, 4.02 us per dense one; memory
+/// falls with the cell count).
+pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 
 /// Size classes of a [`ParticleGrid`]: factors of two in inclusion radius, the last one open below.
 pub(crate) const SIZE_CLASSES: usize = 13;
