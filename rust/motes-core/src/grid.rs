@@ -176,6 +176,9 @@ fn block_pretest(b: &Block, o: [f32; 3], d: [f32; 3], slack: f32) -> u32 {
 /// A traversal of one [`SubGrid`] in progress: the DDA and what the pre-test needs.
 pub(crate) struct Cursor {
     dda: Dda,
+    /// The ray, |d| = 1 (the exact test's double precision).
+    o: [f64; 3],
+    d: [f64; 3],
     t0: f64,
     t1: f64,
     first: bool,
@@ -447,6 +450,8 @@ impl SubGrid {
             .fold(0.0, f64::max);
         Cursor {
             dda,
+            o,
+            d,
             t0,
             t1,
             first: true,
@@ -462,20 +467,14 @@ impl SubGrid {
     /// within the batch). Returns the t before which this class has reported every contribution —
     /// infinity once the ray has left the grid — or None when `found` asked to stop.
     #[inline]
-    fn advance(
-        &self,
-        cur: &mut Cursor,
-        o: [f64; 3],
-        d: [f64; 3],
-        found: &mut impl FnMut(f64, usize) -> bool,
-    ) -> Option<f64> {
+    fn advance(&self, cur: &mut Cursor, found: &mut impl FnMut(f64, usize) -> bool) -> Option<f64> {
         // The walk is memory-latency bound on dense clouds: a cell's start offset, then its slots are
         // dependent cache misses. So the DDA runs ahead over a batch of steps, gathering the row
         // segments to test, and each level of loads of the whole batch is prefetched before the next
         // is read (many misses in flight instead of one after the other: 14.1 -> 4.8 us per dense ray
         // in `benches/traverse.rs`).
         if self.k == 0 && !self.prefetch_slots {
-            return self.advance_cached_sparse(cur, o, d, found);
+            return self.advance_cached_sparse(cur, found);
         }
         let mut segs = [Segment::default(); SEGMENTS_PER_BATCH];
         let mut n = 0;
@@ -513,7 +512,7 @@ impl SubGrid {
             }
         }
         for sg in batch.iter() {
-            if !self.test_slots(slots, sg, cur, o, d, found) {
+            if !self.test_slots(slots, sg, cur, found) {
                 return None;
             }
         }
@@ -528,8 +527,6 @@ impl SubGrid {
         slots: &Spheres,
         sg: &Segment,
         cur: &Cursor,
-        o: [f64; 3],
-        d: [f64; 3],
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         if sg.c0 == sg.c1 {
@@ -540,19 +537,34 @@ impl SubGrid {
             let first = (sg.c0.max(4 * blk) - 4 * blk) as u32;
             let end = (sg.c1.min(4 * blk + 4) - 4 * blk) as u32;
             let lanes = (0xF >> (4 - end)) & (0xF << first);
-            let mut m = lanes & block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
-            while m != 0 {
-                let s = 4 * blk + m.trailing_zeros() as usize;
-                m &= m - 1;
-                if let Some(t) = sphere_contribution(slots.get(s), o, d) {
-                    if t >= sg.t_enter
-                        && t < sg.t_exit
-                        && t >= cur.t0
-                        && t < cur.t1
-                        && !found(t, self.slot_particle(s))
-                    {
-                        return false;
-                    }
+            if !self.test_block(slots, blk, lanes, sg, cur, found) {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Test the `lanes` of slot block `blk` against the ray (pre-test, then the exact test) and report
+    /// each contribution in the step's t range as `found(t, stored index)`; false when `found` stops.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn test_block(
+        &self,
+        slots: &Spheres,
+        blk: usize,
+        lanes: u32,
+        sg: &Segment,
+        cur: &Cursor,
+        found: &mut impl FnMut(f64, usize) -> bool,
+    ) -> bool {
+        let mut m = lanes & block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
+        while m != 0 {
+            let s = 4 * blk + m.trailing_zeros() as usize;
+            m &= m - 1;
+            if let Some(t) = sphere_contribution(slots.get(s), cur.o, cur.d) {
+                let in_step = t >= sg.t_enter && t < sg.t_exit && t >= cur.t0 && t < cur.t1;
+                if in_step && !found(t, self.slot_particle(s)) {
+                    return false;
                 }
             }
         }
@@ -568,8 +580,6 @@ impl SubGrid {
     fn advance_cached_sparse(
         &self,
         cur: &mut Cursor,
-        o: [f64; 3],
-        d: [f64; 3],
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> Option<f64> {
         let slots = &self.inline;
@@ -587,21 +597,10 @@ impl SubGrid {
                 t_exit: if last { cur.t1 } else { step.t_exit },
             };
             cur.first = false;
+            // Whole blocks (padded cells): every lane is tested.
             for blk in sg.c0 / 4..sg.c1 / 4 {
-                let mut m = block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
-                while m != 0 {
-                    let s = 4 * blk + m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if let Some(t) = sphere_contribution(slots.get(s), o, d) {
-                        if t >= sg.t_enter
-                            && t < sg.t_exit
-                            && t >= cur.t0
-                            && t < cur.t1
-                            && !found(t, self.slot_particle[s] as usize)
-                        {
-                            return None;
-                        }
-                    }
+                if !self.test_block(slots, blk, 0xF, &sg, cur, found) {
+                    return None;
                 }
             }
             if last {
@@ -628,7 +627,7 @@ impl SubGrid {
         }
         let mut cur = self.cursor(o, d, t0, t1);
         let mut found = |t, j| visit(j, t);
-        while let Some(f) = self.advance(&mut cur, o, d, &mut found) {
+        while let Some(f) = self.advance(&mut cur, &mut found) {
             if f == f64::INFINITY {
                 return;
             }
@@ -930,7 +929,7 @@ impl ParticleGrid {
             let mut cur = c.cursor(o, d, t0, t1);
             loop {
                 pending.clear();
-                let frontier = c.advance(&mut cur, o, d, &mut |t, j| {
+                let frontier = c.advance(&mut cur, &mut |t, j| {
                     pending.push((t, 0, j as u32));
                     true
                 });
@@ -960,7 +959,7 @@ impl ParticleGrid {
             };
             let (cur, frontier) = &mut cursors[ci];
             *frontier = self.classes[ci]
-                .advance(cur, o, d, &mut |t, j| {
+                .advance(cur, &mut |t, j| {
                     pending.push((t, ci as u32, j as u32));
                     true
                 })
