@@ -58,6 +58,9 @@ const BOX_MARGIN: (f64, f64) = (1.0001, 1e-9);
 /// cached and the prefetches only cost: sparse dust 0.47 -> 0.55 us per ray; dense haze 4.3 -> 3.7, in
 /// `benches/traverse.rs`).
 const PREFETCH_SLOTS_ABOVE_BYTES: usize = 4 << 20;
+/// Particles per occupied cell of the grid that measures the occupied volume (`occupied_volume`): a
+/// uniform cloud leaves e^-16 of those cells empty by chance.
+const OCCUPANCY_PARTICLES_PER_CELL: f64 = 16.0;
 /// `slot_particle` of a padding slot (k = 0 cells are padded to whole blocks; see `build_class`).
 const PADDING_SLOT: u32 = u32::MAX;
 /// Most cells per axis (the counting sorts index cells with u32).
@@ -132,42 +135,74 @@ impl Spheres {
     }
 }
 
-/// The lanes of a block whose sphere may contribute to the ray (`o`, `d` in single precision, `slack`
+/// The ray as the pre-test sees it: two unit vectors `e1`, `e2` perpendicular to its direction and the
+/// origin's coordinates along them, in single precision. A centre c lies within R of the ray's line iff
+/// (c·e1 − o·e1)² + (c·e2 − o·e2)² < R²: the distance across the ray without forming c − o or its
+/// projection on d (16 SIMD operations for four spheres instead of 22, and a shorter dependency chain).
+#[derive(Clone, Copy)]
+struct RayFrame {
+    e1: [f32; 3],
+    e2: [f32; 3],
+    o1: f32,
+    o2: f32,
+}
+
+impl RayFrame {
+    fn new(o: [f64; 3], d: [f64; 3]) -> Self {
+        // Any unit vector perpendicular to d, then d × e1 (Duff et al.'s branchless basis).
+        let sign = 1f64.copysign(d[2]);
+        let a = -1.0 / (sign + d[2]);
+        let b = d[0] * d[1] * a;
+        let e1 = [1.0 + sign * d[0] * d[0] * a, sign * b, -sign * d[0]];
+        let e2 = [b, sign + d[1] * d[1] * a, -d[1]];
+        let dot = |u: [f64; 3]| u[0] * o[0] + u[1] * o[1] + u[2] * o[2];
+        RayFrame {
+            e1: e1.map(|x| x as f32),
+            e2: e2.map(|x| x as f32),
+            o1: dot(e1) as f32,
+            o2: dot(e2) as f32,
+        }
+    }
+}
+
+/// The lanes of a block whose sphere may contribute to the ray (seen through its [`RayFrame`], `slack`
 /// the pre-test's tolerance), as bits: a conservative single-precision version of
 /// [`sphere_contribution`], four lanes in one SSE operation each.
 #[inline(always)]
-fn block_pretest(b: &Block, o: [f32; 3], d: [f32; 3], slack: f32) -> u32 {
+fn block_pretest(b: &Block, f: &RayFrame, slack: f32) -> u32 {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: SSE is part of x86_64; `Block` is 64-byte aligned, so each field is 16-byte aligned.
     unsafe {
         use std::arch::x86_64::*;
-        let vx = _mm_sub_ps(_mm_load_ps(b.x.as_ptr()), _mm_set1_ps(o[0]));
-        let vy = _mm_sub_ps(_mm_load_ps(b.y.as_ptr()), _mm_set1_ps(o[1]));
-        let vz = _mm_sub_ps(_mm_load_ps(b.z.as_ptr()), _mm_set1_ps(o[2]));
-        let (dx, dy, dz) = (_mm_set1_ps(d[0]), _mm_set1_ps(d[1]), _mm_set1_ps(d[2]));
-        let t = _mm_add_ps(
-            _mm_add_ps(_mm_mul_ps(vx, dx), _mm_mul_ps(vy, dy)),
-            _mm_mul_ps(vz, dz),
+        let (x, y, z) = (
+            _mm_load_ps(b.x.as_ptr()),
+            _mm_load_ps(b.y.as_ptr()),
+            _mm_load_ps(b.z.as_ptr()),
         );
-        let qx = _mm_sub_ps(vx, _mm_mul_ps(t, dx));
-        let qy = _mm_sub_ps(vy, _mm_mul_ps(t, dy));
-        let qz = _mm_sub_ps(vz, _mm_mul_ps(t, dz));
-        let q2 = _mm_add_ps(
-            _mm_add_ps(_mm_mul_ps(qx, qx), _mm_mul_ps(qy, qy)),
-            _mm_mul_ps(qz, qz),
-        );
+        let across = |e: [f32; 3], oe: f32| {
+            let c = _mm_add_ps(
+                _mm_add_ps(
+                    _mm_mul_ps(x, _mm_set1_ps(e[0])),
+                    _mm_mul_ps(y, _mm_set1_ps(e[1])),
+                ),
+                _mm_mul_ps(z, _mm_set1_ps(e[2])),
+            );
+            _mm_sub_ps(c, _mm_set1_ps(oe))
+        };
+        let (q1, q2) = (across(f.e1, f.o1), across(f.e2, f.o2));
+        let qq = _mm_add_ps(_mm_mul_ps(q1, q1), _mm_mul_ps(q2, q2));
         let rr = _mm_add_ps(_mm_load_ps(b.r.as_ptr()), _mm_set1_ps(slack));
-        _mm_movemask_ps(_mm_cmplt_ps(q2, _mm_mul_ps(rr, rr))) as u32
+        _mm_movemask_ps(_mm_cmplt_ps(qq, _mm_mul_ps(rr, rr))) as u32
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
         let mut m = 0u32;
         for l in 0..4 {
-            let (vx, vy, vz) = (b.x[l] - o[0], b.y[l] - o[1], b.z[l] - o[2]);
-            let t = vx * d[0] + vy * d[1] + vz * d[2];
-            let (qx, qy, qz) = (vx - t * d[0], vy - t * d[1], vz - t * d[2]);
+            let c = [b.x[l], b.y[l], b.z[l]];
+            let q1 = c[0] * f.e1[0] + c[1] * f.e1[1] + c[2] * f.e1[2] - f.o1;
+            let q2 = c[0] * f.e2[0] + c[1] * f.e2[1] + c[2] * f.e2[2] - f.o2;
             let rr = b.r[l] + slack;
-            m |= ((qx * qx + qy * qy + qz * qz < rr * rr) as u32) << l;
+            m |= ((q1 * q1 + q2 * q2 < rr * rr) as u32) << l;
         }
         m
     }
@@ -182,8 +217,7 @@ pub(crate) struct Cursor {
     t0: f64,
     t1: f64,
     first: bool,
-    o32: [f32; 3],
-    d32: [f32; 3],
+    frame: RayFrame,
     slack: f32,
 }
 
@@ -455,8 +489,7 @@ impl SubGrid {
             t0,
             t1,
             first: true,
-            o32: o.map(|x| x as f32),
-            d32: d.map(|x| x as f32),
+            frame: RayFrame::new(o, d),
             slack: (PRETEST_SLACK * scale) as f32,
         }
     }
@@ -557,7 +590,7 @@ impl SubGrid {
         cur: &Cursor,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
-        let mut m = lanes & block_pretest(&slots.0[blk], cur.o32, cur.d32, cur.slack);
+        let mut m = lanes & block_pretest(&slots.0[blk], &cur.frame, cur.slack);
         while m != 0 {
             let s = 4 * blk + m.trailing_zeros() as usize;
             m &= m - 1;
@@ -754,6 +787,41 @@ pub(crate) fn size_class(reach_max: f64, reach: f64) -> usize {
     }
 }
 
+/// The volume the centres occupy, to size the cells by: their bounding box, less the cells that hold no
+/// centre, measured at [`OCCUPANCY_PARTICLES_PER_CELL`] per occupied cell (so few cells of a uniform
+/// cloud are empty by chance) and refined twice. A cloud that fills a
+/// slanted column, a noise density or a Houdini sim covers a fraction of its bounding box; sized by the
+/// box, its occupied cells would hold several times the intended particles each (a column around the
+/// default scene's beam: ~40 instead of ~8 per cell, 1.1 us per ray instead of 0.4 in the render).
+fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
+    let (lo, hi) = bounding_box(positions);
+    let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12));
+    let mut volume = ext[0] * ext[1] * ext[2];
+    let target = (positions.len() as f64 / OCCUPANCY_PARTICLES_PER_CELL).clamp(1.0, MAX_CELLS);
+    for _ in 0..2 {
+        let cell = (volume / target).cbrt();
+        let dims = ext.map(|e| ((e / cell).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS));
+        let n_cells = dims[0] * dims[1] * dims[2];
+        if n_cells as f64 > 8.0 * MAX_CELLS {
+            break;
+        }
+        let mut occupied = vec![0u64; n_cells.div_ceil(64)];
+        for p in positions {
+            let c = [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1));
+            let i = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
+            occupied[i / 64] |= 1 << (i % 64);
+        }
+        let count: u64 = occupied.iter().map(|w| w.count_ones() as u64).sum();
+        let v = (count as f64 * cell.powi(3)).min(volume);
+        // Mostly occupied (a box-shaped cloud): the box it is.
+        if v >= 0.9 * volume {
+            break;
+        }
+        volume = v;
+    }
+    volume
+}
+
 /// Particles of every size: one [`SubGrid`] per factor-of-two class of inclusion radius, so that a
 /// few large grains (a log-normal tail reaching 2 mm) do not force every traversal to scan wide
 /// neighbourhoods. Queries sum over the classes; free flights merge their contributions in t.
@@ -819,9 +887,8 @@ impl ParticleGrid {
         for i in 0..n {
             members[size_class(reach_max, query_radius + radius[i])].push(i as u32);
         }
-        // Bounding volume of all centres, shared by the classes as the density reference.
-        let (lo, hi) = bounding_box(positions);
-        let volume = (0..3).map(|a| (hi[a] - lo[a]).max(1e-12)).product::<f64>();
+        // Volume the centres occupy, shared by the classes as the density reference.
+        let volume = occupied_volume(positions);
         let mut classes = Vec::new();
         for ids in members.into_iter().filter(|m| !m.is_empty()) {
             let pos: Vec<[f64; 3]> = ids.iter().map(|&i| positions[i as usize]).collect();
