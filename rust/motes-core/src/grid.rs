@@ -25,7 +25,7 @@
 //! each cell it crosses. Either way a particle is counted only in the DDA step whose t-interval holds
 //! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
 
-use crate::dda::{Bounds3, Dda};
+use crate::dda::{Bounds3, Dda, DdaCell};
 use crate::error::{require, require_len, OpticsError};
 use rayon::prelude::*;
 
@@ -61,6 +61,8 @@ const PREFETCH_SLOTS_ABOVE_BYTES: usize = 4 << 20;
 /// Particles per occupied cell of the grid that measures the occupied volume (`occupied_volume`): a
 /// uniform cloud leaves e^-16 of those cells empty by chance.
 const OCCUPANCY_PARTICLES_PER_CELL: f64 = 16.0;
+/// Blocks of the next cell the cached sparse walk prefetches (a cell holds ~3 at the default resolution).
+const PREFETCH_AHEAD_BLOCKS: usize = 4;
 /// `slot_particle` of a padding slot (k = 0 cells are padded to whole blocks; see `build_class`).
 const PADDING_SLOT: u32 = u32::MAX;
 /// Most cells per axis (the counting sorts index cells with u32).
@@ -217,6 +219,9 @@ pub(crate) struct Cursor {
     t0: f64,
     t1: f64,
     first: bool,
+    /// The cached sparse walk's next step (and whether it is the last), taken from the DDA one step
+    /// early so that its blocks are on their way while the current step is tested.
+    ahead: Option<(DdaCell, bool)>,
     frame: RayFrame,
     slack: f32,
 }
@@ -489,6 +494,7 @@ impl SubGrid {
             t0,
             t1,
             first: true,
+            ahead: None,
             frame: RayFrame::new(o, d),
             slack: (PRETEST_SLACK * scale) as f32,
         }
@@ -616,13 +622,31 @@ impl SubGrid {
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> Option<f64> {
         let slots = &self.inline;
+        let cell_of =
+            |st: &DdaCell| (st.cell[2] * self.dims[1] + st.cell[1]) * self.dims[0] + st.cell[0];
+        let take = |cur: &mut Cursor| cur.dda.next().map(|st| (st, cur.dda.finished()));
         let mut frontier = cur.t0;
+        let mut this = match cur.ahead.take() {
+            Some(a) => Some(a),
+            None => take(cur),
+        };
         for _ in 0..SEGMENTS_PER_BATCH {
-            let Some(step) = cur.dda.next() else {
+            let Some((step, last)) = this else {
                 return Some(f64::INFINITY);
             };
-            let last = cur.dda.finished();
-            let c = (step.cell[2] * self.dims[1] + step.cell[1]) * self.dims[0] + step.cell[0];
+            // The next step's blocks are fetched while this one is tested (the slots overflow L2 in a
+            // render, where Mitsuba's own data shares the cache).
+            let next = if last { None } else { take(cur) };
+            if let Some((st, _)) = &next {
+                let b = slots
+                    .0
+                    .as_ptr()
+                    .wrapping_add(self.start[cell_of(st)] as usize / 4);
+                for k in 0..PREFETCH_AHEAD_BLOCKS {
+                    prefetch(b.wrapping_add(k));
+                }
+            }
+            let c = cell_of(&step);
             let sg = Segment {
                 c0: self.start[c] as usize,
                 c1: self.start[c + 1] as usize,
@@ -640,8 +664,11 @@ impl SubGrid {
                 return Some(f64::INFINITY);
             }
             frontier = sg.t_exit;
+            this = next;
         }
-        // The batch is full: everything before the last step's exit is reported.
+        // The batch is full: everything before the last step's exit is reported; the step taken
+        // ahead starts the next batch.
+        cur.ahead = this;
         Some(frontier)
     }
 
