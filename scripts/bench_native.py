@@ -125,7 +125,7 @@ def run_variant(motes, mi, variant: str, names, res: int, spp: int, reps: int) -
 
 
 MEMORY_CHILD = """
-import resource, sys, time
+import sys, time
 import numpy as np
 import motes
 motes.set_variant("llvm_ad_rgb")
@@ -135,7 +135,10 @@ params = {"res": sys.argv[3], "spp": sys.argv[4]} if len(sys.argv) > 3 else {}
 scene = mi.load_file(sys.argv[2], **params)
 t = time.perf_counter()
 img = np.asarray(mi.render(scene))
-print("RESULT", time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, float(img.mean()))
+# VmHWM (this process's own peak): ru_maxrss would include the parent's resident set at fork time,
+# which Linux carries over exec.
+hwm_kib = next(int(ln.split()[1]) for ln in open("/proc/self/status") if ln.startswith("VmHWM:"))
+print("RESULT", time.perf_counter() - t, hwm_kib / 1024.0, float(img.mean()))
 """
 
 
