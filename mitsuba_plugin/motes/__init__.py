@@ -43,6 +43,7 @@ from .plugins import configure_llvm as _configure_llvm
 _configure_llvm()  # before Dr.Jit loads (a no-op when DRJIT_LIBLLVM_PATH is set or no libLLVM 19 exists)
 
 from . import psd  # noqa: E402
+from ._motes import MotesError  # noqa: E402  (a ValueError with .argument and .value)
 from .particle_io import ParticleSet, load_particles, save_particles
 from .particles import Gradient, Noise, ParticleGrid, density_box, extinction_um2, nearest_depth, query_radius_from_camera, uniform_box
 from .equivalent import homogeneous_equivalent
@@ -106,7 +107,7 @@ __version__ = "0.1.0"
 from .discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX, DiscreteMedium  # noqa: E402
 from .plugins import native_variants, register, set_evaluated_mode, set_variant  # noqa: E402
 
-__all__ += ["DEFAULT_CELLS_PER_PARTICLE", "DEFAULT_CONTINUOUS_COUNT", "DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "native_variants", "register", "set_evaluated_mode", "set_variant"]
+__all__ += ["MotesError", "DEFAULT_CELLS_PER_PARTICLE", "DEFAULT_CONTINUOUS_COUNT", "DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "native_variants", "register", "set_evaluated_mode", "set_variant"]
 
 
 def _register_if_mitsuba_is_ready() -> None:

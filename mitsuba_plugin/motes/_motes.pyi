@@ -1,7 +1,7 @@
 """Type stub of the compiled extension ``motes._motes`` (Rust, pyo3).
 
 Every function takes flat float64 arrays of one common length (the Python layer broadcasts), releases
-the GIL and runs in parallel. Invalid values raise ``ValueError`` naming the argument.
+the GIL and runs in parallel. Invalid values raise ``MotesError`` (a ``ValueError``) naming the argument.
 """
 
 import numpy as np
@@ -101,3 +101,10 @@ DEFAULT_CONTINUOUS_COUNT: float
 # of signal.set_wakeup_fd and, on byte `signum`, prints the exit message and _exit()s with `status`.
 def exit_on_wakeup(fd: int, signum: int, status: int) -> None: ...
 def set_exit_message(message: str) -> None: ...
+
+class MotesError(ValueError):
+    """An invalid argument: `argument` names the parameter, `value` is what was given (None where the
+    check concerns a whole array). Raised by every function of the core (rust/motes-py/src/convert.rs)."""
+
+    argument: str
+    value: float | int | str | None

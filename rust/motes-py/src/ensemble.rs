@@ -1,0 +1,217 @@
+//! Polydisperse ensembles: bulk coefficients and phase-function tables (`motes_core::ensemble`,
+//! `motes_core::phase_table`).
+
+use crate::convert::*;
+use crate::interrupt::interruptible;
+use crate::psd::psd;
+use motes_core::goa::GoaOptions;
+use motes_core::optics::Method;
+use num_complex::Complex64 as C64;
+use numpy::IntoPyArray;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+pub(crate) type BulkOut<'py> = (
+    F64Out<'py>,
+    F64Out<'py>,
+    F64Out<'py>,
+    F64Out<'py>,
+    Bound<'py, numpy::PyArray2<f64>>,
+    F64Out<'py>,
+    F64Out<'py>,
+    F64Out<'py>,
+);
+
+/// Bulk properties (Eq. 16–17) per wavelength. `eta_re/eta_im` are (n_species × n_wavelengths), row-major.
+/// `theta` empty: the phase function on the internal grid; otherwise at those angles (g and the
+/// normalisation still from the internal grid, `motes_core::ensemble::bulk_spectral`).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn bulk_properties<'py>(
+    py: Python<'py>,
+    psd_specs: Vec<String>,
+    shares: Vec<f64>,
+    eta_re: F64In,
+    eta_im: F64In,
+    wavelength_um: F64In,
+    number_density_m3: f64,
+    eta_medium: f64,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+    max_log_step: f64,
+    mie_dx: Option<f64>,
+    theta: F64In,
+    with_phase: bool,
+    truncate_below_rad: f64,
+    refine_tol: f64,
+    refine_max_nodes: usize,
+) -> PyResult<BulkOut<'py>> {
+    use motes_core::ensemble::{self, BulkOptions, PhaseAngles, Species};
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let lam = wavelength_um.as_array().to_vec();
+    let (er, ei) = (eta_re.as_array().to_vec(), eta_im.as_array().to_vec());
+    let (ns, nl) = (psd_specs.len(), lam.len());
+    if shares.len() != ns || er.len() != ns * nl || ei.len() != ns * nl {
+        return Err(PyValueError::new_err(
+            "species, shares and eta must describe the same species and wavelengths",
+        ));
+    }
+    motes_core::error::require(
+        "max_log_step",
+        max_log_step,
+        max_log_step.is_finite() && max_log_step > 0.0,
+        "finite and > 0",
+    )
+    .map_err(to_py)?;
+    motes_core::error::require(
+        "refine_tol",
+        refine_tol,
+        refine_tol.is_finite() && refine_tol >= 0.0,
+        "finite and >= 0",
+    )
+    .map_err(to_py)?;
+    let psds = psd_specs
+        .iter()
+        .map(|s| psd(s))
+        .collect::<PyResult<Vec<_>>>()?;
+    let species: Vec<Vec<Species>> = (0..nl)
+        .map(|j| {
+            psds.iter()
+                .enumerate()
+                .map(|(i, p)| Species {
+                    psd: p.clone(),
+                    eta: C64::new(er[i * nl + j], ei[i * nl + j]),
+                    share: shares[i],
+                })
+                .collect()
+        })
+        .collect();
+    let theta = theta.as_array().to_vec();
+    let angles = match (with_phase, theta.is_empty()) {
+        (false, _) => PhaseAngles::None,
+        (true, true) => PhaseAngles::Table,
+        (true, false) => PhaseAngles::At(&theta),
+    };
+    let mie_dx = mie_dx.unwrap_or(ensemble::MIE_RIPPLE_DX);
+    let opts = BulkOptions {
+        method,
+        goa: GoaOptions {
+            p_max,
+            ..GoaOptions::default()
+        },
+        max_log_step,
+        mie_dx,
+        refine_tol,
+        refine_max_nodes,
+    };
+    let out = interruptible(py, || {
+        ensemble::bulk_spectral(
+            &species,
+            number_density_m3,
+            &lam,
+            eta_medium,
+            angles,
+            truncate_below_rad,
+            &opts,
+        )
+    })?
+    .map_err(to_py)?;
+    let col = |f: fn(&ensemble::Bulk) -> f64| {
+        out.bulk
+            .iter()
+            .map(f)
+            .collect::<Vec<f64>>()
+            .into_pyarray(py)
+    };
+    let phase = if out.theta.is_empty() {
+        numpy::PyArray2::zeros(py, [nl, 0], false)
+    } else {
+        numpy::PyArray2::from_vec2(py, &out.phase)?
+    };
+    Ok((
+        col(|b| b.sigma_t),
+        col(|b| b.sigma_s),
+        col(|b| b.sigma_a),
+        col(|b| b.g),
+        phase,
+        col(|b| b.energy_ratio),
+        out.theta.clone().into_pyarray(py),
+        out.peak_fraction.clone().into_pyarray(py),
+    ))
+}
+
+pub(crate) fn phase_table(theta: F64In, f: F64In) -> PyResult<motes_core::phase_table::PhaseTable> {
+    motes_core::phase_table::PhaseTable::new(theta.as_slice()?, f.as_slice()?).map_err(to_py)
+}
+
+/// Evaluate a tabulated phase function (nodes `theta`, values `f`) at angles `query` (radians).
+#[pyfunction]
+pub(crate) fn phase_table_eval<'py>(
+    py: Python<'py>,
+    theta: F64In,
+    f: F64In,
+    query: F64In,
+) -> PyResult<F64Out<'py>> {
+    let t = phase_table(theta, f)?;
+    let q = query.as_array().to_vec();
+    if let Some(v) = q
+        .iter()
+        .find(|v| !(v.is_finite() && (0.0..=std::f64::consts::PI).contains(*v)))
+    {
+        return Err(PyValueError::new_err(format!(
+            "invalid theta = {v}: must be finite and in [0, π]"
+        )));
+    }
+    let out: Vec<f64> = py.detach(|| q.iter().map(|th| t.eval(th.cos())).collect());
+    Ok(out.into_pyarray(py))
+}
+
+/// Sample scattering angles (radians) from a tabulated phase function, one per uniform number `u`.
+#[pyfunction]
+pub(crate) fn phase_table_sample<'py>(
+    py: Python<'py>,
+    theta: F64In,
+    f: F64In,
+    u: F64In,
+) -> PyResult<F64Out<'py>> {
+    let t = phase_table(theta, f)?;
+    let u = u.as_array().to_vec();
+    if let Some(v) = u.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+        return Err(PyValueError::new_err(format!(
+            "invalid u = {v}: must be in [0, 1]"
+        )));
+    }
+    let out: Vec<f64> = py.detach(|| {
+        u.iter()
+            .map(|&x| t.sample(x).clamp(-1.0, 1.0).acos())
+            .collect()
+    });
+    Ok(out.into_pyarray(py))
+}
+
+/// Averages of a tabulated phase function over `n` equal bins of μ = cos θ from −1 to 1, as values at
+/// `n` evenly spaced nodes from μ = −1 (backward) to μ = 1 (forward) — Mitsuba `tabphase` order.
+#[pyfunction]
+pub(crate) fn phase_table_regular_mu<'py>(
+    py: Python<'py>,
+    theta: F64In,
+    f: F64In,
+    n: usize,
+) -> PyResult<F64Out<'py>> {
+    let t = phase_table(theta, f)?;
+    if n < 2 {
+        return Err(PyValueError::new_err(format!(
+            "invalid n = {n}: must be >= 2"
+        )));
+    }
+    // Node i sits at μ_i = −1 + 2i/(n−1); it takes the average over its Voronoi cell in μ.
+    let h = 2.0 / (n - 1) as f64;
+    let out: Vec<f64> = (0..n)
+        .map(|i| {
+            let mu = -1.0 + h * i as f64;
+            t.average(mu - 0.5 * h, mu + 0.5 * h)
+        })
+        .collect();
+    Ok(out.into_pyarray(py))
+}

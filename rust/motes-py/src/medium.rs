@@ -1,0 +1,378 @@
+//! The discrete medium as the renderer queries it (`motes_core::discrete`): the evaluated-mode batch
+//! interface and the handle the native plugin uses.
+
+use crate::convert::*;
+use crate::native;
+use numpy::{IntoPyArray, PyReadonlyArray1};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use rayon::prelude::*;
+
+/// The discrete medium as the renderer queries it (see `motes_core::discrete`).
+#[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
+pub(crate) struct PyDiscreteMedium {
+    medium: std::sync::Arc<motes_core::discrete::DiscreteMedium>,
+}
+
+#[pymethods]
+impl PyDiscreteMedium {
+    /// positions (n*3), radius (n), c_ext (n, grey) in scene units; bin (n) into the bins; albedo
+    /// (bins*K); phase tables as flat theta/f with offsets (bins*K + 1); lambda (K, increasing);
+    /// tau_max caps each particle's optical depth by widening its disk (inf: no cap); size classes with
+    /// at least continuous_count particles per query cylinder are sampled as a continuous medium.
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        positions: F64In,
+        radius: F64In,
+        c_ext: F64In,
+        bin: PyReadonlyArray1<'_, u32>,
+        albedo: F64In,
+        theta: F64In,
+        f: F64In,
+        offsets: PyReadonlyArray1<'_, u64>,
+        lambda: F64In,
+        query_radius: f64,
+        tau_max: f64,
+        cells_per_particle: f64,
+        continuous_count: f64,
+        seed: u64,
+    ) -> PyResult<Self> {
+        let p = positions.as_slice()?;
+        if p.len() % 3 != 0 {
+            return Err(PyValueError::new_err("positions must have shape (n, 3)"));
+        }
+        let pos: Vec<[f64; 3]> = p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let (r, c, b) = (
+            radius.as_slice()?.to_vec(),
+            c_ext.as_slice()?.to_vec(),
+            bin.as_slice()?.to_vec(),
+        );
+        let (al, th, fv, off, lam) = (
+            albedo.as_slice()?,
+            theta.as_slice()?,
+            f.as_slice()?,
+            offsets.as_slice()?,
+            lambda.as_slice()?.to_vec(),
+        );
+        let k = lam.len();
+        if k == 0
+            || al.len() % k != 0
+            || off.len() != al.len() + 1
+            || th.len() != fv.len()
+            || off.last().copied() != Some(th.len() as u64)
+        {
+            return Err(PyValueError::new_err(
+                "albedo must have bins*K entries and offsets bins*K + 1, ending at len(theta)",
+            ));
+        }
+        let mut bins = Vec::new();
+        for bi in 0..al.len() / k {
+            let mut phase = Vec::new();
+            for kk in 0..k {
+                let t = bi * k + kk;
+                let (a, e) = (off[t] as usize, off[t + 1] as usize);
+                if a > e || e > th.len() {
+                    return Err(PyValueError::new_err("offsets must be increasing"));
+                }
+                phase.push(
+                    motes_core::phase_table::PhaseTable::new(&th[a..e], &fv[a..e])
+                        .map_err(to_py)?,
+                );
+            }
+            bins.push(motes_core::discrete::BinOptics {
+                albedo: al[bi * k..(bi + 1) * k].to_vec(),
+                phase,
+            });
+        }
+        let medium = py
+            .detach(|| {
+                motes_core::discrete::DiscreteMedium::build(
+                    &pos,
+                    &r,
+                    &c,
+                    b,
+                    bins,
+                    lam,
+                    query_radius,
+                    tau_max,
+                    cells_per_particle,
+                    continuous_count,
+                    seed,
+                )
+            })
+            .map_err(to_py)?;
+        Ok(PyDiscreteMedium {
+            medium: std::sync::Arc::new(medium),
+        })
+    }
+
+    /// A new strong reference to the core medium for the native plugins (an address; they release it
+    /// through the native API's `release`).
+    fn native_handle(&self) -> usize {
+        native::handle(&self.medium)
+    }
+
+    /// (rays, events) that went through the native render path so far.
+    #[getter]
+    fn native_counts(&self) -> (u64, u64) {
+        self.medium.packet_counts()
+    }
+
+    /// Next site per ray on (0, t_max): (t or NaN, optical depth walked before it); the events of
+    /// lanes marked in `remember` are remembered at commit.
+    fn sample_sites<'py>(
+        &self,
+        py: Python<'py>,
+        origins: F32In,
+        directions: F32In,
+        t_max: F64In,
+        remember: PyReadonlyArray1<'_, bool>,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let (o, d, tm, keep) = (
+            vec3s(&origins, "origins")?,
+            vec3s(&directions, "directions")?,
+            t_max.as_slice()?.to_vec(),
+            remember.as_slice()?.to_vec(),
+        );
+        if d.len() != o.len() || tm.len() != o.len() || keep.len() != o.len() {
+            return Err(PyValueError::new_err(
+                "origins, directions, t_max and remember must describe the same rays",
+            ));
+        }
+        let res = py.detach(|| self.medium.sample_sites(&o, &d, &tm, &keep));
+        let t: Vec<f64> = res.iter().map(|r| r.t.unwrap_or(f64::NAN)).collect();
+        let tau: Vec<f64> = res.iter().map(|r| r.tau_before).collect();
+        Ok((t.into_pyarray(py), tau.into_pyarray(py)))
+    }
+
+    /// Remember the last call's events at the positions `p` (where `active`), return albedo (n*channels).
+    fn commit_events<'py>(
+        &self,
+        py: Python<'py>,
+        p: F32In,
+        active: PyReadonlyArray1<'_, bool>,
+        lambda: F64In,
+        channels: usize,
+    ) -> PyResult<F64Out<'py>> {
+        let (pp, act, lam) = (
+            vec3s(&p, "p")?,
+            active.as_slice()?.to_vec(),
+            lambda.as_slice()?.to_vec(),
+        );
+        let out = py
+            .detach(|| self.medium.commit_events(&pp, &act, &lam, channels))
+            .map_err(to_py)?;
+        Ok(out.into_pyarray(py))
+    }
+
+    /// Phase function of the events at `p`: (values n*channels, pdf n).
+    fn phase_eval<'py>(
+        &self,
+        py: Python<'py>,
+        p: F32In,
+        wi: F32In,
+        wo: F32In,
+        lambda: F64In,
+        channels: usize,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let (pp, a, b, lam) = (
+            vec3s(&p, "p")?,
+            vec3s(&wi, "wi")?,
+            vec3s(&wo, "wo")?,
+            lambda.as_slice()?.to_vec(),
+        );
+        if a.len() != pp.len()
+            || b.len() != pp.len()
+            || (lam.len() != channels && lam.len() != channels * pp.len())
+        {
+            return Err(PyValueError::new_err(
+                "p, wi, wo and lambda must describe the same lanes",
+            ));
+        }
+        let (v, pdf) = py.detach(|| self.medium.phase_eval(&pp, &a, &b, &lam, channels));
+        Ok((v.into_pyarray(py), pdf.into_pyarray(py)))
+    }
+
+    /// Sample the phase function of the events at `p`: (wo n*3, weight n*channels, pdf n).
+    #[allow(clippy::too_many_arguments)]
+    fn phase_sample<'py>(
+        &self,
+        py: Python<'py>,
+        p: F32In,
+        wi: F32In,
+        lambda: F64In,
+        channels: usize,
+        u1: F64In,
+        u2: F64In,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+        let (pp, a, lam, s1, s2) = (
+            vec3s(&p, "p")?,
+            vec3s(&wi, "wi")?,
+            lambda.as_slice()?.to_vec(),
+            u1.as_slice()?.to_vec(),
+            u2.as_slice()?,
+        );
+        if a.len() != pp.len()
+            || s1.len() != pp.len()
+            || s2.len() != 2 * pp.len()
+            || (lam.len() != channels && lam.len() != channels * pp.len())
+        {
+            return Err(PyValueError::new_err(
+                "p, wi, u1, u2 and lambda must describe the same lanes",
+            ));
+        }
+        let s2: Vec<[f64; 2]> = s2.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let (wo, w, pdf) =
+            py.detach(|| self.medium.phase_sample(&pp, &a, &lam, channels, &s1, &s2));
+        let wo: Vec<f64> = wo.into_iter().flatten().collect();
+        Ok((
+            wo.into_pyarray(py),
+            w.into_pyarray(py),
+            pdf.into_pyarray(py),
+        ))
+    }
+
+    /// Eq. 24 at points (f64 n*3): (sigma_s n*channels, Q = sigma_s f at cos θ = `mu`, n*channels).
+    fn local_scattering<'py>(
+        &self,
+        py: Python<'py>,
+        points: F64In,
+        mu: F64In,
+        lambda: F64In,
+        channels: usize,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let pts: Vec<[f64; 3]> = points
+            .as_slice()?
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let (mu, lam) = (mu.as_slice()?.to_vec(), lambda.as_slice()?.to_vec());
+        if mu.len() != pts.len()
+            || points.len()? != 3 * pts.len()
+            || channels == 0
+            || (lam.len() != channels && lam.len() != channels * pts.len())
+        {
+            return Err(PyValueError::new_err("points (n, 3), mu (n) and lambda (channels or n*channels) must describe the same points"));
+        }
+        let (sg, q) = py.detach(|| self.medium.local_scattering(&pts, &mu, &lam, channels));
+        Ok((sg.into_pyarray(py), q.into_pyarray(py)))
+    }
+
+    /// Sample the local mixture at points: (wo n*3, weight n*channels, pdf n); `w_in` = propagation direction.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_local<'py>(
+        &self,
+        py: Python<'py>,
+        points: F64In,
+        w_in: F64In,
+        lambda: F64In,
+        channels: usize,
+        u1: F64In,
+        u2: F64In,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+        let pts: Vec<[f64; 3]> = points
+            .as_slice()?
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let dirs: Vec<[f64; 3]> = w_in
+            .as_slice()?
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let (lam, s1, s2) = (
+            lambda.as_slice()?.to_vec(),
+            u1.as_slice()?.to_vec(),
+            u2.as_slice()?,
+        );
+        let n = pts.len();
+        if dirs.len() != n
+            || s1.len() != n
+            || s2.len() != 2 * n
+            || channels == 0
+            || (lam.len() != channels && lam.len() != channels * n)
+        {
+            return Err(PyValueError::new_err(
+                "points, w_in, u1, u2 and lambda must describe the same points",
+            ));
+        }
+        let s2: Vec<[f64; 2]> = s2.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let (wo, w, pdf) = py.detach(|| {
+            self.medium
+                .sample_local(&pts, &dirs, &lam, channels, &s1, &s2)
+        });
+        let wo: Vec<f64> = wo.into_iter().flatten().collect();
+        Ok((
+            wo.into_pyarray(py),
+            w.into_pyarray(py),
+            pdf.into_pyarray(py),
+        ))
+    }
+
+    /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
+    #[getter]
+    fn widened(&self) -> usize {
+        self.medium.widened()
+    }
+
+    /// Largest optical depth of a particle's disk.
+    #[getter]
+    fn tau_max(&self) -> f64 {
+        self.medium.tau_max()
+    }
+
+    /// Largest inclusion radius of a particle (scene units).
+    #[getter]
+    fn reach_max(&self) -> f64 {
+        self.medium.reach_max()
+    }
+
+    /// Particles sampled as a continuous medium (size classes no pixel resolves).
+    #[getter]
+    fn continuous_particles(&self) -> usize {
+        self.medium.continuous_len()
+    }
+
+    /// Remember an event of the given particles at `p` (tests and tools).
+    fn insert_event(&self, p: (f32, f32, f32), particles: Vec<u32>) -> PyResult<()> {
+        self.medium
+            .insert_event([p.0, p.1, p.2], &particles)
+            .map_err(to_py)
+    }
+
+    /// Grey optical depth of segments [t0, t1) (f64 rays), as used by the free flights.
+    fn optical_depth<'py>(
+        &self,
+        py: Python<'py>,
+        origins: F64In,
+        directions: F64In,
+        t0: F64In,
+        t1: F64In,
+    ) -> PyResult<F64Out<'py>> {
+        let (t0, t1) = (t0.as_slice()?.to_vec(), t1.as_slice()?.to_vec());
+        let rs = rays(origins.as_slice()?, directions.as_slice()?, t0.len())?;
+        if t1.len() != t0.len() {
+            return Err(PyValueError::new_err(
+                "t0 and t1 must have one value per ray",
+            ));
+        }
+        let m = &self.medium;
+        let out: Vec<f64> = py.detach(|| {
+            rs.par_iter()
+                .zip(t0.par_iter().zip(t1.par_iter()))
+                .map(|((o, d), (a, b))| m.optical_depth(*o, *d, *a, *b))
+                .collect()
+        });
+        Ok(out.into_pyarray(py))
+    }
+
+    #[getter]
+    fn bytes(&self) -> usize {
+        self.medium.bytes()
+    }
+    fn __len__(&self) -> usize {
+        self.medium.len()
+    }
+}

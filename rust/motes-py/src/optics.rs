@@ -1,0 +1,291 @@
+//! Single-particle optics (Mie, GOA, the `auto` policy and materials): batches over flat arrays of
+//! particles and angles (`motes_core::optics`, `motes_core::mie`, `motes_core::goa`).
+
+use crate::convert::*;
+use crate::interrupt::interruptible;
+use motes_core::goa::GoaOptions;
+use motes_core::optics::{self, Method, ParticleColumns, Theory};
+use num_complex::Complex64 as C64;
+use numpy::{IntoPyArray, PyArray1};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+pub(crate) struct Columns {
+    r: Vec<f64>,
+    lam: Vec<f64>,
+    er: Vec<f64>,
+    ei: Vec<f64>,
+    em: Vec<f64>,
+}
+
+impl Columns {
+    fn new(r: F64In, lam: F64In, er: F64In, ei: F64In, em: F64In) -> PyResult<Self> {
+        let v = |a: &F64In| -> PyResult<Vec<f64>> { Ok(a.as_array().to_vec()) };
+        Ok(Columns {
+            r: v(&r)?,
+            lam: v(&lam)?,
+            er: v(&er)?,
+            ei: v(&ei)?,
+            em: v(&em)?,
+        })
+    }
+    fn view(&self) -> ParticleColumns<'_> {
+        ParticleColumns {
+            radius_um: &self.r,
+            wavelength_um: &self.lam,
+            eta_re: &self.er,
+            eta_im: &self.ei,
+            eta_medium: &self.em,
+        }
+    }
+}
+
+pub(crate) fn options(
+    p_max: u32,
+    diffraction: bool,
+    regularise: bool,
+    edge_correction: bool,
+) -> GoaOptions {
+    GoaOptions {
+        p_max,
+        diffraction,
+        regularise,
+        edge_correction,
+    }
+}
+
+pub(crate) type Amps<'py> = (Bound<'py, PyArray1<C64>>, Bound<'py, PyArray1<C64>>);
+
+pub(crate) fn amplitudes(
+    py: Python<'_>,
+    cols: Columns,
+    theta: Vec<f64>,
+    theory: Theory,
+    opts: GoaOptions,
+) -> PyResult<Amps<'_>> {
+    let out = interruptible(py, || {
+        optics::amplitudes_batch(&cols.view(), &theta, theory, &opts)
+    })?
+    .map_err(to_py)?;
+    let (s1, s2): (Vec<C64>, Vec<C64>) = out.into_iter().unzip();
+    Ok((s1.into_pyarray(py), s2.into_pyarray(py)))
+}
+
+/// Lorenz–Mie amplitudes (S1, S2), Bohren–Huffman convention.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn mie_amplitudes<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    theta: F64In,
+) -> PyResult<Amps<'py>> {
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    amplitudes(
+        py,
+        cols,
+        theta.as_array().to_vec(),
+        Theory::Mie,
+        GoaOptions::default(),
+    )
+}
+
+/// GOA amplitudes (S1, S2), Bohren–Huffman convention.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn goa_amplitudes<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    theta: F64In,
+    p_max: u32,
+    diffraction: bool,
+    regularise: bool,
+    edge_correction: bool,
+) -> PyResult<Amps<'py>> {
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    amplitudes(
+        py,
+        cols,
+        theta.as_array().to_vec(),
+        Theory::Goa,
+        options(p_max, diffraction, regularise, edge_correction),
+    )
+}
+
+/// Cross sections (ext, sca, abs in µm²) and asymmetry g.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn cross_sections<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+    regularise: bool,
+    edge_correction: bool,
+    with_g: bool,
+) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    let opts = options(p_max, true, regularise, edge_correction);
+    let cs = interruptible(py, || {
+        optics::cross_sections_batch(&cols.view(), method, &opts, with_g)
+    })?
+    .map_err(to_py)?;
+    let col = |f: fn(&optics::CrossSections) -> f64| {
+        cs.iter().map(f).collect::<Vec<f64>>().into_pyarray(py)
+    };
+    Ok((col(|c| c.ext), col(|c| c.sca), col(|c| c.abs), col(|c| c.g)))
+}
+
+/// Normalised phase function f_p(θ) (sr⁻¹), ∫ f dΩ = 1.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn phase_function<'py>(
+    py: Python<'py>,
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    theta: F64In,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+    regularise: bool,
+    edge_correction: bool,
+) -> PyResult<F64Out<'py>> {
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    let theta = theta.as_array().to_vec();
+    let opts = options(p_max, true, regularise, edge_correction);
+    let f = interruptible(py, || {
+        optics::phase_function_batch(&cols.view(), &theta, method, &opts)
+    })?
+    .map_err(to_py)?;
+    Ok(f.into_pyarray(py))
+}
+
+/// GOA extinction efficiency by Eq. 12 (per element), for studies of p and the regularisation.
+#[pyfunction]
+pub(crate) fn goa_extinction_efficiency<'py>(
+    py: Python<'py>,
+    alpha: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    p_max: u32,
+    regularise: bool,
+    edge_correction: bool,
+) -> PyResult<F64Out<'py>> {
+    let (a, er, ei) = (
+        alpha.as_array().to_vec(),
+        eta_re.as_array().to_vec(),
+        eta_im.as_array().to_vec(),
+    );
+    if a.len() != er.len() || a.len() != ei.len() {
+        return Err(PyValueError::new_err(
+            "alpha, eta_re and eta_im must have the same length",
+        ));
+    }
+    for ((a, r), im) in a.iter().zip(&er).zip(&ei) {
+        motes_core::error::require("alpha", *a, a.is_finite() && *a > 0.0, "finite and > 0")
+            .map_err(to_py)?;
+        motes_core::error::require(
+            "eta (real part)",
+            *r,
+            r.is_finite() && *r > 0.0,
+            "finite and > 0",
+        )
+        .map_err(to_py)?;
+        motes_core::error::require(
+            "eta (imaginary part)",
+            *im,
+            im.is_finite() && *im >= 0.0,
+            "finite and >= 0",
+        )
+        .map_err(to_py)?;
+    }
+    let out: Vec<f64> = py.detach(|| {
+        a.iter()
+            .zip(&er)
+            .zip(&ei)
+            .map(|((a, r), i)| {
+                motes_core::goa::extinction_efficiency(
+                    *a,
+                    C64::new(*r, *i),
+                    p_max,
+                    regularise,
+                    edge_correction,
+                )
+            })
+            .collect()
+    });
+    Ok(out.into_pyarray(py))
+}
+
+/// Constants of the method policy: (AUTO_SIZE_PARAMETER, HYBRID_RADIUS_UM, AXIAL_CAUSTIC_WINDOW).
+#[pyfunction]
+pub(crate) fn policy_constants() -> (f64, f64, f64) {
+    (
+        optics::AUTO_SIZE_PARAMETER,
+        optics::HYBRID_RADIUS_UM,
+        optics::AXIAL_CAUSTIC_WINDOW,
+    )
+}
+
+/// The theory ("mie" or "goa") that `method` picks for each particle.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn resolve_method(
+    radius_um: F64In,
+    wavelength_um: F64In,
+    eta_re: F64In,
+    eta_im: F64In,
+    eta_medium: F64In,
+    method: &str,
+    hybrid_radius_um: f64,
+    p_max: u32,
+) -> PyResult<Vec<&'static str>> {
+    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
+    let groups = cols.view().group().map_err(to_py)?;
+    let mut out = vec![""; cols.r.len()];
+    for (p, idx) in groups {
+        let name = match method.theory(&p, p_max) {
+            Theory::Mie => "mie",
+            Theory::Goa => "goa",
+        };
+        for i in idx {
+            out[i] = name;
+        }
+    }
+    Ok(out)
+}
+
+/// Complex refractive index of a tabulated material ("ice", "water") at wavelengths (µm).
+#[pyfunction]
+pub(crate) fn material_index<'py>(
+    py: Python<'py>,
+    name: &str,
+    wavelength_um: F64In,
+) -> PyResult<Bound<'py, PyArray1<C64>>> {
+    let m = motes_core::materials::Material::parse(name).map_err(to_py)?;
+    let out = wavelength_um
+        .as_array()
+        .iter()
+        .map(|&l| m.index(l))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(to_py)?;
+    Ok(out.into_pyarray(py))
+}
