@@ -35,6 +35,9 @@ impl Bounds3 {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DdaCell {
     pub cell: [usize; 3],
+    /// The cell's index in x-fastest order, `(z dims_y + y) dims_x + x` (kept up to date by the walk
+    /// rather than recomputed per step).
+    pub index: usize,
     pub t_enter: f64,
     pub t_exit: f64,
 }
@@ -48,6 +51,9 @@ pub struct Dda {
     t_next: [f64; 3],
     t_delta: [f64; 3],
     dims: [i64; 3],
+    /// Linear index of `c`, and how it changes by a step along each axis.
+    index: i64,
+    index_step: [i64; 3],
     t_enter: f64,
     t_end: f64,
     done: bool,
@@ -72,6 +78,8 @@ impl Dda {
                 t_next: [0.0; 3],
                 t_delta: [0.0; 3],
                 dims: dims_i,
+                index: 0,
+                index_step: [0; 3],
                 t_enter: 0.0,
                 t_end: 0.0,
                 done: true,
@@ -101,6 +109,12 @@ impl Dda {
             t_next,
             t_delta,
             dims: dims_i,
+            index: (c[2] * dims_i[1] + c[1]) * dims_i[0] + c[0],
+            index_step: [
+                step[0],
+                step[1] * dims_i[0],
+                step[2] * dims_i[0] * dims_i[1],
+            ],
             t_enter: ta,
             t_end: tb,
             done: false,
@@ -135,6 +149,7 @@ impl Iterator for Dda {
         let t_exit = self.t_next[axis].min(self.t_end);
         let out = DdaCell {
             cell: self.c.map(|x| x as usize),
+            index: self.index as usize,
             t_enter: self.t_enter,
             t_exit,
         };
@@ -143,6 +158,7 @@ impl Iterator for Dda {
         } else {
             self.t_enter = t_exit;
             self.c[axis] += self.step[axis];
+            self.index += self.index_step[axis];
             self.t_next[axis] += self.t_delta[axis];
             self.done = self.c[axis] < 0 || self.c[axis] >= self.dims[axis];
         }
@@ -188,6 +204,8 @@ mod tests {
                     }
                     for c in &cells {
                         assert!(c.t_exit >= c.t_enter);
+                        let [x, y, z] = c.cell;
+                        assert_eq!(c.index, (z * dims[1] + y) * dims[0] + x, "{c:?}");
                         let t = 0.5 * (c.t_enter + c.t_exit);
                         for a in 0..3 {
                             let x = ((o[a] + t * d[a] - lo[a]) / cell[a]).floor() as i64;

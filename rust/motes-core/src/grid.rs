@@ -646,7 +646,7 @@ impl SubGrid {
                     prefetch(b.wrapping_add(k));
                 }
             }
-            let c = cell_of(&step);
+            let c = step.index;
             let sg = Segment {
                 c0: self.start[c] as usize,
                 c1: self.start[c + 1] as usize,
