@@ -268,7 +268,7 @@ class PhaseTable:
     def __init__(self, theta, f):
         self.theta = np.ascontiguousarray(np.asarray(theta, dtype=np.float64))
         self.f = np.ascontiguousarray(np.asarray(f, dtype=np.float64))
-        _motes.phase_table_eval(self.theta, self.f, np.zeros(1))  # validates
+        self._core = _motes.PhaseTable(self.theta, self.f)  # validated and prepared once
 
     @classmethod
     def from_bulk(cls, bulk: dict, index: int = 0) -> "PhaseTable":
@@ -276,14 +276,14 @@ class PhaseTable:
 
     def eval(self, theta):
         q = np.asarray(theta, dtype=np.float64)
-        return _motes.phase_table_eval(self.theta, self.f, np.ascontiguousarray(q).ravel()).reshape(q.shape)
+        return self._core.eval(np.ascontiguousarray(q).ravel()).reshape(q.shape)
 
     pdf = eval
 
     def sample(self, u):
         """Scattering angles (radians) for uniform numbers ``u`` in [0, 1]."""
         u = np.asarray(u, dtype=np.float64)
-        return _motes.phase_table_sample(self.theta, self.f, np.ascontiguousarray(u).ravel()).reshape(u.shape)
+        return self._core.sample(np.ascontiguousarray(u).ravel()).reshape(u.shape)
 
 
 __all__ = ["CORE_HASH", "DEFAULT_TRUNCATE_RAD", "RGB_WAVELENGTHS_UM", "SPECTRAL_WAVELENGTHS_UM", "cache_dir", "Material", "PhaseTable", "SpectralTable", "Species", "bulk_properties", "pixel_footprint_rad"]

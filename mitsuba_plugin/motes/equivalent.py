@@ -63,7 +63,7 @@ def homogeneous_equivalent(species, number_density_m3: float, *, color: str = "r
     b = bulk_properties(species, number_density_m3, lam, eta_medium, method, truncate_below_rad=truncate_below_rad)
     weights = b["sigma_s"] / b["sigma_s"].sum() if b["sigma_s"].sum() > 0 else np.full(lam.size, 1.0 / lam.size)
     phase = weights @ b["phase"]
-    values = _motes.phase_table_regular_mu(b["theta"], np.ascontiguousarray(phase), int(tabphase_size))
+    values = _motes.PhaseTable(np.ascontiguousarray(b["theta"]), np.ascontiguousarray(phase)).regular_mu(int(tabphase_size))
     sigma_t = b["sigma_t"] * scale_m
     # Mitsuba reads colours as bounded (reflectance-like) spectra: pass sigma_t / max in [0, 1] and the
     # maximum as the medium's `scale` (the usual Mitsuba idiom).

@@ -54,22 +54,25 @@ class Psd:
         return json.dumps(spec)
 
     def __post_init__(self) -> None:
-        _motes.psd_validate(self._json())
+        # Parsed and validated once; every query below reuses the Rust object (frozen dataclasses:
+        # an attribute outside the fields, so it takes no part in ==, hash or repr).
+        object.__setattr__(self, "_core", _motes.Psd(self._json()))
+
+    def _eval(self, what: str, x):
+        x = np.asarray(x, dtype=np.float64)
+        return self._core.eval(what, np.ascontiguousarray(x).ravel()).reshape(x.shape)
 
     def cdf(self, radius_um):
         """P(R <= r)."""
-        r = np.asarray(radius_um, dtype=np.float64)
-        return _motes.psd_eval(self._json(), "cdf", np.ascontiguousarray(r).ravel()).reshape(r.shape)
+        return self._eval("cdf", radius_um)
 
     def pdf(self, radius_um):
         """Density of the continuous part (1/um); point masses are in :meth:`atoms`."""
-        r = np.asarray(radius_um, dtype=np.float64)
-        return _motes.psd_eval(self._json(), "pdf", np.ascontiguousarray(r).ravel()).reshape(r.shape)
+        return self._eval("pdf", radius_um)
 
     def quantile(self, u):
         """Radius r with P(R <= r) = u, u in [0, 1]."""
-        u = np.asarray(u, dtype=np.float64)
-        return _motes.psd_eval(self._json(), "quantile", np.ascontiguousarray(u).ravel()).reshape(u.shape)
+        return self._eval("quantile", u)
 
     def sample(self, n: int, seed: int = 0) -> np.ndarray:
         """``n`` radii (um), reproducible from ``seed`` whatever the number of threads."""
@@ -78,20 +81,20 @@ class Psd:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
             raise ValueError(f"seed must be an integer in [0, 2**64), got {seed!r}")
         _memory.require(16.0 * n, f"sample(n={n})")
-        return _motes.psd_sample(self._json(), int(n), int(seed))
+        return self._core.sample(int(n), int(seed))
 
     def quadrature(self, max_log_step: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
         """Nodes (um) and weights summing to 1: Gauss-Legendre in ln r on panels of at most
         ``max_log_step``, plus one node per atom."""
-        return _motes.psd_quadrature(self._json(), float(max_log_step))
+        return self._core.quadrature(float(max_log_step))
 
     def support(self) -> tuple[float, float]:
         """Smallest and largest radius with non-zero probability."""
-        return _motes.psd_support(self._json())[0]
+        return self._core.support()[0]
 
     def atoms(self) -> list[tuple[float, float]]:
         """Point masses as (radius_um, probability)."""
-        return _motes.psd_support(self._json())[1]
+        return self._core.support()[1]
 
     def mean(self, k: float = 1.0, max_log_step: float = 0.02) -> float:
         """E[R^k] in um^k (k = 2: mean cross-section area / pi; k = 3: mean volume * 3/(4 pi))."""

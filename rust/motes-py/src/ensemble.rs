@@ -141,77 +141,90 @@ pub(crate) fn bulk_properties<'py>(
     ))
 }
 
-pub(crate) fn phase_table(theta: F64In, f: F64In) -> PyResult<motes_core::phase_table::PhaseTable> {
-    motes_core::phase_table::PhaseTable::new(theta.as_slice()?, f.as_slice()?).map_err(to_py)
+/// A tabulated phase function (nodes `theta` from 0 to π, values `f`), validated and prepared for
+/// sampling once (`motes_core::phase_table::PhaseTable`); every query reuses it.
+#[pyclass(name = "PhaseTable", module = "motes._motes", frozen)]
+pub(crate) struct PyPhaseTable {
+    table: motes_core::phase_table::PhaseTable,
+    theta: Vec<f64>,
+    f: Vec<f64>,
 }
 
-/// Evaluate a tabulated phase function (nodes `theta`, values `f`) at angles `query` (radians).
-#[pyfunction]
-pub(crate) fn phase_table_eval<'py>(
-    py: Python<'py>,
-    theta: F64In,
-    f: F64In,
-    query: F64In,
-) -> PyResult<F64Out<'py>> {
-    let t = phase_table(theta, f)?;
-    let q = query.as_array().to_vec();
-    if let Some(v) = q
-        .iter()
-        .find(|v| !(v.is_finite() && (0.0..=std::f64::consts::PI).contains(*v)))
-    {
-        return Err(PyValueError::new_err(format!(
-            "invalid theta = {v}: must be finite and in [0, π]"
-        )));
+#[pymethods]
+impl PyPhaseTable {
+    #[new]
+    fn new(theta: F64In, f: F64In) -> PyResult<Self> {
+        let (theta, f) = (theta.as_slice()?.to_vec(), f.as_slice()?.to_vec());
+        let table = motes_core::phase_table::PhaseTable::new(&theta, &f).map_err(to_py)?;
+        Ok(PyPhaseTable { table, theta, f })
     }
-    let out: Vec<f64> = py.detach(|| q.iter().map(|th| t.eval(th.cos())).collect());
-    Ok(out.into_pyarray(py))
-}
 
-/// Sample scattering angles (radians) from a tabulated phase function, one per uniform number `u`.
-#[pyfunction]
-pub(crate) fn phase_table_sample<'py>(
-    py: Python<'py>,
-    theta: F64In,
-    f: F64In,
-    u: F64In,
-) -> PyResult<F64Out<'py>> {
-    let t = phase_table(theta, f)?;
-    let u = u.as_array().to_vec();
-    if let Some(v) = u.iter().find(|v| !(0.0..=1.0).contains(*v)) {
-        return Err(PyValueError::new_err(format!(
-            "invalid u = {v}: must be in [0, 1]"
-        )));
+    /// f (1/sr) at angles `query` (radians).
+    fn eval<'py>(&self, py: Python<'py>, query: F64In) -> PyResult<F64Out<'py>> {
+        let q = query.as_slice()?;
+        if let Some(&v) = q
+            .iter()
+            .find(|v| !(v.is_finite() && (0.0..=std::f64::consts::PI).contains(*v)))
+        {
+            return Err(invalid(
+                "theta",
+                v,
+                format!("invalid theta = {v}: must be finite and in [0, π]"),
+            ));
+        }
+        let t = &self.table;
+        let out: Vec<f64> = py.detach(|| q.iter().map(|th| t.eval(th.cos())).collect());
+        Ok(out.into_pyarray(py))
     }
-    let out: Vec<f64> = py.detach(|| {
-        u.iter()
-            .map(|&x| t.sample(x).clamp(-1.0, 1.0).acos())
-            .collect()
-    });
-    Ok(out.into_pyarray(py))
-}
 
-/// Averages of a tabulated phase function over `n` equal bins of μ = cos θ from −1 to 1, as values at
-/// `n` evenly spaced nodes from μ = −1 (backward) to μ = 1 (forward) — Mitsuba `tabphase` order.
-#[pyfunction]
-pub(crate) fn phase_table_regular_mu<'py>(
-    py: Python<'py>,
-    theta: F64In,
-    f: F64In,
-    n: usize,
-) -> PyResult<F64Out<'py>> {
-    let t = phase_table(theta, f)?;
-    if n < 2 {
-        return Err(PyValueError::new_err(format!(
-            "invalid n = {n}: must be >= 2"
-        )));
+    /// Scattering angles (radians), one per uniform number `u` in [0, 1].
+    fn sample<'py>(&self, py: Python<'py>, u: F64In) -> PyResult<F64Out<'py>> {
+        let u = u.as_slice()?;
+        if let Some(&v) = u.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+            return Err(invalid(
+                "u",
+                v,
+                format!("invalid u = {v}: must be in [0, 1]"),
+            ));
+        }
+        let t = &self.table;
+        let out: Vec<f64> = py.detach(|| {
+            u.iter()
+                .map(|&x| t.sample(x).clamp(-1.0, 1.0).acos())
+                .collect()
+        });
+        Ok(out.into_pyarray(py))
     }
-    // Node i sits at μ_i = −1 + 2i/(n−1); it takes the average over its Voronoi cell in μ.
-    let h = 2.0 / (n - 1) as f64;
-    let out: Vec<f64> = (0..n)
-        .map(|i| {
-            let mu = -1.0 + h * i as f64;
-            t.average(mu - 0.5 * h, mu + 0.5 * h)
-        })
-        .collect();
-    Ok(out.into_pyarray(py))
+
+    /// Averages over `n` equal bins of μ = cos θ from −1 to 1, as values at `n` evenly spaced nodes
+    /// from μ = −1 (backward) to μ = 1 (forward) — Mitsuba `tabphase` order.
+    fn regular_mu<'py>(&self, py: Python<'py>, n: usize) -> PyResult<F64Out<'py>> {
+        if n < 2 {
+            return Err(invalid("n", n, format!("invalid n = {n}: must be >= 2")));
+        }
+        // Node i sits at μ_i = −1 + 2i/(n−1); it takes the average over its Voronoi cell in μ.
+        let h = 2.0 / (n - 1) as f64;
+        let out: Vec<f64> = (0..n)
+            .map(|i| {
+                let mu = -1.0 + h * i as f64;
+                self.table.average(mu - 0.5 * h, mu + 0.5 * h)
+            })
+            .collect();
+        Ok(out.into_pyarray(py))
+    }
+
+    /// Pickled as its nodes and values.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+        py: Python<'py>,
+    ) -> (Bound<'py, pyo3::types::PyType>, (F64Out<'py>, F64Out<'py>)) {
+        let me = slf.get();
+        (
+            slf.get_type(),
+            (
+                me.theta.clone().into_pyarray(py),
+                me.f.clone().into_pyarray(py),
+            ),
+        )
+    }
 }

@@ -2,88 +2,96 @@
 
 use crate::convert::*;
 use numpy::IntoPyArray;
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 pub(crate) fn psd(spec: &str) -> PyResult<motes_core::Psd> {
     motes_core::Psd::from_json(spec).map_err(to_py)
 }
 
-/// Validate a PSD spec (JSON) and return it normalised (defaults filled in).
-#[pyfunction]
-pub(crate) fn psd_validate(spec: &str) -> PyResult<String> {
-    Ok(psd(spec)?.to_json())
+/// A particle size distribution, parsed and validated once from its JSON spec; every query reuses it.
+#[pyclass(name = "Psd", module = "motes._motes", frozen)]
+pub(crate) struct PyPsd {
+    psd: motes_core::Psd,
 }
 
-/// Evaluate "cdf", "pdf" (continuous part) or "quantile" of a PSD elementwise.
-#[pyfunction]
-pub(crate) fn psd_eval<'py>(
-    py: Python<'py>,
-    spec: &str,
-    what: &str,
-    x: F64In,
-) -> PyResult<F64Out<'py>> {
-    let d = psd(spec)?;
-    let x = x.as_array().to_vec();
-    let f: fn(&motes_core::Psd, f64) -> f64 = match what {
-        "cdf" => |d, v| d.cdf(v),
-        "pdf" => |d, v| d.pdf(v),
-        "quantile" => |d, v| d.quantile(v),
-        other => {
-            return Err(PyValueError::new_err(format!(
-                "invalid what = {other:?}: allowed values are \"cdf\", \"pdf\", \"quantile\""
-            )))
-        }
-    };
-    if what == "quantile" {
-        if let Some(u) = x.iter().find(|u| !(0.0..=1.0).contains(*u)) {
-            return Err(PyValueError::new_err(format!(
-                "invalid u = {u}: must be in [0, 1]"
-            )));
-        }
-    } else if let Some(r) = x.iter().find(|r| r.is_nan()) {
-        return Err(PyValueError::new_err(format!(
-            "invalid radius_um = {r}: must not be NaN"
-        )));
+#[pymethods]
+impl PyPsd {
+    #[new]
+    fn new(spec: &str) -> PyResult<Self> {
+        Ok(PyPsd { psd: psd(spec)? })
     }
-    let out: Vec<f64> = py.detach(|| x.iter().map(|&v| f(&d, v)).collect());
-    Ok(out.into_pyarray(py))
-}
 
-/// `n` radii drawn from a PSD, reproducible from `seed`.
-#[pyfunction]
-pub(crate) fn psd_sample<'py>(
-    py: Python<'py>,
-    spec: &str,
-    n: usize,
-    seed: u64,
-) -> PyResult<F64Out<'py>> {
-    let d = psd(spec)?;
-    Ok(py.detach(|| d.sample(n, seed)).into_pyarray(py))
-}
+    /// The spec, normalised (defaults filled in), as JSON.
+    fn spec(&self) -> String {
+        self.psd.to_json()
+    }
 
-/// Quadrature (nodes, weights) over a PSD with panels of at most `max_log_step` in ln r.
-#[pyfunction]
-pub(crate) fn psd_quadrature<'py>(
-    py: Python<'py>,
-    spec: &str,
-    max_log_step: f64,
-) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-    let d = psd(spec)?;
-    motes_core::error::require(
-        "max_log_step",
-        max_log_step,
-        max_log_step.is_finite() && max_log_step > 0.0,
-        "finite and > 0",
-    )
-    .map_err(to_py)?;
-    let (r, w) = py.detach(|| d.quadrature(max_log_step));
-    Ok((r.into_pyarray(py), w.into_pyarray(py)))
-}
+    /// Evaluate "cdf", "pdf" (continuous part) or "quantile" elementwise.
+    fn eval<'py>(&self, py: Python<'py>, what: &str, x: F64In) -> PyResult<F64Out<'py>> {
+        let x = x.as_slice()?;
+        let f: fn(&motes_core::Psd, f64) -> f64 = match what {
+            "cdf" => |d, v| d.cdf(v),
+            "pdf" => |d, v| d.pdf(v),
+            "quantile" => |d, v| d.quantile(v),
+            other => return Err(invalid(
+                "what",
+                other,
+                format!(
+                    "invalid what = {other:?}: allowed values are \"cdf\", \"pdf\", \"quantile\""
+                ),
+            )),
+        };
+        if what == "quantile" {
+            if let Some(&u) = x.iter().find(|u| !(0.0..=1.0).contains(*u)) {
+                return Err(invalid(
+                    "u",
+                    u,
+                    format!("invalid u = {u}: must be in [0, 1]"),
+                ));
+            }
+        } else if let Some(&r) = x.iter().find(|r| r.is_nan()) {
+            return Err(invalid(
+                "radius_um",
+                r,
+                format!("invalid radius_um = {r}: must not be NaN"),
+            ));
+        }
+        let d = &self.psd;
+        let out: Vec<f64> = py.detach(|| x.iter().map(|&v| f(d, v)).collect());
+        Ok(out.into_pyarray(py))
+    }
 
-/// Support (r_lo, r_hi) and atoms [(radius, probability)] of a PSD.
-#[pyfunction]
-pub(crate) fn psd_support(spec: &str) -> PyResult<((f64, f64), Vec<(f64, f64)>)> {
-    let d = psd(spec)?;
-    Ok((d.support(), d.atoms()))
+    /// `n` radii, reproducible from `seed`.
+    fn sample<'py>(&self, py: Python<'py>, n: usize, seed: u64) -> F64Out<'py> {
+        let d = &self.psd;
+        py.detach(|| d.sample(n, seed)).into_pyarray(py)
+    }
+
+    /// Quadrature (nodes, weights) with panels of at most `max_log_step` in ln r.
+    fn quadrature<'py>(
+        &self,
+        py: Python<'py>,
+        max_log_step: f64,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        motes_core::error::require(
+            "max_log_step",
+            max_log_step,
+            max_log_step.is_finite() && max_log_step > 0.0,
+            "finite and > 0",
+        )
+        .map_err(to_py)?;
+        let d = &self.psd;
+        let (r, w) = py.detach(|| d.quadrature(max_log_step));
+        Ok((r.into_pyarray(py), w.into_pyarray(py)))
+    }
+
+    /// Support (r_lo, r_hi) and atoms [(radius, probability)].
+    fn support(&self) -> ((f64, f64), Vec<(f64, f64)>) {
+        (self.psd.support(), self.psd.atoms())
+    }
+
+    /// Pickled as its spec.
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> (Bound<'py, pyo3::types::PyType>, (String,)) {
+        (slf.get_type(), (slf.get().psd.to_json(),))
+    }
 }
