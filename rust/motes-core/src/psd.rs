@@ -512,6 +512,16 @@ impl Psd {
             .collect()
     }
 
+    /// The check of a quadrature's panel width, shared by every caller that takes one from a user.
+    pub fn require_log_step(max_log_step: f64) -> Result<(), crate::OpticsError> {
+        crate::error::require(
+            "max_log_step",
+            max_log_step,
+            max_log_step.is_finite() && max_log_step > 0.0,
+            "finite and > 0",
+        )
+    }
+
     /// Nodes and weights with `Σ w g(r) ≈ E[g(R)]` for smooth g: atoms as nodes of their mass, continuous
     /// parts by Gauss–Legendre in ln r on panels no wider than `max_log_step` (in ln r), so that
     /// structure of g on that scale (e.g. the extinction ripple) is resolved where it matters.

@@ -57,13 +57,7 @@ pub(crate) fn bulk_properties<'py>(
             "species, shares and eta must describe the same species and wavelengths",
         ));
     }
-    motes_core::error::require(
-        "max_log_step",
-        max_log_step,
-        max_log_step.is_finite() && max_log_step > 0.0,
-        "finite and > 0",
-    )
-    .map_err(to_py)?;
+    motes_core::Psd::require_log_step(max_log_step).map_err(to_py)?;
     motes_core::error::require(
         "refine_tol",
         refine_tol,

@@ -33,13 +33,15 @@ impl PyPsd {
             "cdf" => |d, v| d.cdf(v),
             "pdf" => |d, v| d.pdf(v),
             "quantile" => |d, v| d.quantile(v),
-            other => return Err(invalid(
-                "what",
-                other,
-                format!(
+            other => {
+                return Err(invalid(
+                    "what",
+                    other,
+                    format!(
                     "invalid what = {other:?}: allowed values are \"cdf\", \"pdf\", \"quantile\""
                 ),
-            )),
+                ))
+            }
         };
         if what == "quantile" {
             if let Some(&u) = x.iter().find(|u| !(0.0..=1.0).contains(*u)) {
@@ -73,13 +75,7 @@ impl PyPsd {
         py: Python<'py>,
         max_log_step: f64,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        motes_core::error::require(
-            "max_log_step",
-            max_log_step,
-            max_log_step.is_finite() && max_log_step > 0.0,
-            "finite and > 0",
-        )
-        .map_err(to_py)?;
+        motes_core::Psd::require_log_step(max_log_step).map_err(to_py)?;
         let d = &self.psd;
         let (r, w) = py.detach(|| d.quadrature(max_log_step));
         Ok((r.into_pyarray(py), w.into_pyarray(py)))
