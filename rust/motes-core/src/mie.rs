@@ -4,12 +4,14 @@
 //! index `m = n + iκ` with `κ ≥ 0`, and `C_ext = 4π/k² Re S(0)` (Eq. 3).
 //!
 //! Numerics (stable up to size parameters of a few 1e4 and |m x| ~ 1e5):
-//! * the logarithmic derivative `D_n(mx) = ψ'_n(mx)/ψ_n(mx)` is obtained by *downward* recurrence from
-//!   `n_start = max(N, |mx|) + 16` (Bohren & Huffman §4.8); the downward direction is stable for every
-//!   complex argument, including strongly absorbing ones where upward recurrence overflows;
-//! * the Riccati–Bessel functions of the real argument `x` go upward; they are only needed for
-//!   `n ≤ N ≈ x + 4.3 x^{1/3}`, where the upward recurrence of `ψ_n` has lost at most a few digits and
-//!   `a_n, b_n` are already negligible (Wiscombe 1980);
+//! * the logarithmic derivative `D_n(mx) = ψ'_n(mx)/ψ_n(mx)` is obtained by *downward* recurrence
+//!   ([`log_derivative_downward`]) from `n_start = max(N, |mx| + 8 |mx|^{1/3}) + 32` (Bohren & Huffman
+//!   §4.8); the downward direction is stable for every complex argument, including strongly absorbing
+//!   ones where upward recurrence overflows;
+//! * the Riccati–Bessel functions of the real argument `x` go upward ([`riccati_bessel_upward`]); they
+//!   are only needed for `n ≤ N ≈ x + 4.3 x^{1/3}`, where the upward recurrence of `ψ_n` has lost at
+//!   most a few digits and `a_n, b_n` are already negligible (Wiscombe 1980);
+//! * `a_n`, `b_n` combine the two (Eq. 27, Bohren & Huffman 4.88).
 //! * the series length is the larger of the paper's `⌈x + 4.3 x^{1/3} + 1⌉` and Wiscombe's
 //!   `x + 4.05 x^{1/3} + 2`.
 
@@ -37,46 +39,72 @@ pub struct MieCoefficients {
     pub b: Vec<C64>,
 }
 
+/// Where the downward recurrence of `D_n(mx)` starts for a series of `n_max` terms: well beyond
+/// |mx|, because the error of the arbitrary start value D = 0 decays only once n exceeds |mx| by a margin
+/// growing like |mx|^{1/3} (measured against mpmath at 1e-15).
+fn log_derivative_start(n_max: usize, mx: C64) -> usize {
+    let mxn = mx.norm();
+    (n_max as f64).max(mxn + 8.0 * mxn.cbrt()).ceil() as usize + 32
+}
+
+/// The logarithmic derivative `D_n(z) = ψ'_n(z)/ψ_n(z)` for n = 0..=`n_start` by downward recurrence
+/// `D_{n−1} = n/z − 1/(D_n + n/z)` from `D_{n_start} = 0` (Bohren & Huffman §4.8; stable for every
+/// complex z, strongly absorbing ones included). Entries near `n_start` carry the start's error; use
+/// those below [`log_derivative_start`]'s margin.
+pub fn log_derivative_downward(z: C64, n_start: usize) -> Vec<C64> {
+    let mut d = vec![C64::new(0.0, 0.0); n_start + 1];
+    for n in (1..=n_start).rev() {
+        let nz = n as f64 / z;
+        d[n - 1] = nz - 1.0 / (d[n] + nz);
+    }
+    d
+}
+
+/// The Riccati–Bessel functions `ψ_n(x)` and `χ_n(x)` (with `ξ_n = ψ_n − i χ_n`) for n = 0..=`n_max`
+/// by upward recurrence `f_n = (2n − 1)/x f_{n−1} − f_{n−2}` from `ψ_0 = sin x`, `χ_0 = cos x`. Upward
+/// `ψ_n` loses digits once n exceeds x; the series stops at n ≈ x + 4.3 x^{1/3}, where a few digits are
+/// lost and the coefficients are negligible (Wiscombe 1980).
+pub fn riccati_bessel_upward(x: f64, n_max: usize) -> Vec<(f64, f64)> {
+    let (sx, cx) = x.sin_cos();
+    let mut out = Vec::with_capacity(n_max + 1);
+    out.push((sx, cx));
+    if n_max >= 1 {
+        out.push((sx / x - cx, cx / x + sx));
+    }
+    for n in 2..=n_max {
+        let k = (2 * n - 1) as f64 / x;
+        let (p1, c1) = out[n - 1];
+        let (p2, c2) = out[n - 2];
+        out.push((k * p1 - p2, k * c1 - c2));
+    }
+    out
+}
+
+/// The coefficients `a_n`, `b_n` (Eq. 27, Bohren & Huffman 4.88) from `D_n(mx)` and the Riccati–Bessel
+/// functions of x at orders n and n − 1.
+#[inline]
+fn an_bn(n: usize, x: f64, m: C64, dn: C64, rb: (f64, f64), rb_prev: (f64, f64)) -> (C64, C64) {
+    let nf = n as f64;
+    let (psi, psi_prev) = (rb.0, rb_prev.0);
+    let xi = C64::new(rb.0, -rb.1);
+    let xi_prev = C64::new(rb_prev.0, -rb_prev.1);
+    let ta = dn / m + nf / x;
+    let tb = dn * m + nf / x;
+    (
+        (ta * psi - psi_prev) / (ta * xi - xi_prev),
+        (tb * psi - psi_prev) / (tb * xi - xi_prev),
+    )
+}
+
 impl MieCoefficients {
     pub fn new(x: f64, m: C64) -> Self {
         let nmax = series_length(x);
         let mx = m * x;
-        // Downward recurrence D_{n-1} = n/z - 1/(D_n + n/z).
-        // Start well beyond |mx|: the error of the arbitrary start value D = 0 decays only once n exceeds
-        // |mx| by a margin growing like |mx|^{1/3} (measured against mpmath at 1e-15).
-        let mxn = mx.norm();
-        let nstart = (nmax as f64).max(mxn + 8.0 * mxn.cbrt()).ceil() as usize + 32;
-        let mut d = vec![C64::new(0.0, 0.0); nstart + 1];
-        for n in (1..=nstart).rev() {
-            let nz = n as f64 / mx;
-            d[n - 1] = nz - 1.0 / (d[n] + nz);
-        }
-        // Upward Riccati–Bessel: ψ_n(x) and χ_n(x) with ξ_n = ψ_n - i χ_n (BH §4.8).
-        let (sx, cx) = x.sin_cos();
-        let mut psi_prev = sx; // ψ_0 = sin x
-        let mut chi_prev = cx; // χ_0 = cos x
-        let mut psi = sx / x - cx; // ψ_1
-        let mut chi = cx / x + sx; // χ_1
-        let mut a = Vec::with_capacity(nmax);
-        let mut b = Vec::with_capacity(nmax);
-        for n in 1..=nmax {
-            let nf = n as f64;
-            if n > 1 {
-                let psi_n = (2.0 * nf - 1.0) / x * psi - psi_prev;
-                let chi_n = (2.0 * nf - 1.0) / x * chi - chi_prev;
-                psi_prev = psi;
-                chi_prev = chi;
-                psi = psi_n;
-                chi = chi_n;
-            }
-            let xi = C64::new(psi, -chi);
-            let xi_prev = C64::new(psi_prev, -chi_prev);
-            let dn = d[n];
-            let ta = dn / m + nf / x;
-            let tb = dn * m + nf / x;
-            a.push((ta * psi - psi_prev) / (ta * xi - xi_prev));
-            b.push((tb * psi - psi_prev) / (tb * xi - xi_prev));
-        }
+        let d = log_derivative_downward(mx, log_derivative_start(nmax, mx));
+        let rb = riccati_bessel_upward(x, nmax);
+        let (a, b) = (1..=nmax)
+            .map(|n| an_bn(n, x, m, d[n], rb[n], rb[n - 1]))
+            .unzip();
         MieCoefficients { x, m, a, b }
     }
 
@@ -267,6 +295,63 @@ impl MieIntensitySums {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// D_n from the downward recurrence equals ψ'_n/ψ_n = ψ_{n−1}/ψ_n − n/z from closed forms of ψ_0,
+    /// ψ_1, ψ_2 at complex arguments (absorbing included), well below the start of the recurrence.
+    #[test]
+    fn log_derivative_matches_closed_forms() {
+        for z in [
+            C64::new(0.7, 0.0),
+            C64::new(3.2, 0.4),
+            C64::new(12.0, 2.5),
+            C64::new(0.4, 0.05),
+        ] {
+            let psi0 = z.sin();
+            let psi1 = z.sin() / z - z.cos();
+            let psi2 = (3.0 / (z * z) - 1.0) * z.sin() - 3.0 * z.cos() / z;
+            let d = log_derivative_downward(z, log_derivative_start(4, z));
+            let d1 = psi0 / psi1 - 1.0 / z;
+            let d2 = psi1 / psi2 - 2.0 / z;
+            assert!(
+                (d[1] - d1).norm() < 1e-12 * d1.norm().max(1.0),
+                "{z}: {} vs {d1}",
+                d[1]
+            );
+            assert!(
+                (d[2] - d2).norm() < 1e-12 * d2.norm().max(1.0),
+                "{z}: {} vs {d2}",
+                d[2]
+            );
+        }
+    }
+
+    /// ψ_n, χ_n from the upward recurrence: the closed forms at n = 2 and the Wronskian
+    /// ψ_n χ_{n−1} − ψ_{n−1} χ_n = −1 up to the series length.
+    #[test]
+    fn riccati_bessel_closed_forms_and_wronskian() {
+        for x in [0.3, 2.0, 17.5, 250.0] {
+            let n_max = series_length(x);
+            let rb = riccati_bessel_upward(x, n_max);
+            let (s, c) = x.sin_cos();
+            let psi2 = (3.0 / (x * x) - 1.0) * s - 3.0 * c / x;
+            let chi2 = (3.0 / (x * x) - 1.0) * c + 3.0 * s / x;
+            assert!((rb[2].0 - psi2).abs() < 1e-12 * psi2.abs().max(1.0));
+            assert!((rb[2].1 - chi2).abs() < 1e-12 * chi2.abs().max(1.0));
+            for n in 1..=n_max {
+                let w = rb[n].0 * rb[n - 1].1 - rb[n - 1].0 * rb[n].1;
+                assert!((w + 1.0).abs() < 1e-9, "x {x} n {n}: {w}");
+            }
+        }
+    }
+
+    /// m = 1 (the sphere is the host): no scattering, every a_n and b_n is 0.
+    #[test]
+    fn coefficients_vanish_for_an_index_match() {
+        for x in [0.5, 8.0, 120.0] {
+            let c = MieCoefficients::new(x, C64::new(1.0, 0.0));
+            assert!(c.a.iter().chain(&c.b).all(|v| v.norm() < 1e-12), "x {x}");
+        }
+    }
 
     /// Rayleigh limit: Q_sca = 8/3 x⁴ |(m²−1)/(m²+2)|² and Q_abs = 4x Im((m²−1)/(m²+2)) for x → 0.
     #[test]
