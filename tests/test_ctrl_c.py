@@ -72,14 +72,19 @@ class Child:
         return [ln for ln in "".join(self.text).replace("\r", "\n").splitlines() if ln.strip()][-1]
 
 
-def test_ctrl_c_during_a_render_pass_keeps_the_passes_done(tmp_path):
+def render_interrupted(tmp_path: pathlib.Path) -> tuple[float, Child, pathlib.Path]:
+    """`motes render` stopped by SIGINT inside a pass: (seconds to exit, the child, the EXR path)."""
     out = tmp_path / "dust.exr"
     # Passes of ~1 s each: the signal lands inside a Mitsuba kernel, which holds the GIL until it returns.
     child = Child(["-m", "motes", "render", "scenes_xml/dust_box.xml", "-D", "res=160", "-s", "100000",
                    "--pass-spp", "32", "--png", "-o", str(out)])
     child.wait_for("passes")  # the first pass is done and written
     time.sleep(0.3)
-    elapsed = child.interrupt()
+    return child.interrupt(), child, out
+
+
+def test_ctrl_c_during_a_render_pass_keeps_the_passes_done(tmp_path):
+    elapsed, child, out = render_interrupted(tmp_path)
     assert child.p.returncode == 130
     assert elapsed < LIMIT_S, f"took {elapsed:.2f} s"
     last = child.last_line()
@@ -88,7 +93,8 @@ def test_ctrl_c_during_a_render_pass_keeps_the_passes_done(tmp_path):
     assert "Traceback" not in "".join(child.text)
 
 
-def test_ctrl_c_during_a_table_build_in_the_scene_load(tmp_path):
+def load_interrupted(tmp_path: pathlib.Path) -> tuple[float, Child]:
+    """`motes render` stopped by SIGINT while the scene load builds optics tables."""
     # A Mie ensemble of 100 um grains: tens of seconds of table building inside mi.load_file.
     scene = (ROOT / "scenes_xml" / "dust_box.xml").read_text().replace(
         '<float name="radius_median" value="60"/>', '<float name="radius_median" value="100"/><string name="method" value="mie"/>')
@@ -98,14 +104,19 @@ def test_ctrl_c_during_a_table_build_in_the_scene_load(tmp_path):
     child.wait_for("loading")
     time.sleep(1.5)
     assert child.p.poll() is None, "the load finished before the signal: the test no longer tests a table build"
-    elapsed = child.interrupt()
+    return child.interrupt(), child
+
+
+def test_ctrl_c_during_a_table_build_in_the_scene_load(tmp_path):
+    elapsed, child = load_interrupted(tmp_path)
     assert child.p.returncode == 130
     assert elapsed < LIMIT_S, f"took {elapsed:.2f} s"
     assert child.last_line() == "motes: interrupted (Ctrl-C) before the first pass finished; nothing written"
     assert not (tmp_path / "x.exr").exists()
 
 
-def test_ctrl_c_during_a_table_build_from_the_api():
+def api_interrupted() -> tuple[float, Child]:
+    """A table build called from Python, stopped by SIGINT."""
     code = ("import motes\nprint('start', flush=True)\n"
             "try:\n"
             "    motes.bulk_properties(motes.Species(motes.LogNormal(100, 1.5), 1.31), 1e9, [0.55], method='mie', cache=False)\n"
@@ -115,7 +126,11 @@ def test_ctrl_c_during_a_table_build_from_the_api():
     child = Child(["-c", code], stream="stdout")
     child.wait_for("start")
     time.sleep(1.0)
-    elapsed = child.interrupt()
+    return child.interrupt(), child
+
+
+def test_ctrl_c_during_a_table_build_from_the_api():
+    elapsed, child = api_interrupted()
     assert child.last_line() == "KeyboardInterrupt"
     assert elapsed < LIMIT_S, f"took {elapsed:.2f} s"
 
@@ -137,3 +152,15 @@ def test_a_table_build_after_an_interrupted_one_is_whole():
     assert out.returncode == 0, out.stderr[-2000:]
     fresh = motes.bulk_properties(motes.Species(motes.LogNormal(5, 1.5), 1.31), 1e9, [0.55], cache=False)
     assert float(out.stdout.strip()) == float(fresh["sigma_t"][0])
+
+
+if __name__ == "__main__":
+    # The seconds from SIGINT to exit for each case (TESTING.md): python tests/test_ctrl_c.py
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, run in (("render, inside a pass", lambda: render_interrupted(pathlib.Path(tmp))),
+                          ("render, table build in the load", lambda: load_interrupted(pathlib.Path(tmp))),
+                          ("API, bulk_properties", api_interrupted)):
+            elapsed, child = run()[:2]
+            print(f"| {name} | {elapsed:.3f} s | {child.last_line()} |")

@@ -251,10 +251,6 @@ def table() -> str:
     return "\n".join(rows)
 
 
-if __name__ == "__main__":
-    sys.exit(print(table()))
-
-
 def test_core_errors_are_motes_errors_naming_argument_and_value():
     """One error type from the core (issue 12): a ValueError subclass carrying the argument and value."""
     with pytest.raises(motes.MotesError) as e:
@@ -264,3 +260,7 @@ def test_core_errors_are_motes_errors_naming_argument_and_value():
     with pytest.raises(motes.MotesError) as e:
         motes.phase_function([1.0], 0.55, 1.33, [4.0])
     assert e.value.argument == "theta" and e.value.value == 4.0
+
+
+if __name__ == "__main__":
+    sys.exit(print(table()))
