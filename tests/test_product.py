@@ -119,3 +119,38 @@ def test_package_metadata():
     assert "mitsuba" in names and "drjit" in names
     assert (ROOT / meta["license"]["file"]).is_file()
     assert meta["entry-points"]["mitsuba"]["motes"] == "motes"
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb"])
+def test_albedo_scale_is_a_scene_parameter(variant):
+    """mi.traverse lists the medium's albedo_scale (issue 12.1); setting it between renders acts like
+    loading the scene with that albedo, and setting it back restores the image exactly."""
+    motes.set_variant(variant)
+
+    def scene(**medium):
+        return mi.load_dict({
+            "type": "scene", "integrator": {"type": "volpath", "max_depth": 8},
+            "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 16, "height": 16},
+                       "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0])},
+            "env": {"type": "constant"},
+            "cube": {"type": "cube", "bsdf": {"type": "null"},
+                     "interior": {"type": "discrete", "count": 20000, "radius_median": 40.0, "albedo": 0.9,
+                                  "phase": {"type": "particle"}, **medium}}})
+
+    s = scene()
+    params = mi.traverse(s)
+    key = next(k for k in params.keys() if k.endswith("interior_medium.albedo_scale"))
+    full = np.asarray(mi.render(s, spp=16, seed=2))
+    params[key] = mi.TensorXf(np.array([0.5], dtype=np.float32))
+    params.update()
+    half = np.asarray(mi.render(s, spp=16, seed=2))
+    loaded_half = np.asarray(mi.render(scene(albedo=0.45), spp=16, seed=2))
+    params[key] = mi.TensorXf(np.array([1.0], dtype=np.float32))
+    params.update()
+    again = np.asarray(mi.render(s, spp=16, seed=2))
+    assert half.mean() < 0.9 * full.mean()  # the cloud darkens the background when its grains absorb
+    assert abs(half.mean() - loaded_half.mean()) < 0.02 * loaded_half.mean()
+    assert np.array_equal(full, again)
+    with pytest.raises(Exception, match="albedo_scale"):
+        params[key] = mi.TensorXf(np.array([2.0], dtype=np.float32))
+        params.update()

@@ -48,6 +48,10 @@ Parameter               Type       Meaning (default)
 ``sample_emitters``     boolean    next-event estimation at scattering events (true)
 ======================  =========  ======================================================================
 
+Scene parameters (``mi.traverse(scene)``): ``albedo_scale``, a factor on every particle's albedo (1 as
+loaded; a one-element tensor, checked to keep albedos within [0, 1]), editable between renders; and the
+phase function. Everything else is fixed at load.
+
 Defaults are part of the physics. With the paper's normalisation (tau_i = C_ext / (pi R_i^2)) a disk
 R_i = r_c + r_i with r_c = 0 has tau_i ~ 2, lets rays through it 13 % of the time and removes only 43 %
 of C_ext: 57 % of the side scattering was lost against explicit spheres. Each disk's optical depth is
@@ -306,6 +310,21 @@ class DiscreteMediumPlugin:
             self._native, self._native_phase = _native_objects(self.data, bool(self.m_sample_emitters))
         phase.attach(self.data, self._native_phase)
         self._stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
+        # Editable through mi.traverse (a one-element tensor: Mitsuba updates it in place).
+        self._albedo_scale = mi.TensorXf(np.ones(1, dtype=np.float32))
+
+    # -- Scene parameters (mi.traverse) -------------------------------------------------------------
+    def traverse(self, callback):
+        """``albedo_scale``: a factor on every particle's albedo (1 as built), editable between renders
+        through ``mi.traverse(scene)`` (e.g. ``params["<shape>.interior_medium.albedo_scale"] = 0.5``,
+        then ``params.update()``); and the phase function. The particles and their optics are fixed at
+        load: edit the XML for those."""
+        callback.put("albedo_scale", self._albedo_scale, mi.ParamFlags.NonDifferentiable)
+        callback.put("phase_function", self.phase_function(), mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=None):
+        if keys is None or "albedo_scale" in keys:
+            self.data.core.set_albedo_scale(float(np.asarray(self._albedo_scale).ravel()[0]))
 
     @property
     def stats(self) -> dict:

@@ -276,6 +276,9 @@ pub struct DiscreteMedium {
     /// Rays and interactions of the packet interface so far (statistics).
     packet_rays: AtomicU64,
     packet_events: AtomicU64,
+    /// Factor on every particle's albedo (f64 bits; 1 at build), editable between renders (a look
+    /// control: `set_albedo_scale`). Albedos are clamped to 1 after it.
+    albedo_scale: AtomicU64,
 }
 
 /// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
@@ -471,6 +474,7 @@ impl DiscreteMedium {
             id: MEDIUM_IDS.fetch_add(1, Ordering::Relaxed),
             packet_rays: AtomicU64::new(0),
             packet_events: AtomicU64::new(0),
+            albedo_scale: AtomicU64::new(1f64.to_bits()),
         })
     }
 
@@ -536,7 +540,30 @@ impl DiscreteMedium {
 
     fn albedo_at(&self, particle: u32, l: (usize, usize, f64)) -> f64 {
         let a = &self.bins[self.bin[particle as usize] as usize].albedo;
-        (1.0 - l.2) * a[l.0] + l.2 * a[l.1]
+        ((1.0 - l.2) * a[l.0] + l.2 * a[l.1]) * self.albedo_scale()
+    }
+
+    /// The factor on every particle's albedo (1 unless set).
+    pub fn albedo_scale(&self) -> f64 {
+        f64::from_bits(self.albedo_scale.load(Ordering::Relaxed))
+    }
+
+    /// Scale every particle's albedo by `scale` from the next query on (between renders; a render in
+    /// flight may see either value). `scale` × the largest albedo must stay within [0, 1].
+    pub fn set_albedo_scale(&self, scale: f64) -> Result<(), OpticsError> {
+        let a_max = self
+            .bins
+            .iter()
+            .flat_map(|b| b.albedo.iter().copied())
+            .fold(0.0, f64::max);
+        require(
+            "albedo_scale",
+            scale,
+            scale.is_finite() && scale >= 0.0 && scale * a_max <= 1.0 + 1e-12,
+            "finite, >= 0 and at most 1 / (the largest particle albedo)",
+        )?;
+        self.albedo_scale.store(scale.to_bits(), Ordering::Relaxed);
+        Ok(())
     }
 
     fn phase_at(&self, particle: u32, l: (usize, usize, f64), mu: f64) -> f64 {

@@ -318,6 +318,17 @@ impl PyDiscreteMedium {
     }
 
     /// Largest optical depth of a particle's disk.
+    /// The factor on every particle's albedo (1 unless set; see `set_albedo_scale`).
+    #[getter]
+    fn albedo_scale(&self) -> f64 {
+        self.medium.albedo_scale()
+    }
+
+    /// Scale every particle's albedo from the next query on (between renders).
+    fn set_albedo_scale(&self, scale: f64) -> PyResult<()> {
+        self.medium.set_albedo_scale(scale).map_err(to_py)
+    }
+
     #[getter]
     fn tau_max(&self) -> f64 {
         self.medium.tau_max()
