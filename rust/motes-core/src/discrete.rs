@@ -281,6 +281,139 @@ pub struct DiscreteMedium {
     albedo_scale: AtomicU64,
 }
 
+/// The checks of [`DiscreteMedium::build`]'s inputs, each naming its argument.
+#[allow(clippy::too_many_arguments)]
+fn check_build_inputs(
+    n: usize,
+    radius: &[f64],
+    c_ext: &[f64],
+    bin: &[u32],
+    bins: &[BinOptics],
+    lambda: &[f64],
+    query_radius: f64,
+    tau_max: f64,
+    continuous_count: f64,
+) -> Result<(), OpticsError> {
+    require_len("bin (length)", bin.len(), n, "one per particle")?;
+    require_len("radius (length)", radius.len(), n, "one per particle")?;
+    require_len("c_ext (length)", c_ext.len(), n, "one per particle")?;
+    require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
+    require(
+        "query_radius",
+        query_radius,
+        query_radius.is_finite() && query_radius >= 0.0,
+        "finite and >= 0",
+    )?;
+    require(
+        "continuous_count",
+        continuous_count,
+        continuous_count > 0.0,
+        "> 0 (inf: every class discrete)",
+    )?;
+    require(
+        "lambda (length)",
+        lambda.len() as f64,
+        !lambda.is_empty(),
+        ">= 1",
+    )?;
+    for w in lambda.windows(2) {
+        require("lambda", w[1], w[1] > w[0], "strictly increasing")?;
+    }
+    for (b, o) in bins.iter().enumerate() {
+        require(
+            "bins (albedo per wavelength)",
+            b as f64,
+            o.albedo.len() == lambda.len() && o.phase.len() == lambda.len(),
+            "one albedo and one phase table per wavelength",
+        )?;
+        for &a in &o.albedo {
+            require(
+                "albedo",
+                a,
+                a.is_finite() && (0.0..=1.0 + 1e-9).contains(&a),
+                "in [0, 1]",
+            )?;
+        }
+    }
+    if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
+        require("bin (index)", b as f64, false, "< number of bins")?;
+    }
+    for i in 0..n {
+        require(
+            "radius",
+            radius[i],
+            radius[i].is_finite() && radius[i] > 0.0,
+            "finite and > 0",
+        )?;
+        require(
+            "c_ext",
+            c_ext[i],
+            c_ext[i].is_finite() && c_ext[i] >= 0.0,
+            "finite and >= 0",
+        )?;
+    }
+    Ok(())
+}
+
+/// The structures a free flight walks: the grid of the particles whose grains a pixel can resolve and
+/// the continuous field of the others (`continuous_count`, crate::continuous), and which is which.
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn build_walk(
+    positions: &[[f64; 3]],
+    reach: &[f64],
+    grid_radius: &[f64],
+    grid_c: &[f64],
+    c_ext: &[f64],
+    query_radius: f64,
+    cells_per_particle: f64,
+    continuous_count: f64,
+) -> Result<(Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>), OpticsError> {
+    let n = positions.len();
+    let keep = resolvable(positions, reach, c_ext, continuous_count);
+    let (discrete_ids, field_ids): (Vec<u32>, Vec<u32>) =
+        (0..n as u32).partition(|&i| keep[i as usize]);
+    let pick = |ids: &[u32], v: &[f64]| ids.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>();
+    let grid = if discrete_ids.is_empty() {
+        None
+    } else if field_ids.is_empty() {
+        Some(ParticleGrid::build(
+            positions,
+            grid_radius,
+            grid_c,
+            1,
+            query_radius,
+            cells_per_particle,
+        )?)
+    } else {
+        // The grid reports original indices: build it on the discrete particles and map back.
+        let pos: Vec<[f64; 3]> = discrete_ids
+            .iter()
+            .map(|&i| positions[i as usize])
+            .collect();
+        let g = ParticleGrid::build(
+            &pos,
+            &pick(&discrete_ids, grid_radius),
+            &pick(&discrete_ids, grid_c),
+            1,
+            query_radius,
+            cells_per_particle,
+        )?;
+        Some(g.with_indices(&discrete_ids))
+    };
+    let field = (!field_ids.is_empty()).then(|| {
+        let pos: Vec<[f64; 3]> = field_ids.iter().map(|&i| positions[i as usize]).collect();
+        // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not
+        // by τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs).
+        ContinuousField::build(
+            &pos,
+            &pick(&field_ids, reach),
+            &pick(&field_ids, c_ext),
+            &field_ids,
+        )
+    });
+    Ok((grid, field, keep))
+}
+
 /// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
 /// widened until its fill x = C / (π R²) is at most 1 − e^{−τ_max}, and τ = −ln(1 − x).
 pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -> (f64, f64) {
@@ -326,65 +459,18 @@ impl DiscreteMedium {
         continuous_count: f64,
         seed: u64,
     ) -> Result<Self, OpticsError> {
-        let n = positions.len();
-        require_len("bin (length)", bin.len(), n, "one per particle")?;
-        require_len("radius (length)", radius.len(), n, "one per particle")?;
-        require_len("c_ext (length)", c_ext.len(), n, "one per particle")?;
-        require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
-        require(
-            "query_radius",
+        check_build_inputs(
+            positions.len(),
+            radius,
+            c_ext,
+            &bin,
+            &bins,
+            &lambda,
             query_radius,
-            query_radius.is_finite() && query_radius >= 0.0,
-            "finite and >= 0",
-        )?;
-        require(
-            "continuous_count",
+            tau_max,
             continuous_count,
-            continuous_count > 0.0,
-            "> 0 (inf: every class discrete)",
         )?;
-        require(
-            "lambda (length)",
-            lambda.len() as f64,
-            !lambda.is_empty(),
-            ">= 1",
-        )?;
-        for w in lambda.windows(2) {
-            require("lambda", w[1], w[1] > w[0], "strictly increasing")?;
-        }
-        for (b, o) in bins.iter().enumerate() {
-            require(
-                "bins (albedo per wavelength)",
-                b as f64,
-                o.albedo.len() == lambda.len() && o.phase.len() == lambda.len(),
-                "one albedo and one phase table per wavelength",
-            )?;
-            for &a in &o.albedo {
-                require(
-                    "albedo",
-                    a,
-                    a.is_finite() && (0.0..=1.0 + 1e-9).contains(&a),
-                    "in [0, 1]",
-                )?;
-            }
-        }
-        if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
-            require("bin (index)", b as f64, false, "< number of bins")?;
-        }
-        for i in 0..n {
-            require(
-                "radius",
-                radius[i],
-                radius[i].is_finite() && radius[i] > 0.0,
-                "finite and > 0",
-            )?;
-            require(
-                "c_ext",
-                c_ext[i],
-                c_ext[i].is_finite() && c_ext[i] >= 0.0,
-                "finite and >= 0",
-            )?;
-        }
+        let n = positions.len();
         let disks: Vec<(f64, f64)> = (0..n)
             .map(|i| particle_disk(radius[i], c_ext[i], query_radius, tau_max))
             .collect();
@@ -398,49 +484,16 @@ impl DiscreteMedium {
             .collect();
         let grid_c: Vec<f64> = disks.iter().map(|&(r, t)| t * PI * r * r).collect();
         let reach: Vec<f64> = disks.iter().map(|d| d.0).collect();
-        let keep = resolvable(positions, &reach, c_ext, continuous_count);
-        let (discrete_ids, field_ids): (Vec<u32>, Vec<u32>) =
-            (0..n as u32).partition(|&i| keep[i as usize]);
-        let pick =
-            |ids: &[u32], v: &[f64]| ids.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>();
-        let grid = if discrete_ids.is_empty() {
-            None
-        } else if field_ids.is_empty() {
-            Some(ParticleGrid::build(
-                positions,
-                &grid_radius,
-                &grid_c,
-                1,
-                query_radius,
-                cells_per_particle,
-            )?)
-        } else {
-            // The grid reports original indices: build it on the discrete particles and map back.
-            let pos: Vec<[f64; 3]> = discrete_ids
-                .iter()
-                .map(|&i| positions[i as usize])
-                .collect();
-            let g = ParticleGrid::build(
-                &pos,
-                &pick(&discrete_ids, &grid_radius),
-                &pick(&discrete_ids, &grid_c),
-                1,
-                query_radius,
-                cells_per_particle,
-            )?;
-            Some(g.with_indices(&discrete_ids))
-        };
-        let field = (!field_ids.is_empty()).then(|| {
-            let pos: Vec<[f64; 3]> = field_ids.iter().map(|&i| positions[i as usize]).collect();
-            // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not
-            // by τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs).
-            ContinuousField::build(
-                &pos,
-                &pick(&field_ids, &reach),
-                &pick(&field_ids, c_ext),
-                &field_ids,
-            )
-        });
+        let (grid, field, keep) = build_walk(
+            positions,
+            &reach,
+            &grid_radius,
+            &grid_c,
+            c_ext,
+            query_radius,
+            cells_per_particle,
+            continuous_count,
+        )?;
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let tau = disks.iter().map(|d| d.1 as f32).collect();
         let reach = disks.iter().map(|d| d.0 as f32).collect();

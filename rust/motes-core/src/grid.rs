@@ -303,6 +303,62 @@ fn counting_sort(keys: &[u32], n_keys: usize) -> (Vec<u32>, Vec<u32>) {
     (start, order)
 }
 
+/// The slots of a k = 0 class: every cell references (by a copy of its sphere) each stored particle
+/// whose inclusion ball overlaps it, padded to whole blocks. Returns each cell's first slot (and the
+/// end), the spheres and the stored particle of each slot (`PADDING_SLOT` for padding).
+fn inline_slots(
+    positions: &[[f64; 3]],
+    reach: &[f64],
+    order: &[u32],
+    particles: &Spheres,
+    lo: [f64; 3],
+    cell: f64,
+    dims: [usize; 3],
+) -> (Vec<u32>, Spheres, Vec<u32>) {
+    let n_cells = dims[0] * dims[1] * dims[2];
+    let cell_index = |idx: [usize; 3]| (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0];
+    // Cell ranges (per axis) overlapped by each stored particle's inclusion ball, then a second
+    // counting sort of the (cell, particle) references.
+    let axis_range = |x: f64, r: f64, a: usize| -> [usize; 2] {
+        [x - r, x + r].map(|y| (((y - lo[a]) / cell).floor().max(0.0) as usize).min(dims[a] - 1))
+    };
+    let mut ref_cell = Vec::new();
+    let mut ref_particle = Vec::new();
+    for (j, &i) in order.iter().enumerate() {
+        let (p, r) = (positions[i as usize], reach[i as usize] * BOX_MARGIN.0);
+        let rg = [0, 1, 2].map(|a| axis_range(p[a], r, a));
+        for z in rg[2][0]..=rg[2][1] {
+            for y in rg[1][0]..=rg[1][1] {
+                for x in rg[0][0]..=rg[0][1] {
+                    ref_cell.push(cell_index([x, y, z]) as u32);
+                    ref_particle.push(j as u32);
+                }
+            }
+        }
+    }
+    let (refs_start, slot_order) = counting_sort(&ref_cell, n_cells);
+    // Each cell's run padded to whole blocks, so that a step tests whole blocks of its own
+    // (no lane masks, and a cell of four never straddles two blocks). Padding lanes have NaN
+    // centres: every comparison with them is false, so they contribute to no ray.
+    let mut start = vec![0u32; n_cells + 1];
+    for c in 0..n_cells {
+        let len = refs_start[c + 1] - refs_start[c];
+        start[c + 1] = start[c] + len.div_ceil(4) * 4;
+    }
+    let mut slot_particle = vec![PADDING_SLOT; start[n_cells] as usize];
+    for c in 0..n_cells {
+        let (from, to) = (refs_start[c] as usize, refs_start[c + 1] as usize);
+        for (k, &r) in slot_order[from..to].iter().enumerate() {
+            slot_particle[start[c] as usize + k] = ref_particle[r as usize];
+        }
+    }
+    let inline = Spheres::from_iter(slot_particle.len(), |s| match slot_particle[s] {
+        PADDING_SLOT => [f32::NAN, f32::NAN, f32::NAN, 0.0],
+        j => particles.get(j as usize),
+    });
+    (start, inline, slot_particle)
+}
+
 impl SubGrid {
     /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
     /// particles' original indices.
@@ -365,47 +421,7 @@ impl SubGrid {
             // Each cell's slots are its own particles, already in cell order.
             (centre_start, Spheres::default(), Vec::new())
         } else {
-            // Cell ranges (per axis) overlapped by each stored particle's inclusion ball, then a second
-            // counting sort of the (cell, particle) references.
-            let axis_range = |x: f64, r: f64, a: usize| -> [usize; 2] {
-                [x - r, x + r]
-                    .map(|y| (((y - lo[a]) / cell).floor().max(0.0) as usize).min(dims[a] - 1))
-            };
-            let mut ref_cell = Vec::new();
-            let mut ref_particle = Vec::new();
-            for (j, &i) in order.iter().enumerate() {
-                let (p, r) = (positions[i as usize], reach[i as usize] * BOX_MARGIN.0);
-                let rg = [0, 1, 2].map(|a| axis_range(p[a], r, a));
-                for z in rg[2][0]..=rg[2][1] {
-                    for y in rg[1][0]..=rg[1][1] {
-                        for x in rg[0][0]..=rg[0][1] {
-                            ref_cell.push(cell_index([x, y, z]) as u32);
-                            ref_particle.push(j as u32);
-                        }
-                    }
-                }
-            }
-            let (refs_start, slot_order) = counting_sort(&ref_cell, n_cells);
-            // Each cell's run padded to whole blocks, so that a step tests whole blocks of its own
-            // (no lane masks, and a cell of four never straddles two blocks). Padding lanes have NaN
-            // centres: every comparison with them is false, so they contribute to no ray.
-            let mut start = vec![0u32; n_cells + 1];
-            for c in 0..n_cells {
-                let len = refs_start[c + 1] - refs_start[c];
-                start[c + 1] = start[c] + len.div_ceil(4) * 4;
-            }
-            let mut slot_particle = vec![PADDING_SLOT; start[n_cells] as usize];
-            for c in 0..n_cells {
-                let (from, to) = (refs_start[c] as usize, refs_start[c + 1] as usize);
-                for (k, &r) in slot_order[from..to].iter().enumerate() {
-                    slot_particle[start[c] as usize + k] = ref_particle[r as usize];
-                }
-            }
-            let inline = Spheres::from_iter(slot_particle.len(), |s| match slot_particle[s] {
-                PADDING_SLOT => [f32::NAN, f32::NAN, f32::NAN, 0.0],
-                j => particles.get(j as usize),
-            });
-            (start, inline, slot_particle)
+            inline_slots(positions, &reach, &order, &particles, lo, cell, dims)
         };
         let index = order.iter().map(|&i| ids[i as usize]).collect();
         let prefetch_slots = inline.bytes().max(particles.bytes()) > PREFETCH_SLOTS_ABOVE_BYTES;
@@ -849,6 +865,57 @@ fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
     volume
 }
 
+/// The checks of [`ParticleGrid::build`]'s inputs, each naming its argument.
+fn check_build_inputs(
+    positions: &[[f64; 3]],
+    radius: &[f64],
+    c_ext: &[f64],
+    channels: usize,
+    query_radius: f64,
+    cells_per_particle: f64,
+) -> Result<(), OpticsError> {
+    let n = positions.len();
+    require("positions (count)", n as f64, n >= 1, ">= 1")?;
+    require_len("radius (length)", radius.len(), n, "one per particle")?;
+    require("channels", channels as f64, channels >= 1, ">= 1")?;
+    require(
+        "c_ext (length)",
+        c_ext.len() as f64,
+        c_ext.len() == n * channels,
+        "particles × channels",
+    )?;
+    require(
+        "query_radius",
+        query_radius,
+        query_radius.is_finite() && query_radius >= 0.0,
+        "finite and >= 0",
+    )?;
+    require(
+        "cells_per_particle",
+        cells_per_particle,
+        cells_per_particle.is_finite() && cells_per_particle > 0.0,
+        "finite and > 0",
+    )?;
+    for (i, p) in positions.iter().enumerate() {
+        require(
+            "positions (index of the first non-finite particle)",
+            i as f64,
+            p.iter().all(|x| x.is_finite()),
+            "finite coordinates",
+        )?;
+        require(
+            "radius",
+            radius[i],
+            radius[i].is_finite() && radius[i] > 0.0,
+            "finite and > 0",
+        )?;
+    }
+    for &c in c_ext {
+        require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
+    }
+    Ok(())
+}
+
 /// Particles of every size: one [`SubGrid`] per factor-of-two class of inclusion radius, so that a
 /// few large grains (a log-normal tail reaching 2 mm) do not force every traversal to scan wide
 /// neighbourhoods. Queries sum over the classes; free flights merge their contributions in t.
@@ -870,45 +937,15 @@ impl ParticleGrid {
         query_radius: f64,
         cells_per_particle: f64,
     ) -> Result<Self, OpticsError> {
-        let n = positions.len();
-        require("positions (count)", n as f64, n >= 1, ">= 1")?;
-        require_len("radius (length)", radius.len(), n, "one per particle")?;
-        require("channels", channels as f64, channels >= 1, ">= 1")?;
-        require(
-            "c_ext (length)",
-            c_ext.len() as f64,
-            c_ext.len() == n * channels,
-            "particles × channels",
-        )?;
-        require(
-            "query_radius",
+        check_build_inputs(
+            positions,
+            radius,
+            c_ext,
+            channels,
             query_radius,
-            query_radius.is_finite() && query_radius >= 0.0,
-            "finite and >= 0",
-        )?;
-        require(
-            "cells_per_particle",
             cells_per_particle,
-            cells_per_particle.is_finite() && cells_per_particle > 0.0,
-            "finite and > 0",
         )?;
-        for (i, p) in positions.iter().enumerate() {
-            require(
-                "positions (index of the first non-finite particle)",
-                i as f64,
-                p.iter().all(|x| x.is_finite()),
-                "finite coordinates",
-            )?;
-            require(
-                "radius",
-                radius[i],
-                radius[i].is_finite() && radius[i] > 0.0,
-                "finite and > 0",
-            )?;
-        }
-        for &c in c_ext {
-            require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
-        }
+        let n = positions.len();
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
         for i in 0..n {
