@@ -56,6 +56,7 @@
 //! exactly and the weights f_c / pdf stay bounded.
 
 use crate::continuous::{resolvable, ContinuousField};
+use crate::dda::Bounds3;
 use crate::error::{require, require_len, OpticsError};
 use crate::grid::{bounding_box, ParticleGrid, Site};
 use crate::phase_table::PhaseTable;
@@ -279,6 +280,12 @@ pub struct DiscreteMedium {
     /// Factor on every particle's albedo (f64 bits; 1 at build), editable between renders (a look
     /// control: `set_albedo_scale`). Albedos are clamped to 1 after it.
     albedo_scale: AtomicU64,
+    /// Where the renderer can place events: the particles' box grown by the largest disk (a site lies
+    /// within its particles' disks). A free flight from outside it (a camera, a wall) starts at no event
+    /// and skips the event lookup.
+    event_box: Bounds3,
+    /// Set once `insert_event` placed an event anywhere: then every free flight looks events up.
+    events_anywhere: std::sync::atomic::AtomicBool,
 }
 
 /// The checks of [`DiscreteMedium::build`]'s inputs, each naming its argument.
@@ -503,6 +510,12 @@ impl DiscreteMedium {
         // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
         // be ordered reliably, so they form one site.
         let coincide = 1e-6 * extent.max(1e-30);
+        // Grown by the largest disk, a relative margin for f32 positions, and the coincidence window.
+        let grow = reach_max * 1.001 + 1e-6 * extent + coincide;
+        let event_box = Bounds3 {
+            lo: lo.map(|x| x - grow),
+            hi: hi.map(|x| x + grow),
+        };
         let events = EventMap {
             current: FxHashMap::default(),
             previous: FxHashMap::default(),
@@ -528,6 +541,8 @@ impl DiscreteMedium {
             packet_rays: AtomicU64::new(0),
             packet_events: AtomicU64::new(0),
             albedo_scale: AtomicU64::new(1f64.to_bits()),
+            event_box,
+            events_anywhere: std::sync::atomic::AtomicBool::new(false),
         })
     }
 
@@ -689,7 +704,15 @@ impl DiscreteMedium {
         ) else {
             return (None, 0.0, [0.0; MAX_CHANNELS]);
         };
-        let parent = events.get(&key(o)).copied().unwrap_or_default();
+        let may_be_event = self.events_anywhere.load(Ordering::Relaxed)
+            || (0..3).all(|a| {
+                (o[a] as f64) >= self.event_box.lo[a] && (o[a] as f64) <= self.event_box.hi[a]
+            });
+        let parent = if may_be_event {
+            events.get(&key(o)).copied().unwrap_or_default()
+        } else {
+            Event::default()
+        };
         let o = o.map(|x| x as f64);
         // The continuous field first (one exponential per cell), then the particles up to its distance:
         // the nearer of two independent processes' interactions (crate::continuous).
@@ -1211,6 +1234,7 @@ impl DiscreteMedium {
             !particles.is_empty(),
             ">= 1",
         )?;
+        self.events_anywhere.store(true, Ordering::Relaxed);
         self.events.write().unwrap().insert(
             key(p),
             Event {
