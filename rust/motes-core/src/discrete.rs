@@ -186,6 +186,10 @@ impl EventMap {
             None => self.previous.get_mut(key),
         }
     }
+    fn clear(&mut self) {
+        self.current.clear();
+        self.previous.clear();
+    }
     fn insert(&mut self, key: [u32; 3], event: Event) {
         if self.current.len() >= self.capacity {
             self.previous = std::mem::take(&mut self.current);
@@ -286,6 +290,9 @@ pub struct DiscreteMedium {
     event_box: Bounds3,
     /// Set once `insert_event` placed an event anywhere: then every free flight looks events up.
     events_anywhere: std::sync::atomic::AtomicBool,
+    /// Counts changes of the optics (`set_albedo_scale`): per-thread events of an older epoch are
+    /// dropped before use.
+    optics_epoch: AtomicU64,
 }
 
 /// The checks of [`DiscreteMedium::build`]'s inputs, each naming its argument.
@@ -543,6 +550,7 @@ impl DiscreteMedium {
             albedo_scale: AtomicU64::new(1f64.to_bits()),
             event_box,
             events_anywhere: std::sync::atomic::AtomicBool::new(false),
+            optics_epoch: AtomicU64::new(0),
         })
     }
 
@@ -617,7 +625,8 @@ impl DiscreteMedium {
     }
 
     /// Scale every particle's albedo by `scale` from the next query on (between renders; a render in
-    /// flight may see either value). `scale` × the largest albedo must stay within [0, 1].
+    /// flight may see either value). `scale` × the largest albedo must stay within [0, 1]. Events
+    /// remembered so far (they carry the old albedo in their throughputs) are forgotten.
     pub fn set_albedo_scale(&self, scale: f64) -> Result<(), OpticsError> {
         let a_max = self
             .bins
@@ -630,7 +639,12 @@ impl DiscreteMedium {
             scale.is_finite() && scale >= 0.0 && scale * a_max <= 1.0 + 1e-12,
             "finite, >= 0 and at most 1 / (the largest particle albedo)",
         )?;
-        self.albedo_scale.store(scale.to_bits(), Ordering::Relaxed);
+        if scale != self.albedo_scale() {
+            self.albedo_scale.store(scale.to_bits(), Ordering::Relaxed);
+            // Remembered events carry throughputs of the old albedo.
+            self.optics_epoch.fetch_add(1, Ordering::Relaxed);
+            self.events.write().unwrap().clear();
+        }
         Ok(())
     }
 
@@ -1266,6 +1280,8 @@ const PACKET_MEDIA_KEPT: usize = 8;
 struct PacketState {
     pending: [PendingLane; PACKET_LANES],
     events: EventMap,
+    /// The medium's `optics_epoch` when these events were made (older ones carry stale albedos).
+    epoch: u64,
 }
 
 impl Default for PacketState {
@@ -1278,6 +1294,7 @@ impl Default for PacketState {
         PacketState {
             pending: [PendingLane::default(); PACKET_LANES],
             events,
+            epoch: 0,
         }
     }
 }
@@ -1323,7 +1340,14 @@ impl DiscreteMedium {
             if !states.contains_key(&self.id) && states.len() >= PACKET_MEDIA_KEPT {
                 states.clear(); // media come and go (tests, notebooks): forget the old ones
             }
-            f(states.entry(self.id).or_default())
+            let st = states.entry(self.id).or_default();
+            // Events remember the albedo they were committed with: forget them when it changed.
+            let epoch = self.optics_epoch.load(Ordering::Relaxed);
+            if st.epoch != epoch {
+                st.events.clear();
+                st.epoch = epoch;
+            }
+            f(st)
         })
     }
 
