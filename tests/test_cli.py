@@ -64,6 +64,9 @@ def test_render_writes_exr_and_png(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     assert out.is_file() and out.with_suffix(".png").is_file()
     assert "peak memory" in r.stderr
+    # The load stages with their times.
+    for stage in ("particles: 2000 generated in", "optics tables:", "grid: 2000 particles"):
+        assert stage in r.stderr, r.stderr
 
 
 def test_equivalent_xml_loads_in_mitsuba(tmp_path, capsys):
@@ -112,3 +115,14 @@ def test_tonemap_keeps_a_dim_room_readable_beside_a_bright_patch():
     assert out[0, 0, 0] > 0.99 and 0.1 < out[32, 32, 0] < 0.5
     assert out[62, 62, 0] > out[32, 32, 0]
     assert out[0, 63, 0] == 0 and out[1, 63, 0] == 0
+
+
+def test_load_stages_are_logged_by_the_api(caplog):
+    """The library says its load stages at INFO on the `motes` logger (a log line in the API)."""
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="motes"):
+        motes.DiscreteMedium(np.zeros((3, 3)), np.full(3, 5.0), np.zeros(3, dtype=np.int64),
+                             [motes.Species(motes.LogNormal(5, 1.2), 1.31)], [0.55])
+    text = caplog.text
+    assert "optics tables:" in text and "grid: 3 particles" in text

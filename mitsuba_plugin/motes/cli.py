@@ -123,6 +123,19 @@ def _peak_mb() -> float:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _show_load_stages() -> None:
+    """Print the load stages the library logs at INFO (particles, optics tables, grid; with times)."""
+    import logging  # noqa: PLC0415
+
+    logger = logging.getLogger("motes")
+    if not any(getattr(h, "_motes_cli", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("motes:   %(message)s"))
+        handler._motes_cli = True
+        logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+
+
 def shipped_scenes() -> dict[str, pathlib.Path]:
     """The example scenes in the package (``motes/scenes``), by stem."""
     folder = pathlib.Path(__file__).resolve().parent / "scenes"
@@ -156,6 +169,7 @@ def cmd_render(args) -> int:
         defines[key] = value
     scene_path = _scene_path(args.scene)
     out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
+    _show_load_stages()
     with _CtrlC("motes: interrupted (Ctrl-C) before the first pass finished; nothing written") as ctrl_c:
         t0 = time.perf_counter()
         print(f"motes: loading {scene_path} ({variant}): particles, optics tables, grid ...", file=sys.stderr)

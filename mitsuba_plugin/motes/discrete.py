@@ -44,11 +44,16 @@ from __future__ import annotations
 
 import numpy as np
 
+import logging
+import time
 import warnings
 
 from . import _memory, _motes
 from .ensemble import DEFAULT_TRUNCATE_RAD, Species, bulk_properties
 from .psd import Monodisperse, Uniform
+
+#: Load stages (optics tables, grid) and their times, at INFO (the `motes` command shows them).
+log = logging.getLogger("motes")
 
 #: Default cap on each particle's optical depth (module docs; defined in the Rust core).
 DEFAULT_TAU_MAX: float = _motes.DEFAULT_TAU_MAX
@@ -121,6 +126,7 @@ class DiscreteMedium:
         albedos, theta, f, offsets = [], [], [], [0]
         self.bin_radius_um, self.bin_species, self.bin_q_ext, self.bin_albedo = [], [], [], []
         nb = 0
+        t_tables = t_said = time.perf_counter()
         for k, sp in enumerate(species):
             sel = np.flatnonzero(idx == k)
             if sel.size == 0:
@@ -148,6 +154,11 @@ class DiscreteMedium:
                 self.bin_q_ext.append(q_t[rank])
                 self.bin_albedo.append(bulk["albedo"][rank])
                 nb += 1
+                if time.perf_counter() - t_said > 1.0:  # long builds say where they are, once a second
+                    t_said = time.perf_counter()
+                    log.info("optics tables: %d bins so far (species %d), %.1f s", nb, k, t_said - t_tables)
+        log.info("optics tables: %d bins in %.1f s", nb, time.perf_counter() - t_tables)
+        t_grid = time.perf_counter()
         um = 1e-6 / scale_m
         c_ext = np.pi * r * r * q_ext * um * um
         self.scale_m = float(scale_m)
@@ -162,6 +173,7 @@ class DiscreteMedium:
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
             float(continuous_count), int(seed) & (2**64 - 1))
+        log.info("grid: %d particles, %.1f MB, %.1f s", n, self._core.bytes / 1e6, time.perf_counter() - t_grid)
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened
         self.tau_max = float(tau_max)

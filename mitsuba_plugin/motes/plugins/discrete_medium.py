@@ -101,13 +101,14 @@ instead (the evaluated-mode path below).
 from __future__ import annotations
 
 import json
+import time
 import warnings
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..discrete import DiscreteMedium
+from ..discrete import DiscreteMedium, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX
 from ..particle_io import load_particles
@@ -233,6 +234,7 @@ class DiscreteMediumPlugin:
             species = [Species(psd, Material(material) if material is not None else complex(eta, eta_k))]
 
         # Particles (local units), then to world.
+        t_particles = time.perf_counter()
         if filename is not None:
             clash = [name for name in ("count", "distribution") if name in props]
             if clash:
@@ -263,6 +265,8 @@ class DiscreteMediumPlugin:
             else:
                 density = Gradient(axis=2, start=1.0, end=0.0) if distribution == "gradient" else Noise(scale=0.5, seed=seed)
                 pos, _ = density_box(count, lo, hi, density, species[0].psd, seed=seed)
+        log.info("particles: %d %s in %.1f s", len(pos), "read" if filename is not None else "generated",
+                 time.perf_counter() - t_particles)
         m = np.array(to_world.matrix, dtype=np.float64)
         if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
             raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
