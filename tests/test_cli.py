@@ -54,6 +54,7 @@ def test_particles_summary(tmp_path, capsys):
     assert main(["particles", str(path)]) == 0
     out = capsys.readouterr().out
     assert "500 particles" in out and "median 20" in out
+    assert "grid of a discrete medium (query_radius 0): cells" in out
 
 
 def test_render_writes_exr_and_png(tmp_path):

@@ -252,7 +252,12 @@ def cmd_particles(args) -> int:
         print(f"    {10**a:9.4g} - {10**b:9.4g} um  {'#' * int(40 * c / max(hist.max(), 1)):40s} {c}")
     species, counts = np.unique(ps.species, return_counts=True)
     print("  species: " + ", ".join(f"{int(s)}: {int(c)}" for s, c in zip(species, counts)))
-    print(f"  memory of the medium's grid: about {n * 29 / 2**20:.1f} MiB (29 bytes per particle)")
+    # The grid a `discrete` medium would build from these particles (query_radius 0, default resolution;
+    # the cross sections only scale optical depths, not the grid).
+    grid = motes.ParticleGrid(ps.positions, ps.radii_um, 2.0 * np.pi * ps.radii_um**2, scale_m=args.scale_m)
+    dims, nbytes = grid.dims, grid.bytes
+    print(f"  grid of a discrete medium (query_radius 0): cells {' x '.join(map(str, dims))}, "
+          f"{nbytes / 2**20:.1f} MiB ({nbytes / max(n, 1):.0f} bytes per particle)")
     return 0
 
 
