@@ -561,121 +561,21 @@ impl Psd {
         nodes: &mut Vec<f64>,
         weights: &mut Vec<f64>,
     ) {
-        let (x, w) = gauss_legendre(8);
-        // One panel [ta, tb] in t = ln r with `density(t)` per unit t (scale included): midpoints
-        // uniform in x where `ripple` asks for them, else the Gauss–Legendre nodes `gl`.
-        let emit = |ta: f64,
-                    tb: f64,
-                    gl: &[(f64, f64)],
-                    density: &dyn Fn(f64) -> f64,
-                    nodes: &mut Vec<f64>,
-                    weights: &mut Vec<f64>| {
-            if let Some((q, min_mass)) = ripple {
-                let (xa, xb) = (
-                    q.wavenumber_per_um * ta.exp(),
-                    q.wavenumber_per_um * tb.exp(),
-                );
-                let m2: f64 = gl.iter().map(|(r, w)| w * r * r).sum();
-                if xb <= q.x_max && xb > q.x_min && m2 >= min_mass {
-                    let dx = q.dx * (xb / q.x_grow).max(1.0);
-                    let n = ((xb - xa) / dx).ceil().max(1.0) as usize;
-                    let h = (xb - xa) / n as f64;
-                    for i in 0..n {
-                        let xi = xa + (i as f64 + 0.5) * h;
-                        // ∫ g p dr = ∫ g density(t) dx / x.
-                        nodes.push(xi / q.wavenumber_per_um);
-                        weights.push(h * density((xi / q.wavenumber_per_um).ln()) / xi);
-                    }
-                    return;
-                }
-            }
-            for &(r, wt) in gl {
-                nodes.push(r);
-                weights.push(wt);
-            }
-        };
-        // ∫_a^b g(r) p(r) dr with r = e^t.
-        let panel = |a: f64,
-                     b: f64,
-                     density: &dyn Fn(f64) -> f64,
-                     nodes: &mut Vec<f64>,
-                     weights: &mut Vec<f64>| {
-            let (ta, tb) = (a.ln(), b.ln());
-            let panels = (((tb - ta) / step).ceil() as usize).max(1);
-            let h = (tb - ta) / panels as f64;
-            for k in 0..panels {
-                let t0 = ta + k as f64 * h;
-                let per_t = |t: f64| scale * density(t.exp()) * t.exp();
-                let gl: Vec<(f64, f64)> = x
-                    .iter()
-                    .zip(&w)
-                    .map(|(xi, wi)| {
-                        let t = t0 + 0.5 * h * (1.0 + xi);
-                        let r = t.exp();
-                        (r, scale * 0.5 * h * wi * density(r) * r)
-                    })
-                    .collect();
-                emit(t0, t0 + h, &gl, &per_t, nodes, weights);
-            }
+        let rule = gauss_legendre(8);
+        let mut out = QuadratureOut {
+            ripple,
+            nodes,
+            weights,
         };
         match self {
-            Psd::Monodisperse { radius_um } => {
-                nodes.push(*radius_um);
-                weights.push(scale);
-            }
+            Psd::Monodisperse { radius_um } => out.atom(*radius_um, scale),
             Psd::LogNormal {
                 sigma_g, median_um, ..
-            } if *sigma_g == 1.0 => {
-                nodes.push(*median_um);
-                weights.push(scale);
-            }
-            Psd::LogNormal {
-                median_um, sigma_g, ..
-            } => {
-                // In the standard variable z (r = r_g e^{z ln σ_g}) the weights φ(z)/mass are exact for
-                // any width, down to σ_g = 1 + 1e-15; panels ≤ 0.5 in z and ≤ `step` in ln r.
-                let s_ln = sigma_g.ln();
-                let (zlo, zhi) = self.lognormal_z();
-                let mass = self.lognormal_mass();
-                let norm = scale / (2.0 * std::f64::consts::PI).sqrt() / mass;
-                let panels = (((zhi - zlo) * s_ln / step).ceil() as usize)
-                    .max((2.0 * (zhi - zlo)).ceil() as usize)
-                    .max(1);
-                let h = (zhi - zlo) / panels as f64;
-                let ln_med = median_um.ln();
-                // Density per unit ln r: φ(z) / (ln σ_g · mass).
-                let per_t = |t: f64| {
-                    let z = (t - ln_med) / s_ln;
-                    norm * (-0.5 * z * z).exp() / s_ln
-                };
-                for k in 0..panels {
-                    let z0 = zlo + k as f64 * h;
-                    let gl: Vec<(f64, f64)> = x
-                        .iter()
-                        .zip(&w)
-                        .map(|(xi, wi)| {
-                            let z = z0 + 0.5 * h * (1.0 + xi);
-                            (
-                                median_um * (z * s_ln).exp(),
-                                scale * 0.5 * h * wi * (-0.5 * z * z).exp()
-                                    / (2.0 * std::f64::consts::PI).sqrt()
-                                    / mass,
-                            )
-                        })
-                        .collect();
-                    emit(
-                        ln_med + z0 * s_ln,
-                        ln_med + (z0 + h) * s_ln,
-                        &gl,
-                        &per_t,
-                        nodes,
-                        weights,
-                    );
-                }
-            }
+            } if *sigma_g == 1.0 => out.atom(*median_um, scale),
+            Psd::LogNormal { .. } => self.push_lognormal(scale, step, &rule, &mut out),
             Psd::Uniform { .. } => {
                 let (a, b) = self.support();
-                panel(a, b, &|r| self.pdf(r), nodes, weights);
+                out.panels(a, b, &|r| self.pdf(r), scale, step, &rule);
             }
             Psd::Histogram { edges_um, counts } => {
                 let total: f64 = counts.iter().sum();
@@ -683,14 +583,13 @@ impl Psd {
                     if c > 0.0 {
                         let (a, b) = (edges_um[i], edges_um[i + 1]);
                         let d = c / (total * (b - a));
-                        panel(a, b, &|_| d, nodes, weights);
+                        out.panels(a, b, &|_| d, scale, step, &rule);
                     }
                 }
             }
             Psd::Radii { .. } => {
                 for (r, m) in self.radii_atoms() {
-                    nodes.push(r);
-                    weights.push(scale * m);
+                    out.atom(r, scale * m);
                 }
             }
             Psd::Mixture {
@@ -700,10 +599,131 @@ impl Psd {
                 let total: f64 = ws.iter().sum();
                 for (c, w) in components.iter().zip(ws) {
                     if *w > 0.0 {
-                        c.push_quadrature(scale * w / total, step, ripple, nodes, weights);
+                        c.push_quadrature(scale * w / total, step, ripple, out.nodes, out.weights);
                     }
                 }
             }
+        }
+    }
+
+    /// The log-normal's panels: in the standard variable z (r = r_g e^{z ln σ_g}) the weights
+    /// φ(z)/mass are exact for any width, down to σ_g = 1 + 1e-15; panels ≤ 0.5 in z and ≤ `step` in
+    /// ln r.
+    fn push_lognormal(
+        &self,
+        scale: f64,
+        step: f64,
+        (x, w): &(Vec<f64>, Vec<f64>),
+        out: &mut QuadratureOut,
+    ) {
+        let Psd::LogNormal {
+            median_um, sigma_g, ..
+        } = self
+        else {
+            unreachable!("push_lognormal of a log-normal only")
+        };
+        let s_ln = sigma_g.ln();
+        let (zlo, zhi) = self.lognormal_z();
+        let mass = self.lognormal_mass();
+        let norm = scale / (2.0 * std::f64::consts::PI).sqrt() / mass;
+        let panels = (((zhi - zlo) * s_ln / step).ceil() as usize)
+            .max((2.0 * (zhi - zlo)).ceil() as usize)
+            .max(1);
+        let h = (zhi - zlo) / panels as f64;
+        let ln_med = median_um.ln();
+        // Density per unit ln r: φ(z) / (ln σ_g · mass).
+        let per_t = |t: f64| {
+            let z = (t - ln_med) / s_ln;
+            norm * (-0.5 * z * z).exp() / s_ln
+        };
+        for k in 0..panels {
+            let z0 = zlo + k as f64 * h;
+            let gl: Vec<(f64, f64)> = x
+                .iter()
+                .zip(w)
+                .map(|(xi, wi)| {
+                    let z = z0 + 0.5 * h * (1.0 + xi);
+                    (
+                        median_um * (z * s_ln).exp(),
+                        scale * 0.5 * h * wi * (-0.5 * z * z).exp()
+                            / (2.0 * std::f64::consts::PI).sqrt()
+                            / mass,
+                    )
+                })
+                .collect();
+            out.emit(ln_med + z0 * s_ln, ln_med + (z0 + h) * s_ln, &gl, &per_t);
+        }
+    }
+}
+
+/// Where a quadrature's nodes and weights go, with the ripple resolution its panels honour.
+struct QuadratureOut<'a> {
+    ripple: Option<(&'a RippleResolution, f64)>,
+    nodes: &'a mut Vec<f64>,
+    weights: &'a mut Vec<f64>,
+}
+
+impl QuadratureOut<'_> {
+    /// A point mass.
+    fn atom(&mut self, r: f64, weight: f64) {
+        self.nodes.push(r);
+        self.weights.push(weight);
+    }
+
+    /// One panel [ta, tb] in t = ln r with `density(t)` per unit t (scale included): midpoints uniform in
+    /// x where the ripple resolution asks for them, else the Gauss–Legendre nodes `gl`.
+    fn emit(&mut self, ta: f64, tb: f64, gl: &[(f64, f64)], density: &dyn Fn(f64) -> f64) {
+        if let Some((q, min_mass)) = self.ripple {
+            let (xa, xb) = (
+                q.wavenumber_per_um * ta.exp(),
+                q.wavenumber_per_um * tb.exp(),
+            );
+            let m2: f64 = gl.iter().map(|(r, w)| w * r * r).sum();
+            if xb <= q.x_max && xb > q.x_min && m2 >= min_mass {
+                let dx = q.dx * (xb / q.x_grow).max(1.0);
+                let n = ((xb - xa) / dx).ceil().max(1.0) as usize;
+                let h = (xb - xa) / n as f64;
+                for i in 0..n {
+                    let xi = xa + (i as f64 + 0.5) * h;
+                    // ∫ g p dr = ∫ g density(t) dx / x.
+                    self.nodes.push(xi / q.wavenumber_per_um);
+                    self.weights
+                        .push(h * density((xi / q.wavenumber_per_um).ln()) / xi);
+                }
+                return;
+            }
+        }
+        for &(r, wt) in gl {
+            self.atom(r, wt);
+        }
+    }
+
+    /// ∫_a^b g(r) p(r) dr with r = e^t: panels of at most `step` in t, `density(r)` per unit r.
+    fn panels(
+        &mut self,
+        a: f64,
+        b: f64,
+        density: &dyn Fn(f64) -> f64,
+        scale: f64,
+        step: f64,
+        (x, w): &(Vec<f64>, Vec<f64>),
+    ) {
+        let (ta, tb) = (a.ln(), b.ln());
+        let panels = (((tb - ta) / step).ceil() as usize).max(1);
+        let h = (tb - ta) / panels as f64;
+        for k in 0..panels {
+            let t0 = ta + k as f64 * h;
+            let per_t = |t: f64| scale * density(t.exp()) * t.exp();
+            let gl: Vec<(f64, f64)> = x
+                .iter()
+                .zip(w)
+                .map(|(xi, wi)| {
+                    let t = t0 + 0.5 * h * (1.0 + xi);
+                    let r = t.exp();
+                    (r, scale * 0.5 * h * wi * density(r) * r)
+                })
+                .collect();
+            self.emit(t0, t0 + h, &gl, &per_t);
         }
     }
 }
