@@ -82,76 +82,15 @@ impl Psd {
 
     /// Check every parameter, naming the bad one.
     pub fn validate(&self) -> Result<(), OpticsError> {
-        let pos = |name, v: f64| require(name, v, v.is_finite() && v > 0.0, "finite and > 0");
         match self {
-            Psd::Monodisperse { radius_um } => pos("radius_um", *radius_um),
-            Psd::LogNormal {
-                median_um,
-                sigma_g,
-                r_min_um,
-                r_max_um,
-            } => {
-                pos("median_um", *median_um)?;
-                require(
-                    "sigma_g",
-                    *sigma_g,
-                    sigma_g.is_finite() && *sigma_g >= 1.0,
-                    "finite and >= 1",
-                )?;
-                pos("r_min_um", *r_min_um)?;
-                pos("r_max_um", *r_max_um)?;
-                require("r_max_um", *r_max_um, r_max_um > r_min_um, "> r_min_um")?;
-                if *sigma_g == 1.0 {
-                    require(
-                        "median_um",
-                        *median_um,
-                        (*r_min_um..=*r_max_um).contains(median_um),
-                        "inside [r_min_um, r_max_um] when sigma_g = 1",
-                    )?;
-                } else {
-                    require(
-                        "r_min_um / r_max_um",
-                        0.0,
-                        self.lognormal_mass() > 0.0,
-                        "an interval holding some of the log-normal's mass",
-                    )?;
-                }
-                Ok(())
-            }
+            Psd::Monodisperse { radius_um } => positive("radius_um", *radius_um),
+            Psd::LogNormal { .. } => self.validate_lognormal(),
             Psd::Uniform { r_min_um, r_max_um } => {
-                pos("r_min_um", *r_min_um)?;
-                pos("r_max_um", *r_max_um)?;
+                positive("r_min_um", *r_min_um)?;
+                positive("r_max_um", *r_max_um)?;
                 require("r_max_um", *r_max_um, r_max_um > r_min_um, "> r_min_um")
             }
-            Psd::Histogram { edges_um, counts } => {
-                require(
-                    "edges_um (length)",
-                    edges_um.len() as f64,
-                    edges_um.len() >= 2,
-                    ">= 2",
-                )?;
-                require(
-                    "counts (length)",
-                    counts.len() as f64,
-                    counts.len() + 1 == edges_um.len(),
-                    "len(edges_um) - 1",
-                )?;
-                for &e in edges_um {
-                    pos("edges_um", e)?;
-                }
-                for w in edges_um.windows(2) {
-                    require("edges_um", w[1], w[1] > w[0], "strictly increasing")?;
-                }
-                for &c in counts {
-                    require("counts", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
-                }
-                require(
-                    "counts (sum)",
-                    counts.iter().sum(),
-                    counts.iter().sum::<f64>() > 0.0,
-                    "> 0",
-                )
-            }
+            Psd::Histogram { edges_um, counts } => validate_histogram(edges_um, counts),
             Psd::Radii { radii_um } => {
                 require(
                     "radii_um (length)",
@@ -159,39 +98,51 @@ impl Psd {
                     radii_um.len() >= 2,
                     ">= 2 (an empty list has no particles; for one radius use Monodisperse)",
                 )?;
-                for &r in radii_um {
-                    pos("radii_um", r)?;
-                }
-                Ok(())
+                radii_um.iter().try_for_each(|&r| positive("radii_um", r))
             }
             Psd::Mixture {
                 weights,
                 components,
-            } => {
-                require(
-                    "components (length)",
-                    components.len() as f64,
-                    !components.is_empty(),
-                    ">= 1",
-                )?;
-                require(
-                    "weights (length)",
-                    weights.len() as f64,
-                    weights.len() == components.len(),
-                    "len(components)",
-                )?;
-                for &w in weights {
-                    require("weights", w, w.is_finite() && w >= 0.0, "finite and >= 0")?;
-                }
-                require(
-                    "weights (sum)",
-                    weights.iter().sum(),
-                    weights.iter().sum::<f64>() > 0.0,
-                    "> 0",
-                )?;
-                components.iter().try_for_each(Psd::validate)
-            }
+            } => validate_mixture(weights, components),
         }
+    }
+
+    fn validate_lognormal(&self) -> Result<(), OpticsError> {
+        let Psd::LogNormal {
+            median_um,
+            sigma_g,
+            r_min_um,
+            r_max_um,
+        } = self
+        else {
+            unreachable!("validate_lognormal of a log-normal only")
+        };
+        positive("median_um", *median_um)?;
+        require(
+            "sigma_g",
+            *sigma_g,
+            sigma_g.is_finite() && *sigma_g >= 1.0,
+            "finite and >= 1",
+        )?;
+        positive("r_min_um", *r_min_um)?;
+        positive("r_max_um", *r_max_um)?;
+        require("r_max_um", *r_max_um, r_max_um > r_min_um, "> r_min_um")?;
+        if *sigma_g == 1.0 {
+            require(
+                "median_um",
+                *median_um,
+                (*r_min_um..=*r_max_um).contains(median_um),
+                "inside [r_min_um, r_max_um] when sigma_g = 1",
+            )?;
+        } else {
+            require(
+                "r_min_um / r_max_um",
+                0.0,
+                self.lognormal_mass() > 0.0,
+                "an interval holding some of the log-normal's mass",
+            )?;
+        }
+        Ok(())
     }
 
     /// Standardised truncation bounds of a log-normal: (z_lo, z_hi) clipped to ±Z_CUT.
@@ -726,6 +677,66 @@ impl QuadratureOut<'_> {
             self.emit(t0, t0 + h, &gl, &per_t);
         }
     }
+}
+
+/// `v` finite and > 0, else an error naming `name`.
+fn positive(name: &'static str, v: f64) -> Result<(), OpticsError> {
+    require(name, v, v.is_finite() && v > 0.0, "finite and > 0")
+}
+
+fn validate_histogram(edges_um: &[f64], counts: &[f64]) -> Result<(), OpticsError> {
+    require(
+        "edges_um (length)",
+        edges_um.len() as f64,
+        edges_um.len() >= 2,
+        ">= 2",
+    )?;
+    require(
+        "counts (length)",
+        counts.len() as f64,
+        counts.len() + 1 == edges_um.len(),
+        "len(edges_um) - 1",
+    )?;
+    for &e in edges_um {
+        positive("edges_um", e)?;
+    }
+    for w in edges_um.windows(2) {
+        require("edges_um", w[1], w[1] > w[0], "strictly increasing")?;
+    }
+    for &c in counts {
+        require("counts", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
+    }
+    require(
+        "counts (sum)",
+        counts.iter().sum(),
+        counts.iter().sum::<f64>() > 0.0,
+        "> 0",
+    )
+}
+
+fn validate_mixture(weights: &[f64], components: &[Psd]) -> Result<(), OpticsError> {
+    require(
+        "components (length)",
+        components.len() as f64,
+        !components.is_empty(),
+        ">= 1",
+    )?;
+    require(
+        "weights (length)",
+        weights.len() as f64,
+        weights.len() == components.len(),
+        "len(components)",
+    )?;
+    for &w in weights {
+        require("weights", w, w.is_finite() && w >= 0.0, "finite and >= 0")?;
+    }
+    require(
+        "weights (sum)",
+        weights.iter().sum(),
+        weights.iter().sum::<f64>() > 0.0,
+        "> 0",
+    )?;
+    components.iter().try_for_each(Psd::validate)
 }
 
 /// Where a radius quadrature must resolve Mie's ripple in the size parameter x = k r: panels that end in
