@@ -8,7 +8,6 @@ use motes_core::goa::GoaOptions;
 use motes_core::optics::Method;
 use num_complex::Complex64 as C64;
 use numpy::IntoPyArray;
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 pub(crate) type BulkOut<'py> = (
@@ -47,14 +46,16 @@ pub(crate) fn bulk_properties<'py>(
     refine_tol: f64,
     refine_max_nodes: usize,
 ) -> PyResult<BulkOut<'py>> {
-    use motes_core::ensemble::{self, BulkOptions, PhaseAngles, Species};
+    use motes_core::ensemble::{self, BulkOptions, PhaseAngles};
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
     let lam = wavelength_um.as_array().to_vec();
     let (er, ei) = (eta_re.as_array().to_vec(), eta_im.as_array().to_vec());
     let (ns, nl) = (psd_specs.len(), lam.len());
     if shares.len() != ns || er.len() != ns * nl || ei.len() != ns * nl {
-        return Err(PyValueError::new_err(
-            "species, shares and eta must describe the same species and wavelengths",
+        return Err(invalid(
+            "shares, eta_re, eta_im",
+            None::<f64>,
+            "species, shares and eta must describe the same species and wavelengths".into(),
         ));
     }
     motes_core::Psd::require_log_step(max_log_step).map_err(to_py)?;
@@ -65,22 +66,7 @@ pub(crate) fn bulk_properties<'py>(
         "finite and >= 0",
     )
     .map_err(to_py)?;
-    let psds = psd_specs
-        .iter()
-        .map(|s| psd(s))
-        .collect::<PyResult<Vec<_>>>()?;
-    let species: Vec<Vec<Species>> = (0..nl)
-        .map(|j| {
-            psds.iter()
-                .enumerate()
-                .map(|(i, p)| Species {
-                    psd: p.clone(),
-                    eta: C64::new(er[i * nl + j], ei[i * nl + j]),
-                    share: shares[i],
-                })
-                .collect()
-        })
-        .collect();
+    let species = species_per_wavelength(&psd_specs, &shares, &er, &ei, nl)?;
     let theta = theta.as_array().to_vec();
     let angles = match (with_phase, theta.is_empty()) {
         (false, _) => PhaseAngles::None,
@@ -111,7 +97,42 @@ pub(crate) fn bulk_properties<'py>(
         )
     })?
     .map_err(to_py)?;
-    let col = |f: fn(&ensemble::Bulk) -> f64| {
+    bulk_out(py, &out, nl)
+}
+
+/// The species at each wavelength (`eta` given per species and wavelength, row-major).
+fn species_per_wavelength(
+    psd_specs: &[String],
+    shares: &[f64],
+    er: &[f64],
+    ei: &[f64],
+    nl: usize,
+) -> PyResult<Vec<Vec<motes_core::ensemble::Species>>> {
+    let psds = psd_specs
+        .iter()
+        .map(|s| psd(s))
+        .collect::<PyResult<Vec<_>>>()?;
+    Ok((0..nl)
+        .map(|j| {
+            psds.iter()
+                .enumerate()
+                .map(|(i, p)| motes_core::ensemble::Species {
+                    psd: p.clone(),
+                    eta: C64::new(er[i * nl + j], ei[i * nl + j]),
+                    share: shares[i],
+                })
+                .collect()
+        })
+        .collect())
+}
+
+/// The Python tuple of a spectral bulk result (see `BulkOut`).
+fn bulk_out<'py>(
+    py: Python<'py>,
+    out: &motes_core::ensemble::SpectralBulk,
+    nl: usize,
+) -> PyResult<BulkOut<'py>> {
+    let col = |f: fn(&motes_core::ensemble::Bulk) -> f64| {
         out.bulk
             .iter()
             .map(f)
