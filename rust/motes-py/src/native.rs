@@ -174,72 +174,105 @@ pub unsafe extern "C" fn motes_packet(
         std::slice::from_raw_parts(lambda, ch)
     };
     match op {
-        FREE_FLIGHT => {
-            let rays: [Option<PacketRay>; PACKET_LANES] = lanes(width, |i| {
-                active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tfar, i)))
-            });
-            let mut t = [None; PACKET_LANES];
-            m.packet_free_flights(&rays[..width], &mut t);
-            for (i, t) in t.iter().enumerate().take(width) {
-                if let Some(t) = t {
-                    r.set_f(Field::Tfar, i, *t);
-                    r.returned(i);
-                }
-            }
-        }
-        COMMIT => {
-            let p = lanes(width, |i| active(i).then(|| r.v3(Field::Ox, i)));
-            let mut albedo = [0.0; PACKET_LANES * 4];
-            m.packet_commit(&p[..width], lam, ch, &mut albedo);
-            for i in (0..width).filter(|&i| active(i)) {
-                write_channels(&r, i, &albedo[i * ch..(i + 1) * ch]);
-                r.returned(i);
-            }
-        }
-        PHASE_SAMPLE => {
-            let l = lanes(width, |i| {
-                active(i).then(|| {
-                    (
-                        r.v3(Field::Ox, i),
-                        r.v3(Field::Dx, i),
-                        r.f(Field::Tnear, i) as f64,
-                        [r.f(Field::Time, i) as f64, r.f(Field::Tfar, i) as f64],
-                    )
-                })
-            });
-            let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
-            m.packet_phase_sample(&l[..width], lam, ch, &mut wo, &mut pdf);
-            for i in (0..width).filter(|&i| active(i)) {
-                r.set_f(Field::Tfar, i, wo[i][0]);
-                r.set_f(Field::U, i, wo[i][1]);
-                r.set_f(Field::V, i, wo[i][2]);
-                r.set_f(Field::PrimId, i, pdf[i]);
-                r.returned(i);
-            }
-        }
-        PHASE_EVAL => {
-            let l = lanes(width, |i| {
-                active(i).then(|| {
-                    (
-                        r.v3(Field::Ox, i),
-                        r.v3(Field::Dx, i),
-                        [
-                            r.f(Field::Tnear, i),
-                            r.f(Field::Time, i),
-                            r.f(Field::Tfar, i),
-                        ],
-                    )
-                })
-            });
-            let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
-            m.packet_phase_eval(&l[..width], lam, ch, &mut v, &mut pdf);
-            for i in (0..width).filter(|&i| active(i)) {
-                write_channels(&r, i, &v[i * ch..(i + 1) * ch]);
-                r.returned(i);
-                r.set_f(Field::InstId, i, pdf[i]);
-            }
-        }
+        FREE_FLIGHT => free_flights(m, &r, width, &active),
+        COMMIT => commit(m, &r, width, &active, lam, ch),
+        PHASE_SAMPLE => phase_sample(m, &r, width, &active, lam, ch),
+        PHASE_EVAL => phase_eval(m, &r, width, &active, lam, ch),
         _ => {}
+    }
+}
+
+/// The packet's free flights: each hit lane's tfar becomes its site's distance.
+fn free_flights(m: &DiscreteMedium, r: &Record, width: usize, active: &dyn Fn(usize) -> bool) {
+    let rays: [Option<PacketRay>; PACKET_LANES] = lanes(width, |i| {
+        active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tfar, i)))
+    });
+    let mut t = [None; PACKET_LANES];
+    m.packet_free_flights(&rays[..width], &mut t);
+    for (i, t) in t.iter().enumerate().take(width) {
+        if let Some(t) = t {
+            r.set_f(Field::Tfar, i, *t);
+            r.returned(i);
+        }
+    }
+}
+
+/// Remember the packet's events where the renderer placed them; each lane's albedo per channel.
+fn commit(
+    m: &DiscreteMedium,
+    r: &Record,
+    width: usize,
+    active: &dyn Fn(usize) -> bool,
+    lam: &[f64],
+    ch: usize,
+) {
+    let p = lanes(width, |i| active(i).then(|| r.v3(Field::Ox, i)));
+    let mut albedo = [0.0; PACKET_LANES * 4];
+    m.packet_commit(&p[..width], lam, ch, &mut albedo);
+    for i in (0..width).filter(|&i| active(i)) {
+        write_channels(r, i, &albedo[i * ch..(i + 1) * ch]);
+        r.returned(i);
+    }
+}
+
+/// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
+fn phase_sample(
+    m: &DiscreteMedium,
+    r: &Record,
+    width: usize,
+    active: &dyn Fn(usize) -> bool,
+    lam: &[f64],
+    ch: usize,
+) {
+    let l = lanes(width, |i| {
+        active(i).then(|| {
+            (
+                r.v3(Field::Ox, i),
+                r.v3(Field::Dx, i),
+                r.f(Field::Tnear, i) as f64,
+                [r.f(Field::Time, i) as f64, r.f(Field::Tfar, i) as f64],
+            )
+        })
+    });
+    let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
+    m.packet_phase_sample(&l[..width], lam, ch, &mut wo, &mut pdf);
+    for i in (0..width).filter(|&i| active(i)) {
+        r.set_f(Field::Tfar, i, wo[i][0]);
+        r.set_f(Field::U, i, wo[i][1]);
+        r.set_f(Field::V, i, wo[i][2]);
+        r.set_f(Field::PrimId, i, pdf[i]);
+        r.returned(i);
+    }
+}
+
+/// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
+fn phase_eval(
+    m: &DiscreteMedium,
+    r: &Record,
+    width: usize,
+    active: &dyn Fn(usize) -> bool,
+    lam: &[f64],
+    ch: usize,
+) {
+    let l = lanes(width, |i| {
+        active(i).then(|| {
+            (
+                r.v3(Field::Ox, i),
+                r.v3(Field::Dx, i),
+                [
+                    r.f(Field::Tnear, i),
+                    r.f(Field::Time, i),
+                    r.f(Field::Tfar, i),
+                ],
+            )
+        })
+    });
+    let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
+    m.packet_phase_eval(&l[..width], lam, ch, &mut v, &mut pdf);
+    for i in (0..width).filter(|&i| active(i)) {
+        write_channels(r, i, &v[i * ch..(i + 1) * ch]);
+        r.returned(i);
+        r.set_f(Field::InstId, i, pdf[i]);
     }
 }
 
