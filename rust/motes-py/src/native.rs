@@ -173,106 +173,121 @@ pub unsafe extern "C" fn motes_packet(
     } else {
         std::slice::from_raw_parts(lambda, ch)
     };
+    let packet = Packet {
+        m,
+        r: &r,
+        width,
+        active: &active,
+        lam,
+        ch,
+    };
     match op {
-        FREE_FLIGHT => free_flights(m, &r, width, &active),
-        COMMIT => commit(m, &r, width, &active, lam, ch),
-        PHASE_SAMPLE => phase_sample(m, &r, width, &active, lam, ch),
-        PHASE_EVAL => phase_eval(m, &r, width, &active, lam, ch),
+        FREE_FLIGHT => packet.free_flights(),
+        COMMIT => packet.commit(),
+        PHASE_SAMPLE => packet.phase_sample(),
+        PHASE_EVAL => packet.phase_eval(),
         _ => {}
     }
 }
 
-/// The packet's free flights: each hit lane's tfar becomes its site's distance.
-fn free_flights(m: &DiscreteMedium, r: &Record, width: usize, active: &dyn Fn(usize) -> bool) {
-    let rays: [Option<PacketRay>; PACKET_LANES] = lanes(width, |i| {
-        active(i).then(|| (r.v3(Field::Ox, i), r.v3(Field::Dx, i), r.f(Field::Tfar, i)))
-    });
-    let mut t = [None; PACKET_LANES];
-    m.packet_free_flights(&rays[..width], &mut t);
-    for (i, t) in t.iter().enumerate().take(width) {
-        if let Some(t) = t {
-            r.set_f(Field::Tfar, i, *t);
-            r.returned(i);
+/// One call's packet: the medium, the ray/hit record of `width` lanes, which lanes are active, and the
+/// wavelengths (`ch` per lane, or `ch` shared).
+#[derive(Clone, Copy)]
+struct Packet<'a> {
+    m: &'a DiscreteMedium,
+    r: &'a Record,
+    width: usize,
+    active: &'a dyn Fn(usize) -> bool,
+    lam: &'a [f64],
+    ch: usize,
+}
+
+impl Packet<'_> {
+    /// The packet's free flights: each hit lane's tfar becomes its site's distance.
+    fn free_flights(&self) {
+        let rays: [Option<PacketRay>; PACKET_LANES] = lanes(self.width, |i| {
+            (self.active)(i).then(|| {
+                (
+                    self.r.v3(Field::Ox, i),
+                    self.r.v3(Field::Dx, i),
+                    self.r.f(Field::Tfar, i),
+                )
+            })
+        });
+        let mut t = [None; PACKET_LANES];
+        self.m.packet_free_flights(&rays[..self.width], &mut t);
+        for (i, t) in t.iter().enumerate().take(self.width) {
+            if let Some(t) = t {
+                self.r.set_f(Field::Tfar, i, *t);
+                self.r.returned(i);
+            }
         }
     }
-}
 
-/// Remember the packet's events where the renderer placed them; each lane's albedo per channel.
-fn commit(
-    m: &DiscreteMedium,
-    r: &Record,
-    width: usize,
-    active: &dyn Fn(usize) -> bool,
-    lam: &[f64],
-    ch: usize,
-) {
-    let p = lanes(width, |i| active(i).then(|| r.v3(Field::Ox, i)));
-    let mut albedo = [0.0; PACKET_LANES * 4];
-    m.packet_commit(&p[..width], lam, ch, &mut albedo);
-    for i in (0..width).filter(|&i| active(i)) {
-        write_channels(r, i, &albedo[i * ch..(i + 1) * ch]);
-        r.returned(i);
+    /// Remember the packet's events where the renderer placed them; each lane's albedo per channel.
+    fn commit(&self) {
+        let p = lanes(self.width, |i| {
+            (self.active)(i).then(|| self.r.v3(Field::Ox, i))
+        });
+        let mut albedo = [0.0; PACKET_LANES * 4];
+        self.m
+            .packet_commit(&p[..self.width], self.lam, self.ch, &mut albedo);
+        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+            write_channels(self.r, i, &albedo[i * self.ch..(i + 1) * self.ch]);
+            self.r.returned(i);
+        }
     }
-}
 
-/// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
-fn phase_sample(
-    m: &DiscreteMedium,
-    r: &Record,
-    width: usize,
-    active: &dyn Fn(usize) -> bool,
-    lam: &[f64],
-    ch: usize,
-) {
-    let l = lanes(width, |i| {
-        active(i).then(|| {
-            (
-                r.v3(Field::Ox, i),
-                r.v3(Field::Dx, i),
-                r.f(Field::Tnear, i) as f64,
-                [r.f(Field::Time, i) as f64, r.f(Field::Tfar, i) as f64],
-            )
-        })
-    });
-    let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
-    m.packet_phase_sample(&l[..width], lam, ch, &mut wo, &mut pdf);
-    for i in (0..width).filter(|&i| active(i)) {
-        r.set_f(Field::Tfar, i, wo[i][0]);
-        r.set_f(Field::U, i, wo[i][1]);
-        r.set_f(Field::V, i, wo[i][2]);
-        r.set_f(Field::PrimId, i, pdf[i]);
-        r.returned(i);
+    /// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
+    fn phase_sample(&self) {
+        let l = lanes(self.width, |i| {
+            (self.active)(i).then(|| {
+                (
+                    self.r.v3(Field::Ox, i),
+                    self.r.v3(Field::Dx, i),
+                    self.r.f(Field::Tnear, i) as f64,
+                    [
+                        self.r.f(Field::Time, i) as f64,
+                        self.r.f(Field::Tfar, i) as f64,
+                    ],
+                )
+            })
+        });
+        let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
+        self.m
+            .packet_phase_sample(&l[..self.width], self.lam, self.ch, &mut wo, &mut pdf);
+        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+            self.r.set_f(Field::Tfar, i, wo[i][0]);
+            self.r.set_f(Field::U, i, wo[i][1]);
+            self.r.set_f(Field::V, i, wo[i][2]);
+            self.r.set_f(Field::PrimId, i, pdf[i]);
+            self.r.returned(i);
+        }
     }
-}
 
-/// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
-fn phase_eval(
-    m: &DiscreteMedium,
-    r: &Record,
-    width: usize,
-    active: &dyn Fn(usize) -> bool,
-    lam: &[f64],
-    ch: usize,
-) {
-    let l = lanes(width, |i| {
-        active(i).then(|| {
-            (
-                r.v3(Field::Ox, i),
-                r.v3(Field::Dx, i),
-                [
-                    r.f(Field::Tnear, i),
-                    r.f(Field::Time, i),
-                    r.f(Field::Tfar, i),
-                ],
-            )
-        })
-    });
-    let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
-    m.packet_phase_eval(&l[..width], lam, ch, &mut v, &mut pdf);
-    for i in (0..width).filter(|&i| active(i)) {
-        write_channels(r, i, &v[i * ch..(i + 1) * ch]);
-        r.returned(i);
-        r.set_f(Field::InstId, i, pdf[i]);
+    /// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
+    fn phase_eval(&self) {
+        let l = lanes(self.width, |i| {
+            (self.active)(i).then(|| {
+                (
+                    self.r.v3(Field::Ox, i),
+                    self.r.v3(Field::Dx, i),
+                    [
+                        self.r.f(Field::Tnear, i),
+                        self.r.f(Field::Time, i),
+                        self.r.f(Field::Tfar, i),
+                    ],
+                )
+            })
+        });
+        let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
+        self.m
+            .packet_phase_eval(&l[..self.width], self.lam, self.ch, &mut v, &mut pdf);
+        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+            write_channels(self.r, i, &v[i * self.ch..(i + 1) * self.ch]);
+            self.r.returned(i);
+            self.r.set_f(Field::InstId, i, pdf[i]);
+        }
     }
 }
 
