@@ -167,59 +167,15 @@ impl<'a> Ensemble<'a> {
         eta_medium: f64,
         opts: &'a BulkOptions,
     ) -> Result<Self, OpticsError> {
-        require(
-            "number_density_m3",
+        let total_share = check_ensemble(species, number_density_m3, opts)?;
+        let nodes = radius_nodes(
+            species,
+            total_share,
             number_density_m3,
-            number_density_m3.is_finite() && number_density_m3 >= 0.0,
-            "finite and >= 0",
+            wavelength_um,
+            eta_medium,
+            opts,
         )?;
-        require(
-            "species (count)",
-            species.len() as f64,
-            !species.is_empty(),
-            ">= 1",
-        )?;
-        require(
-            "mie_dx",
-            opts.mie_dx,
-            opts.mie_dx.is_finite() && opts.mie_dx >= 0.0,
-            "finite and >= 0",
-        )?;
-        let total_share: f64 = species.iter().map(|s| s.share).sum();
-        for s in species {
-            require(
-                "share",
-                s.share,
-                s.share.is_finite() && s.share >= 0.0,
-                "finite and >= 0",
-            )?;
-            s.psd.validate()?;
-        }
-        require("share (sum)", total_share, total_share > 0.0, "> 0")?;
-        // Every (species, radius node) with its number weight per m³; the radius integral (Eq. 16–17)
-        // resolves the ripple in x where this species is computed by Mie.
-        let k = 2.0 * PI * eta_medium / wavelength_um;
-        let mut nodes: Vec<(Particle, f64)> = Vec::new();
-        for s in species {
-            let ripple = RippleResolution {
-                wavenumber_per_um: k,
-                dx: opts.mie_dx,
-                x_grow: MIE_RIPPLE_X_GROW,
-                x_min: MIE_RIPPLE_X_MIN,
-                x_max: mie_size_limit(opts.method, s.eta / eta_medium, k, opts.goa.p_max)
-                    .min(MIE_RIPPLE_X_MAX),
-                min_share: MIE_RIPPLE_MIN_SHARE,
-            };
-            let (r, w) = s.psd.quadrature_resolving(opts.max_log_step, Some(&ripple));
-            for (ri, wi) in r.into_iter().zip(w) {
-                if wi > 0.0 {
-                    nodes.push((
-                        Particle::new(ri, wavelength_um, s.eta, eta_medium)?,
-                        number_density_m3 * s.share / total_share * wi,
-                    ));
-                }
-            }
-        }
         // Per-node values are computed in parallel but summed in node order, so results are bitwise
         // reproducible whatever the thread scheduling.
         let per_node: Vec<(f64, f64)> = nodes
@@ -598,6 +554,79 @@ fn node_intensity((p, w): &(Particle, f64), theta: &[f64], opts: &BulkOptions) -
         .into_iter()
         .map(|(s1, s2)| w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2))
         .collect()
+}
+
+/// The checks of an ensemble's inputs; returns the species' total share.
+fn check_ensemble(
+    species: &[Species],
+    number_density_m3: f64,
+    opts: &BulkOptions,
+) -> Result<f64, OpticsError> {
+    require(
+        "number_density_m3",
+        number_density_m3,
+        number_density_m3.is_finite() && number_density_m3 >= 0.0,
+        "finite and >= 0",
+    )?;
+    require(
+        "species (count)",
+        species.len() as f64,
+        !species.is_empty(),
+        ">= 1",
+    )?;
+    require(
+        "mie_dx",
+        opts.mie_dx,
+        opts.mie_dx.is_finite() && opts.mie_dx >= 0.0,
+        "finite and >= 0",
+    )?;
+    let total_share: f64 = species.iter().map(|s| s.share).sum();
+    for s in species {
+        require(
+            "share",
+            s.share,
+            s.share.is_finite() && s.share >= 0.0,
+            "finite and >= 0",
+        )?;
+        s.psd.validate()?;
+    }
+    require("share (sum)", total_share, total_share > 0.0, "> 0")?;
+    Ok(total_share)
+}
+
+/// Every (species, radius node) with its number weight per m³ (Eq. 16–17's radius integral), the
+/// ripple in x resolved where the species is computed by Mie.
+fn radius_nodes(
+    species: &[Species],
+    total_share: f64,
+    number_density_m3: f64,
+    wavelength_um: f64,
+    eta_medium: f64,
+    opts: &BulkOptions,
+) -> Result<Vec<(Particle, f64)>, OpticsError> {
+    let k = 2.0 * PI * eta_medium / wavelength_um;
+    let mut nodes: Vec<(Particle, f64)> = Vec::new();
+    for s in species {
+        let ripple = RippleResolution {
+            wavenumber_per_um: k,
+            dx: opts.mie_dx,
+            x_grow: MIE_RIPPLE_X_GROW,
+            x_min: MIE_RIPPLE_X_MIN,
+            x_max: mie_size_limit(opts.method, s.eta / eta_medium, k, opts.goa.p_max)
+                .min(MIE_RIPPLE_X_MAX),
+            min_share: MIE_RIPPLE_MIN_SHARE,
+        };
+        let (r, w) = s.psd.quadrature_resolving(opts.max_log_step, Some(&ripple));
+        for (ri, wi) in r.into_iter().zip(w) {
+            if wi > 0.0 {
+                nodes.push((
+                    Particle::new(ri, wavelength_um, s.eta, eta_medium)?,
+                    number_density_m3 * s.share / total_share * wi,
+                ));
+            }
+        }
+    }
+    Ok(nodes)
 }
 
 /// Adaptive refinement of the angle grid (when `opts.refine_tol > 0`): the table is piecewise linear in
