@@ -498,6 +498,18 @@ pub fn bulk_spectral(
         })
         .collect::<Result<Vec<_>, _>>()?;
     let (bulk, peak_fraction): (Vec<Bulk>, Vec<f64>) = results.into_iter().unzip();
+    let (theta, phase) = on_union_grid(&bulk);
+    Ok(SpectralBulk {
+        bulk,
+        peak_fraction,
+        theta,
+        phase,
+    })
+}
+
+/// The wavelengths' phase tables on one angle grid: their common grid, or else the union of their
+/// grids with each table resampled linearly in μ (exact at its own nodes).
+fn on_union_grid(bulk: &[Bulk]) -> (Vec<f64>, Vec<Vec<f64>>) {
     let theta: Vec<f64> = if bulk.iter().all(|b| b.theta == bulk[0].theta) {
         bulk.first().map(|b| b.theta.clone()).unwrap_or_default()
     } else {
@@ -516,12 +528,7 @@ pub fn bulk_spectral(
             }
         })
         .collect();
-    Ok(SpectralBulk {
-        bulk,
-        peak_fraction,
-        theta,
-        phase,
-    })
+    (theta, phase)
 }
 
 /// Linear-in-μ interpolation of (theta, f) onto `target` (both increasing in θ).
