@@ -134,11 +134,10 @@ import mitsuba as mi
 params = {"res": sys.argv[3], "spp": sys.argv[4]} if len(sys.argv) > 3 else {}
 scene = mi.load_file(sys.argv[2], **params)
 t = time.perf_counter()
-img = np.asarray(mi.render(scene))
-# VmHWM (this process's own peak): ru_maxrss would include the parent's resident set at fork time,
-# which Linux carries over exec.
-hwm_kib = next(int(ln.split()[1]) for ln in open("/proc/self/status") if ln.startswith("VmHWM:"))
-print("RESULT", time.perf_counter() - t, hwm_kib / 1024.0, float(img.mean()))
+# Always the spp asked for (a render with spp= changes the sampler's count for later ones).
+img = np.asarray(mi.render(scene, spp=scene.sensors()[0].sampler().sample_count()))
+from motes._memory import peak_resident_mb  # this process's own peak (VmHWM)
+print("RESULT", time.perf_counter() - t, peak_resident_mb(), float(img.mean()))
 """
 
 

@@ -28,6 +28,18 @@ def available_bytes() -> int | None:
         return None
 
 
+def peak_resident_mb() -> float:
+    """This process's peak resident memory in MiB: VmHWM on Linux (``ru_maxrss`` would include the
+    parent's resident set at fork, which Linux carries over exec), else ``ru_maxrss``."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(ln.split()[1]) for ln in f if ln.startswith("VmHWM:")) / 1024
+    except (OSError, StopIteration, ValueError):
+        import resource  # noqa: PLC0415
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def require(nbytes: float, what: str) -> None:
     """Raise ``MemoryError`` naming ``what`` when ``nbytes`` exceeds the memory available."""
     avail = available_bytes()

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
-import resource
 import shutil
 import signal
 import socket
@@ -113,16 +112,6 @@ class _CtrlC:
         return False
 
 
-def _peak_mb() -> float:
-    """This process's peak resident memory: VmHWM on Linux (ru_maxrss would include the parent's resident
-    set at fork, which Linux carries over exec), else ru_maxrss."""
-    try:
-        with open("/proc/self/status") as f:
-            return next(int(ln.split()[1]) for ln in f if ln.startswith("VmHWM:")) / 1024
-    except (OSError, StopIteration, ValueError):
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
 def _show_load_stages() -> None:
     """Print the load stages the library logs at INFO (particles, optics tables, grid; with times)."""
     import logging  # noqa: PLC0415
@@ -191,7 +180,9 @@ def cmd_render(args) -> int:
                 ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done_spp} of {spp} spp; wrote {', '.join(written)}")
             _progress(i + 1, passes, time.perf_counter() - t1)
         sys.stderr.write("\n")
-    peak_mb = _peak_mb()
+    from ._memory import peak_resident_mb  # noqa: PLC0415
+
+    peak_mb = peak_resident_mb()
     print(f"motes: {spp} spp in {time.perf_counter() - t1:.1f} s (load {t_load:.1f} s), peak memory {peak_mb:.0f} MB; "
           f"wrote {', '.join(written)}", file=sys.stderr)
     return 0

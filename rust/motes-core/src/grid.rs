@@ -545,7 +545,7 @@ impl SubGrid {
             let t_enter = if cur.first { cur.t0 } else { step.t_enter };
             let t_exit = if last { cur.t1 } else { step.t_exit };
             cur.first = false;
-            n += self.step_rows(step.cell, t_enter, t_exit, &mut segs[n..]);
+            n += self.step_rows(step.cell, step.index, t_enter, t_exit, &mut segs[n..]);
             if last {
                 frontier = f64::INFINITY;
                 break;
@@ -710,15 +710,21 @@ impl SubGrid {
         }
     }
 
-    /// The rows of cells one DDA step at cell `c` scans (k = 0: the cell; k = 1: the 3×3 rows of the
+    /// The rows of cells one DDA step at cell `c` (linear `index`) scans (k = 0: the cell; k = 1: the 3×3 rows of the
     /// 3×3×3 block around it), as segments [first cell, last cell + 1) of `start`; returns how many.
     #[inline(always)]
-    fn step_rows(&self, c: [usize; 3], t_enter: f64, t_exit: f64, out: &mut [Segment]) -> usize {
+    fn step_rows(
+        &self,
+        c: [usize; 3],
+        index: usize,
+        t_enter: f64,
+        t_exit: f64,
+        out: &mut [Segment],
+    ) -> usize {
         if self.k == 0 {
-            let c0 = (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0];
             out[0] = Segment {
-                c0,
-                c1: c0 + 1,
+                c0: index,
+                c1: index + 1,
                 t_enter,
                 t_exit,
             };
@@ -754,7 +760,8 @@ impl SubGrid {
             c[a] = x as usize;
         }
         let mut rows = [Segment::default(); ROWS_PER_STEP];
-        let n = self.step_rows(c, 0.0, 0.0, &mut rows);
+        let index = (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0];
+        let n = self.step_rows(c, index, 0.0, 0.0, &mut rows);
         let slots = self.slots();
         for sg in &rows[..n] {
             for s in self.start[sg.c0] as usize..self.start[sg.c1] as usize {
