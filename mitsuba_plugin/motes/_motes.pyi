@@ -70,7 +70,7 @@ F32 = npt.NDArray[np.float32]
 
 
 class DiscreteMedium:
-    """The discrete medium as the renderer queries it (rust/motes-core/src/discrete.rs)."""
+    """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete.rs)."""
 
     def __init__(self, positions: F64, radius: F64, c_ext: F64, bin: npt.NDArray[np.uint32], albedo: F64,
                  theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64, query_radius: float,
@@ -100,10 +100,10 @@ class DiscreteMedium:
     def bytes(self) -> int: ...
     def __len__(self) -> int: ...
 
-#: Default cap on a particle's optical depth (rust/motes-core/src/discrete.rs).
+#: Default cap on a particle's optical depth (rust/motes-core/src/render/discrete.rs).
 DEFAULT_TAU_MAX: float
 #: Default particles per query cylinder from which a size class is sampled as a continuous medium
-#: (rust/motes-core/src/continuous.rs).
+#: (rust/motes-core/src/render/continuous.rs).
 DEFAULT_CELLS_PER_PARTICLE: float
 DEFAULT_CONTINUOUS_COUNT: float
 

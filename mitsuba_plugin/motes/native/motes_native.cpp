@@ -14,7 +14,7 @@
 //
 // Users never write these: the Python `discrete` plugin parses the scene's parameters, builds the
 // particles and optics in Rust and creates these objects. All physics is in the Rust core
-// (rust/motes-core/src/discrete.rs); this file only moves rays in and results out:
+// (rust/motes-core/src/render/discrete.rs); this file only moves rays in and results out:
 //
 // * LLVM variants: each query is one `jit_llvm_ray_trace` call, the hook Mitsuba's own CPU ray tracers
 //   use: inside Mitsuba's default *symbolic* kernels, drjit-core calls `packet<Width>` once per SIMD packet

@@ -8,7 +8,7 @@
 //! median round is reported, so a busy machine shifts all columns alike.
 //!
 //!     cargo bench -p motes-core --bench traverse [-- sparse|dense]
-use motes_core::grid::{ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
+use motes_core::space::grid::{ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
 use std::time::Instant;
 
 struct Lcg(u64);

@@ -1,35 +1,21 @@
 //! motes-core: the physics of discrete participating media, free of Python and Mitsuba.
 //!
-//! * [`mie`]: Lorenz–Mie theory (paper App. A).
-//! * [`goa`]: the geometrical optics approximation (Sec. 3.1, App. B–C) with documented
-//!   regularisations of its singular points.
-//! * [`optics`]: one particle as the renderer sees it — cross sections, normalised phase function,
-//!   and the choice between Mie and GOA (`Method`), batched over many particles and angles.
-//! * [`grid`]: particles in space, optical depth along query cylinders and exact free flights.
-//! * [`dda`]: boxes and the 3D-DDA walk of a ray through a uniform grid.
-//! * [`continuous`]: size classes no pixel resolves, sampled as a continuous medium (issue 10.3).
-//! * [`discrete`]: the discrete medium as a renderer queries it (sites, albedo, phase function).
-//! * [`wavelengths`]: the default RGB and spectral wavelength sets.
-//! * [`cancel`]: cooperative cancellation of long table builds (Ctrl-C from the binding).
+//! Grouped as the paper builds the system (Guo et al.):
+//! * [`optics`]: single-particle optics — Lorenz–Mie (App. A), GOA (Sec. 3.1, App. B–C) and the hybrid.
+//! * [`ensemble`]: polydisperse ensembles — size distributions (Sec. 4.1) and bulk coefficients and
+//!   phase functions (Sec. 4.2, Eq. 16–17).
+//! * [`space`]: particles in space — a uniform grid, query cylinders (Eq. 18) and spheres (Eq. 24).
+//! * [`render`]: the discrete medium as a renderer queries it (Sec. 5), and size classes no pixel
+//!   resolves as a continuous medium.
+//! * [`error`] (one error type naming the bad argument) and [`cancel`] (Ctrl-C for long table builds).
 
 pub mod cancel;
-pub mod continuous;
-pub mod dda;
-pub mod discrete;
 pub mod ensemble;
 pub mod error;
-pub mod goa;
-pub mod grid;
-pub mod materials;
-pub mod mie;
 pub mod optics;
-pub mod phase_table;
-pub mod psd;
-pub mod quadrature;
-pub mod wavelengths;
+pub mod render;
+pub mod space;
 
-/// The tests' random numbers: one 64-bit LCG (Knuth's MMIX constants), uniform in [0, 1) from its top
-/// 53 bits, so that every test's particles and rays are reproducible and share one generator.
 #[cfg(test)]
 pub(crate) mod test_rng {
     pub fn lcg(s: &mut u64) -> f64 {
@@ -40,6 +26,6 @@ pub(crate) mod test_rng {
     }
 }
 
+pub use ensemble::psd::Psd;
 pub use error::OpticsError;
 pub use optics::{Method, Particle};
-pub use psd::Psd;

@@ -1,10 +1,10 @@
 //! Polydisperse ensembles: bulk coefficients and phase-function tables (`motes_core::ensemble`,
-//! `motes_core::phase_table`).
+//! `motes_core::ensemble::phase_table`).
 
 use crate::convert::*;
 use crate::interrupt::interruptible;
 use crate::psd::psd;
-use motes_core::goa::GoaOptions;
+use motes_core::optics::goa::GoaOptions;
 use motes_core::optics::Method;
 use num_complex::Complex64 as C64;
 use numpy::IntoPyArray;
@@ -157,10 +157,10 @@ fn bulk_out<'py>(
 }
 
 /// A tabulated phase function (nodes `theta` from 0 to π, values `f`), validated and prepared for
-/// sampling once (`motes_core::phase_table::PhaseTable`); every query reuses it.
+/// sampling once (`motes_core::ensemble::phase_table::PhaseTable`); every query reuses it.
 #[pyclass(name = "PhaseTable", module = "motes._motes", frozen)]
 pub(crate) struct PyPhaseTable {
-    table: motes_core::phase_table::PhaseTable,
+    table: motes_core::ensemble::phase_table::PhaseTable,
     theta: Vec<f64>,
     f: Vec<f64>,
 }
@@ -170,7 +170,8 @@ impl PyPhaseTable {
     #[new]
     fn new(theta: F64In, f: F64In) -> PyResult<Self> {
         let (theta, f) = (theta.as_slice()?.to_vec(), f.as_slice()?.to_vec());
-        let table = motes_core::phase_table::PhaseTable::new(&theta, &f).map_err(to_py)?;
+        let table =
+            motes_core::ensemble::phase_table::PhaseTable::new(&theta, &f).map_err(to_py)?;
         Ok(PyPhaseTable { table, theta, f })
     }
 

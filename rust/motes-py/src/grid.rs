@@ -1,4 +1,4 @@
-//! Particles in space: a grid built once and queried in batches (`motes_core::grid`).
+//! Particles in space: a grid built once and queried in batches (`motes_core::space::grid`).
 
 use crate::convert::*;
 use numpy::{IntoPyArray, PyArray1};
@@ -9,7 +9,7 @@ use rayon::prelude::*;
 /// A particle grid (scene units): build once, query in batches.
 #[pyclass(name = "ParticleGrid", module = "motes._motes", frozen)]
 pub(crate) struct PyParticleGrid {
-    grid: motes_core::grid::ParticleGrid,
+    grid: motes_core::space::grid::ParticleGrid,
 }
 
 #[pymethods]
@@ -33,7 +33,7 @@ impl PyParticleGrid {
         let (r, c) = (radius.as_slice()?.to_vec(), c_ext.as_slice()?.to_vec());
         let grid = py
             .detach(|| {
-                motes_core::grid::ParticleGrid::build(
+                motes_core::space::grid::ParticleGrid::build(
                     &pos,
                     &r,
                     &c,

@@ -20,12 +20,12 @@ fn core_hash() -> &'static str {
     env!("MOTES_CORE_HASH")
 }
 
-/// The default wavelength sets (µm): (RGB, spectral), `motes_core::wavelengths`.
+/// The default wavelength sets (µm): (RGB, spectral), `motes_core::ensemble::wavelengths`.
 #[pyfunction]
 fn default_wavelengths() -> (Vec<f64>, Vec<f64>) {
     (
-        motes_core::wavelengths::RGB_WAVELENGTHS_UM.to_vec(),
-        motes_core::wavelengths::spectral_wavelengths_um().to_vec(),
+        motes_core::ensemble::wavelengths::RGB_WAVELENGTHS_UM.to_vec(),
+        motes_core::ensemble::wavelengths::spectral_wavelengths_um().to_vec(),
     )
 }
 
@@ -49,14 +49,17 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<ensemble::PyPhaseTable>()?;
     m.add_class::<grid::PyParticleGrid>()?;
     m.add_class::<medium::PyDiscreteMedium>()?;
-    m.add("DEFAULT_TAU_MAX", motes_core::discrete::DEFAULT_TAU_MAX)?;
+    m.add(
+        "DEFAULT_TAU_MAX",
+        motes_core::render::discrete::DEFAULT_TAU_MAX,
+    )?;
     m.add(
         "DEFAULT_CELLS_PER_PARTICLE",
-        motes_core::grid::DEFAULT_CELLS_PER_PARTICLE,
+        motes_core::space::grid::DEFAULT_CELLS_PER_PARTICLE,
     )?;
     m.add(
         "DEFAULT_CONTINUOUS_COUNT",
-        motes_core::continuous::DEFAULT_CONTINUOUS_COUNT,
+        motes_core::render::continuous::DEFAULT_CONTINUOUS_COUNT,
     )?;
     // The native render path's C interface (rust/motes-py/src/native.rs): its address and version.
     m.add(

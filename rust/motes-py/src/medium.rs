@@ -1,4 +1,4 @@
-//! The discrete medium as the renderer queries it (`motes_core::discrete`): the evaluated-mode batch
+//! The discrete medium as the renderer queries it (`motes_core::render::discrete`): the evaluated-mode batch
 //! interface and the handle the native plugin uses.
 
 use crate::convert::*;
@@ -8,10 +8,10 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
-/// The discrete medium as the renderer queries it (see `motes_core::discrete`).
+/// The discrete medium as the renderer queries it (see `motes_core::render::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
 pub(crate) struct PyDiscreteMedium {
-    medium: std::sync::Arc<motes_core::discrete::DiscreteMedium>,
+    medium: std::sync::Arc<motes_core::render::discrete::DiscreteMedium>,
 }
 
 #[pymethods]
@@ -77,18 +77,18 @@ impl PyDiscreteMedium {
                     return Err(PyValueError::new_err("offsets must be increasing"));
                 }
                 phase.push(
-                    motes_core::phase_table::PhaseTable::new(&th[a..e], &fv[a..e])
+                    motes_core::ensemble::phase_table::PhaseTable::new(&th[a..e], &fv[a..e])
                         .map_err(to_py)?,
                 );
             }
-            bins.push(motes_core::discrete::BinOptics {
+            bins.push(motes_core::render::discrete::BinOptics {
                 albedo: al[bi * k..(bi + 1) * k].to_vec(),
                 phase,
             });
         }
         let medium = py
             .detach(|| {
-                motes_core::discrete::DiscreteMedium::build(
+                motes_core::render::discrete::DiscreteMedium::build(
                     &pos,
                     &r,
                     &c,

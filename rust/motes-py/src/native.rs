@@ -20,7 +20,7 @@
 //! 1/50 nm (spectral variants: 4 channels; the quantisation, 0.01 nm, is far below the tables'
 //! wavelength spacing).
 
-use motes_core::discrete::{DiscreteMedium, PacketRay, PACKET_LANES};
+use motes_core::render::discrete::{DiscreteMedium, PacketRay, PACKET_LANES};
 use std::ffi::c_void;
 use std::sync::Arc;
 

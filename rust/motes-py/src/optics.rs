@@ -1,9 +1,9 @@
 //! Single-particle optics (Mie, GOA, the `auto` policy and materials): batches over flat arrays of
-//! particles and angles (`motes_core::optics`, `motes_core::mie`, `motes_core::goa`).
+//! particles and angles (`motes_core::optics`, `motes_core::optics::mie`, `motes_core::optics::goa`).
 
 use crate::convert::*;
 use crate::interrupt::interruptible;
-use motes_core::goa::GoaOptions;
+use motes_core::optics::goa::GoaOptions;
 use motes_core::optics::{self, Method, ParticleColumns, Theory};
 use num_complex::Complex64 as C64;
 use numpy::{IntoPyArray, PyArray1};
@@ -221,7 +221,7 @@ pub(crate) fn goa_extinction_efficiency<'py>(
             .zip(&er)
             .zip(&ei)
             .map(|((a, r), i)| {
-                motes_core::goa::extinction_efficiency(
+                motes_core::optics::goa::extinction_efficiency(
                     *a,
                     C64::new(*r, *i),
                     p_max,
@@ -280,7 +280,7 @@ pub(crate) fn material_index<'py>(
     name: &str,
     wavelength_um: F64In,
 ) -> PyResult<Bound<'py, PyArray1<C64>>> {
-    let m = motes_core::materials::Material::parse(name).map_err(to_py)?;
+    let m = motes_core::optics::materials::Material::parse(name).map_err(to_py)?;
     let out = wavelength_um
         .as_array()
         .iter()

@@ -1,4 +1,4 @@
-//! Particle size distributions given as JSON specs (`motes_core::psd`).
+//! Particle size distributions given as JSON specs (`motes_core::ensemble::psd`).
 
 use crate::convert::*;
 use numpy::IntoPyArray;

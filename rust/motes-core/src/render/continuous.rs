@@ -17,8 +17,8 @@
 //! its cell with probability ∝ w_i: the site's albedo and phase function are that particle's, so the
 //! expected phase function is the cell's mixture weighted by extinction (Eq. 24's Q(θ) of the cell).
 
-use crate::dda::Dda;
-use crate::grid::{bounding_box, size_class};
+use crate::space::dda::Dda;
+use crate::space::grid::{bounding_box, size_class};
 use std::f64::consts::PI;
 
 /// Default number of a class's particles a query cylinder must hold (over one mean free path, or
@@ -62,7 +62,7 @@ pub fn resolvable(
         chord
     };
     let reach_max = reach.iter().cloned().fold(0.0, f64::max);
-    let mut area = [0.0f64; crate::grid::SIZE_CLASSES];
+    let mut area = [0.0f64; crate::space::grid::SIZE_CLASSES];
     for &r in reach {
         area[size_class(reach_max, r)] += PI * r * r;
     }

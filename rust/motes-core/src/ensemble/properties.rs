@@ -20,11 +20,11 @@
 //! the largest particle, width ~1/α, gets ~25 nodes across its core), then uniform to π.
 
 use crate::cancel;
+use crate::ensemble::psd::{Psd, RippleResolution};
 use crate::error::{require, OpticsError};
-use crate::goa::GoaOptions;
-use crate::mie::{series_length, MieCoefficients, MieIntensitySums};
+use crate::optics::goa::GoaOptions;
+use crate::optics::mie::{series_length, MieCoefficients, MieIntensitySums};
 use crate::optics::{self, Method, Particle, Theory};
-use crate::psd::{Psd, RippleResolution};
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::f64::consts::PI;

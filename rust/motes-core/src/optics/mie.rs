@@ -50,7 +50,7 @@ fn log_derivative_start(n_max: usize, mx: C64) -> usize {
 /// The logarithmic derivative `D_n(z) = ψ'_n(z)/ψ_n(z)` for n = 0..=`n_start` by downward recurrence
 /// `D_{n−1} = n/z − 1/(D_n + n/z)` from `D_{n_start} = 0` (Bohren & Huffman §4.8; stable for every
 /// complex z, strongly absorbing ones included). Entries near `n_start` carry the start's error; use
-/// those below [`log_derivative_start`]'s margin.
+/// those below `log_derivative_start`'s margin.
 pub fn log_derivative_downward(z: C64, n_start: usize) -> Vec<C64> {
     let mut d = vec![C64::new(0.0, 0.0); n_start + 1];
     for n in (1..=n_start).rev() {

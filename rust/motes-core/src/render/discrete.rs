@@ -9,12 +9,12 @@
 //! interaction happens at the site's t (the particle's projection on the ray). The scattered path must
 //! not meet the particle that scattered it again (its internal paths are already in its phase
 //! function), so each event that starts new rays is remembered by the exact bits of its position and
-//! the particles of that event are skipped by rays starting there ([`EventMap`]); the phase function
+//! the particles of that event are skipped by rays starting there (`EventMap`); the phase function
 //! finds the event's particles there too (or, failing that, from the geometry along the incident ray).
 //!
 //! ## Per-particle optical depth (a documented deviation from Eq. 18)
 //! The paper spreads C_t,i over the query disk, τ_i = C_t,i / (π R_i²) with R_i = r_c + r_i, so that
-//! E[τ] = σ_t · length. That is right only while τ_i ≪ 1: a ray through the disk interacts with
+//! E\[τ\] = σ_t · length. That is right only while τ_i ≪ 1: a ray through the disk interacts with
 //! probability 1 − e^{−τ_i}, so the disk removes π R_i² (1 − e^{−τ_i}) < C_t,i from a beam. With
 //! r_c = 0 and Q_ext ≈ 2 (τ_i ≈ 2) that is 43 % of C_t,i: the medium lets 57 % of the extinction and
 //! side scattering through (measured against explicit spheres, issue 9). Two changes make every
@@ -55,11 +55,11 @@
 //! the mean over channels of f_c (one-sample MIS over channels), so `sample` and `eval` agree
 //! exactly and the weights f_c / pdf stay bounded.
 
-use crate::continuous::{resolvable, ContinuousField};
-use crate::dda::Bounds3;
+use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
-use crate::grid::{bounding_box, ParticleGrid, Site};
-use crate::phase_table::PhaseTable;
+use crate::render::continuous::{resolvable, ContinuousField};
+use crate::space::dda::Bounds3;
+use crate::space::grid::{bounding_box, ParticleGrid, Site};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
@@ -370,7 +370,7 @@ fn check_build_inputs(
 }
 
 /// The structures a free flight walks: the grid of the particles whose grains a pixel can resolve and
-/// the continuous field of the others (`continuous_count`, crate::continuous), and which is which.
+/// the continuous field of the others (`continuous_count`, crate::render::continuous), and which is which.
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn build_walk(
     positions: &[[f64; 3]],
@@ -459,7 +459,7 @@ impl DiscreteMedium {
     /// (module docs; [`DEFAULT_TAU_MAX`], `f64::INFINITY` for none).
     #[allow(clippy::too_many_arguments)]
     /// `continuous_count`: size classes holding at least this many particles per query cylinder are
-    /// sampled as a continuous medium ([`crate::continuous`]; `f64::INFINITY`: none).
+    /// sampled as a continuous medium ([`crate::render::continuous`]; `f64::INFINITY`: none).
     pub fn build(
         positions: &[[f64; 3]],
         radius: &[f64],
@@ -567,7 +567,7 @@ impl DiscreteMedium {
     pub fn reach_max(&self) -> f64 {
         self.reach.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
     }
-    /// Particles sampled as a continuous medium ([`crate::continuous`]).
+    /// Particles sampled as a continuous medium ([`crate::render::continuous`]).
     pub fn continuous_len(&self) -> usize {
         self.field.as_ref().map_or(0, ContinuousField::len)
     }
@@ -729,7 +729,7 @@ impl DiscreteMedium {
         };
         let o = o.map(|x| x as f64);
         // The continuous field first (one exponential per cell), then the particles up to its distance:
-        // the nearer of two independent processes' interactions (crate::continuous).
+        // the nearer of two independent processes' interactions (crate::render::continuous).
         let (hit, tau_field) = match &self.field {
             Some(f) => f.free_flight(
                 o,
@@ -1316,7 +1316,7 @@ pub type PacketRay = ([f32; 3], [f32; 3], f32);
 /// medium's `sample_interaction` calls `intersect_aabb` and then `get_scattering_coefficients` with no
 /// other free flight of that thread in between. So the packet interface keeps its state per thread and
 /// medium, without locks: the sites of the last packet of free flights wait in a slot until
-/// [`Self::packet_commit`] remembers them, and the events live in a per-thread [`EventMap`] (a path's
+/// [`Self::packet_commit`] remembers them, and the events live in a per-thread `EventMap` (a path's
 /// events are looked up by its own next rays only). This contract does not hold in Dr.Jit's evaluated
 /// mode, where a wavefront's kernels may run a lane on different threads: there the batch interface
 /// ([`Self::sample_sites`] and the rest) is the one to use. Inactive lanes are `None`. The free

@@ -9,7 +9,7 @@
 //! our Lorenz–Mie code, by conjugating every ray phase: `S_BH(m) = conj(S_vdH(conj m))`. Diffraction
 //! is real and unchanged, and so is `Re S(0)`, hence every cross section.
 //!
-//! ## Absorbing particles (App. C, after Yang & Liou / Chýlek's ref. [65])
+//! ## Absorbing particles (App. C, after Yang & Liou / Chýlek's ref. \[65\])
 //! Inside the sphere the refracted wave is inhomogeneous. With `b = sqrt(m² − sin²θi)` (the normal
 //! component of the internal wave vector, `Im b ≥ 0` so the wave decays inward):
 //! * the effective real index of Eq. 32 is `η' = sqrt(sin²θi + (Re b)²)` and `cos θ't = Re b / η'`;
@@ -39,7 +39,7 @@
 //!    GOA term asymptotically (ρ = 2α|η−1| → ∞); the factor and the edge term fade with
 //!    `ray_optics_weight(ρ) = ρ²/(ρ²+25)`, so the extinction tends to ADT's (→ 0) as η → 1.
 
-use crate::quadrature::gauss_legendre;
+use crate::ensemble::quadrature::gauss_legendre;
 use num_complex::Complex64 as C64;
 use std::f64::consts::{FRAC_PI_2, PI};
 

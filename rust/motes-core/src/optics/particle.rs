@@ -3,10 +3,10 @@
 //! batched over many particles and angles (rayon inside; no Python here).
 
 use crate::cancel;
+use crate::ensemble::quadrature::gauss_legendre;
 use crate::error::{require, OpticsError};
-use crate::goa::{self, GoaGeometry, GoaOptions};
-use crate::mie::MieCoefficients;
-use crate::quadrature::gauss_legendre;
+use crate::optics::goa::{self, GoaGeometry, GoaOptions};
+use crate::optics::mie::MieCoefficients;
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -591,7 +591,7 @@ fn geo_key(p: &Particle) -> [u64; 2] {
     [m.re.to_bits(), m.im.to_bits()]
 }
 
-/// Scattering amplitudes for every element `i` (particle i at angle theta[i]).
+/// Scattering amplitudes for every element `i` (particle i at angle theta\[i\]).
 pub fn amplitudes_batch(
     cols: &ParticleColumns,
     theta: &[f64],

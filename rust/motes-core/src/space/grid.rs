@@ -1,7 +1,7 @@
 //! Particles in space: a uniform grid over particle centres, optical depth along query cylinders
 //! (paper Eq. 18) and exact free-flight sampling (paper Sec. 5.2–5.3; issue 4).
 //!
-//! ## Normalisation (why E[τ] = σ_t · length exactly)
+//! ## Normalisation (why E\[τ\] = σ_t · length exactly)
 //! A particle i at centre c_i with geometric radius r_i contributes to a segment of a ray when the ray
 //! passes within `R_i = r_c + r_i` of c_i (the paper's inclusion test, Sec. 5.3) and the projection
 //! `t_i` of c_i on the ray lies inside the segment. Its contribution is `C_t,i / (π R_i²)` — normalised by
@@ -25,8 +25,8 @@
 //! each cell it crosses. Either way a particle is counted only in the DDA step whose t-interval holds
 //! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
 
-use crate::dda::{Bounds3, Dda, DdaCell};
 use crate::error::{require, require_len, OpticsError};
+use crate::space::dda::{Bounds3, Dda, DdaCell};
 use rayon::prelude::*;
 
 /// Axis-aligned bounding box of the centres.

@@ -1,0 +1,9 @@
+//! Particles in space: where the grains are and what a ray meets.
+//!
+//! * [`dda`]: an axis-aligned box with one slab test and the 3D-DDA walk of a ray through a uniform
+//!   grid (Amanatides & Woo).
+//! * [`grid`]: a uniform grid over particle centres; optical depth along a query cylinder (Eq. 18),
+//!   the local density in a query sphere (Eq. 24) and exact free flights (Sec. 5.2–5.3).
+
+pub mod dda;
+pub mod grid;
