@@ -1,8 +1,8 @@
-"""Shared helpers of the figure-reproduction and benchmark scripts in ``scripts/``.
+"""Shared helpers of the figure-reproduction and benchmark scripts in ``scripts/figures/`` and
+``scripts/bench/``.
 
-Not a script: imported by ``scripts/fig*.py``, ``scripts/bench_amplitudes.py``,
-``scripts/hybrid_threshold.py``, ``scripts/singularities.py`` and ``scripts/edge_term.py``
-(which put ``scripts/`` on ``sys.path`` because they are run as files).
+Not a script: imported by every script there but ``scripts/figures/furnace_grid.py`` (they put
+``scripts/``, the folder of this module, on ``sys.path`` because they are run as files).
 
 Conventions (the paper's, Guo et al., Sec. 3.3 and App. E):
 

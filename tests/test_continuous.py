@@ -16,6 +16,7 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "scripts"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "scripts" / "figures"))
 from furnace_grid import furnace_medium, furnace_scene  # noqa: E402
 
 

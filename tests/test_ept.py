@@ -1,5 +1,5 @@
 """The `discrete` medium with its DEFAULT parameters against explicit path tracing (EPT) of the same glass
-grains as Mitsuba spheres (a small `scripts/bench_ept.py`; its docstring describes the scenes).
+grains as Mitsuba spheres (a small `scripts/bench/bench_ept.py`; its docstring describes the scenes).
 
 Side scattering (45-135 deg) and total transmittance (into a 30 deg cone) of the discrete medium must be
 within 3 % + 3 standard errors of EPT. The standard errors are Monte Carlo errors from two seeds per
@@ -19,6 +19,7 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts" / "bench"))
 import bench_ept as B  # noqa: E402
 
 COUNT, RES, SPP = 1000, 48, 32

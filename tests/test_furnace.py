@@ -5,7 +5,7 @@ any unbiased estimator. Russian roulette is off (``rr_depth`` huge): each path's
 so a loss of a few per cent cannot hide in the noise. The grid spans grains small and large against
 their spacing (radius / spacing from 0.01 to 1.5: from a haze to overlapping inclusion balls), the default
 and a user query radius, and a rotated, non-uniformly scaled box; every variant is covered at the hardest
-point. ``scripts/furnace_grid.py`` runs the full grid with more samples.
+point. ``scripts/figures/furnace_grid.py`` runs the full grid with more samples.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "scripts"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "scripts" / "figures"))
 from furnace_grid import furnace_medium, render_furnace  # noqa: E402
 
 # (count, radius / spacing): a sparse haze, grains a third of their spacing, overlapping inclusion balls.

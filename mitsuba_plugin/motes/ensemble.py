@@ -23,7 +23,7 @@ Forward-peak truncation (``truncate_below_rad=theta_c``, e.g. ``pixel_footprint_
 scattering by less than theta_c cannot be told from no scattering at the pixel's resolution, so the
 phase function is clipped at f(theta_c) inside the cone and the clipped fraction F is removed from
 sigma_s and sigma_t (sigma_a unchanged) — the delta-M scaling of atmospheric radiative transfer. It saves
-the scattering events spent in the diffraction peak of large grains; ``scripts/truncation_experiment.py``
+the scattering events spent in the diffraction peak of large grains; ``scripts/figures/truncation_experiment.py``
 measures what it saves and what it changes.
 
 ``theta=`` only chooses where f is reported: the normalisation, g, ``energy_ratio`` and the truncation
@@ -56,7 +56,7 @@ from .psd import Psd
 @dataclass(frozen=True)
 class Material:
     """A tabulated particle material: ``Material("ice")`` (Warren & Brandt 2008, -7 C) or
-    ``Material("water")`` (Hale & Querry 1973, 25 C), 0.35-0.85 um; see ``rust/motes-core/src/materials.rs``."""
+    ``Material("water")`` (Hale & Querry 1973, 25 C), 0.35-0.85 um; see ``rust/motes-core/src/optics/materials.rs``."""
 
     name: str
 
@@ -101,7 +101,7 @@ class Species:
 
 #: Representative wavelengths (um) of the R, G, B channels: the monochromatic primaries of ITU-R BT.2020
 #: (630, 532, 467 nm). ``SPECTRAL_WAVELENGTHS_UM``: the paper's 8 spectral samples over 380-780 nm
-#: (Sec. 6). Both from ``rust/motes-core/src/wavelengths.rs``, the one home of the defaults.
+#: (Sec. 6). Both from ``rust/motes-core/src/ensemble/wavelengths.rs``, the one home of the defaults.
 RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM = (tuple(v) for v in _motes.default_wavelengths())
 
 
@@ -228,7 +228,7 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
 class SpectralTable:
     """Bulk properties tabulated at a few wavelengths (>= 2; the paper uses 8 over the visible) and
     interpolated linearly in wavelength at any wavelength inside the tabulated range — what a spectral
-    renderer needs per sampled wavelength. ``scripts/spectral_interpolation.py`` measures the error.
+    renderer needs per sampled wavelength. ``scripts/figures/spectral_interpolation.py`` measures the error.
 
     ``SpectralTable(species, number_density_m3, wavelength_um=SPECTRAL_WAVELENGTHS_UM, **bulk_kwargs)``"""
 

@@ -1,6 +1,6 @@
 """Benchmark: amplitude evaluations per second at 1800 angles — motes Mie, motes GOA and miepython.
 
-    .venv/bin/python scripts/bench_amplitudes.py [--out out/] [--quick]
+    .venv/bin/python scripts/bench/bench_amplitudes.py [--out out/] [--quick]
 
 One evaluation = (S1, S2) of one sphere at the 1800 angles of ``np.linspace(0, pi, 1800)``; eta = 1.33,
 lambda = 0.6 um, r = 1, 10, 100, 1000 um, plus x = 1000 exactly (r = 1000 lambda / 2 pi). All three
@@ -20,7 +20,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

@@ -2,7 +2,7 @@
 against Monte Carlo over sampled radii, tabulated phase functions against direct evaluation, and
 Fig. 8-style ensemble phase functions.
 
-    .venv/bin/python scripts/bench_bulk.py [--quick] [--out out]
+    .venv/bin/python scripts/bench/bench_bulk.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

@@ -34,7 +34,7 @@ truncation: diffraction counts as scattering, so the direct transmittance falls 
 EPT renders in Mitsuba's symbolic mode (evaluated mode, which the plugin needs, dispatches every call over
 the 1000s of sphere shapes one kernel each: ~100 s per image instead of ~1 s) and with 4x the spp.
 
-    .venv/bin/python scripts/bench_ept.py [--count N] [--spp N] [--res N] [--dense] [--quick] [--configs a,b]
+    .venv/bin/python scripts/bench/bench_ept.py [--count N] [--spp N] [--res N] [--dense] [--quick] [--configs a,b]
 
 Run time on 2 shared cores: ~2.5 min (default: 1000 grains, 96x96, 64 spp), ~5.5 min (--dense: 4000
 grains), ~10 s (--quick: 300 grains, 48x48, 16 spp).
@@ -50,7 +50,7 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

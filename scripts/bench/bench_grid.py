@@ -1,7 +1,7 @@
 """The particle grid (issue 4): build time and bytes per particle against N, optical-depth queries and
 exact free flights per second, a grid-resolution sweep (cf. paper Fig. 17), and 1 vs 2 threads.
 
-    .venv/bin/python scripts/bench_grid.py [--quick] [--out out]
+    .venv/bin/python scripts/bench/bench_grid.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pathlib
 import subprocess
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

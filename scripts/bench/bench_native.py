@@ -16,7 +16,7 @@ kernels), the ratio to `homogeneous`, and the image means of the discrete paths 
 errors (the two paths must agree). `--memory` also measures the peak resident memory of the default
 scene's render in a fresh process per path (see `memory`).
 
-    .venv/bin/python scripts/bench_native.py [--quick] [--configs sparse,dense,default] [--memory]
+    .venv/bin/python scripts/bench/bench_native.py [--quick] [--configs sparse,dense,default] [--memory]
 """
 
 from __future__ import annotations
@@ -28,13 +28,13 @@ import subprocess
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402
 import bench_render as BR  # noqa: E402
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 SCENE = ROOT / "scenes_xml" / "dust_box.xml"
 KNOWN = ("sparse", "dense", "default")
 

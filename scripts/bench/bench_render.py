@@ -13,7 +13,7 @@
 3. Graininess: contrast between pixels in the light beam at low and high spp, discrete vs homogeneous (grains
    persist as spp grow, Monte Carlo noise does not).
 
-    .venv/bin/python scripts/bench_render.py [--quick] [--only timing|limit|grains] [--out out]
+    .venv/bin/python scripts/bench/bench_render.py [--quick] [--only timing|limit|grains] [--out out]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

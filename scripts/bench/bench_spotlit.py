@@ -21,7 +21,7 @@ For each: image mean and the mean over the lit floor (pixels where the floor wit
 least half as bright as its brightest), SE from the two seeds (sqrt(var_pixels(A - B) / (4 N))), and the
 relative bias against the reference with its SE.
 
-    .venv/bin/python scripts/bench_spotlit.py [--count N] [--res W] [--spp N] [--ref-spp N] [--quick] [--out DIR]
+    .venv/bin/python scripts/bench/bench_spotlit.py [--count N] [--res W] [--spp N] [--ref-spp N] [--quick] [--out DIR]
 
 Run time on 2 shared cores: ~2.5 min (default: 400 000 grains, 128x96, 64 spp, reference 2 x 4096 spp),
 ~7 s (--quick: 100 000 grains, 64x48, 16 spp, reference 2 x 256). Images: DIR/spotlit_*.png.
@@ -35,7 +35,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

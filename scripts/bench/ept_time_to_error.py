@@ -53,7 +53,7 @@ everywhere. Written to ``--out``: ``ept_time_to_error.png`` (RMSE against time, 
 both scenes; stars at the times to the targets), ``ept_time_to_error_images.png`` (reference, EPT and
 discrete at their highest spp) and ``ept_time_to_error.json``.
 
-    .venv/bin/python scripts/ept_time_to_error.py [--quick] [--out DIR] [--res N] [--ref-spp N]
+    .venv/bin/python scripts/bench/ept_time_to_error.py [--quick] [--out DIR] [--res N] [--ref-spp N]
         [--max-spp N] [--count N] [--scenes lamp,cornell] [--seed N] [--downsample N]
 
 Run time on 2 shared cores: ~7 min (default: 80x80, reference 2 x 4096 spp, sweep to 1024 spp; ~1.5 min
@@ -70,7 +70,7 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

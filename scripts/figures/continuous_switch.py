@@ -3,7 +3,7 @@ discrete render of the same particles.
 
 The `discrete` medium samples a size class as a continuous medium (its cells' mean extinction and phase
 mixture) when a query cylinder holds at least `continuous_count` of its particles over one mean free path
-or across the cloud (`rust/motes-core/src/continuous.rs`). What that drops is the grain texture: the
+or across the cloud (`rust/motes-core/src/render/continuous.rs`). What that drops is the grain texture: the
 per-pixel fluctuation of the particle count, of relative size 1/sqrt(N). This script renders the dust
 room (`bench_render.room`, llvm_ad_rgb, native path) with particle clouds whose N spans the threshold,
 once fully discrete (`continuous_count = inf`) and once at each threshold, two sampler seeds each, and
@@ -17,7 +17,7 @@ reports per configuration:
   by less than the noise of the render; `mean diff` is the relative difference of image means with its
 standard error (pixel noise only: the particles are the same in both).
 
-    .venv/bin/python scripts/continuous_switch.py [--spp 64] [--res 128] [--quick]
+    .venv/bin/python scripts/figures/continuous_switch.py [--spp 64] [--res 128] [--quick]
 
 Run time on 2 shared cores: ~4 min (default), ~40 s (--quick).
 """
@@ -30,7 +30,8 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "bench"))  # bench_render
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

@@ -1,6 +1,7 @@
-"""The GOA edge term alone (part (e) of ``scripts/singularities.py``, cited by ``rust/motes-core/src/goa.rs``).
+"""The GOA edge term alone (part (e) of ``scripts/figures/singularities.py``, cited by
+``rust/motes-core/src/optics/goa.rs``).
 
-    .venv/bin/python scripts/edge_term.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/edge_term.py [--out out/] [--quick]
 
 Measures (1) the mean relative C_ext error of GOA (p = 3, regularised) vs Lorenz-Mie with and without
 ``edge_correction`` over log-spaced radii in [10, 100] and [100, 1000] um for eta = 1.33, 1.5 and 0.75
@@ -14,7 +15,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import _common as C  # noqa: E402
 from singularities import edge_term_study  # noqa: E402

@@ -13,7 +13,7 @@ now (the default ``mie_dx``), for ``method="mie"`` (the table's numerical error)
 self-check is its difference to the same sum on every other radius. ``--quick``: three cases.
 (r_g 10 um, sigma_g 2 is left out: its reference reaches x ~ 1e4, ~10 min of miepython.)
 
-    .venv/bin/python scripts/ensemble_accuracy.py [--quick] [--out out]
+    .venv/bin/python scripts/figures/ensemble_accuracy.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

@@ -1,6 +1,6 @@
 """Paper Fig. 22 / 23 (App. E): (|S1|+|S2|)/2 of GOA with p_max = 1, 2, 3, 4 and 100.
 
-    .venv/bin/python scripts/fig22_orders.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/fig22_orders.py [--out out/] [--quick]
 
 eta = 1.33 (Fig. 22) and 1.40 (Fig. 23), (r, lambda) in {10, 100} um x {0.4, 0.6} um, 1800 angles
 (--quick: 600 angles, only lambda = 0.6 um). GOA with the defaults (regularised, edge term).
@@ -14,7 +14,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

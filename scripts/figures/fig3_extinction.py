@@ -1,6 +1,6 @@
 """Paper Fig. 3 and Fig. 21 (App. E): the extinction cross section C_t against the radius r.
 
-    .venv/bin/python scripts/fig3_extinction.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/fig3_extinction.py [--out out/] [--quick]
 
 Mie vs GOA with p_max = 1 and 3 (``motes.cross_sections(..., method="goa", p_max=1|3)["ext"]``) for
 eta = 1.33, lambda = 0.6 um, r log-spaced from 0.1 to 100 um (3000 radii; 600 with --quick), plus the
@@ -19,7 +19,7 @@ from __future__ import annotations
 import sys
 import pathlib
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

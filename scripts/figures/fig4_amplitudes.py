@@ -1,7 +1,7 @@
 """Paper Fig. 4 (eta = 1.33) and Fig. 24 / 25 (eta = 1.49, 1.56): log10|S1| and log10|S2| against the
 scattering angle, Lorenz-Mie vs GOA (p_max = 3, defaults), lambda = 0.6 um, r = 0.1, 1, 2, 10, 100 um.
 
-    .venv/bin/python scripts/fig4_amplitudes.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/fig4_amplitudes.py [--out out/] [--quick]
 
 1800 angles in [0, pi] (--quick: 600). Outputs ``fig4_amplitudes_eta1.33.png`` (|S1| upper row, |S2|
 lower row, as the paper), ``fig24_S1_eta1.49_1.56.png``, ``fig25_S2_eta1.49_1.56.png`` and
@@ -13,7 +13,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

@@ -1,7 +1,7 @@
 """Paper Fig. 6: RelMSE of (|S1|+|S2|)/2, GOA vs Lorenz-Mie, against r (left) and the runtime ratio
 t_Mie / t_GOA against r (right).
 
-    .venv/bin/python scripts/fig6_relmse_runtime.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/fig6_relmse_runtime.py [--out out/] [--quick]
 
 lambda = 0.6 um, 1800 angles, GOA with the defaults (p_max = 3, regularised, edge term); the
 paper-verbatim GOA (``regularise=False, edge_correction=False``) is shown dashed for comparison (its
@@ -26,7 +26,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

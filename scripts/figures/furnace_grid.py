@@ -1,8 +1,8 @@
 """White-furnace grid of the `discrete` medium (issue 9.1): grains small and large against their spacing
 x query radius x box transform x variant, Russian roulette off. Prints mean +- SE and (mean - 1) / SE.
 
-    .venv/bin/python scripts/furnace_grid.py            # full grid (~15 min on 2 cores)
-    .venv/bin/python scripts/furnace_grid.py --quick    # llvm_ad_rgb only, fewer samples
+    .venv/bin/python scripts/figures/furnace_grid.py            # full grid (~15 min on 2 cores)
+    .venv/bin/python scripts/figures/furnace_grid.py --quick    # llvm_ad_rgb only, fewer samples
 
 Imported by ``tests/test_furnace.py`` (the CI subset).
 """

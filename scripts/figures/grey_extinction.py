@@ -2,7 +2,7 @@
 channels for a few PSDs, and the resulting error of the transmittance colour at optical thickness 1 and 3
 (exp(-tau_c) against exp(-mean tau)). Albedo and phase function stay per channel, so energy is exact.
 
-    .venv/bin/python scripts/grey_extinction.py [--out out]
+    .venv/bin/python scripts/figures/grey_extinction.py [--out out]
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

@@ -1,6 +1,6 @@
 """The ``method="auto"`` policy: at which size parameter x is GOA good enough?
 
-    .venv/bin/python scripts/hybrid_threshold.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/hybrid_threshold.py [--out out/] [--quick]
 
 For eta in {1.1, 1.33, 1.49, 1.56, 2.0, 0.75, 1.5+0.01i, 1.33+0.001i} and 80 log-spaced size parameters
 x in [5, 400] (--quick: 30), with r = x lambda / 2 pi, lambda = 0.6 um and 1800 angles: the RelMSE of
@@ -19,7 +19,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

@@ -3,7 +3,7 @@ disagree by more than 1e-6: there the motes error is taken against mpmath): Q_ex
 and the normalised phase function's relative error where f > 1e-8 max f, over random indices (absorbing
 included) and size parameters up to 1e4.
 
-    .venv/bin/python scripts/mie_accuracy.py [--quick] [--out out]
+    .venv/bin/python scripts/figures/mie_accuracy.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 import pathlib
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

@@ -1,7 +1,7 @@
 """Does Mitsuba's prbvolpath render the `discrete` medium? A white furnace (non-absorbing particles in a
 box under a constant environment, expected 1.0) with volpath and prbvolpath side by side.
 
-    .venv/bin/python scripts/prbvolpath_check.py [--quick] [--out out]
+    .venv/bin/python scripts/figures/prbvolpath_check.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

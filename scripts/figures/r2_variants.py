@@ -2,7 +2,7 @@
 with variants of the forward diffraction (no edge term, the edge term with its complex phase ±π/3,
 a Kirchhoff obliquity factor (1 + cos θ)/2), plus where in θ the error sits.
 
-    .venv/bin/python scripts/r2_variants.py [--out out]
+    .venv/bin/python scripts/figures/r2_variants.py [--out out]
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

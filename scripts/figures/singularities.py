@@ -1,6 +1,6 @@
 """The effect of each GOA regularisation (and of the edge term) measured against Lorenz-Mie.
 
-    .venv/bin/python scripts/singularities.py [--out out/] [--quick]
+    .venv/bin/python scripts/figures/singularities.py [--out out/] [--quick]
 
 ``regularise=False, edge_correction=False`` is the paper verbatim; the defaults are ours. lambda = 0.6 um.
 
@@ -13,7 +13,7 @@
     S1(0) = S2(0) and S1(pi) = -S2(pi)) vs Mie, for eta = 1.33, 0.75, 1.5+0.01i and r = 1, 10, 100 um.
 (d) glory: backward window 170-180 deg, RelMSE of (|S1|+|S2|)/2 vs Mie, regularised vs not (eta = 1.33 as
     asked; 0.75 and 1.5+0.01i added, where rays with p <= 3 do leave exactly backwards).
-(e) edge term: see ``edge_term_study`` (also run alone by ``scripts/edge_term.py``): mean C_ext error vs
+(e) edge term: see ``edge_term_study`` (also run alone by ``scripts/figures/edge_term.py``): mean C_ext error vs
     Mie with and without ``edge_correction`` for r in [10, 100] and [100, 1000] um, eta = 1.33, 1.5 (and
     0.75, where the code leaves the term out), and the ripple-averaged coefficient c of
     Q_ext ~ 2 + c x^(-2/3) from Mie over x in [200, 400] (Nussenzveig-Wiscombe: 1.9924 for eta > 1).
@@ -26,7 +26,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 
 import numpy as np  # noqa: E402
 

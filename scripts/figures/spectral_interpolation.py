@@ -3,7 +3,7 @@ wavelength of sigma_t, sigma_s, albedo, g and the phase function, against direct
 wavelengths over 360-830 nm, for tables of 8 (the paper's count) and 16 wavelengths. Media: the paper's
 ice cloud, small ice crystals, fog droplets (tabulated indices of ice and water).
 
-    .venv/bin/python scripts/spectral_interpolation.py [--quick] [--out out]
+    .venv/bin/python scripts/figures/spectral_interpolation.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402

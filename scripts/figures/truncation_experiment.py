@@ -7,7 +7,7 @@ narrower than theta_c folded into unscattered transmission (``truncate_below_rad
 events per photon path, transmitted and reflected energy, and the L1 difference of the exit-angle
 distributions at a "pixel" resolution of 2 theta_c (what an image with that angular pixel size sees).
 
-    .venv/bin/python scripts/truncation_experiment.py [--quick] [--out out]
+    .venv/bin/python scripts/figures/truncation_experiment.py [--quick] [--out out]
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 import numpy as np  # noqa: E402
 
 import _common as C  # noqa: E402
