@@ -69,6 +69,10 @@ class ParticleGrid:
 F32 = npt.NDArray[np.float32]
 
 
+def check_discrete_inputs(positions: F64, radius: F64, query_radius: float, tau_max: float,
+                          cells_per_particle: float, continuous_count: float) -> None:
+    """The core's checks of a particle set and the medium's settings (raises MotesError)."""
+
 class DiscreteMedium:
     """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete.rs)."""
 

@@ -90,9 +90,6 @@ class DiscreteMedium:
         idx = np.asarray(species_index, dtype=np.int64).ravel()
         if r.size != n or idx.size != n:
             raise ValueError(f"radii_um and species_index must have one entry per particle ({n})")
-        if not np.all(np.isfinite(r) & (r > 0)):
-            bad = int(np.flatnonzero(~(np.isfinite(r) & (r > 0)))[0])
-            raise ValueError(f"radii_um[{bad}] = {r[bad]}: radii must be finite and > 0")
         if isinstance(species, Species):
             species = [species]
         species = list(species)
@@ -109,12 +106,9 @@ class DiscreteMedium:
             raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
         if not (np.isfinite(scale_m) and scale_m > 0):
             raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
-        if not (np.isfinite(query_radius) and query_radius >= 0):
-            raise ValueError(f"invalid query_radius = {query_radius}: must be finite and >= 0")
-        if not (tau_max > 0):
-            raise ValueError(f"invalid tau_max = {tau_max}: must be > 0 (inf: no cap)")
-        if not (continuous_count > 0):
-            raise ValueError(f"invalid continuous_count = {continuous_count}: must be > 0 (inf: every particle discrete)")
+        # The core's own rules, checked now rather than after minutes of optics tables.
+        _motes.check_discrete_inputs(pos.ravel(), r, float(query_radius), float(tau_max), float(cells_per_particle),
+                                     float(continuous_count))
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 

@@ -200,19 +200,20 @@ class DiscreteMediumPlugin:
         eta_medium = _get(props, "eta_medium", 1.0, float, pos_f, "finite and > 0")
         species_json = _get(props, "species", None, str)
         scale_m = _get(props, "scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
-        query_radius = _get(props, "query_radius", None, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
+        query_radius = _get(props, "query_radius", None, float)
         k = _get(props, "footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
         fov = _get(props, "fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
         film_width = _get(props, "film_width", None, int, lambda v: v >= 1, "an integer >= 1 (pixels)")
         z_med = _get(props, "z_med", None, float, pos_f, "finite and > 0 (scene units)")
-        cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float, pos_f, "finite and > 0")
+        cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
+        # query_radius, cells_per_particle, tau_max and continuous_count are range-checked by the core
+        # (motes._motes.check_discrete_inputs) before any table is built: one home for those rules.
         size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
         method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
                       "one of auto, mie, goa, hybrid")
         truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
-        tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float, lambda v: v > 0, "> 0 (inf: no cap)")
-        continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float, lambda v: v > 0,
-                          "> 0 (inf: every particle discrete)")
+        tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
+        continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
         wavelengths = _get(props, "wavelengths", None, str)
         seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
         albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")

@@ -1,5 +1,5 @@
 //! Cost of one traversal per ray, single-threaded (issue 10.2), in the two clouds of
-//! `scripts/bench_native.py`: `sparse` (the default scene's dust: 60 000 grains in a box of 20 units,
+//! `scripts/bench/bench_native.py`: `sparse` (the default scene's dust: 60 000 grains in a box of 20 units,
 //! query radius 0.064) and `dense` (haze: 1e6 grains, R ~ 0.07). Rays start inside the box in random
 //! directions and run 40 units (out of it): a full walk (every contributing particle), the grey optical
 //! depth, and free flights to the first site (`sample_site`, what the renderer calls).

@@ -39,59 +39,17 @@ impl PyDiscreteMedium {
         continuous_count: f64,
         seed: u64,
     ) -> PyResult<Self> {
-        let p = positions.as_slice()?;
-        if p.len() % 3 != 0 {
-            return Err(PyValueError::new_err("positions must have shape (n, 3)"));
-        }
-        let pos: Vec<[f64; 3]> = p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let (r, c, b) = (
-            radius.as_slice()?.to_vec(),
-            c_ext.as_slice()?.to_vec(),
-            bin.as_slice()?.to_vec(),
-        );
-        let (al, th, fv, off, lam) = (
-            albedo.as_slice()?,
-            theta.as_slice()?,
-            f.as_slice()?,
-            offsets.as_slice()?,
-            lambda.as_slice()?.to_vec(),
-        );
-        let k = lam.len();
-        if k == 0
-            || al.len() % k != 0
-            || off.len() != al.len() + 1
-            || th.len() != fv.len()
-            || off.last().copied() != Some(th.len() as u64)
-        {
-            return Err(PyValueError::new_err(
-                "albedo must have bins*K entries and offsets bins*K + 1, ending at len(theta)",
-            ));
-        }
-        let mut bins = Vec::new();
-        for bi in 0..al.len() / k {
-            let mut phase = Vec::new();
-            for kk in 0..k {
-                let t = bi * k + kk;
-                let (a, e) = (off[t] as usize, off[t + 1] as usize);
-                if a > e || e > th.len() {
-                    return Err(PyValueError::new_err("offsets must be increasing"));
-                }
-                phase.push(
-                    motes_core::ensemble::phase_table::PhaseTable::new(&th[a..e], &fv[a..e])
-                        .map_err(to_py)?,
-                );
-            }
-            bins.push(motes_core::render::discrete::BinOptics {
-                albedo: al[bi * k..(bi + 1) * k].to_vec(),
-                phase,
-            });
-        }
+        let pos = points(&positions)?;
+        let lam = lambda.as_slice()?.to_vec();
+        let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
+        // Borrowed, not copied: the build reads them once; `bin` and `lambda` move into the medium.
+        let (r, c, b) = (radius.as_slice()?, c_ext.as_slice()?, bin.as_slice()?.to_vec());
         let medium = py
             .detach(|| {
                 motes_core::render::discrete::DiscreteMedium::build(
                     &pos,
-                    &r,
-                    &c,
+                    r,
+                    c,
                     b,
                     bins,
                     lam,
@@ -386,4 +344,79 @@ impl PyDiscreteMedium {
     fn __len__(&self) -> usize {
         self.medium.len()
     }
+}
+
+/// Points from a flat (n*3) array.
+fn points(flat: &F64In) -> PyResult<Vec<[f64; 3]>> {
+    let p = flat.as_slice()?;
+    if p.len() % 3 != 0 {
+        return Err(PyValueError::new_err("positions must have shape (n, 3)"));
+    }
+    Ok(p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+/// Each bin's albedo and phase table per wavelength, from flat arrays: albedo (bins*K), phase tables
+/// as theta/f with offsets (bins*K + 1) ending at len(theta).
+fn bin_optics(
+    albedo: &F64In,
+    theta: &F64In,
+    f: &F64In,
+    offsets: &PyReadonlyArray1<'_, u64>,
+    k: usize,
+) -> PyResult<Vec<motes_core::render::discrete::BinOptics>> {
+    let (al, th, fv, off) = (
+        albedo.as_slice()?,
+        theta.as_slice()?,
+        f.as_slice()?,
+        offsets.as_slice()?,
+    );
+    if k == 0
+        || al.len() % k != 0
+        || off.len() != al.len() + 1
+        || th.len() != fv.len()
+        || off.last().copied() != Some(th.len() as u64)
+    {
+        return Err(PyValueError::new_err(
+            "albedo must have bins*K entries and offsets bins*K + 1, ending at len(theta)",
+        ));
+    }
+    let table = |t: usize| {
+        let (a, e) = (off[t] as usize, off[t + 1] as usize);
+        if a > e || e > th.len() {
+            return Err(PyValueError::new_err("offsets must be increasing"));
+        }
+        motes_core::ensemble::phase_table::PhaseTable::new(&th[a..e], &fv[a..e]).map_err(to_py)
+    };
+    (0..al.len() / k)
+        .map(|bi| {
+            Ok(motes_core::render::discrete::BinOptics {
+                albedo: al[bi * k..(bi + 1) * k].to_vec(),
+                phase: (bi * k..(bi + 1) * k).map(table).collect::<PyResult<_>>()?,
+            })
+        })
+        .collect()
+}
+
+/// The checks of a particle set (positions n*3 and radii in scene units) and the medium's settings
+/// that need no optics tables (`motes_core::render::discrete::check_particles_and_settings`): the
+/// Python layer calls this before it builds the tables, so a bad value fails at once, with the core's
+/// own rule and message.
+#[pyfunction]
+pub(crate) fn check_discrete_inputs(
+    positions: F64In,
+    radius: F64In,
+    query_radius: f64,
+    tau_max: f64,
+    cells_per_particle: f64,
+    continuous_count: f64,
+) -> PyResult<()> {
+    motes_core::render::discrete::check_particles_and_settings(
+        &points(&positions)?,
+        radius.as_slice()?,
+        query_radius,
+        tau_max,
+        cells_per_particle,
+        continuous_count,
+    )
+    .map_err(to_py)
 }

@@ -7,8 +7,8 @@
 //! * [`quadrature`]: Gauss–Legendre nodes shared by the integrals above and by GOA.
 //! * [`wavelengths`]: the default RGB and spectral wavelength sets.
 
-pub mod properties;
 pub mod phase_table;
+pub mod properties;
 pub mod psd;
 pub mod quadrature;
 pub mod wavelengths;

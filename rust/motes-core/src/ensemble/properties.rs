@@ -60,7 +60,7 @@ pub struct BulkOptions {
 /// `max_log_step` in ln r) dominates the ensemble's side- and back-scattering: 8-node Gauss–Legendre
 /// panels alias it (3–10 % errors at 180° for log-normal water droplets of r_g 1–10 µm), a uniform grid
 /// in x averages it. 0.02 keeps the tables within 1 % of a 20 000-radius reference at every angle
-/// (`scripts/ensemble_accuracy.py`, BENCHMARKS.md "Ensemble tables: default accuracy").
+/// (`scripts/figures/ensemble_accuracy.py`, BENCHMARKS.md "Ensemble tables: default accuracy").
 pub const MIE_RIPPLE_DX: f64 = 0.02;
 /// Up to this size parameter the ripple is resolved and Mie nodes are summed in coefficient space
 /// ([`MieIntensitySums`], O(N²) per node); beyond, the cost of a fine grid (∝ x³) outgrows its use.

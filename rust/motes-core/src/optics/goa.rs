@@ -669,7 +669,7 @@ pub fn diffraction(alpha: f64, theta: f64) -> f64 {
 /// ≥ 3, below which the asymptotic series is meaningless (and GOA with it).
 ///
 /// The coefficients are derived for η > 1; for bubbles (η < 1) the measured ripple-averaged
-/// coefficient is different (1.29 instead of 1.99 at η = 0.75, `scripts/edge_term.py`), so the term is
+/// coefficient is different (1.29 instead of 1.99 at η = 0.75, `scripts/figures/edge_term.py`), so the term is
 /// left out for η_r < 1.
 pub fn edge_term(alpha: f64, m: C64) -> f64 {
     if m.re < 1.0 {
@@ -683,7 +683,7 @@ pub fn edge_term(alpha: f64, m: C64) -> f64 {
 /// Weight of ray-optics (as opposed to anomalous-diffraction) behaviour: `t = ρ²/(ρ² + ρ0²)` with
 /// `ρ = 2α|m − 1|` the central phase shift and ρ0 = 5. t → 0 as η → 1 at fixed α (ADT regime, where
 /// the edge term and the Fresnel focusing factor of the p = 1 ray both disappear) and t → 1 in the
-/// GOA regime. ρ0 from the η → 1 table of `scripts/singularities.py` (part b).
+/// GOA regime. ρ0 from the η → 1 table of `scripts/figures/singularities.py` (part b).
 pub fn ray_optics_weight(alpha: f64, m: C64) -> f64 {
     let rho = 2.0 * alpha * (m - 1.0).norm();
     rho * rho / (rho * rho + 25.0)

@@ -14,14 +14,14 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 
 /// Size parameter above which `Method::Auto` uses GOA. Chosen from the measured GOA-vs-Mie error of
-/// `scripts/hybrid_threshold.py` (BENCHMARKS.md, "auto policy"): above it the RelMSE of
+/// `scripts/figures/hybrid_threshold.py` (BENCHMARKS.md, "auto policy"): above it the RelMSE of
 /// (|S1|+|S2|)/2 stays below 1e-2 for every tested index, and Mie costs grow linearly with x.
 pub const AUTO_SIZE_PARAMETER: f64 = 60.0;
 
 /// `Method::Auto` also uses Mie (at any size) when an axial ray is degenerate, `|2p/η_r − 2| <` this for
 /// some order p: there dθ_p/dθi vanishes on the axis (η = 2 focuses light on the back of the sphere, a
 /// retro-reflecting ball lens; η → 1 makes the p = 1 ray go straight through). GOA's caustic then grows
-/// like α² where Mie's grows like α^{3/2}; the measured window (`scripts/hybrid_threshold.py`) is
+/// like α² where Mie's grows like α^{3/2}; the measured window (`scripts/figures/hybrid_threshold.py`) is
 /// |4/η − 2| ≲ 0.005 at x = 400..6400.
 pub const AXIAL_CAUSTIC_WINDOW: f64 = 0.01;
 

@@ -24,7 +24,7 @@ use std::f64::consts::PI;
 /// Default number of a class's particles a query cylinder must hold (over one mean free path, or
 /// across the medium if that is shorter) for the class to be rendered as a continuous medium:
 /// the lost grain texture, of relative size 1/√N, is then at most 1/√16 = 25 % per pixel, below the
-/// Monte Carlo noise of a render at tens of spp (measured: `scripts/continuous_switch.py`).
+/// Monte Carlo noise of a render at tens of spp (measured: `scripts/figures/continuous_switch.py`).
 pub const DEFAULT_CONTINUOUS_COUNT: f64 = 16.0;
 
 /// Particles per cell of the field: larger cells are cheaper to walk and blur only structure that

@@ -45,7 +45,7 @@
 //! path that leaves the medium without one, so a channel-dependent free flight cannot be re-weighted
 //! there (see `mitsuba_plugin/motes/plugins/discrete.py`). A non-absorbing particle keeps a_c = 1 in
 //! every channel, so energy is conserved exactly (white furnace); what is approximated is the colour
-//! of the transmittance, by the spread of C_t over the channels (measured by scripts/grey_extinction.py, BENCHMARKS.md).
+//! of the transmittance, by the spread of C_t over the channels (measured by scripts/figures/grey_extinction.py, BENCHMARKS.md).
 //!
 //! ## Phase function of a site (Eq. 24)
 //! With the site's particles j, scattering weights s_j,c = τ_j a_j,c, the phase function for
@@ -59,7 +59,7 @@ use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, ContinuousField};
 use crate::space::dda::Bounds3;
-use crate::space::grid::{bounding_box, ParticleGrid, Site};
+use crate::space::grid::{bounding_box, check_cross_sections, check_particles, ParticleGrid, Site};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
@@ -295,10 +295,31 @@ pub struct DiscreteMedium {
     optics_epoch: AtomicU64,
 }
 
+/// The checks of a particle set and the medium's settings that need no optics: one home for these
+/// rules, called by [`DiscreteMedium::build`] and, before it spends minutes on optics tables, by the
+/// Python layer (so that a bad setting fails at once).
+pub fn check_particles_and_settings(
+    positions: &[[f64; 3]],
+    radius: &[f64],
+    query_radius: f64,
+    tau_max: f64,
+    cells_per_particle: f64,
+    continuous_count: f64,
+) -> Result<(), OpticsError> {
+    check_particles(positions, radius, query_radius, cells_per_particle)?;
+    require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
+    require(
+        "continuous_count",
+        continuous_count,
+        continuous_count > 0.0,
+        "> 0 (inf: every class discrete)",
+    )
+}
+
 /// The checks of [`DiscreteMedium::build`]'s inputs, each naming its argument.
 #[allow(clippy::too_many_arguments)]
 fn check_build_inputs(
-    n: usize,
+    positions: &[[f64; 3]],
     radius: &[f64],
     c_ext: &[f64],
     bin: &[u32],
@@ -306,24 +327,20 @@ fn check_build_inputs(
     lambda: &[f64],
     query_radius: f64,
     tau_max: f64,
+    cells_per_particle: f64,
     continuous_count: f64,
 ) -> Result<(), OpticsError> {
+    let n = positions.len();
     require_len("bin (length)", bin.len(), n, "one per particle")?;
-    require_len("radius (length)", radius.len(), n, "one per particle")?;
-    require_len("c_ext (length)", c_ext.len(), n, "one per particle")?;
-    require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
-    require(
-        "query_radius",
+    check_particles_and_settings(
+        positions,
+        radius,
         query_radius,
-        query_radius.is_finite() && query_radius >= 0.0,
-        "finite and >= 0",
-    )?;
-    require(
-        "continuous_count",
+        tau_max,
+        cells_per_particle,
         continuous_count,
-        continuous_count > 0.0,
-        "> 0 (inf: every class discrete)",
     )?;
+    check_cross_sections(c_ext, n, 1)?;
     require(
         "lambda (length)",
         lambda.len() as f64,
@@ -352,20 +369,6 @@ fn check_build_inputs(
     if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
         require("bin (index)", b as f64, false, "< number of bins")?;
     }
-    for i in 0..n {
-        require(
-            "radius",
-            radius[i],
-            radius[i].is_finite() && radius[i] > 0.0,
-            "finite and > 0",
-        )?;
-        require(
-            "c_ext",
-            c_ext[i],
-            c_ext[i].is_finite() && c_ext[i] >= 0.0,
-            "finite and >= 0",
-        )?;
-    }
     Ok(())
 }
 
@@ -381,7 +384,7 @@ fn build_walk(
     query_radius: f64,
     cells_per_particle: f64,
     continuous_count: f64,
-) -> Result<(Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>), OpticsError> {
+) -> (Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>) {
     let n = positions.len();
     let keep = resolvable(positions, reach, c_ext, continuous_count);
     let (discrete_ids, field_ids): (Vec<u32>, Vec<u32>) =
@@ -390,28 +393,28 @@ fn build_walk(
     let grid = if discrete_ids.is_empty() {
         None
     } else if field_ids.is_empty() {
-        Some(ParticleGrid::build(
+        Some(ParticleGrid::from_checked(
             positions,
             grid_radius,
             grid_c,
             1,
             query_radius,
             cells_per_particle,
-        )?)
+        ))
     } else {
         // The grid reports original indices: build it on the discrete particles and map back.
         let pos: Vec<[f64; 3]> = discrete_ids
             .iter()
             .map(|&i| positions[i as usize])
             .collect();
-        let g = ParticleGrid::build(
+        let g = ParticleGrid::from_checked(
             &pos,
             &pick(&discrete_ids, grid_radius),
             &pick(&discrete_ids, grid_c),
             1,
             query_radius,
             cells_per_particle,
-        )?;
+        );
         Some(g.with_indices(&discrete_ids))
     };
     let field = (!field_ids.is_empty()).then(|| {
@@ -425,7 +428,7 @@ fn build_walk(
             &field_ids,
         )
     });
-    Ok((grid, field, keep))
+    (grid, field, keep)
 }
 
 /// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
@@ -474,7 +477,7 @@ impl DiscreteMedium {
         seed: u64,
     ) -> Result<Self, OpticsError> {
         check_build_inputs(
-            positions.len(),
+            positions,
             radius,
             c_ext,
             &bin,
@@ -482,6 +485,7 @@ impl DiscreteMedium {
             &lambda,
             query_radius,
             tau_max,
+            cells_per_particle,
             continuous_count,
         )?;
         let n = positions.len();
@@ -507,7 +511,7 @@ impl DiscreteMedium {
             query_radius,
             cells_per_particle,
             continuous_count,
-        )?;
+        );
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let tau = disks.iter().map(|d| d.1 as f32).collect();
         let reach = disks.iter().map(|d| d.0 as f32).collect();

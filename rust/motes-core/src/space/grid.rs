@@ -372,7 +372,7 @@ impl SubGrid {
         query_radius: f64,
         cells_per_particle: f64,
         volume_hint: Option<f64>,
-    ) -> Result<Self, OpticsError> {
+    ) -> Self {
         let n = positions.len();
         let reach: Vec<f64> = radius.iter().map(|r| query_radius + r).collect();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
@@ -425,7 +425,7 @@ impl SubGrid {
         };
         let index = order.iter().map(|&i| ids[i as usize]).collect();
         let prefetch_slots = inline.bytes().max(particles.bytes()) > PREFETCH_SLOTS_ABOVE_BYTES;
-        Ok(SubGrid {
+        SubGrid {
             particles,
             tau,
             index,
@@ -439,7 +439,7 @@ impl SubGrid {
             reach_max,
             k,
             prefetch_slots,
-        })
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -872,25 +872,18 @@ fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
     volume
 }
 
-/// The checks of [`ParticleGrid::build`]'s inputs, each naming its argument.
-fn check_build_inputs(
+/// The checks of a particle set and its grid settings, each naming its argument: done once, where the
+/// particles enter the core ([`ParticleGrid::build`], `DiscreteMedium::build`); what is derived from
+/// checked inputs is built without checking again ([`ParticleGrid::from_checked`]).
+pub fn check_particles(
     positions: &[[f64; 3]],
     radius: &[f64],
-    c_ext: &[f64],
-    channels: usize,
     query_radius: f64,
     cells_per_particle: f64,
 ) -> Result<(), OpticsError> {
     let n = positions.len();
     require("positions (count)", n as f64, n >= 1, ">= 1")?;
     require_len("radius (length)", radius.len(), n, "one per particle")?;
-    require("channels", channels as f64, channels >= 1, ">= 1")?;
-    require(
-        "c_ext (length)",
-        c_ext.len() as f64,
-        c_ext.len() == n * channels,
-        "particles × channels",
-    )?;
     require(
         "query_radius",
         query_radius,
@@ -917,6 +910,18 @@ fn check_build_inputs(
             "finite and > 0",
         )?;
     }
+    Ok(())
+}
+
+/// The checks of extinction cross sections, `[particle][channel]` row-major, of `n` particles.
+pub fn check_cross_sections(c_ext: &[f64], n: usize, channels: usize) -> Result<(), OpticsError> {
+    require("channels", channels as f64, channels >= 1, ">= 1")?;
+    require(
+        "c_ext (length)",
+        c_ext.len() as f64,
+        c_ext.len() == n * channels,
+        "particles × channels",
+    )?;
     for &c in c_ext {
         require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
     }
@@ -944,14 +949,28 @@ impl ParticleGrid {
         query_radius: f64,
         cells_per_particle: f64,
     ) -> Result<Self, OpticsError> {
-        check_build_inputs(
+        check_particles(positions, radius, query_radius, cells_per_particle)?;
+        check_cross_sections(c_ext, positions.len(), channels)?;
+        Ok(Self::from_checked(
             positions,
             radius,
             c_ext,
             channels,
             query_radius,
             cells_per_particle,
-        )?;
+        ))
+    }
+
+    /// [`ParticleGrid::build`] from inputs that passed [`check_particles`] (or are derived from such
+    /// inputs, finite and positive by construction).
+    pub(crate) fn from_checked(
+        positions: &[[f64; 3]],
+        radius: &[f64],
+        c_ext: &[f64],
+        channels: usize,
+        query_radius: f64,
+        cells_per_particle: f64,
+    ) -> Self {
         let n = positions.len();
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
@@ -981,13 +1000,13 @@ impl ParticleGrid {
                 query_radius,
                 cells_per_particle,
                 Some(volume),
-            )?);
+            ));
         }
-        Ok(ParticleGrid {
+        ParticleGrid {
             classes,
             channels,
             n,
-        })
+        }
     }
 
     /// The same grid reporting `ids[i]` for the particle it was built with as index i.
