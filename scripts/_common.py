@@ -243,6 +243,14 @@ def write_json(path: pathlib.Path, data: dict) -> None:
     print(f"wrote {path}")
 
 
+def finish(args: argparse.Namespace, sw: Stopwatch, path: pathlib.Path, **fields) -> None:
+    """The end of a script: the JSON at ``path``, the provenance (:func:`meta`, with the run time on
+    ``sw``) first and then ``fields``, and the run time printed."""
+    elapsed = sw()
+    write_json(path, dict(meta=meta(args, elapsed), **fields))
+    print(f"runtime {elapsed:.1f} s")
+
+
 def label(ax, xlabel: str, ylabel: str, title: str | None = None, *, legend: int | None = None, grid_which: str = "both") -> None:
     """Axis labels, optional title and legend (font size), and the light grid every figure uses."""
     ax.set_xlabel(xlabel)

@@ -8,6 +8,7 @@
   reproducible, no deadline (example cost varies by orders of magnitude with the size parameter), no
   example database (nothing written into the tree).
 * strategies shared by the property tests.
+* ``cube_scene`` — the small Mitsuba scene of the plugin tests: a medium in a cube under a constant sky.
 """
 
 from __future__ import annotations
@@ -69,6 +70,22 @@ def log_uniform(lo: float, hi: float, buckets: int = 256) -> st.SearchStrategy[f
         return min(max(10.0**e, lo), hi)
 
     return st.tuples(st.integers(0, buckets - 1), st.floats(0.0, 1.0)).map(value)
+
+
+# --- a small Mitsuba scene ---------------------------------------------------------------------------
+
+
+def cube_scene(interior: dict, res: int = 8):
+    """A volpath scene: a unit cube with a null BSDF and the medium ``interior``, under a constant
+    environment, seen by a ``res`` x ``res`` perspective camera at z = 5 (Mitsuba's current variant)."""
+    import mitsuba as mi
+
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath"},
+        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": res, "height": res},
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},
+        "env": {"type": "constant"},
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": interior}})
 
 
 # --- an independent high-precision Mie reference -------------------------------------------------

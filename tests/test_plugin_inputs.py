@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import motes
+from conftest import cube_scene
 
 mi = pytest.importorskip("mitsuba")
 
@@ -103,13 +104,7 @@ def test_radius_median_outside_the_psd_range_names_it():
 
 def test_particle_phase_outside_a_discrete_medium_fails_in_one_sentence():
     motes.set_variant("scalar_rgb")
-    scene = mi.load_dict({
-        "type": "scene", "integrator": {"type": "volpath"},
-        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4},
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},
-        "env": {"type": "constant"},
-        "cube": {"type": "cube", "bsdf": {"type": "null"},
-                 "interior": {"type": "homogeneous", "sigma_t": 1.0, "phase": {"type": "particle"}}}})
+    scene = cube_scene({"type": "homogeneous", "sigma_t": 1.0, "phase": {"type": "particle"}}, res=4)
     with pytest.raises(Exception) as e:
         mi.render(scene, spp=1)
     chain = []

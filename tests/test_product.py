@@ -13,19 +13,14 @@ import numpy as np
 import pytest
 
 import motes
+from conftest import cube_scene
 
 mi = pytest.importorskip("mitsuba")
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
 def small_scene():
-    return mi.load_dict({
-        "type": "scene", "integrator": {"type": "volpath"},
-        "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8},
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},
-        "env": {"type": "constant"},
-        "cube": {"type": "cube", "bsdf": {"type": "null"},
-                 "interior": {"type": "discrete", "count": 300, "phase": {"type": "particle"}}}})
+    return cube_scene({"type": "discrete", "count": 300, "phase": {"type": "particle"}})
 
 
 def test_mitsuba_variant_first_then_import_motes():

@@ -103,10 +103,8 @@ def main() -> None:
     C.label(ax, "size parameter x (η = 1.33, λ = 0.6 µm, r = 1…1000 µm)", "evaluations / s (1800 angles)", "Amplitude throughput, best of n", legend=8)
     C.save_fig(fig, out / "bench_amplitudes.png")
 
-    elapsed = sw()
-    C.write_json(out / "bench_amplitudes.json", dict(meta=C.meta(args, elapsed), eta=ETA, wavelength_um=C.LAM,
-                                                      n_angles=int(theta.size), miepython=miepython.__version__, results=records))
-    print(f"runtime {elapsed:.1f} s")
+    C.finish(args, sw, out / "bench_amplitudes.json", eta=ETA, wavelength_um=C.LAM, n_angles=int(theta.size),
+             miepython=miepython.__version__, results=records)
 
 
 if __name__ == "__main__":

@@ -93,8 +93,7 @@ def main() -> None:
         ax.loglog(np.degrees(bb["theta"][1:]), bb["phase"][0][1:], lw=0.8, label=f"{psd!r}"[:40] + f"  g={bb['g'][0]:.3f}")
     C.label(ax, "θ (deg)", "ensemble phase function (1/sr)", "Ensemble phase functions of ice clouds, λ = 0.55 µm (cf. paper Fig. 8)", legend=6)
     C.save_fig(fig, out / "fig8_ensemble_phase.png")
-    C.write_json(out / "bench_bulk.json", dict(meta=C.meta(args, sw()), build_s=t_full, build_coefficients_s=t_coef, cache_hit_s=t_hit))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "bench_bulk.json", build_s=t_full, build_coefficients_s=t_coef, cache_hit_s=t_hit)
 
 
 if __name__ == "__main__":

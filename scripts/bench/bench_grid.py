@@ -76,8 +76,7 @@ def main() -> None:
         q, f = map(float, res.stdout.split()[-2:])
         threads.append([k, q, f])
     C.print_table("Threads (N = 1e5, separate processes with RAYON_NUM_THREADS)", ["threads", "queries / s", "free flights / s"], threads)
-    C.write_json(out / "bench_grid.json", dict(meta=C.meta(args, sw()), sizes=rows, sweep=sweep, threads=threads))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "bench_grid.json", sizes=rows, sweep=sweep, threads=threads)
 
 
 if __name__ == "__main__":

@@ -24,9 +24,7 @@ from singularities import edge_term_study  # noqa: E402
 def main() -> None:
     args, out, sw, motes = C.start(__doc__)
     res = edge_term_study(motes, args.quick, out, C.plt())
-    elapsed = sw()
-    C.write_json(out / "edge_term.json", dict(meta=C.meta(args, elapsed), wavelength_um=C.LAM, **res))
-    print(f"runtime {elapsed:.1f} s")
+    C.finish(args, sw, out / "edge_term.json", wavelength_um=C.LAM, **res)
 
 
 if __name__ == "__main__":

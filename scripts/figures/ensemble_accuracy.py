@@ -101,8 +101,7 @@ def main() -> None:
     caller_angles(motes)
     worst = default_accuracy(motes, args.quick, out)
     print("worst over the cases:", worst)
-    C.write_json(out / "ensemble_accuracy.json", dict(meta=C.meta(args, sw()), worst=worst))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "ensemble_accuracy.json", worst=worst)
 
 
 if __name__ == "__main__":

@@ -75,9 +75,7 @@ def main() -> None:
     if bad:
         print(f"NON-FINITE amplitudes: {bad}")
 
-    elapsed = sw()
-    C.write_json(out / "fig22_orders.json", dict(meta=C.meta(args, elapsed), n_angles=int(theta.size), results=records, nonfinite=bad))
-    print(f"runtime {elapsed:.1f} s")
+    C.finish(args, sw, out / "fig22_orders.json", n_angles=int(theta.size), results=records, nonfinite=bad)
 
 
 if __name__ == "__main__":

@@ -140,28 +140,23 @@ def main() -> None:
     C.label(ax, "r (µm)", "RelMSE{C_t} between p=1 and p=3 (Eq. 38)", f"Fig. 21: η={ETA}, λ={C.LAM} µm", legend=8)
     C.save_fig(fig, out / "fig21_ct_relmse_p1_p3.png")
 
-    elapsed = sw()
-    C.write_json(
-        out / "fig3_extinction.json",
-        dict(
-            meta=C.meta(args, elapsed),
-            eta=ETA,
-            wavelength_um=C.LAM,
-            n_radii=n,
-            band_stats=stats,
-            fig21=dict(
-                ours_max_relmse_r_gt_1=float(rm_ours[big].max()),
-                paper_max_relmse_r_gt_1=float(rm_paper[big].max()),
-                acceptance_lt_1e5=bool(rm_ours[big].max() < 1e-5),
-            ),
-            unclamped_eq12_nonpositive=neg_summary,
-            nonfinite=nonfinite,
-            cross_sections_vs_goa_extinction_efficiency_max_reldiff=consistency,
-            timings_s=timings,
-            curves=dict(r_um=r, c_mie=c_mie, **{f"c_{k}": v for k, v in c.items()}, c_paper_p3_unclamped=raw["paper_p3"]),
+    C.finish(
+        args, sw, out / "fig3_extinction.json",
+        eta=ETA,
+        wavelength_um=C.LAM,
+        n_radii=n,
+        band_stats=stats,
+        fig21=dict(
+            ours_max_relmse_r_gt_1=float(rm_ours[big].max()),
+            paper_max_relmse_r_gt_1=float(rm_paper[big].max()),
+            acceptance_lt_1e5=bool(rm_ours[big].max() < 1e-5),
         ),
+        unclamped_eq12_nonpositive=neg_summary,
+        nonfinite=nonfinite,
+        cross_sections_vs_goa_extinction_efficiency_max_reldiff=consistency,
+        timings_s=timings,
+        curves=dict(r_um=r, c_mie=c_mie, **{f"c_{k}": v for k, v in c.items()}, c_paper_p3_unclamped=raw["paper_p3"]),
     )
-    print(f"runtime {elapsed:.1f} s")
 
 
 if __name__ == "__main__":

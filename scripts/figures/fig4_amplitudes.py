@@ -91,18 +91,8 @@ def main() -> None:
         fig.suptitle(f"Fig. {fig_no}: log10|S{comp}|, η = 1.49 (top), 1.56 (bottom), λ = {C.LAM} µm (blue Mie, red GOA)")
         C.save_fig(fig, out / f"fig{fig_no}_S{comp}_eta1.49_1.56.png", rect=(0, 0, 1, 0.97))
 
-    elapsed = sw()
-    C.write_json(
-        out / "fig4_amplitudes.json",
-        dict(
-            meta=C.meta(args, elapsed),
-            wavelength_um=C.LAM,
-            n_angles=int(theta.size),
-            relmse=[dict(eta=row[0], r_um=row[1], x=row[2], relmse_mean=row[3], relmse_S1=row[4], relmse_S2=row[5]) for row in rows],
-            nonfinite=bad,
-        ),
-    )
-    print(f"runtime {elapsed:.1f} s")
+    relmse = [dict(eta=row[0], r_um=row[1], x=row[2], relmse_mean=row[3], relmse_S1=row[4], relmse_S2=row[5]) for row in rows]
+    C.finish(args, sw, out / "fig4_amplitudes.json", wavelength_um=C.LAM, n_angles=int(theta.size), relmse=relmse, nonfinite=bad)
 
 
 if __name__ == "__main__":

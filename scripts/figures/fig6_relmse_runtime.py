@@ -137,19 +137,9 @@ def main() -> None:
     C.label(ax, "r (µm)", "t_Mie / t_GOA", "Fig. 6 right: runtime ratio, 1800 angles, best of 3", legend=7)
     C.save_fig(fig, out / "fig6_relmse_runtime.png")
 
-    elapsed = sw()
-    C.write_json(
-        out / "fig6_relmse_runtime.json",
-        dict(
-            meta=C.meta(args, elapsed),
-            wavelength_um=C.LAM,
-            n_angles=int(theta.size),
-            repetitions=reps,
-            radii_um=radii,
-            results={C.eta_label(eta): {k: v for k, v in d.items()} for eta, d in res.items()},
-        ),
-    )
-    print(f"runtime {elapsed:.1f} s")
+    results = {C.eta_label(eta): {k: v for k, v in d.items()} for eta, d in res.items()}
+    C.finish(args, sw, out / "fig6_relmse_runtime.json", wavelength_um=C.LAM, n_angles=int(theta.size), repetitions=reps,
+             radii_um=radii, results=results)
 
 
 if __name__ == "__main__":

@@ -130,12 +130,10 @@ def main() -> None:
     ax.grid(True, which="both", alpha=0.3)
     C.save_fig(fig, out / "hybrid_threshold.png")
 
-    elapsed = sw()
-    C.write_json(out / "hybrid_threshold.json", dict(
-        meta=C.meta(args, elapsed), wavelength_um=C.LAM, tol=TOL, auto_size_parameter=x_auto, hybrid_x=x_hyb,
+    C.finish(
+        args, sw, out / "hybrid_threshold.json", wavelength_um=C.LAM, tol=TOL, auto_size_parameter=x_auto, hybrid_x=x_hyb,
         x=xs, relmse={C.eta_label(e): v for e, v in res.items()}, summary=summary, largest_x_c=max(xcs), worst_eta=worst_eta,
-        switch_check=checks, nonfinite=bad))
-    print(f"runtime {elapsed:.1f} s")
+        switch_check=checks, nonfinite=bad)
 
 
 if __name__ == "__main__":

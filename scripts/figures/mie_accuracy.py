@@ -58,8 +58,7 @@ def main() -> None:
     C.print_table(f"Mie vs miepython {miepython.__version__}: relative errors over {n_cases} random (m, x), 50 angles",
                   ["x", "m", "Q_ext", "Q_sca", "phase fn (f > 1e-8 max)", "referee where miepython is off > 1e-6"], rows)
     C.print_table("worst case", ["Q_ext", "Q_sca", "phase function"], [[worst["q_ext"], worst["q_sca"], worst["phase"]]])
-    C.write_json(out / "mie_accuracy.json", dict(meta=C.meta(args, sw()), worst=worst, rows=rows))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "mie_accuracy.json", worst=worst, rows=rows)
 
 
 if __name__ == "__main__":

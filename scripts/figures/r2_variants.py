@@ -48,8 +48,7 @@ def main() -> None:
     C.print_table("RelMSE (global) with variants of the forward diffraction", ["eta", "r (µm)", *variants.keys()], rows_var)
     C.print_table("Where the RelMSE (global, default GOA) comes from: contribution per θ band (degrees)",
                   ["eta", "r (µm)", "0–5", "5–20", "20–60", "60–120", "120–170", "170–180"], rows_loc)
-    C.write_json(out / "r2_variants.json", dict(meta=C.meta(args, sw()), definitions=rows_def, variants=rows_var, bands=rows_loc))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "r2_variants.json", definitions=rows_def, variants=rows_var, bands=rows_loc)
 
 
 if __name__ == "__main__":

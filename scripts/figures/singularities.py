@@ -304,11 +304,9 @@ def main() -> None:
     d = part_d(motes, args.quick)
     e = edge_term_study(motes, args.quick, out, plt)
     plot_main(out, plt, a, b, d)
-    elapsed = sw()
     a_json = dict(rainbow_deg=a["rainbow_deg"], results={str(r): {k: v for k, v in rec.items() if k != "curves"} for r, rec in a["results"].items()})
-    C.write_json(out / "singularities.json", dict(meta=C.meta(args, elapsed), wavelength_um=C.LAM, a_rainbow=a_json, b_eta_to_1=b,
-                                                  c_axis=c, d_glory=d["results"], e_edge=e))
-    print(f"runtime {elapsed:.1f} s")
+    C.finish(args, sw, out / "singularities.json", wavelength_um=C.LAM, a_rainbow=a_json, b_eta_to_1=b, c_axis=c, d_glory=d["results"],
+             e_edge=e)
 
 
 if __name__ == "__main__":

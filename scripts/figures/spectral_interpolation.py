@@ -39,8 +39,7 @@ def main() -> None:
             rows.append([label, n_tab, rel["sigma_t"], rel["sigma_s"], g_abs, l1])
     C.print_table("Linear interpolation in wavelength vs direct evaluation, max over 360-830 nm",
                   ["medium", "table wavelengths", "sigma_t max rel err", "sigma_s max rel err", "g max abs err", "phase max L1 distance"], rows)
-    C.write_json(out / "spectral_interpolation.json", dict(meta=C.meta(args, sw()), rows=rows))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "spectral_interpolation.json", rows=rows)
 
 
 if __name__ == "__main__":

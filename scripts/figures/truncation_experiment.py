@@ -100,8 +100,7 @@ def main() -> None:
                    "transmitted", "reflected", "absorbed"], rows)
     C.print_table("Exit-angle distribution of transmitted light at pixel size 2 theta_c: L1 difference (fraction of photons) and its noise scale",
                   ["theta_c (rad)", "pixel (rad)", "L1 difference", "MC noise scale (sum of sqrt counts / N)"], diffs)
-    C.write_json(out / "truncation_experiment.json", dict(meta=C.meta(args, sw()), rows=rows, diffs=diffs))
-    print(f"runtime {sw():.1f} s")
+    C.finish(args, sw, out / "truncation_experiment.json", rows=rows, diffs=diffs)
 
 
 if __name__ == "__main__":

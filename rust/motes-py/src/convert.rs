@@ -5,6 +5,7 @@ use motes_core::OpticsError;
 use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use rayon::prelude::*;
 
 pyo3::create_exception!(
     motes,
@@ -44,11 +45,44 @@ pub(crate) fn to_py(e: OpticsError) -> PyErr {
 pub(crate) type F64In<'py> = PyReadonlyArray1<'py, f64>;
 pub(crate) type F64Out<'py> = Bound<'py, PyArray1<f64>>;
 
-pub(crate) fn rays<'a>(
-    origins: &'a [f64],
-    directions: &'a [f64],
-    n: usize,
-) -> PyResult<Vec<([f64; 3], [f64; 3])>> {
+/// A ray as the grid and medium queries take it: origin and unit direction.
+pub(crate) type Ray = ([f64; 3], [f64; 3]);
+
+/// Points from a flat (n*3) array, unchecked: a trailing partial point is dropped.
+pub(crate) fn triples(flat: &[f64]) -> Vec<[f64; 3]> {
+    flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+/// Particle positions from a flat (n*3) array.
+pub(crate) fn points(flat: &F64In) -> PyResult<Vec<[f64; 3]>> {
+    let p = flat.as_slice()?;
+    if p.len() % 3 != 0 {
+        return Err(PyValueError::new_err("positions must have shape (n, 3)"));
+    }
+    Ok(triples(p))
+}
+
+/// Per-ray arrays (t0, t1, u, …), copied; they must be equally long ("t0, t1 and u must have one
+/// value per ray", from their names).
+pub(crate) fn per_ray<const N: usize>(arrays: [(&str, &F64In); N]) -> PyResult<[Vec<f64>; N]> {
+    let mut out = Vec::with_capacity(N);
+    for (_, a) in arrays {
+        out.push(a.as_slice()?.to_vec());
+    }
+    if out.iter().any(|v| v.len() != out[0].len()) {
+        let names: Vec<&str> = arrays.iter().map(|(name, _)| *name).collect();
+        let (last, rest) = names.split_last().expect("two or more arrays");
+        return Err(PyValueError::new_err(format!(
+            "{} and {last} must have one value per ray",
+            rest.join(", ")
+        )));
+    }
+    Ok(out.try_into().expect("N arrays"))
+}
+
+/// `n` rays from flat (n*3) origins and directions, the directions normalised.
+pub(crate) fn rays(origins: &F64In, directions: &F64In, n: usize) -> PyResult<Vec<Ray>> {
+    let (origins, directions) = (origins.as_slice()?, directions.as_slice()?);
     if origins.len() != 3 * n || directions.len() != 3 * n {
         return Err(invalid(
             "origins, directions",
@@ -75,6 +109,27 @@ pub(crate) fn rays<'a>(
             Ok((o, d.map(|x| x / l)))
         })
         .collect()
+}
+
+/// `f(i, ray, t0, t1)` of each ray's segment [t0, t1), in parallel and without the GIL.
+pub(crate) fn per_segment<T, F>(
+    py: Python<'_>,
+    rays: &[Ray],
+    t0: &[f64],
+    t1: &[f64],
+    f: F,
+) -> Vec<T>
+where
+    T: Send,
+    F: Fn(usize, &Ray, f64, f64) -> T + Sync + Send,
+{
+    py.detach(|| {
+        rays.par_iter()
+            .zip(t0.par_iter().zip(t1.par_iter()))
+            .enumerate()
+            .map(|(i, (r, (a, b)))| f(i, r, *a, *b))
+            .collect()
+    })
 }
 
 pub(crate) type F32In<'py> = PyReadonlyArray1<'py, f32>;

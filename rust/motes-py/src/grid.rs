@@ -4,7 +4,6 @@ use crate::convert::*;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use rayon::prelude::*;
 
 /// A particle grid (scene units): build once, query in batches.
 #[pyclass(name = "ParticleGrid", module = "motes._motes", frozen)]
@@ -25,11 +24,7 @@ impl PyParticleGrid {
         query_radius: f64,
         cells_per_particle: f64,
     ) -> PyResult<Self> {
-        let p = positions.as_slice()?;
-        if p.len() % 3 != 0 {
-            return Err(PyValueError::new_err("positions must have shape (n, 3)"));
-        }
-        let pos: Vec<[f64; 3]> = p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let pos = points(&positions)?;
         let (r, c) = (radius.as_slice()?.to_vec(), c_ext.as_slice()?.to_vec());
         let grid = py
             .detach(|| {
@@ -56,30 +51,19 @@ impl PyParticleGrid {
         t1: F64In,
         brute: bool,
     ) -> PyResult<F64Out<'py>> {
-        let (t0, t1) = (t0.as_slice()?.to_vec(), t1.as_slice()?.to_vec());
-        let n = t0.len();
-        if t1.len() != n {
-            return Err(PyValueError::new_err(
-                "t0 and t1 must have one value per ray",
-            ));
-        }
-        let rs = rays(origins.as_slice()?, directions.as_slice()?, n)?;
+        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
+        let rs = rays(&origins, &directions, t0.len())?;
         let ch = self.grid.channels();
-        let out: Vec<f64> = py.detach(|| {
-            rs.par_iter()
-                .zip(t0.par_iter().zip(t1.par_iter()))
-                .flat_map_iter(|((o, d), (a, b))| {
-                    let mut v = vec![0.0; ch];
-                    if brute {
-                        self.grid.optical_depth_brute(*o, *d, *a, *b, &mut v);
-                    } else {
-                        self.grid.optical_depth(*o, *d, *a, *b, &mut v);
-                    }
-                    v
-                })
-                .collect()
+        let out = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+            let mut v = vec![0.0; ch];
+            if brute {
+                self.grid.optical_depth_brute(o, d, a, b, &mut v);
+            } else {
+                self.grid.optical_depth(o, d, a, b, &mut v);
+            }
+            v
         });
-        Ok(out.into_pyarray(py))
+        Ok(out.concat().into_pyarray(py))
     }
 
     /// Exact free flights on [t0, t1): (t or NaN, particle index or -1, transmittance to there).
@@ -93,17 +77,7 @@ impl PyParticleGrid {
         u: F64In,
         channel: usize,
     ) -> PyResult<(F64Out<'py>, Bound<'py, PyArray1<i64>>, F64Out<'py>)> {
-        let (t0, t1, u) = (
-            t0.as_slice()?.to_vec(),
-            t1.as_slice()?.to_vec(),
-            u.as_slice()?.to_vec(),
-        );
-        let n = t0.len();
-        if t1.len() != n || u.len() != n {
-            return Err(PyValueError::new_err(
-                "t0, t1 and u must have one value per ray",
-            ));
-        }
+        let [t0, t1, u] = per_ray([("t0", &t0), ("t1", &t1), ("u", &u)])?;
         if channel >= self.grid.channels() {
             return Err(PyValueError::new_err(format!(
                 "invalid channel = {channel}: the grid has {} channels",
@@ -115,18 +89,13 @@ impl PyParticleGrid {
                 "invalid u = {v}: must be in [0, 1)"
             )));
         }
-        let rs = rays(origins.as_slice()?, directions.as_slice()?, n)?;
-        let res: Vec<(f64, i64, f64)> = py.detach(|| {
-            rs.par_iter()
-                .zip(t0.par_iter().zip(t1.par_iter().zip(u.par_iter())))
-                .map(|((o, d), (a, (b, uu)))| {
-                    let (hit, tr) = self.grid.free_flight(*o, *d, *a, *b, channel, *uu);
-                    match hit {
-                        Some(h) => (h.t, h.particle as i64, tr),
-                        None => (f64::NAN, -1, tr),
-                    }
-                })
-                .collect()
+        let rs = rays(&origins, &directions, t0.len())?;
+        let res = per_segment(py, &rs, &t0, &t1, |i, &(o, d), a, b| {
+            let (hit, tr) = self.grid.free_flight(o, d, a, b, channel, u[i]);
+            match hit {
+                Some(h) => (h.t, h.particle as i64, tr),
+                None => (f64::NAN, -1, tr),
+            }
         });
         let t: Vec<f64> = res.iter().map(|r| r.0).collect();
         let i: Vec<i64> = res.iter().map(|r| r.1).collect();
@@ -144,26 +113,15 @@ impl PyParticleGrid {
         t1: F64In,
         brute: bool,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let (t0, t1) = (t0.as_slice()?.to_vec(), t1.as_slice()?.to_vec());
-        let n = t0.len();
-        if t1.len() != n {
-            return Err(PyValueError::new_err(
-                "t0 and t1 must have one value per ray",
-            ));
-        }
-        let rs = rays(origins.as_slice()?, directions.as_slice()?, n)?;
-        let res: Vec<(f64, f64)> = py.detach(|| {
-            rs.par_iter()
-                .zip(t0.par_iter().zip(t1.par_iter()))
-                .map(|((o, d), (a, b))| {
-                    let r = if brute {
-                        self.grid.occupied_interval_brute(*o, *d, *a, *b)
-                    } else {
-                        self.grid.occupied_interval(*o, *d, *a, *b)
-                    };
-                    r.unwrap_or((f64::NAN, f64::NAN))
-                })
-                .collect()
+        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
+        let rs = rays(&origins, &directions, t0.len())?;
+        let res = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+            let r = if brute {
+                self.grid.occupied_interval_brute(o, d, a, b)
+            } else {
+                self.grid.occupied_interval(o, d, a, b)
+            };
+            r.unwrap_or((f64::NAN, f64::NAN))
         });
         let (lo, hi): (Vec<f64>, Vec<f64>) = res.into_iter().unzip();
         Ok((lo.into_pyarray(py), hi.into_pyarray(py)))

@@ -6,7 +6,6 @@ use crate::native;
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use rayon::prelude::*;
 
 /// The discrete medium as the renderer queries it (see `motes_core::render::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
@@ -43,7 +42,11 @@ impl PyDiscreteMedium {
         let lam = lambda.as_slice()?.to_vec();
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
         // Borrowed, not copied: the build reads them once; `bin` and `lambda` move into the medium.
-        let (r, c, b) = (radius.as_slice()?, c_ext.as_slice()?, bin.as_slice()?.to_vec());
+        let (r, c, b) = (
+            radius.as_slice()?,
+            c_ext.as_slice()?,
+            bin.as_slice()?.to_vec(),
+        );
         let medium = py
             .detach(|| {
                 motes_core::render::discrete::DiscreteMedium::build(
@@ -141,10 +144,7 @@ impl PyDiscreteMedium {
             vec3s(&wo, "wo")?,
             lambda.as_slice()?.to_vec(),
         );
-        if a.len() != pp.len()
-            || b.len() != pp.len()
-            || (lam.len() != channels && lam.len() != channels * pp.len())
-        {
+        if a.len() != pp.len() || b.len() != pp.len() || !per_lane(&lam, channels, pp.len()) {
             return Err(PyValueError::new_err(
                 "p, wi, wo and lambda must describe the same lanes",
             ));
@@ -175,21 +175,15 @@ impl PyDiscreteMedium {
         if a.len() != pp.len()
             || s1.len() != pp.len()
             || s2.len() != 2 * pp.len()
-            || (lam.len() != channels && lam.len() != channels * pp.len())
+            || !per_lane(&lam, channels, pp.len())
         {
             return Err(PyValueError::new_err(
                 "p, wi, u1, u2 and lambda must describe the same lanes",
             ));
         }
-        let s2: Vec<[f64; 2]> = s2.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-        let (wo, w, pdf) =
-            py.detach(|| self.medium.phase_sample(&pp, &a, &lam, channels, &s1, &s2));
-        let wo: Vec<f64> = wo.into_iter().flatten().collect();
-        Ok((
-            wo.into_pyarray(py),
-            w.into_pyarray(py),
-            pdf.into_pyarray(py),
-        ))
+        let s2 = pairs(s2);
+        let out = py.detach(|| self.medium.phase_sample(&pp, &a, &lam, channels, &s1, &s2));
+        Ok(sampled(py, out))
     }
 
     /// Eq. 24 at points (f64 n*3): (sigma_s n*channels, Q = sigma_s f at cos θ = `mu`, n*channels).
@@ -201,16 +195,12 @@ impl PyDiscreteMedium {
         lambda: F64In,
         channels: usize,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let pts: Vec<[f64; 3]> = points
-            .as_slice()?
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
+        let pts = triples(points.as_slice()?);
         let (mu, lam) = (mu.as_slice()?.to_vec(), lambda.as_slice()?.to_vec());
         if mu.len() != pts.len()
             || points.len()? != 3 * pts.len()
             || channels == 0
-            || (lam.len() != channels && lam.len() != channels * pts.len())
+            || !per_lane(&lam, channels, pts.len())
         {
             return Err(PyValueError::new_err("points (n, 3), mu (n) and lambda (channels or n*channels) must describe the same points"));
         }
@@ -230,16 +220,7 @@ impl PyDiscreteMedium {
         u1: F64In,
         u2: F64In,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
-        let pts: Vec<[f64; 3]> = points
-            .as_slice()?
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
-        let dirs: Vec<[f64; 3]> = w_in
-            .as_slice()?
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
+        let (pts, dirs) = (triples(points.as_slice()?), triples(w_in.as_slice()?));
         let (lam, s1, s2) = (
             lambda.as_slice()?.to_vec(),
             u1.as_slice()?.to_vec(),
@@ -250,23 +231,18 @@ impl PyDiscreteMedium {
             || s1.len() != n
             || s2.len() != 2 * n
             || channels == 0
-            || (lam.len() != channels && lam.len() != channels * n)
+            || !per_lane(&lam, channels, n)
         {
             return Err(PyValueError::new_err(
                 "points, w_in, u1, u2 and lambda must describe the same points",
             ));
         }
-        let s2: Vec<[f64; 2]> = s2.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-        let (wo, w, pdf) = py.detach(|| {
+        let s2 = pairs(s2);
+        let out = py.detach(|| {
             self.medium
                 .sample_local(&pts, &dirs, &lam, channels, &s1, &s2)
         });
-        let wo: Vec<f64> = wo.into_iter().flatten().collect();
-        Ok((
-            wo.into_pyarray(py),
-            w.into_pyarray(py),
-            pdf.into_pyarray(py),
-        ))
+        Ok(sampled(py, out))
     }
 
     /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
@@ -320,19 +296,11 @@ impl PyDiscreteMedium {
         t0: F64In,
         t1: F64In,
     ) -> PyResult<F64Out<'py>> {
-        let (t0, t1) = (t0.as_slice()?.to_vec(), t1.as_slice()?.to_vec());
-        let rs = rays(origins.as_slice()?, directions.as_slice()?, t0.len())?;
-        if t1.len() != t0.len() {
-            return Err(PyValueError::new_err(
-                "t0 and t1 must have one value per ray",
-            ));
-        }
+        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
+        let rs = rays(&origins, &directions, t0.len())?;
         let m = &self.medium;
-        let out: Vec<f64> = py.detach(|| {
-            rs.par_iter()
-                .zip(t0.par_iter().zip(t1.par_iter()))
-                .map(|((o, d), (a, b))| m.optical_depth(*o, *d, *a, *b))
-                .collect()
+        let out = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+            m.optical_depth(o, d, a, b)
         });
         Ok(out.into_pyarray(py))
     }
@@ -346,13 +314,27 @@ impl PyDiscreteMedium {
     }
 }
 
-/// Points from a flat (n*3) array.
-fn points(flat: &F64In) -> PyResult<Vec<[f64; 3]>> {
-    let p = flat.as_slice()?;
-    if p.len() % 3 != 0 {
-        return Err(PyValueError::new_err("positions must have shape (n, 3)"));
-    }
-    Ok(p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+/// Whether wavelengths `lam` are `channels` values shared by all `n` lanes or `channels` per lane.
+fn per_lane(lam: &[f64], channels: usize, n: usize) -> bool {
+    lam.len() == channels || lam.len() == channels * n
+}
+
+/// The second sample dimension (flat n*2) as pairs.
+fn pairs(flat: &[f64]) -> Vec<[f64; 2]> {
+    flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect()
+}
+
+/// Sampled directions as numpy arrays: (wo n*3, weight n*channels, pdf n).
+fn sampled(
+    py: Python<'_>,
+    (wo, w, pdf): (Vec<[f64; 3]>, Vec<f64>, Vec<f64>),
+) -> (F64Out<'_>, F64Out<'_>, F64Out<'_>) {
+    let wo: Vec<f64> = wo.into_iter().flatten().collect();
+    (
+        wo.into_pyarray(py),
+        w.into_pyarray(py),
+        pdf.into_pyarray(py),
+    )
 }
 
 /// Each bin's albedo and phase table per wavelength, from flat arrays: albedo (bins*K), phase tables

@@ -203,16 +203,27 @@ struct Packet<'a> {
 }
 
 impl Packet<'_> {
+    /// `f(lane)` of each active lane (inactive: None).
+    fn gather<T: Copy>(&self, f: impl Fn(usize) -> T) -> [Option<T>; PACKET_LANES] {
+        lanes(self.width, |i| (self.active)(i).then(|| f(i)))
+    }
+
+    /// Marks each active lane as returned, then `write`s its results.
+    fn answer(&self, write: impl Fn(usize)) {
+        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+            self.r.returned(i);
+            write(i);
+        }
+    }
+
     /// The packet's free flights: each hit lane's tfar becomes its site's distance.
     fn free_flights(&self) {
-        let rays: [Option<PacketRay>; PACKET_LANES] = lanes(self.width, |i| {
-            (self.active)(i).then(|| {
-                (
-                    self.r.v3(Field::Ox, i),
-                    self.r.v3(Field::Dx, i),
-                    self.r.f(Field::Tfar, i),
-                )
-            })
+        let rays: [Option<PacketRay>; PACKET_LANES] = self.gather(|i| {
+            (
+                self.r.v3(Field::Ox, i),
+                self.r.v3(Field::Dx, i),
+                self.r.f(Field::Tfar, i),
+            )
         });
         let mut t = [None; PACKET_LANES];
         self.m.packet_free_flights(&rays[..self.width], &mut t);
@@ -226,68 +237,57 @@ impl Packet<'_> {
 
     /// Remember the packet's events where the renderer placed them; each lane's albedo per channel.
     fn commit(&self) {
-        let p = lanes(self.width, |i| {
-            (self.active)(i).then(|| self.r.v3(Field::Ox, i))
-        });
+        let p = self.gather(|i| self.r.v3(Field::Ox, i));
         let mut albedo = [0.0; PACKET_LANES * 4];
         self.m
             .packet_commit(&p[..self.width], self.lam, self.ch, &mut albedo);
-        for i in (0..self.width).filter(|&i| (self.active)(i)) {
-            write_channels(self.r, i, &albedo[i * self.ch..(i + 1) * self.ch]);
-            self.r.returned(i);
-        }
+        self.answer(|i| write_channels(self.r, i, &albedo[i * self.ch..(i + 1) * self.ch]));
     }
 
     /// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
     fn phase_sample(&self) {
-        let l = lanes(self.width, |i| {
-            (self.active)(i).then(|| {
-                (
-                    self.r.v3(Field::Ox, i),
-                    self.r.v3(Field::Dx, i),
-                    self.r.f(Field::Tnear, i) as f64,
-                    [
-                        self.r.f(Field::Time, i) as f64,
-                        self.r.f(Field::Tfar, i) as f64,
-                    ],
-                )
-            })
+        let l = self.gather(|i| {
+            (
+                self.r.v3(Field::Ox, i),
+                self.r.v3(Field::Dx, i),
+                self.r.f(Field::Tnear, i) as f64,
+                [
+                    self.r.f(Field::Time, i) as f64,
+                    self.r.f(Field::Tfar, i) as f64,
+                ],
+            )
         });
         let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
         self.m
             .packet_phase_sample(&l[..self.width], self.lam, self.ch, &mut wo, &mut pdf);
-        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+        self.answer(|i| {
             self.r.set_f(Field::Tfar, i, wo[i][0]);
             self.r.set_f(Field::U, i, wo[i][1]);
             self.r.set_f(Field::V, i, wo[i][2]);
             self.r.set_f(Field::PrimId, i, pdf[i]);
-            self.r.returned(i);
-        }
+        });
     }
 
     /// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
     fn phase_eval(&self) {
-        let l = lanes(self.width, |i| {
-            (self.active)(i).then(|| {
-                (
-                    self.r.v3(Field::Ox, i),
-                    self.r.v3(Field::Dx, i),
-                    [
-                        self.r.f(Field::Tnear, i),
-                        self.r.f(Field::Time, i),
-                        self.r.f(Field::Tfar, i),
-                    ],
-                )
-            })
+        let l = self.gather(|i| {
+            (
+                self.r.v3(Field::Ox, i),
+                self.r.v3(Field::Dx, i),
+                [
+                    self.r.f(Field::Tnear, i),
+                    self.r.f(Field::Time, i),
+                    self.r.f(Field::Tfar, i),
+                ],
+            )
         });
         let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
         self.m
             .packet_phase_eval(&l[..self.width], self.lam, self.ch, &mut v, &mut pdf);
-        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+        self.answer(|i| {
             write_channels(self.r, i, &v[i * self.ch..(i + 1) * self.ch]);
-            self.r.returned(i);
             self.r.set_f(Field::InstId, i, pdf[i]);
-        }
+        });
     }
 }
 

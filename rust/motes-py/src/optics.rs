@@ -10,6 +10,7 @@ use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
+/// The five particle columns every batch function below takes first, copied once.
 pub(crate) struct Columns {
     r: Vec<f64>,
     lam: Vec<f64>,
@@ -19,15 +20,15 @@ pub(crate) struct Columns {
 }
 
 impl Columns {
-    fn new(r: F64In, lam: F64In, er: F64In, ei: F64In, em: F64In) -> PyResult<Self> {
-        let v = |a: &F64In| -> PyResult<Vec<f64>> { Ok(a.as_array().to_vec()) };
-        Ok(Columns {
-            r: v(&r)?,
-            lam: v(&lam)?,
-            er: v(&er)?,
-            ei: v(&ei)?,
-            em: v(&em)?,
-        })
+    fn new(r: F64In, lam: F64In, er: F64In, ei: F64In, em: F64In) -> Self {
+        let v = |a: &F64In| a.as_array().to_vec();
+        Columns {
+            r: v(&r),
+            lam: v(&lam),
+            er: v(&er),
+            ei: v(&ei),
+            em: v(&em),
+        }
     }
     fn view(&self) -> ParticleColumns<'_> {
         ParticleColumns {
@@ -38,6 +39,33 @@ impl Columns {
             eta_medium: &self.em,
         }
     }
+}
+
+/// A `#[pyfunction]` over a batch of particles: its Python signature starts with the columns
+/// `radius_um, wavelength_um, eta_re, eta_im, eta_medium`, which reach the body as the [`Columns`]
+/// named after `py`; the other arguments follow as written.
+macro_rules! particle_pyfunction {
+    (
+        $(#[$attr:meta])*
+        fn $name:ident<$lt:lifetime>($py:ident, $cols:ident $(, $arg:ident: $ty:ty)* $(,)?)
+            -> $ret:ty $body:block
+    ) => {
+        $(#[$attr])*
+        #[pyfunction]
+        #[allow(clippy::too_many_arguments)]
+        pub(crate) fn $name<$lt>(
+            $py: Python<$lt>,
+            radius_um: F64In,
+            wavelength_um: F64In,
+            eta_re: F64In,
+            eta_im: F64In,
+            eta_medium: F64In,
+            $($arg: $ty,)*
+        ) -> PyResult<$ret> {
+            let $cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium);
+            $body
+        }
+    };
 }
 
 pub(crate) fn options(
@@ -56,13 +84,14 @@ pub(crate) fn options(
 
 pub(crate) type Amps<'py> = (Bound<'py, PyArray1<C64>>, Bound<'py, PyArray1<C64>>);
 
-pub(crate) fn amplitudes(
-    py: Python<'_>,
+pub(crate) fn amplitudes<'py>(
+    py: Python<'py>,
     cols: Columns,
-    theta: Vec<f64>,
+    theta: &F64In,
     theory: Theory,
     opts: GoaOptions,
-) -> PyResult<Amps<'_>> {
+) -> PyResult<Amps<'py>> {
+    let theta = theta.as_array().to_vec();
     let out = interruptible(py, || {
         optics::amplitudes_batch(&cols.view(), &theta, theory, &opts)
     })?
@@ -71,110 +100,75 @@ pub(crate) fn amplitudes(
     Ok((s1.into_pyarray(py), s2.into_pyarray(py)))
 }
 
-/// Lorenz–Mie amplitudes (S1, S2), Bohren–Huffman convention.
-#[pyfunction]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn mie_amplitudes<'py>(
-    py: Python<'py>,
-    radius_um: F64In,
-    wavelength_um: F64In,
-    eta_re: F64In,
-    eta_im: F64In,
-    eta_medium: F64In,
-    theta: F64In,
-) -> PyResult<Amps<'py>> {
-    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
-    amplitudes(
+particle_pyfunction! {
+    /// Lorenz–Mie amplitudes (S1, S2), Bohren–Huffman convention.
+    fn mie_amplitudes<'py>(py, cols, theta: F64In) -> Amps<'py> {
+        amplitudes(py, cols, &theta, Theory::Mie, GoaOptions::default())
+    }
+}
+
+particle_pyfunction! {
+    /// GOA amplitudes (S1, S2), Bohren–Huffman convention.
+    fn goa_amplitudes<'py>(
         py,
         cols,
-        theta.as_array().to_vec(),
-        Theory::Mie,
-        GoaOptions::default(),
-    )
+        theta: F64In,
+        p_max: u32,
+        diffraction: bool,
+        regularise: bool,
+        edge_correction: bool,
+    ) -> Amps<'py> {
+        let opts = options(p_max, diffraction, regularise, edge_correction);
+        amplitudes(py, cols, &theta, Theory::Goa, opts)
+    }
 }
 
-/// GOA amplitudes (S1, S2), Bohren–Huffman convention.
-#[pyfunction]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn goa_amplitudes<'py>(
-    py: Python<'py>,
-    radius_um: F64In,
-    wavelength_um: F64In,
-    eta_re: F64In,
-    eta_im: F64In,
-    eta_medium: F64In,
-    theta: F64In,
-    p_max: u32,
-    diffraction: bool,
-    regularise: bool,
-    edge_correction: bool,
-) -> PyResult<Amps<'py>> {
-    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
-    amplitudes(
+particle_pyfunction! {
+    /// Cross sections (ext, sca, abs in µm²) and asymmetry g.
+    fn cross_sections<'py>(
         py,
         cols,
-        theta.as_array().to_vec(),
-        Theory::Goa,
-        options(p_max, diffraction, regularise, edge_correction),
-    )
+        method: &str,
+        hybrid_radius_um: f64,
+        p_max: u32,
+        regularise: bool,
+        edge_correction: bool,
+        with_g: bool,
+    ) -> (F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>) {
+        let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+        let opts = options(p_max, true, regularise, edge_correction);
+        let cs = interruptible(py, || {
+            optics::cross_sections_batch(&cols.view(), method, &opts, with_g)
+        })?
+        .map_err(to_py)?;
+        let col = |f: fn(&optics::CrossSections) -> f64| {
+            cs.iter().map(f).collect::<Vec<f64>>().into_pyarray(py)
+        };
+        Ok((col(|c| c.ext), col(|c| c.sca), col(|c| c.abs), col(|c| c.g)))
+    }
 }
 
-/// Cross sections (ext, sca, abs in µm²) and asymmetry g.
-#[pyfunction]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn cross_sections<'py>(
-    py: Python<'py>,
-    radius_um: F64In,
-    wavelength_um: F64In,
-    eta_re: F64In,
-    eta_im: F64In,
-    eta_medium: F64In,
-    method: &str,
-    hybrid_radius_um: f64,
-    p_max: u32,
-    regularise: bool,
-    edge_correction: bool,
-    with_g: bool,
-) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
-    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
-    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
-    let opts = options(p_max, true, regularise, edge_correction);
-    let cs = interruptible(py, || {
-        optics::cross_sections_batch(&cols.view(), method, &opts, with_g)
-    })?
-    .map_err(to_py)?;
-    let col = |f: fn(&optics::CrossSections) -> f64| {
-        cs.iter().map(f).collect::<Vec<f64>>().into_pyarray(py)
-    };
-    Ok((col(|c| c.ext), col(|c| c.sca), col(|c| c.abs), col(|c| c.g)))
-}
-
-/// Normalised phase function f_p(θ) (sr⁻¹), ∫ f dΩ = 1.
-#[pyfunction]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn phase_function<'py>(
-    py: Python<'py>,
-    radius_um: F64In,
-    wavelength_um: F64In,
-    eta_re: F64In,
-    eta_im: F64In,
-    eta_medium: F64In,
-    theta: F64In,
-    method: &str,
-    hybrid_radius_um: f64,
-    p_max: u32,
-    regularise: bool,
-    edge_correction: bool,
-) -> PyResult<F64Out<'py>> {
-    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
-    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
-    let theta = theta.as_array().to_vec();
-    let opts = options(p_max, true, regularise, edge_correction);
-    let f = interruptible(py, || {
-        optics::phase_function_batch(&cols.view(), &theta, method, &opts)
-    })?
-    .map_err(to_py)?;
-    Ok(f.into_pyarray(py))
+particle_pyfunction! {
+    /// Normalised phase function f_p(θ) (sr⁻¹), ∫ f dΩ = 1.
+    fn phase_function<'py>(
+        py,
+        cols,
+        theta: F64In,
+        method: &str,
+        hybrid_radius_um: f64,
+        p_max: u32,
+        regularise: bool,
+        edge_correction: bool,
+    ) -> F64Out<'py> {
+        let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+        let theta = theta.as_array().to_vec();
+        let opts = options(p_max, true, regularise, edge_correction);
+        let f = interruptible(py, || {
+            optics::phase_function_batch(&cols.view(), &theta, method, &opts)
+        })?
+        .map_err(to_py)?;
+        Ok(f.into_pyarray(py))
+    }
 }
 
 /// GOA extinction efficiency by Eq. 12 (per element), for studies of p and the regularisation.
@@ -244,33 +238,29 @@ pub(crate) fn policy_constants() -> (f64, f64, f64) {
     )
 }
 
-/// The theory ("mie" or "goa") that `method` picks for each particle.
-#[pyfunction]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn resolve_method(
-    radius_um: F64In,
-    wavelength_um: F64In,
-    eta_re: F64In,
-    eta_im: F64In,
-    eta_medium: F64In,
-    method: &str,
-    hybrid_radius_um: f64,
-    p_max: u32,
-) -> PyResult<Vec<&'static str>> {
-    let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
-    let cols = Columns::new(radius_um, wavelength_um, eta_re, eta_im, eta_medium)?;
-    let groups = cols.view().group().map_err(to_py)?;
-    let mut out = vec![""; cols.r.len()];
-    for (p, idx) in groups {
-        let name = match method.theory(&p, p_max) {
-            Theory::Mie => "mie",
-            Theory::Goa => "goa",
-        };
-        for i in idx {
-            out[i] = name;
+particle_pyfunction! {
+    /// The theory ("mie" or "goa") that `method` picks for each particle.
+    fn resolve_method<'py>(
+        _py,
+        cols,
+        method: &str,
+        hybrid_radius_um: f64,
+        p_max: u32,
+    ) -> Vec<&'static str> {
+        let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
+        let groups = cols.view().group().map_err(to_py)?;
+        let mut out = vec![""; cols.r.len()];
+        for (p, idx) in groups {
+            let name = match method.theory(&p, p_max) {
+                Theory::Mie => "mie",
+                Theory::Goa => "goa",
+            };
+            for i in idx {
+                out[i] = name;
+            }
         }
+        Ok(out)
     }
-    Ok(out)
 }
 
 /// Complex refractive index of a tabulated material ("ice", "water") at wavelengths (µm).
