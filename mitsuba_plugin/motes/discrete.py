@@ -73,6 +73,49 @@ def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
     return np.geomspace(lo, hi, size_bins + 1)
 
 
+def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius,
+                    tau_max, cells_per_particle, continuous_count):
+    """The inputs as arrays (positions, radii, species index, species list, wavelengths as given and sorted), checked."""
+    pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
+    if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
+        raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
+    n = pos.shape[0]
+    _memory.require(_memory.BYTES_PER_PARTICLE * n, f"a discrete medium of {n} particles")
+    r = np.asarray(radii_um, dtype=np.float64).ravel()
+    idx = np.asarray(species_index, dtype=np.int64).ravel()
+    if r.size != n or idx.size != n:
+        raise ValueError(f"radii_um and species_index must have one entry per particle ({n})")
+    if isinstance(species, Species):
+        species = [species]
+    species = list(species)
+    if not species or not all(isinstance(s, Species) for s in species):
+        raise ValueError("species must be a Species or a non-empty list of Species")
+    if idx.min() < 0 or idx.max() >= len(species):
+        bad = int(np.flatnonzero((idx < 0) | (idx >= len(species)))[0])
+        raise ValueError(f"species_index[{bad}] = {idx[bad]}: unknown species (have {len(species)})")
+    lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+    lam = np.sort(lam_in)
+    if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
+        raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
+    if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
+        raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
+    if not (np.isfinite(scale_m) and scale_m > 0):
+        raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
+    # The core's own rules, checked now rather than after minutes of optics tables.
+    _motes.check_discrete_inputs(pos.ravel(), r, float(query_radius), float(tau_max), float(cells_per_particle),
+                                 float(continuous_count))
+    return pos, r, idx, species, lam_in, lam
+
+
+def _bin_optics(sp: Species, lo: float, hi: float, lam, eta_medium, method, truncate_below_rad):
+    """One radius bin [lo, hi] of species ``sp``: its extinction efficiency per wavelength and its bulk properties."""
+    psd = Monodisperse(lo) if hi <= lo else Uniform(lo, hi)
+    area = np.pi * psd.mean(2)  # <pi r^2>, um^2
+    bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method, truncate_below_rad=truncate_below_rad)
+    # n = 1 / m^3: sigma (1/m) is the mean cross section in m^2.
+    return bulk["sigma_t"] * 1e12 / area, bulk
+
+
 class DiscreteMedium:
     """Particles with per-bin optics in the Rust medium (module docs)."""
 
@@ -81,40 +124,23 @@ class DiscreteMedium:
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT):
-        pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
-        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
-            raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
-        n = pos.shape[0]
-        _memory.require(_memory.BYTES_PER_PARTICLE * n, f"a discrete medium of {n} particles")
-        r = np.asarray(radii_um, dtype=np.float64).ravel()
-        idx = np.asarray(species_index, dtype=np.int64).ravel()
-        if r.size != n or idx.size != n:
-            raise ValueError(f"radii_um and species_index must have one entry per particle ({n})")
-        if isinstance(species, Species):
-            species = [species]
-        species = list(species)
-        if not species or not all(isinstance(s, Species) for s in species):
-            raise ValueError("species must be a Species or a non-empty list of Species")
-        if idx.min() < 0 or idx.max() >= len(species):
-            bad = int(np.flatnonzero((idx < 0) | (idx >= len(species)))[0])
-            raise ValueError(f"species_index[{bad}] = {idx[bad]}: unknown species (have {len(species)})")
-        lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
-        lam = np.sort(lam_in)
-        if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
-            raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
-        if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
-            raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
-        if not (np.isfinite(scale_m) and scale_m > 0):
-            raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
-        # The core's own rules, checked now rather than after minutes of optics tables.
-        _motes.check_discrete_inputs(pos.ravel(), r, float(query_radius), float(tau_max), float(cells_per_particle),
-                                     float(continuous_count))
+        pos, r, idx, species, lam_in, lam = _checked_inputs(
+            positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius, tau_max,
+            cells_per_particle, continuous_count)
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 
         if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
             raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
+        bin_of, q_ext, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
+                                                    truncate_below_rad, albedo)
+        self._build_core(pos, r, idx, lam_in, lam, bin_of, q_ext, tables, scale_m, query_radius, tau_max,
+                         cells_per_particle, continuous_count, seed, warn_widened)
+
+    def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo):
+        """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""
+        n = r.size
         bin_of = np.zeros(n, dtype=np.uint32)
         q_ext = np.zeros(n)  # grey extinction efficiency of each particle's bin
         albedos, theta, f, offsets = [], [], [], [0]
@@ -125,16 +151,11 @@ class DiscreteMedium:
             sel = np.flatnonzero(idx == k)
             if sel.size == 0:
                 continue
-            edges = _bins(r[sel], int(size_bins))
+            edges = _bins(r[sel], size_bins)
             which = np.clip(np.searchsorted(edges, r[sel], side="right") - 1, 0, max(edges.size - 2, 0))
             for b in np.unique(which):
                 lo, hi = float(edges[b]), float(edges[b + 1])
-                psd = Monodisperse(lo) if hi <= lo else Uniform(lo, hi)
-                area = np.pi * psd.mean(2)  # <pi r^2>, um^2
-                bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method,
-                                       truncate_below_rad=truncate_below_rad)
-                # n = 1 / m^3: sigma (1/m) is the mean cross section in m^2.
-                q_t = bulk["sigma_t"] * 1e12 / area
+                q_t, bulk = _bin_optics(sp, lo, hi, lam, eta_medium, method, truncate_below_rad)
                 members = sel[which == b]
                 bin_of[members] = nb
                 q_ext[members] = float(np.mean(q_t))
@@ -152,6 +173,14 @@ class DiscreteMedium:
                     t_said = time.perf_counter()
                     log.info("optics tables: %d bins so far (species %d), %.1f s", nb, k, t_said - t_tables)
         log.info("optics tables: %d bins in %.1f s", nb, time.perf_counter() - t_tables)
+        self.n_bins = nb
+        return bin_of, q_ext, (albedos, theta, f, offsets)
+
+    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, q_ext, tables, scale_m, query_radius, tau_max,
+                    cells_per_particle, continuous_count, seed, warn_widened):
+        """The Rust medium over the particles and their bins' tables, and the attributes that report it."""
+        n = pos.shape[0]
+        albedos, theta, f, offsets = tables
         t_grid = time.perf_counter()
         um = 1e-6 / scale_m
         c_ext = np.pi * r * r * q_ext * um * um
@@ -160,7 +189,6 @@ class DiscreteMedium:
         self.wavelength_um = lam
         #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
-        self.n_bins = nb
         self._core = _motes.DiscreteMedium(
             pos.ravel(), np.ascontiguousarray(r * um), np.ascontiguousarray(c_ext), bin_of,
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
@@ -176,9 +204,10 @@ class DiscreteMedium:
         if warn_widened and self.widened > WIDENED_WARN_SHARE * n:
             frac = float(np.max(c_ext / (np.pi * (query_radius + r * um) ** 2)))
             tau = -np.log1p(-frac) if frac < 1 else np.inf
+            # stacklevel 3: the caller of DiscreteMedium(...), past this method and __init__.
             warnings.warn(f"query_radius = {query_radius:g} would give {self.widened} of {n} particles an optical "
                           f"depth above tau_max = {tau_max:g} (up to {tau:.3g}); their disks were widened to keep it "
-                          "below (see the tau_max parameter)", stacklevel=2)
+                          "below (see the tau_max parameter)", stacklevel=3)
         self.positions = pos
         self.species_index = idx
         #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo).

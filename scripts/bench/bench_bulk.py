@@ -19,11 +19,8 @@ LAM8 = np.linspace(0.40, 0.75, 8)
 N0 = 1e4
 
 
-def main() -> None:
-    args, out, sw, motes = C.start(__doc__)
-    ice = motes.Species(motes.LogNormal(800.0, 4.0), 1.31)
-
-    # 1. build cost, side by side: with and without phase tables, and served from the disk cache
+def build_cost(motes, ice):
+    """Print the build-cost table (with and without phase tables, and from the disk cache); return the three times."""
     import os  # noqa: PLC0415
     import tempfile  # noqa: PLC0415
 
@@ -37,9 +34,12 @@ def main() -> None:
                   [["coefficients + phase tables", t_full, b["theta"].size, len(ice.psd.quadrature()[0])],
                    ["coefficients only", t_coef, 0, len(ice.psd.quadrature()[0])],
                    ["coefficients + phase tables, from the disk cache", t_hit, b["theta"].size, len(ice.psd.quadrature()[0])]])
+    return t_full, t_coef, t_hit
 
-    # 2. quadrature vs Monte Carlo
-    n_mc = 100_000 if args.quick else 1_000_000
+
+def quadrature_vs_monte_carlo(motes, quick: bool) -> None:
+    """Print the table of the quadrature's sigma_t, sigma_s against Monte Carlo over sampled radii."""
+    n_mc = 100_000 if quick else 1_000_000
     rows = []
     for psd, eta in [(motes.LogNormal(800.0, 4.0), 1.31), (motes.LogNormal(5.0, 2.0), 1.33), (motes.LogNormal(50.0, 1.2), 1.5 + 0.001j),
                      (motes.Mixture([(0.995, motes.LogNormal(100.0, 1.0)), (0.005, motes.LogNormal(800.0, 2.0))]), 1.31)]:
@@ -54,9 +54,9 @@ def main() -> None:
     C.print_table(f"Quadrature vs Monte Carlo over {n_mc:g} sampled radii (lambda 0.55 um): relative difference and MC standard error",
                   ["PSD", "eta", "sigma_t diff", "sigma_t MC s.e.", "sigma_s diff", "sigma_s MC s.e."], rows)
 
-    # 3. tabulated vs direct at off-node angles (mid-points), where f > 1e-6 max; default grid and the
-    #    adaptively refined one (refine_tol = 0.005). "Direct" = the single-particle phase function (exact
-    #    normalisation) for monodisperse grains, the ensemble evaluated at the mid-points otherwise.
+
+def tabulated_vs_direct(motes) -> None:
+    """Print the table of tabulated phase functions against direct evaluation at off-node angles."""
     rows = []
     for label, psd in [("mono 1000 um, lobe θ < 10/α", motes.Monodisperse(1000.0)), ("mono 1000 um", motes.Monodisperse(1000.0)),
                        ("mono 100 um", motes.Monodisperse(100.0)), ("mono 2 um", motes.Monodisperse(2.0)),
@@ -85,7 +85,9 @@ def main() -> None:
     C.print_table("Tabulated phase function vs direct evaluation at the mid-points between nodes, where f > 1e-6 max (λ 0.55 µm)",
                   ["case", "refine_tol", "angles", "build s", "fraction within 1 %", "99th pct", "max", "max off GOA's jumps", "intervals on a jump"], rows)
 
-    # 4. Fig. 8-style plot
+
+def plot_ensemble_phase(motes, out: pathlib.Path) -> None:
+    """``fig8_ensemble_phase.png``: ensemble phase functions of ice clouds (cf. paper Fig. 8)."""
     plt = C.plt()
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for psd in [motes.LogNormal(1.0, 1.5), motes.LogNormal(10.0, 2.0), motes.LogNormal(100.0, 2.0), motes.LogNormal(800.0, 4.0), motes.Uniform(1.0, 100.0)]:
@@ -93,6 +95,22 @@ def main() -> None:
         ax.loglog(np.degrees(bb["theta"][1:]), bb["phase"][0][1:], lw=0.8, label=f"{psd!r}"[:40] + f"  g={bb['g'][0]:.3f}")
     C.label(ax, "θ (deg)", "ensemble phase function (1/sr)", "Ensemble phase functions of ice clouds, λ = 0.55 µm (cf. paper Fig. 8)", legend=6)
     C.save_fig(fig, out / "fig8_ensemble_phase.png")
+
+
+def main() -> None:
+    args, out, sw, motes = C.start(__doc__)
+    ice = motes.Species(motes.LogNormal(800.0, 4.0), 1.31)
+
+    # 1. build cost, side by side: with and without phase tables, and served from the disk cache
+    t_full, t_coef, t_hit = build_cost(motes, ice)
+    # 2. quadrature vs Monte Carlo
+    quadrature_vs_monte_carlo(motes, args.quick)
+    # 3. tabulated vs direct at off-node angles (mid-points), where f > 1e-6 max; default grid and the
+    #    adaptively refined one (refine_tol = 0.005). "Direct" = the single-particle phase function (exact
+    #    normalisation) for monodisperse grains, the ensemble evaluated at the mid-points otherwise.
+    tabulated_vs_direct(motes)
+    # 4. Fig. 8-style plot
+    plot_ensemble_phase(motes, out)
     C.finish(args, sw, out / "bench_bulk.json", build_s=t_full, build_coefficients_s=t_coef, cache_hit_s=t_hit)
 
 

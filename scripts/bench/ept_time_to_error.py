@@ -298,8 +298,7 @@ def reference(mi, name: str, scene, out: pathlib.Path, key: str, spp: int):
 
 
 def run_scene(mi, name: str, args, out: pathlib.Path, spps: list[int], level_spps) -> dict:
-    import bench_ept as B  # noqa: PLC0415
-
+    """One scene (module docs): the grains, the reference and the sweep of both methods, the fits, the targets."""
     p = SCENES[name]
     count = args.count or (p["quick_count"] if args.quick else p["count"])
     t = time.perf_counter()
@@ -307,8 +306,31 @@ def run_scene(mi, name: str, args, out: pathlib.Path, spps: list[int], level_spp
     geo = geometry_summary(name, pos, r_um)
     print(f"[{name}] {count} grains placed in {time.perf_counter() - t:.1f} s: volume fraction "
           f"{geo['volume_fraction']:.3%}, geometric optical depth across the box {geo['geometric_tau']:.3f}", flush=True)
-    res, ref_spp = args.res, args.ref_spp
+    res, ref_spp, ds = args.res, args.ref_spp, args.downsample
     key = f"v{SCENE_VERSION}_n{count}_s{args.seed}_r{res}_spp{ref_spp}x2_d{MAX_DEPTH}"
+    rows, load, last, ref, ref_noise, ref_s, mask = sweep(mi, name, pos, r_um, out, key, res, ref_spp, ds, spps)
+    gc.collect()
+
+    fits = {m: fit_floor([r[0] for r in rows[m]], [r[2] for r in rows[m]]) for m in rows}
+    timing = {m: fit_time([r[0] for r in rows[m]], [r[1] for r in rows[m]]) for m in rows}
+    b_disc = fits["discrete"][0]
+    targets = target_times(rows, fits, timing, b_disc, spps, level_spps)
+    below, problems = floor_problems(rows, b_disc)
+    return {"name": name, "title": p["title"], "count": count, "geometry": geo, "res": res, "downsample": ds,
+            "ref_spp": 2 * ref_spp, "ref_seconds": ref_s, "ref_mean": float(ref[~mask].mean()),
+            "masked_fraction": float(mask.mean()), "ref_noise_rmse": ref_noise,
+            "load_s": {m: float(np.median(v)) for m, v in load.items()}, "timing": timing,
+            "rows": rows, "fits": fits, "bias": math.sqrt(max(b_disc**2 - ref_noise**2, 0.0)),
+            "targets": targets, "problems": problems,
+            "ept_below_floor_from": (below[0][0], below[0][1]) if below else None, "images": {"reference": ref, **last}, "mask": mask}
+
+
+def sweep(mi, name: str, pos, r_um, out: pathlib.Path, key: str, res: int, ref_spp: int, ds: int, spps: list[int]):
+    """Warm-up, reference and the interleaved renders of both methods at every spp: (rows per method (spp,
+    seconds, RMSE, renders), scene load times, last image per method, reference, its own noise (RMSE),
+    seconds spent on it, emitter mask)."""
+    import bench_ept as B  # noqa: PLC0415
+
     methods = ("EPT", "discrete")
     rows = {m: [] for m in methods}
     load = {m: [] for m in methods}
@@ -337,7 +359,6 @@ def run_scene(mi, name: str, args, out: pathlib.Path, spps: list[int], level_spp
                 halves, ref_s = reference(mi, name, sc, out, key, ref_spp)
             del sc
         ref = halves.mean(axis=0)
-        ds = args.downsample
         ref_noise = math.sqrt(masked_mse(halves[0], halves[1], mask, ds)) / 2  # RMSE of the mean of the halves
 
         for k, spp in enumerate(spps):
@@ -354,11 +375,11 @@ def run_scene(mi, name: str, args, out: pathlib.Path, spps: list[int], level_spp
                 last[m] = img
             print(f"[{name}] spp {spp} (x{reps}): " + ", ".join(
                 f"{m} {rows[m][-1][1]:.3g} s RMSE {rows[m][-1][2]:.4g}" for m in methods), flush=True)
-    gc.collect()
+    return rows, load, last, ref, ref_noise, ref_s, mask
 
-    fits = {m: fit_floor([r[0] for r in rows[m]], [r[2] for r in rows[m]]) for m in rows}
-    timing = {m: fit_time([r[0] for r in rows[m]], [r[1] for r in rows[m]]) for m in rows}
-    b_disc = fits["discrete"][0]
+
+def target_times(rows: dict, fits: dict, timing: dict, b_disc: float, spps: list[int], level_spps) -> list[dict]:
+    """The target RMSE levels (module docs) and each method's time to reach them, measured and fitted."""
     targets = []
     for level_spp in sorted({min(s, spps[-1]) for s in level_spps}):
         (b, c) = fits["EPT"]
@@ -376,6 +397,11 @@ def run_scene(mi, name: str, args, out: pathlib.Path, spps: list[int], level_spp
                         "ratio_interp": ratio(tt["EPT"]["interp_s"], tt["discrete"]["interp_s"]),
                         "ratio_fit": ratio(tt["EPT"]["fit_s"], tt["discrete"]["fit_s"]),
                         "ratio_sampling": ratio(tt["EPT"]["fit_sampling_s"], tt["discrete"]["fit_sampling_s"])})
+    return targets
+
+
+def floor_problems(rows: dict, b_disc: float):
+    """(EPT's rows below the discrete floor, notes where that floor or EPT's error leaves no meaningful target)."""
     below = [r for r in rows["EPT"] if r[2] < b_disc]  # where EPT is already better than the discrete medium can be
     problems = []
     if len(below) == len(rows["EPT"]):
@@ -385,13 +411,7 @@ def run_scene(mi, name: str, args, out: pathlib.Path, spps: list[int], level_spp
                         "the targets are set by the discrete floor")
     if min(r[2] for r in rows["discrete"]) > max(r[2] for r in rows["EPT"]):
         problems.append("the discrete medium's RMSE is above EPT's at every spp measured")
-    return {"name": name, "title": p["title"], "count": count, "geometry": geo, "res": res, "downsample": ds,
-            "ref_spp": 2 * ref_spp, "ref_seconds": ref_s, "ref_mean": float(ref[~mask].mean()),
-            "masked_fraction": float(mask.mean()), "ref_noise_rmse": ref_noise,
-            "load_s": {m: float(np.median(v)) for m, v in load.items()}, "timing": timing,
-            "rows": rows, "fits": fits, "bias": math.sqrt(max(b_disc**2 - ref_noise**2, 0.0)),
-            "targets": targets, "problems": problems,
-            "ept_below_floor_from": (below[0][0], below[0][1]) if below else None, "images": {"reference": ref, **last}, "mask": mask}
+    return below, problems
 
 
 # ------------------------------------------------------------------------------------------------ output

@@ -37,14 +37,10 @@ VARIANTS = [
 BANDS = [(1.0, 10.0, "[1, 10)"), (10.0, 100.0 + 1e-9, "[10, 100]")]
 
 
-def main() -> None:
-    args, out, sw, motes = C.start(__doc__)
-
-    n = 600 if args.quick else 3000
-    r = np.geomspace(0.1, 100.0, n)
+def compute(motes, r):
+    """C_t of Mie and of each GOA variant (clamped, and Eq. 12 unclamped) at the radii r, with their timings."""
     area = np.pi * r**2
     alpha = np.asarray(motes.size_parameter(r, C.LAM))
-
     timings = {}
     t, cs = C.best_of(lambda: motes.cross_sections(r, C.LAM, ETA, method="mie"), 1)
     timings["mie"] = t
@@ -56,11 +52,11 @@ def main() -> None:
         timings[key] = t
         c[key] = cs["ext"]
         raw[key] = motes.goa_extinction_efficiency(alpha, ETA, **kw) * area  # unclamped Eq. 12
+    return c_mie, c, raw, timings
 
-    relerr = {k: np.abs(c[k] - c_mie) / c_mie for k in c}
-    rel_raw = {k: np.abs(raw[k] - c_mie) / c_mie for k in raw}
 
-    # ------------------------------------------------------------------ table: error vs Mie per band
+def band_table(r, relerr, n: int) -> dict:
+    """Print the Fig. 3 table (error vs Mie per r band, p = 3 variants); return its statistics."""
     rows = []
     stats = {}
     for key, label, _ in VARIANTS:
@@ -76,8 +72,11 @@ def main() -> None:
         ["variant", "r band (µm)", "median", "95th pct", "max"],
         rows,
     )
+    return stats
 
-    # ------------------------------------------------------------------ Fig. 21: RelMSE{C_t}, p=1 vs p=3
+
+def fig21_table(r, c, raw):
+    """Print the Fig. 21 table (RelMSE{C_t} between p = 1 and p = 3); return (RelMSE ours, RelMSE paper, r > 1 mask)."""
     rm_ours = C.relmse_scalar(c["ours_p3"], c["ours_p1"])
     rm_paper = C.relmse_scalar(raw["paper_p3"], raw["paper_p1"])
     big = r > 1.0
@@ -90,20 +89,12 @@ def main() -> None:
         ["GOA", "max over r > 1 µm", "at r (µm)", "max over all r", "at r (µm)", "< 1e-5 for r > 1"],
         rows21,
     )
+    return rm_ours, rm_paper, big
 
-    neg = {k: r[raw[k] <= 0].tolist() for k in raw}
-    neg_summary = {k: (dict(count=len(v), r_min=min(v), r_max=max(v)) if v else dict(count=0)) for k, v in neg.items()}
-    nonfinite = {k: int((~np.isfinite(c[k])).sum()) for k in c}
-    nonfinite["mie"] = int((~np.isfinite(c_mie)).sum())
-    print(f"radii where Eq. 12 (unclamped) gives C_t <= 0: {neg_summary}")
-    print(f"non-finite C_t values: {nonfinite}")
 
-    # cross-check: cross_sections ext == goa_extinction_efficiency * pi r^2 wherever positive
-    pos = raw["ours_p3"] > 0
-    consistency = float(np.max(np.abs(c["ours_p3"][pos] - raw["ours_p3"][pos]) / np.abs(raw["ours_p3"][pos])))
-
-    # ------------------------------------------------------------------ plots
-    plt = C.plt()
+def plot_fig3(plt, out: pathlib.Path, r, c_mie, c, raw, relerr, rel_raw) -> None:
+    """``fig3_extinction.png``: C_t, Q_t zoomed on the ripple, relative error vs Mie."""
+    area = np.pi * r**2
     colors = {"mie": "tab:blue", "ours_p3": "tab:red", "ours_p1": "tab:green", "paper_p3": "k", "paper_p1": "0.5"}
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     ax = axes[0]
@@ -132,6 +123,9 @@ def main() -> None:
     C.label(ax, "r (µm)", "|C_GOA − C_Mie| / C_Mie", "(c) relative error vs Lorenz–Mie", legend=8)
     C.save_fig(fig, out / "fig3_extinction.png")
 
+
+def plot_fig21(plt, out: pathlib.Path, r, rm_ours, rm_paper) -> None:
+    """``fig21_ct_relmse_p1_p3.png``: RelMSE{C_t} between p = 1 and p = 3 against r."""
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     ax.loglog(r, np.maximum(rm_ours, 1e-20), color="tab:red", lw=0.8, label="ours (regularised + edge term)")
     ax.loglog(r, np.maximum(rm_paper, 1e-20), color="k", lw=0.6, ls="--", label="paper verbatim")
@@ -139,6 +133,34 @@ def main() -> None:
     ax.set_ylim(1e-14, 10)
     C.label(ax, "r (µm)", "RelMSE{C_t} between p=1 and p=3 (Eq. 38)", f"Fig. 21: η={ETA}, λ={C.LAM} µm", legend=8)
     C.save_fig(fig, out / "fig21_ct_relmse_p1_p3.png")
+
+
+def main() -> None:
+    args, out, sw, motes = C.start(__doc__)
+
+    n = 600 if args.quick else 3000
+    r = np.geomspace(0.1, 100.0, n)
+    c_mie, c, raw, timings = compute(motes, r)
+    relerr = {k: np.abs(c[k] - c_mie) / c_mie for k in c}
+    rel_raw = {k: np.abs(raw[k] - c_mie) / c_mie for k in raw}
+
+    stats = band_table(r, relerr, n)
+    rm_ours, rm_paper, big = fig21_table(r, c, raw)
+
+    neg = {k: r[raw[k] <= 0].tolist() for k in raw}
+    neg_summary = {k: (dict(count=len(v), r_min=min(v), r_max=max(v)) if v else dict(count=0)) for k, v in neg.items()}
+    nonfinite = {k: int((~np.isfinite(c[k])).sum()) for k in c}
+    nonfinite["mie"] = int((~np.isfinite(c_mie)).sum())
+    print(f"radii where Eq. 12 (unclamped) gives C_t <= 0: {neg_summary}")
+    print(f"non-finite C_t values: {nonfinite}")
+
+    # cross-check: cross_sections ext == goa_extinction_efficiency * pi r^2 wherever positive
+    pos = raw["ours_p3"] > 0
+    consistency = float(np.max(np.abs(c["ours_p3"][pos] - raw["ours_p3"][pos]) / np.abs(raw["ours_p3"][pos])))
+
+    plt = C.plt()
+    plot_fig3(plt, out, r, c_mie, c, raw, relerr, rel_raw)
+    plot_fig21(plt, out, r, rm_ours, rm_paper)
 
     C.finish(
         args, sw, out / "fig3_extinction.json",

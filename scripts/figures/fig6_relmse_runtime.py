@@ -49,15 +49,8 @@ def fresh_theta() -> np.ndarray:
     return th
 
 
-def main() -> None:
-    args, out, sw, motes = C.start(__doc__)
-
-    n = 20 if args.quick else 60
-    radii = list(np.geomspace(0.5, 200.0, n)) + [1.0, 10.0, 100.0] + ([] if args.quick else [500.0, 1000.0])
-    radii = np.unique(np.round(radii, 12))
-    reps = 3
-    theta = C.THETA
-
+def sweep(motes, radii, theta, reps: int) -> dict:
+    """Per eta: RelMSE of GOA (ours and paper verbatim) vs Mie, and the Mie / GOA warm / GOA cold times, per radius."""
     res = {}
     for eta in ETAS:
         # warm the GOA geometry cache for this eta (the first call of a sweep pays it once)
@@ -78,8 +71,11 @@ def main() -> None:
             t_goa.append(tg)
             t_goa_cold.append(tc)
         res[eta] = dict(relmse=np.array(rel), relmse_paper=np.array(rel_paper), t_mie=np.array(t_mie), t_goa=np.array(t_goa), t_goa_cold=np.array(t_goa_cold))
+    return res
 
-    # ------------------------------------------------------------------ tables
+
+def relmse_table(res: dict, radii) -> None:
+    """Print Fig. 6 (left) as a table: per eta, the max RelMSE over r >= 2, 3, 5 um."""
     rows = []
     for eta in ETAS:
         d = res[eta]
@@ -99,6 +95,9 @@ def main() -> None:
         rows,
     )
 
+
+def runtime_table(res: dict, radii) -> None:
+    """Print Fig. 6 (right) as a table: the times and ratios at the radii of REPORT_R."""
     rows = []
     for eta in ETAS:
         d = res[eta]
@@ -116,7 +115,9 @@ def main() -> None:
         rows,
     )
 
-    # ------------------------------------------------------------------ plot
+
+def plot(out: pathlib.Path, res: dict, radii) -> None:
+    """``fig6_relmse_runtime.png``: RelMSE (left) and runtime ratio (right) against r."""
     plt = C.plt()
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.6))
     ax = axes[0]
@@ -136,6 +137,21 @@ def main() -> None:
     ax.axhline(1.0, color="0.5", lw=0.6)
     C.label(ax, "r (µm)", "t_Mie / t_GOA", "Fig. 6 right: runtime ratio, 1800 angles, best of 3", legend=7)
     C.save_fig(fig, out / "fig6_relmse_runtime.png")
+
+
+def main() -> None:
+    args, out, sw, motes = C.start(__doc__)
+
+    n = 20 if args.quick else 60
+    radii = list(np.geomspace(0.5, 200.0, n)) + [1.0, 10.0, 100.0] + ([] if args.quick else [500.0, 1000.0])
+    radii = np.unique(np.round(radii, 12))
+    reps = 3
+    theta = C.THETA
+
+    res = sweep(motes, radii, theta, reps)
+    relmse_table(res, radii)
+    runtime_table(res, radii)
+    plot(out, res, radii)
 
     results = {C.eta_label(eta): {k: v for k, v in d.items()} for eta, d in res.items()}
     C.finish(args, sw, out / "fig6_relmse_runtime.json", wavelength_um=C.LAM, n_angles=int(theta.size), repetitions=reps,

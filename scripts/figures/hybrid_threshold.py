@@ -58,16 +58,8 @@ def switch_check(motes, eta) -> dict:
     return res
 
 
-def main() -> None:
-    args, out, sw, motes = C.start(__doc__)
-    x_auto = float(motes.AUTO_SIZE_PARAMETER)
-    x_hyb = float(motes.size_parameter(motes.HYBRID_RADIUS_UM, C.LAM))
-
-    nx = 30 if args.quick else 80
-    xs = np.geomspace(5.0, 400.0, nx)
-    radii = C.radius_of_x(xs)
-    theta = C.THETA
-
+def sweep(motes, radii, theta):
+    """RelMSE of GOA vs Mie per eta at the radii, and the (eta, r) where an amplitude was not finite."""
     res = {}
     bad = []
     for eta in ETAS:
@@ -79,7 +71,11 @@ def main() -> None:
                 bad.append(dict(eta=C.eta_label(eta), r_um=float(r)))
             rel.append(C.relmse(C.amp_mean(g1, g2), C.amp_mean(m1, m2)))
         res[eta] = np.array(rel)
+    return res, bad
 
+
+def summary_table(motes, xs, radii, res: dict, x_auto: float, x_hyb: float) -> dict:
+    """Print the table of x_c and of the auto / hybrid errors per eta; return the summary per eta."""
     rows = []
     summary = {}
     for eta in ETAS:
@@ -98,24 +94,21 @@ def main() -> None:
                                          auto_ok=ok, hybrid_error=e_hyb, hybrid_worst_x=x_hyb_worst)
         rows.append([C.eta_label(eta), xc, rel[i_all], xs[i_all], e_auto, x_auto_worst, ok, e_hyb, x_hyb_worst])
     xcs = [s["x_c"] for s in summary.values()]
-    worst_eta = max(summary, key=lambda k: summary[k]["x_c"])
     rows.append(["**all**", max(xcs), max(s["max_relmse"] for s in summary.values()), None,
                  max(s["auto_error"] for s in summary.values()), None, all(s["auto_ok"] for s in summary.values()),
                  max(s["hybrid_error"] for s in summary.values()), None])
     C.print_table(
-        f"auto policy: RelMSE of (|S1|+|S2|)/2, GOA vs Mie, {nx} x in [5, 400], lambda = {C.LAM} µm; "
+        f"auto policy: RelMSE of (|S1|+|S2|)/2, GOA vs Mie, {xs.size} x in [5, 400], lambda = {C.LAM} µm; "
         f"AUTO_SIZE_PARAMETER = {x_auto:g}, hybrid = r ≥ {motes.HYBRID_RADIUS_UM:g} µm (x ≥ {x_hyb:.1f})",
         ["eta", "x_c (RelMSE<0.01 for all x ≥ x_c)", "max RelMSE (x≥5)", "at x", "auto error (max where auto uses GOA)", "at x",
          f"auto < {TOL}", "hybrid error (max, r ≥ 2 µm)", "at x"],
         rows,
     )
-    print(f"largest x_c = {max(xcs):.3g} (eta = {worst_eta}); AUTO_SIZE_PARAMETER = {x_auto:g}: "
-          f"{'every eta has RelMSE < 0.01 above it' if all(s['auto_ok'] for s in summary.values()) else 'NOT every eta has RelMSE < 0.01 above it'}")
-    checks = {C.eta_label(eta): switch_check(motes, eta) for eta in (1.33, 0.75)}
-    print(f"switch check (phase_function just below / above the threshold): {checks}")
-    if bad:
-        print(f"NON-FINITE amplitudes: {bad}")
+    return summary
 
+
+def plot(out: pathlib.Path, xs, res: dict, x_auto: float, x_hyb: float) -> None:
+    """``hybrid_threshold.png``: RelMSE against x per eta, with the thresholds."""
     plt = C.plt()
     fig, ax = plt.subplots(figsize=(8, 5))
     for eta in ETAS:
@@ -130,6 +123,29 @@ def main() -> None:
     ax.grid(True, which="both", alpha=0.3)
     C.save_fig(fig, out / "hybrid_threshold.png")
 
+
+def main() -> None:
+    args, out, sw, motes = C.start(__doc__)
+    x_auto = float(motes.AUTO_SIZE_PARAMETER)
+    x_hyb = float(motes.size_parameter(motes.HYBRID_RADIUS_UM, C.LAM))
+
+    nx = 30 if args.quick else 80
+    xs = np.geomspace(5.0, 400.0, nx)
+    radii = C.radius_of_x(xs)
+    theta = C.THETA
+
+    res, bad = sweep(motes, radii, theta)
+    summary = summary_table(motes, xs, radii, res, x_auto, x_hyb)
+    xcs = [s["x_c"] for s in summary.values()]
+    worst_eta = max(summary, key=lambda k: summary[k]["x_c"])
+    print(f"largest x_c = {max(xcs):.3g} (eta = {worst_eta}); AUTO_SIZE_PARAMETER = {x_auto:g}: "
+          f"{'every eta has RelMSE < 0.01 above it' if all(s['auto_ok'] for s in summary.values()) else 'NOT every eta has RelMSE < 0.01 above it'}")
+    checks = {C.eta_label(eta): switch_check(motes, eta) for eta in (1.33, 0.75)}
+    print(f"switch check (phase_function just below / above the threshold): {checks}")
+    if bad:
+        print(f"NON-FINITE amplitudes: {bad}")
+
+    plot(out, xs, res, x_auto, x_hyb)
     C.finish(
         args, sw, out / "hybrid_threshold.json", wavelength_um=C.LAM, tol=TOL, auto_size_parameter=x_auto, hybrid_x=x_hyb,
         x=xs, relmse={C.eta_label(e): v for e, v in res.items()}, summary=summary, largest_x_c=max(xcs), worst_eta=worst_eta,

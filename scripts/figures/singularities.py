@@ -169,6 +169,16 @@ def part_d(motes, quick):
 # ---------------------------------------------------------------------------------------------- (e)
 def edge_term_study(motes, quick: bool, out: pathlib.Path, plt) -> dict:
     """Edge term: C_ext error vs Mie with / without it, and the ripple-averaged coefficient c."""
+    bands, chk = edge_bands(motes, quick)
+    coefs, nx = edge_coefficients(motes, quick)
+    plot_edge_term(motes, quick, out, plt, coefs)
+    return dict(bands=bands, coefficients={str(k): v for k, v in coefs.items()}, x_range=[200, 400], n_x=nx,
+                cross_sections_consistency_max_abs_dQ=chk)
+
+
+def edge_bands(motes, quick: bool):
+    """Print the (e) table of the C_ext error with / without the edge term per r band; return (bands, the
+    largest |dQ| between ``cross_sections`` and ``goa_extinction_efficiency``)."""
     n_band = 400 if quick else 2000
     rows, bands = [], []
     for eta in (1.33, 1.5, 0.75):
@@ -198,7 +208,11 @@ def edge_term_study(motes, quick: bool, out: pathlib.Path, plt) -> dict:
         ["eta", "r band (µm)", "mean |err| without edge", "mean |err| with edge", "mean err (bias) without", "mean err (bias) with"],
         rows,
     )
+    return bands, chk
 
+
+def edge_coefficients(motes, quick: bool):
+    """Print the (e) table of the ripple-averaged coefficient c (Mie and GOA); return (c per eta, points in x)."""
     nx = 4000 if quick else 20000
     xs = np.linspace(200.0, 400.0, nx)
     r = C.radius_of_x(xs)
@@ -226,8 +240,11 @@ def edge_term_study(motes, quick: bool, out: pathlib.Path, plt) -> dict:
         ["eta", "c = mean((Q−2)·x^(2/3)), Mie", "same, x ∈ [200, 300)", "same, x ∈ [300, 400]", "same, x ∈ [1000, 2000]", "same mean, GOA with edge", "same mean, GOA without edge"],
         coef_rows,
     )
+    return coefs, nx
 
-    # plot: (Q - 2) x^(2/3) against x, Mie and GOA
+
+def plot_edge_term(motes, quick: bool, out: pathlib.Path, plt, coefs: dict) -> None:
+    """``edge_term.png``: (Q - 2) x^(2/3) against x, Mie and GOA with / without the edge term."""
     xs_p = np.geomspace(20.0, 3000.0, 1500 if quick else 6000)
     rp = C.radius_of_x(xs_p)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
@@ -252,8 +269,6 @@ def edge_term_study(motes, quick: bool, out: pathlib.Path, plt) -> dict:
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
     C.save_fig(fig, out / "edge_term.png")
-    return dict(bands=bands, coefficients={str(k): v for k, v in coefs.items()}, x_range=[200, 400], n_x=nx,
-                cross_sections_consistency_max_abs_dQ=chk)
 
 
 # ---------------------------------------------------------------------------------------------- main

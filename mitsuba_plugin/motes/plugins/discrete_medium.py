@@ -103,6 +103,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from types import SimpleNamespace
 
 import drjit as dr
 import mitsuba as mi
@@ -121,60 +122,6 @@ from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit
 MAJORANT = 1e20
 
 
-def _get(props, name, default, kind, check=None, allowed=""):
-    """Read a property (so Mitsuba counts it as used), check its type and range."""
-    if name not in props:
-        return default
-    value = props.get(name)
-    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = float(value)
-    elif kind is int and isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise ValueError(f"discrete medium: parameter '{name}' must be a {kind.__name__}, got {value!r}")
-    if check is not None and not check(value):
-        raise ValueError(f"discrete medium: invalid {name} = {value!r}: must be {allowed}")
-    return value
-
-
-#: Keys a species entry may hold (a misspelt key is an error, not silently ignored).
-SPECIES_KEYS = ("psd", "material", "eta", "share", "name")
-
-
-def _eta(entry, where):
-    if "material" in entry and "eta" in entry:
-        raise ValueError(f'discrete medium: {where} gives both "material" and "eta"; keep one')
-    if "material" in entry:
-        return Material(str(entry["material"]))
-    if "eta" in entry:
-        e = entry["eta"]
-        try:
-            if isinstance(e, (list, tuple)):
-                if len(e) != 2:
-                    raise ValueError
-                e = complex(float(e[0]), float(e[1]))
-            else:
-                e = complex(float(e), 0.0)
-        except (TypeError, ValueError):
-            raise ValueError(f'discrete medium: {where} "eta" must be a number n or a pair [n, k], got {entry["eta"]!r}') from None
-        if not (np.isfinite(e.real) and e.real > 0 and e.imag >= 0):
-            raise ValueError(f"discrete medium: invalid eta {e} in {where}: real part > 0, imaginary >= 0")
-        return e
-    raise ValueError(f'discrete medium: {where} needs "material" or "eta"')
-
-
-def _species_entry(e: dict, i: int) -> Species:
-    where = f"species[{i}]"
-    unknown = sorted(set(e) - set(SPECIES_KEYS))
-    if unknown:
-        raise ValueError(f"discrete medium: {where} has unknown key(s) {', '.join(map(repr, unknown))}; "
-                         f"allowed: {', '.join(SPECIES_KEYS)}")
-    share = e.get("share", 1.0)
-    if isinstance(share, bool) or not isinstance(share, (int, float)) or not (np.isfinite(share) and share >= 0):
-        raise ValueError(f'discrete medium: {where} "share" must be a number >= 0, got {share!r}')
-    return Species(psd_mod.from_spec(e.get("psd", {})), _eta(e, where), float(share))
-
-
 class DiscreteMediumPlugin:
     """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.Medium``."""
 
@@ -182,130 +129,21 @@ class DiscreteMediumPlugin:
         mi.Medium.__init__(self, props)
         self.m_is_homogeneous = False
         self.m_has_spectral_extinction = False
-        pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
-
-        filename = _get(props, "filename", None, str)
-        count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
-        _memory.require(_memory.BYTES_PER_PARTICLE * count, f"discrete medium: count = {count}")
-        distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
-                            "one of uniform, gradient, noise")
-        lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um
-        median = _get(props, "radius_median", 20.0, float, lambda v: lo_um < v < hi_um,
-                      f"in ({lo_um:g}, {hi_um:g}) um (the log-normal PSD is truncated there; a wider one via psd)")
-        sigma_g = _get(props, "radius_sigma_g", 1.5, float, lambda v: np.isfinite(v) and v >= 1, "finite and >= 1")
-        psd_json = _get(props, "psd", None, str)
-        material = _get(props, "material", None, str)
-        eta = _get(props, "eta", 1.31, float, pos_f, "finite and > 0")
-        eta_k = _get(props, "eta_k", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
-        eta_medium = _get(props, "eta_medium", 1.0, float, pos_f, "finite and > 0")
-        species_json = _get(props, "species", None, str)
-        scale_m = _get(props, "scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
-        query_radius = _get(props, "query_radius", None, float)
-        k = _get(props, "footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
-        fov = _get(props, "fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
-        film_width = _get(props, "film_width", None, int, lambda v: v >= 1, "an integer >= 1 (pixels)")
-        z_med = _get(props, "z_med", None, float, pos_f, "finite and > 0 (scene units)")
-        cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
-        # query_radius, cells_per_particle, tau_max and continuous_count are range-checked by the core
-        # (motes._motes.check_discrete_inputs) before any table is built: one home for those rules.
-        size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
-        method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
-                      "one of auto, mie, goa, hybrid")
-        truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
-        tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
-        continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
-        wavelengths = _get(props, "wavelengths", None, str)
-        seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
-        albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
-        to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
-
-        # Species and PSD.
-        if species_json is not None:
-            try:
-                entries = json.loads(species_json)
-            except json.JSONDecodeError as e:
-                raise ValueError(f"discrete medium: parameter 'species' is not valid JSON ({e})") from None
-            if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
-                raise ValueError("discrete medium: parameter 'species' must be a non-empty JSON list of objects")
-            species = [_species_entry(e, i) for i, e in enumerate(entries)]
-        else:
-            psd = psd_mod.from_spec(psd_json) if psd_json is not None else psd_mod.LogNormal(median, sigma_g)
-            if material is not None and ("eta" in props or "eta_k" in props):
-                raise ValueError("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
-            species = [Species(psd, Material(material) if material is not None else complex(eta, eta_k))]
-
-        # Particles (local units), then to world.
-        t_particles = time.perf_counter()
-        if filename is not None:
-            clash = [name for name in ("count", "distribution") if name in props]
-            if clash:
-                raise ValueError(f"discrete medium: {', '.join(clash)} set the generated particles; with filename "
-                                 "the particles come from the file — remove one or the other")
-            # Relative to the scene file's folder, as Mitsuba resolves meshes and textures.
-            path = str(mi.file_resolver().resolve(filename))
-            # scale_m converts a PLY's Houdini `pscale` (radii in scene units) to micrometres.
-            pset = load_particles(path, scale_m=scale_m, n_species=len(species))
-            r_lo, r_hi = float(pset.radii_um.min()), float(pset.radii_um.max())
-            if r_hi > 1e5 or r_lo < 1e-3:
-                raise ValueError(f"discrete medium: {path}: particle radii from {r_lo:g} to {r_hi:g} um are implausible "
-                                 f"(field radius_um / radius in um, or a PLY pscale in scene units times scale_m = {scale_m:g} m)")
-            pos, radii, sidx = pset.positions, pset.radii_um, pset.species
-        else:
-            lo, hi = np.full(3, -1.0), np.full(3, 1.0)
-            shares = np.array([s.share for s in species], dtype=np.float64)
-            if not np.all(shares >= 0) or shares.sum() <= 0:
-                raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
-            rng = np.random.default_rng(seed)
-            sidx = rng.choice(len(species), size=count, p=shares / shares.sum())
-            radii = np.empty(count)
-            for i, s in enumerate(species):
-                sel = sidx == i
-                radii[sel] = s.psd.sample(int(sel.sum()), seed=seed + 7919 * (i + 1)) if sel.any() else 0
-            if distribution == "uniform":
-                pos, _ = uniform_box(count, lo, hi, species[0].psd, seed=seed)
-            else:
-                density = Gradient(axis=2, start=1.0, end=0.0) if distribution == "gradient" else Noise(scale=0.5, seed=seed)
-                pos, _ = density_box(count, lo, hi, density, species[0].psd, seed=seed)
-        log.info("particles: %d %s in %.1f s", len(pos), "read" if filename is not None else "generated",
-                 time.perf_counter() - t_particles)
-        m = np.array(to_world.matrix, dtype=np.float64)
-        if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
-            raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
-        pos = pos @ m[:3, :3].T + m[:3, 3]
-
-        # Query radius: explicit, or Eq. 23.
-        eq23 = [v is not None for v in (k, fov, film_width, z_med)]
-        if any(eq23) and not all(eq23):
-            raise ValueError("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
-        if all(eq23):
-            if query_radius is not None:
-                raise ValueError("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
-            query_radius = query_radius_from_camera(k, fov, film_width, z_med)
-        user_radius = query_radius is not None
-        query_radius = 0.0 if query_radius is None else query_radius
-        extent = float(np.min(pos.max(axis=0) - pos.min(axis=0))) if len(pos) > 1 else 0.0
-        if extent > 0 and query_radius > 0.25 * extent:
-            warnings.warn(f"discrete medium: query_radius = {query_radius:g} is comparable to the particles' extent "
-                          f"({extent:g} scene units): disks reaching out of the box lose their extinction there", stacklevel=2)
+        p = _read_parameters(props)
+        species = _species(p, props)
+        pos, radii, sidx = _particles(p, props, species)
+        query_radius, user_radius = _query_radius(p, pos)
+        truncate = p.truncate
         if truncate is None:
-            truncate = (pixel_footprint_rad(fov, film_width) if fov is not None and film_width is not None
+            truncate = (pixel_footprint_rad(p.fov, p.film_width) if p.fov is not None and p.film_width is not None
                         else DEFAULT_TRUNCATE_RAD)
+        lam = _wavelengths(p.wavelengths)
 
-        if wavelengths is not None:
-            try:
-                lam = np.array([float(x) for x in wavelengths.replace(",", " ").split()])
-            except ValueError:
-                raise ValueError(f"discrete medium: parameter 'wavelengths' must be numbers in um, got {wavelengths!r}") from None
-            if mi.is_rgb and lam.size != 3:
-                raise ValueError("discrete medium: RGB variants need exactly 3 wavelengths (R, G, B)")
-        else:
-            lam = np.array(RGB_WAVELENGTHS_UM if mi.is_rgb else SPECTRAL_WAVELENGTHS_UM)
-
-        self.data = DiscreteMedium(pos, radii, sidx, species, lam, scale_m=scale_m, query_radius=query_radius,
-                                   size_bins=size_bins, eta_medium=eta_medium, method=method,
+        self.data = DiscreteMedium(pos, radii, sidx, species, lam, scale_m=p.scale_m, query_radius=query_radius,
+                                   size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
                                    truncate_below_rad=truncate if truncate > 0 else None,
-                                   cells_per_particle=cells, seed=seed, albedo=albedo, tau_max=tau_max,
-                                   warn_widened=user_radius, continuous_count=continuous)
+                                   cells_per_particle=p.cells, seed=p.seed, albedo=p.albedo, tau_max=p.tau_max,
+                                   warn_widened=user_radius, continuous_count=p.continuous)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
@@ -317,26 +155,6 @@ class DiscreteMediumPlugin:
         self._stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
         # Editable through mi.traverse (a one-element tensor: Mitsuba updates it in place).
         self._albedo_scale = mi.TensorXf(np.ones(1, dtype=np.float32))
-
-    # -- Scene parameters (mi.traverse) -------------------------------------------------------------
-    def traverse(self, callback):
-        """``albedo_scale``: a factor on every particle's albedo (1 as built), editable between renders
-        through ``mi.traverse(scene)`` (e.g. ``params["<shape>.interior_medium.albedo_scale"] = 0.5``,
-        then ``params.update()``); and the phase function. The particles and their optics are fixed at
-        load: edit the XML for those."""
-        callback.put("albedo_scale", self._albedo_scale, mi.ParamFlags.NonDifferentiable)
-        callback.put("phase_function", self.phase_function(), mi.ParamFlags.Differentiable)
-
-    def parameters_changed(self, keys=None):
-        if keys is None or "albedo_scale" in keys:
-            self.data.core.set_albedo_scale(float(np.asarray(self._albedo_scale).ravel()[0]))
-
-    @property
-    def stats(self) -> dict:
-        """Counters of the render path so far: rays and events (both paths), batched intersect calls
-        and null collisions (the evaluated-mode path)."""
-        rays, events = self.data.core.native_counts
-        return dict(self._stats, rays=self._stats["rays"] + rays, events=self._stats["events"] + events)
 
     # -- Mitsuba interface -------------------------------------------------------------------------
     # Each method hands the whole call to the native plugin when there is one (traced once into
@@ -381,12 +199,231 @@ class DiscreteMediumPlugin:
         self._stats["nulls"] += int((act & (sigma_n[:, 0] > 0)).sum())
         return (spectrum(albedo * sigma_t, n), spectrum(sigma_n, n), spectrum(sigma_t, n))
 
+    # -- Scene parameters (mi.traverse) -------------------------------------------------------------
+    def traverse(self, callback):
+        """``albedo_scale``: a factor on every particle's albedo (1 as built), editable between renders
+        through ``mi.traverse(scene)`` (e.g. ``params["<shape>.interior_medium.albedo_scale"] = 0.5``,
+        then ``params.update()``); and the phase function. The particles and their optics are fixed at
+        load: edit the XML for those."""
+        callback.put("albedo_scale", self._albedo_scale, mi.ParamFlags.NonDifferentiable)
+        callback.put("phase_function", self.phase_function(), mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=None):
+        if keys is None or "albedo_scale" in keys:
+            self.data.core.set_albedo_scale(float(np.asarray(self._albedo_scale).ravel()[0]))
+
+    @property
+    def stats(self) -> dict:
+        """Counters of the render path so far: rays and events (both paths), batched intersect calls
+        and null collisions (the evaluated-mode path)."""
+        rays, events = self.data.core.native_counts
+        return dict(self._stats, rays=self._stats["rays"] + rays, events=self._stats["events"] + events)
+
     def to_string(self):
         d = self.data
         return (f"DiscreteMedium[particles={len(d)}, bins={d.n_bins}, query_radius={d.query_radius:g}, "
                 f"scale_m={d.scale_m:g}, bytes={d.bytes}]")
 
 
+# -- The constructor's steps -----------------------------------------------------------------------
+def _read_parameters(props) -> SimpleNamespace:
+    """Every parameter of the table (module docs), read in one place so that Mitsuba counts each as used."""
+    pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
+    p = SimpleNamespace()
+    p.filename = _get(props, "filename", None, str)
+    p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
+    _memory.require(_memory.BYTES_PER_PARTICLE * p.count, f"discrete medium: count = {p.count}")
+    p.distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
+                          "one of uniform, gradient, noise")
+    lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um
+    p.median = _get(props, "radius_median", 20.0, float, lambda v: lo_um < v < hi_um,
+                    f"in ({lo_um:g}, {hi_um:g}) um (the log-normal PSD is truncated there; a wider one via psd)")
+    p.sigma_g = _get(props, "radius_sigma_g", 1.5, float, lambda v: np.isfinite(v) and v >= 1, "finite and >= 1")
+    p.psd_json = _get(props, "psd", None, str)
+    p.material = _get(props, "material", None, str)
+    p.eta = _get(props, "eta", 1.31, float, pos_f, "finite and > 0")
+    p.eta_k = _get(props, "eta_k", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
+    p.eta_medium = _get(props, "eta_medium", 1.0, float, pos_f, "finite and > 0")
+    p.species_json = _get(props, "species", None, str)
+    p.scale_m = _get(props, "scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
+    p.query_radius = _get(props, "query_radius", None, float)
+    p.k = _get(props, "footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
+    p.fov = _get(props, "fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
+    p.film_width = _get(props, "film_width", None, int, lambda v: v >= 1, "an integer >= 1 (pixels)")
+    p.z_med = _get(props, "z_med", None, float, pos_f, "finite and > 0 (scene units)")
+    p.cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
+    # query_radius, cells_per_particle, tau_max and continuous_count are range-checked by the core
+    # (motes._motes.check_discrete_inputs) before any table is built: one home for those rules.
+    p.size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
+    p.method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
+                    "one of auto, mie, goa, hybrid")
+    p.truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
+    p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
+    p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
+    p.wavelengths = _get(props, "wavelengths", None, str)
+    p.seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
+    p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+    p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
+    return p
+
+
+def _get(props, name, default, kind, check=None, allowed=""):
+    """Read a property (so Mitsuba counts it as used), check its type and range."""
+    if name not in props:
+        return default
+    value = props.get(name)
+    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = float(value)
+    elif kind is int and isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise ValueError(f"discrete medium: parameter '{name}' must be a {kind.__name__}, got {value!r}")
+    if check is not None and not check(value):
+        raise ValueError(f"discrete medium: invalid {name} = {value!r}: must be {allowed}")
+    return value
+
+
+def _species(p: SimpleNamespace, props) -> list:
+    """The species: the ``species`` JSON list, or one species of ``psd`` (or the log-normal) and material/eta."""
+    if p.species_json is not None:
+        try:
+            entries = json.loads(p.species_json)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"discrete medium: parameter 'species' is not valid JSON ({e})") from None
+        if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
+            raise ValueError("discrete medium: parameter 'species' must be a non-empty JSON list of objects")
+        return [_species_entry(e, i) for i, e in enumerate(entries)]
+    psd = psd_mod.from_spec(p.psd_json) if p.psd_json is not None else psd_mod.LogNormal(p.median, p.sigma_g)
+    if p.material is not None and ("eta" in props or "eta_k" in props):
+        raise ValueError("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
+    return [Species(psd, Material(p.material) if p.material is not None else complex(p.eta, p.eta_k))]
+
+
+#: Keys a species entry may hold (a misspelt key is an error, not silently ignored).
+SPECIES_KEYS = ("psd", "material", "eta", "share", "name")
+
+
+def _eta(entry, where):
+    if "material" in entry and "eta" in entry:
+        raise ValueError(f'discrete medium: {where} gives both "material" and "eta"; keep one')
+    if "material" in entry:
+        return Material(str(entry["material"]))
+    if "eta" in entry:
+        e = entry["eta"]
+        try:
+            if isinstance(e, (list, tuple)):
+                if len(e) != 2:
+                    raise ValueError
+                e = complex(float(e[0]), float(e[1]))
+            else:
+                e = complex(float(e), 0.0)
+        except (TypeError, ValueError):
+            raise ValueError(f'discrete medium: {where} "eta" must be a number n or a pair [n, k], got {entry["eta"]!r}') from None
+        if not (np.isfinite(e.real) and e.real > 0 and e.imag >= 0):
+            raise ValueError(f"discrete medium: invalid eta {e} in {where}: real part > 0, imaginary >= 0")
+        return e
+    raise ValueError(f'discrete medium: {where} needs "material" or "eta"')
+
+
+def _species_entry(e: dict, i: int) -> Species:
+    where = f"species[{i}]"
+    unknown = sorted(set(e) - set(SPECIES_KEYS))
+    if unknown:
+        raise ValueError(f"discrete medium: {where} has unknown key(s) {', '.join(map(repr, unknown))}; "
+                         f"allowed: {', '.join(SPECIES_KEYS)}")
+    share = e.get("share", 1.0)
+    if isinstance(share, bool) or not isinstance(share, (int, float)) or not (np.isfinite(share) and share >= 0):
+        raise ValueError(f'discrete medium: {where} "share" must be a number >= 0, got {share!r}')
+    return Species(psd_mod.from_spec(e.get("psd", {})), _eta(e, where), float(share))
+
+
+def _particles(p: SimpleNamespace, props, species: list):
+    """Positions (scene units, after ``to_world``), radii (um) and species indices: read from ``filename`` or generated."""
+    t_particles = time.perf_counter()
+    if p.filename is not None:
+        pos, radii, sidx = _read_particles(p, props, species)
+    else:
+        pos, radii, sidx = _generated_particles(p, species)
+    log.info("particles: %d %s in %.1f s", len(pos), "read" if p.filename is not None else "generated",
+             time.perf_counter() - t_particles)
+    m = np.array(p.to_world.matrix, dtype=np.float64)
+    if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
+        raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
+    return pos @ m[:3, :3].T + m[:3, 3], radii, sidx
+
+
+def _read_particles(p: SimpleNamespace, props, species: list):
+    """The particles of ``filename`` (local units): positions, radii (um), species indices."""
+    clash = [name for name in ("count", "distribution") if name in props]
+    if clash:
+        raise ValueError(f"discrete medium: {', '.join(clash)} set the generated particles; with filename "
+                         "the particles come from the file — remove one or the other")
+    # Relative to the scene file's folder, as Mitsuba resolves meshes and textures.
+    path = str(mi.file_resolver().resolve(p.filename))
+    # scale_m converts a PLY's Houdini `pscale` (radii in scene units) to micrometres.
+    pset = load_particles(path, scale_m=p.scale_m, n_species=len(species))
+    r_lo, r_hi = float(pset.radii_um.min()), float(pset.radii_um.max())
+    if r_hi > 1e5 or r_lo < 1e-3:
+        raise ValueError(f"discrete medium: {path}: particle radii from {r_lo:g} to {r_hi:g} um are implausible "
+                         f"(field radius_um / radius in um, or a PLY pscale in scene units times scale_m = {p.scale_m:g} m)")
+    return pset.positions, pset.radii_um, pset.species
+
+
+def _generated_particles(p: SimpleNamespace, species: list):
+    """``count`` particles in the local cube [-1, 1]^3 after ``distribution``: positions, radii (um), species indices."""
+    count, seed = p.count, p.seed
+    lo, hi = np.full(3, -1.0), np.full(3, 1.0)
+    shares = np.array([s.share for s in species], dtype=np.float64)
+    if not np.all(shares >= 0) or shares.sum() <= 0:
+        raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
+    rng = np.random.default_rng(seed)
+    sidx = rng.choice(len(species), size=count, p=shares / shares.sum())
+    radii = np.empty(count)
+    for i, s in enumerate(species):
+        sel = sidx == i
+        radii[sel] = s.psd.sample(int(sel.sum()), seed=seed + 7919 * (i + 1)) if sel.any() else 0
+    if p.distribution == "uniform":
+        pos, _ = uniform_box(count, lo, hi, species[0].psd, seed=seed)
+    else:
+        density = Gradient(axis=2, start=1.0, end=0.0) if p.distribution == "gradient" else Noise(scale=0.5, seed=seed)
+        pos, _ = density_box(count, lo, hi, density, species[0].psd, seed=seed)
+    return pos, radii, sidx
+
+
+def _query_radius(p: SimpleNamespace, pos: np.ndarray):
+    """(r_c, whether the user set it): ``query_radius``, Eq. 23 from ``footprint_k``, or 0."""
+    query_radius = p.query_radius
+    eq23 = [v is not None for v in (p.k, p.fov, p.film_width, p.z_med)]
+    if any(eq23) and not all(eq23):
+        raise ValueError("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
+    if all(eq23):
+        if query_radius is not None:
+            raise ValueError("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
+        query_radius = query_radius_from_camera(p.k, p.fov, p.film_width, p.z_med)
+    user_radius = query_radius is not None
+    query_radius = 0.0 if query_radius is None else query_radius
+    extent = float(np.min(pos.max(axis=0) - pos.min(axis=0))) if len(pos) > 1 else 0.0
+    if extent > 0 and query_radius > 0.25 * extent:
+        # stacklevel 3: the caller of the plugin's constructor, past this function and __init__.
+        warnings.warn(f"discrete medium: query_radius = {query_radius:g} is comparable to the particles' extent "
+                      f"({extent:g} scene units): disks reaching out of the box lose their extinction there", stacklevel=3)
+    return query_radius, user_radius
+
+
+def _wavelengths(wavelengths: str | None) -> np.ndarray:
+    """The tabulated wavelengths (um): ``wavelengths``, or the variant's defaults."""
+    if wavelengths is None:
+        return np.array(RGB_WAVELENGTHS_UM if mi.is_rgb else SPECTRAL_WAVELENGTHS_UM)
+    try:
+        lam = np.array([float(x) for x in wavelengths.replace(",", " ").split()])
+    except ValueError:
+        raise ValueError(f"discrete medium: parameter 'wavelengths' must be numbers in um, got {wavelengths!r}") from None
+    if mi.is_rgb and lam.size != 3:
+        raise ValueError("discrete medium: RGB variants need exactly 3 wavelengths (R, G, B)")
+    return lam
+
+
+# -- Native render path ----------------------------------------------------------------------------
 def native_in_use() -> bool:
     """Whether the current variant renders through the native plugins (``motes.native``)."""
     from . import native_variants
@@ -416,3 +453,4 @@ _classes: dict = {}
 def plugin_class():
     """The plugin class for the current Mitsuba variant."""
     return bind_to_variant(DiscreteMediumPlugin, "Medium", "DiscreteMedium", _classes)
+

@@ -30,12 +30,6 @@ import numpy as np
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, floats, spectrum, vec3, vector3
 
 
-def _require_medium(medium) -> None:
-    if medium is None:
-        raise RuntimeError('motes: <phase type="particle"/> works only inside a <medium type="discrete">, which '
-                           "supplies its particles; use hg, tabphase or another phase function in other media")
-
-
 class ParticlePhase:
     """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.PhaseFunction``."""
 
@@ -50,9 +44,6 @@ class ParticlePhase:
     def attach(self, medium, native=None) -> None:
         self._medium = medium
         self._native = native
-
-    def _channels(self, mei, n):
-        return channel_wavelengths(self._medium, mei, n)
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
         if self._native is not None and symbolic_mode():
@@ -77,8 +68,17 @@ class ParticlePhase:
         v, pdf = self._medium.core.phase_eval(p.ravel(), wi.ravel(), w.ravel(), lam, ch)
         return spectrum(v.reshape(n, ch), n), floats(pdf)
 
+    def _channels(self, mei, n):
+        return channel_wavelengths(self._medium, mei, n)
+
     def to_string(self):
         return f"ParticlePhase[attached={self._medium is not None}]"
+
+
+def _require_medium(medium) -> None:
+    if medium is None:
+        raise RuntimeError('motes: <phase type="particle"/> works only inside a <medium type="discrete">, which '
+                           "supplies its particles; use hg, tabphase or another phase function in other media")
 
 
 _classes: dict = {}
