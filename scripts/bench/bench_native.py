@@ -17,6 +17,7 @@ errors (the two paths must agree). `--memory` also measures the peak resident me
 scene's render in a fresh process per path (see `memory`).
 
     .venv/bin/python scripts/bench/bench_native.py [--quick] [--configs sparse,dense,default] [--memory]
+    .venv/bin/python scripts/bench/bench_native.py --configs sparse --res 256 --spp 64 --native-only
 """
 
 from __future__ import annotations
@@ -91,14 +92,14 @@ def mean_se(img: np.ndarray) -> tuple[float, float]:
     return float(px.mean()), float(px.std() / np.sqrt(px.size))
 
 
-def run_variant(motes, mi, variant: str, names, res: int, spp: int, reps: int) -> list[dict]:
+def run_variant(motes, mi, variant: str, names, res: int, spp: int, reps: int, evaluated: bool = True) -> list[dict]:
     motes.set_variant(variant)
     jit = variant.startswith("llvm_")
     rows = []
     for name in names:
         sh, sd = scenes(motes, mi, name, res, spp)
         paths = {"homogeneous": (sh, False), "discrete native": (sd, False)}
-        if jit:
+        if jit and evaluated:
             paths["discrete evaluated"] = (sd, True)
         best = {k: np.inf for k in paths}
         imgs = {}
@@ -166,6 +167,10 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--memory", action="store_true", help="also the default scene's peak memory (slow)")
     ap.add_argument("--configs", default=",".join(KNOWN), help=f"configurations, of {list(KNOWN)}")
+    ap.add_argument("--res", type=int, default=None, help="film width and height (default 128; --quick 96)")
+    ap.add_argument("--spp", type=int, default=None, help="samples per pixel (default 16; --quick 8)")
+    ap.add_argument("--native-only", action="store_true",
+                    help="llvm_ad_rgb native against homogeneous only (no evaluated path, no scalar_rgb)")
     args = ap.parse_args()
     names = C.choose_configs(ap, args.configs, KNOWN)
     motes = C.import_motes()
@@ -173,8 +178,10 @@ def main() -> None:
     import mitsuba as mi  # noqa: PLC0415
     t0 = time.perf_counter()
     res, spp = (96, 8) if args.quick else (128, 16)
-    rows = run_variant(motes, mi, "llvm_ad_rgb", names, res, spp, args.reps)
-    rows += run_variant(motes, mi, "scalar_rgb", names, 48 if args.quick else 64, 4, 1)
+    res, spp = args.res or res, args.spp or spp
+    rows = run_variant(motes, mi, "llvm_ad_rgb", names, res, spp, args.reps, evaluated=not args.native_only)
+    if not args.native_only:
+        rows += run_variant(motes, mi, "scalar_rgb", names, 48 if args.quick else 64, 4, 1)
     result = {"rows": rows, "meta": C.meta(args, time.perf_counter() - t0)}
     if args.memory:
         result["memory"] = memory()

@@ -9,6 +9,8 @@
 //!
 //! The flag is process-wide (one Ctrl-C stops every build in flight); it is cleared when the last
 //! [`Run`] ends, so a request never leaks into a later computation.
+//!
+//! Infrastructure: implements no equation of the paper.
 
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 

@@ -1,5 +1,7 @@
 //! Errors of the core: each names the offending argument so the Python layer can raise a precise
 //! `ValueError`.
+//!
+//! Infrastructure: implements no equation of the paper.
 
 use std::fmt;
 

@@ -6,6 +6,9 @@
 //! piecewise quadratic and inverted in closed form (O(log n) per sample). `eval` is exactly the density
 //! that `sample` draws from, so the two are consistent by construction; normalisation is exact for the
 //! interpolant (∫ f dΩ = 1).
+//!
+//! Paper: the tabulated ensemble phase function of Eq. 17 (and a particle's, Eq. 1) as a renderer
+//! evaluates and importance-samples it (Sec. 5.5).
 
 use crate::error::{require, OpticsError};
 use std::f64::consts::PI;

@@ -1,5 +1,8 @@
 //! Gauss–Legendre nodes and weights on [-1, 1] (Newton on the Legendre recurrence; exact to
 //! machine precision for the orders used here).
+//!
+//! Paper: the numerical integration behind Eq. 16–17 (over radius) and GOA's incidence integrals
+//! (App. B); no equation of its own.
 
 use std::sync::OnceLock;
 

@@ -9,6 +9,8 @@
 //! Values as distributed (public domain, CC0) by the refractiveindex.info database
 //! (`database/data-nk/main/H2O/Warren-2008.yml`, `Hale.yml`). Between samples `n` is interpolated
 //! linearly and `κ` log-linearly in λ (κ spans orders of magnitude).
+//!
+//! Paper: the relative index m = n + iκ that Eq. 26–30 (Mie) and Eq. 7–14 (GOA) take as input.
 
 use crate::error::{require, OpticsError};
 use num_complex::Complex64 as C64;

@@ -170,6 +170,11 @@ fn event_channels(e: &Event, channels: usize) -> Vec<f64> {
 /// the current one, and the current one becomes the previous when it outgrows `capacity`. An event is
 /// looked up by the rays that start at it (its shadow rays and the scattered ray) within a few batches,
 /// long before two generations pass.
+/// Events one generation of the [`EventMap`] holds before it becomes the previous one: far more than
+/// the events of the paths in flight at once (a packet batch of a few thousand lanes), so an event is
+/// still found by the rays that start at it, and small enough (a few MB) to stay bounded.
+const EVENTS_PER_GENERATION: usize = 1 << 16;
+
 struct EventMap {
     current: FxHashMap<[u32; 3], Event>,
     previous: FxHashMap<[u32; 3], Event>,
@@ -446,6 +451,23 @@ pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -
     (reach, tau)
 }
 
+/// The coincidence window (sites closer than this along a ray are one site) and the box outside
+/// which no ray can start at an event, for particles at `positions` with disks up to `reach_max`.
+fn event_geometry(positions: &[[f64; 3]], reach_max: f64) -> (f64, Bounds3) {
+    let (lo, hi) = bounding_box(positions);
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) + reach_max;
+    // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
+    // be ordered reliably, so they form one site.
+    let coincide = 1e-6 * extent.max(1e-30);
+    // Grown by the largest disk, a relative margin for f32 positions, and the coincidence window.
+    let grow = reach_max * 1.001 + 1e-6 * extent + coincide;
+    let event_box = Bounds3 {
+        lo: lo.map(|x| x - grow),
+        hi: hi.map(|x| x + grow),
+    };
+    (coincide, event_box)
+}
+
 /// Per-lane result of [`DiscreteMedium::sample_sites`].
 #[derive(Clone, Copy, Debug)]
 pub struct SiteSample {
@@ -516,21 +538,11 @@ impl DiscreteMedium {
         let tau = disks.iter().map(|d| d.1 as f32).collect();
         let reach = disks.iter().map(|d| d.0 as f32).collect();
         let c_ext = c_ext.iter().map(|&c| c as f32).collect();
-        let (lo, hi) = bounding_box(positions);
-        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) + reach_max;
-        // Float32 positions carry ~6e-8 relative error: projections closer than 1e-6 of the extent cannot
-        // be ordered reliably, so they form one site.
-        let coincide = 1e-6 * extent.max(1e-30);
-        // Grown by the largest disk, a relative margin for f32 positions, and the coincidence window.
-        let grow = reach_max * 1.001 + 1e-6 * extent + coincide;
-        let event_box = Bounds3 {
-            lo: lo.map(|x| x - grow),
-            hi: hi.map(|x| x + grow),
-        };
+        let (coincide, event_box) = event_geometry(positions, reach_max);
         let events = EventMap {
             current: FxHashMap::default(),
             previous: FxHashMap::default(),
-            capacity: 1 << 16,
+            capacity: EVENTS_PER_GENERATION,
         };
         Ok(DiscreteMedium {
             grid,

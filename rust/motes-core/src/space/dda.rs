@@ -1,6 +1,9 @@
 //! Walking a ray through a uniform grid: an axis-aligned box with one slab test ([`Bounds3`]) and a
 //! 3D-DDA iterator over the cells a ray crosses ([`Dda`], Amanatides & Woo 1987), in t order, each
 //! with the t interval the ray spends inside it (as pbrt-v4's `DDAMajorantIterator` does).
+//!
+//! Paper: the grid traversal behind the query cylinders of Eq. 18 and the particle gathering of Sec. 5.3
+//! (the paper uses a uniform grid, Sec. 6.5); no equation of its own.
 
 /// An axis-aligned box.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -13,6 +16,20 @@ impl Bounds3 {
     /// The part [ta, tb) of [t0, t1) where the ray o + t d is inside the box (slab test), or None.
     /// A direction component of 0 keeps the slab whole when o lies within it, else misses.
     pub fn clip(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
+        self.clip_inv(o, d, inverse(d), t0, t1)
+    }
+
+    /// [`Bounds3::clip`] with the direction's reciprocals `inv_d` (from [`inverse`]) computed once
+    /// by a caller that walks several grids along one ray.
+    #[inline]
+    pub fn clip_inv(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        inv_d: [f64; 3],
+        t0: f64,
+        t1: f64,
+    ) -> Option<(f64, f64)> {
         let (mut ta, mut tb) = (t0, t1);
         for a in 0..3 {
             if d[a] == 0.0 {
@@ -20,14 +37,44 @@ impl Bounds3 {
                     return None;
                 }
             } else {
-                // One division per axis (the walk's setup is a few percent of a render).
-                let inv = 1.0 / d[a];
-                let (u, v) = ((self.lo[a] - o[a]) * inv, (self.hi[a] - o[a]) * inv);
+                let (u, v) = (
+                    (self.lo[a] - o[a]) * inv_d[a],
+                    (self.hi[a] - o[a]) * inv_d[a],
+                );
                 ta = ta.max(u.min(v));
                 tb = tb.min(u.max(v));
             }
         }
         (tb > ta).then_some((ta, tb))
+    }
+}
+
+/// The reciprocals of a direction's components (±inf for a zero component, which the walks treat
+/// separately): one division per axis and ray, shared by every grid the ray walks (the setup of a
+/// walk is several percent of a sparse render).
+#[inline]
+pub fn inverse(d: [f64; 3]) -> [f64; 3] {
+    d.map(|x| 1.0 / x)
+}
+
+/// A uniform grid as a DDA walks it: its box, cell edges and cells per axis.
+#[derive(Clone, Copy, Debug)]
+pub struct GridFrame {
+    pub bounds: Bounds3,
+    pub cell: [f64; 3],
+    pub dims: [usize; 3],
+}
+
+impl GridFrame {
+    pub fn new(lo: [f64; 3], cell: [f64; 3], dims: [usize; 3]) -> Self {
+        GridFrame {
+            bounds: Bounds3 {
+                lo,
+                hi: [0, 1, 2].map(|a| lo[a] + dims[a] as f64 * cell[a]),
+            },
+            cell,
+            dims,
+        }
     }
 }
 
@@ -69,9 +116,22 @@ impl Dda {
         t0: f64,
         t1: f64,
     ) -> Self {
-        let hi = [0, 1, 2].map(|a| lo[a] + dims[a] as f64 * cell[a]);
-        let dims_i = dims.map(|x| x as i64);
-        let Some((ta, tb)) = Bounds3 { lo, hi }.clip(o, d, t0, t1) else {
+        Self::new_in(&GridFrame::new(lo, cell, dims), o, d, inverse(d), t0, t1)
+    }
+
+    /// [`Dda::new`] on a prepared grid, with the direction's reciprocals (no division).
+    #[inline]
+    pub fn new_in(
+        g: &GridFrame,
+        o: [f64; 3],
+        d: [f64; 3],
+        inv_d: [f64; 3],
+        t0: f64,
+        t1: f64,
+    ) -> Self {
+        let (lo, cell) = (g.bounds.lo, g.cell);
+        let dims_i = g.dims.map(|x| x as i64);
+        let Some((ta, tb)) = g.bounds.clip_inv(o, d, inv_d, t0, t1) else {
             return Dda {
                 c: [0; 3],
                 step: [0; 3],
@@ -90,9 +150,10 @@ impl Dda {
             ([0i64; 3], [0i64; 3], [f64::INFINITY; 3], [f64::INFINITY; 3]);
         for a in 0..3 {
             // The entry point rounds into the box: clamp its cell (truncation is floor once clamped
-            // at 0, and needs no libm call).
+            // at 0, and needs no libm call). A division, not a product with 1/cell: a ray lying on
+            // a cell face must start in the cell the face opens.
             c[a] = (((p[a] - lo[a]) / cell[a]) as i64).clamp(0, dims_i[a] - 1);
-            let inv = 1.0 / d[a];
+            let inv = inv_d[a];
             if d[a] > 0.0 {
                 step[a] = 1;
                 t_next[a] = ta + ((lo[a] + (c[a] + 1) as f64 * cell[a]) - p[a]) * inv;

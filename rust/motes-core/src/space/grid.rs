@@ -26,7 +26,7 @@
 //! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
 
 use crate::error::{require, require_len, OpticsError};
-use crate::space::dda::{Bounds3, Dda, DdaCell};
+use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
 use rayon::prelude::*;
 
 /// Axis-aligned bounding box of the centres.
@@ -142,15 +142,22 @@ impl Spheres {
 /// (c·e1 − o·e1)² + (c·e2 − o·e2)² < R²: the distance across the ray without forming c − o or its
 /// projection on d (16 SIMD operations for four spheres instead of 22, and a shorter dependency chain).
 #[derive(Clone, Copy)]
+#[repr(C, align(16))]
 struct RayFrame {
-    e1: [f32; 3],
-    e2: [f32; 3],
-    o1: f32,
-    o2: f32,
+    // Each coefficient broadcast to the four lanes of a block once per ray: the pre-test loop calls
+    // out (to `found`), which spills every SSE register, and reloading a broadcast vector is one
+    // memory operand where a scalar costs a load and a shuffle per block (measured in
+    // `benches/traverse.rs` and the sparse render, BENCHMARKS 10.2).
+    e1: [[f32; 4]; 3],
+    e2: [[f32; 4]; 3],
+    o1: [f32; 4],
+    o2: [f32; 4],
+    /// The pre-test's tolerance (see [`PRETEST_SLACK`]).
+    slack: [f32; 4],
 }
 
 impl RayFrame {
-    fn new(o: [f64; 3], d: [f64; 3]) -> Self {
+    fn new(o: [f64; 3], d: [f64; 3], slack: f32) -> Self {
         // Any unit vector perpendicular to d, then d × e1 (Duff et al.'s branchless basis).
         let sign = 1f64.copysign(d[2]);
         let a = -1.0 / (sign + d[2]);
@@ -158,22 +165,25 @@ impl RayFrame {
         let e1 = [1.0 + sign * d[0] * d[0] * a, sign * b, -sign * d[0]];
         let e2 = [b, sign + d[1] * d[1] * a, -d[1]];
         let dot = |u: [f64; 3]| u[0] * o[0] + u[1] * o[1] + u[2] * o[2];
+        let lanes = |x: f64| [x as f32; 4];
         RayFrame {
-            e1: e1.map(|x| x as f32),
-            e2: e2.map(|x| x as f32),
-            o1: dot(e1) as f32,
-            o2: dot(e2) as f32,
+            e1: e1.map(lanes),
+            e2: e2.map(lanes),
+            o1: lanes(dot(e1)),
+            o2: lanes(dot(e2)),
+            slack: [slack; 4],
         }
     }
 }
 
-/// The lanes of a block whose sphere may contribute to the ray (seen through its [`RayFrame`], `slack`
-/// the pre-test's tolerance), as bits: a conservative single-precision version of
-/// [`sphere_contribution`], four lanes in one SSE operation each.
+/// The lanes of a block whose sphere may contribute to the ray (seen through its [`RayFrame`]), as
+/// bits: a conservative single-precision version of [`sphere_contribution`], four lanes in one SSE
+/// operation each.
 #[inline(always)]
-fn block_pretest(b: &Block, f: &RayFrame, slack: f32) -> u32 {
+fn block_pretest(b: &Block, f: &RayFrame) -> u32 {
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: SSE is part of x86_64; `Block` is 64-byte aligned, so each field is 16-byte aligned.
+    // SAFETY: SSE is part of x86_64; `Block` is 64-byte aligned and `RayFrame` 16-byte aligned with
+    // four-lane fields, so each load is 16-byte aligned.
     unsafe {
         use std::arch::x86_64::*;
         let (x, y, z) = (
@@ -181,19 +191,19 @@ fn block_pretest(b: &Block, f: &RayFrame, slack: f32) -> u32 {
             _mm_load_ps(b.y.as_ptr()),
             _mm_load_ps(b.z.as_ptr()),
         );
-        let across = |e: [f32; 3], oe: f32| {
+        let across = |e: &[[f32; 4]; 3], oe: &[f32; 4]| {
             let c = _mm_add_ps(
                 _mm_add_ps(
-                    _mm_mul_ps(x, _mm_set1_ps(e[0])),
-                    _mm_mul_ps(y, _mm_set1_ps(e[1])),
+                    _mm_mul_ps(x, _mm_load_ps(e[0].as_ptr())),
+                    _mm_mul_ps(y, _mm_load_ps(e[1].as_ptr())),
                 ),
-                _mm_mul_ps(z, _mm_set1_ps(e[2])),
+                _mm_mul_ps(z, _mm_load_ps(e[2].as_ptr())),
             );
-            _mm_sub_ps(c, _mm_set1_ps(oe))
+            _mm_sub_ps(c, _mm_load_ps(oe.as_ptr()))
         };
-        let (q1, q2) = (across(f.e1, f.o1), across(f.e2, f.o2));
+        let (q1, q2) = (across(&f.e1, &f.o1), across(&f.e2, &f.o2));
         let qq = _mm_add_ps(_mm_mul_ps(q1, q1), _mm_mul_ps(q2, q2));
-        let rr = _mm_add_ps(_mm_load_ps(b.r.as_ptr()), _mm_set1_ps(slack));
+        let rr = _mm_add_ps(_mm_load_ps(b.r.as_ptr()), _mm_load_ps(f.slack.as_ptr()));
         _mm_movemask_ps(_mm_cmplt_ps(qq, _mm_mul_ps(rr, rr))) as u32
     }
     #[cfg(not(target_arch = "x86_64"))]
@@ -201,9 +211,9 @@ fn block_pretest(b: &Block, f: &RayFrame, slack: f32) -> u32 {
         let mut m = 0u32;
         for l in 0..4 {
             let c = [b.x[l], b.y[l], b.z[l]];
-            let q1 = c[0] * f.e1[0] + c[1] * f.e1[1] + c[2] * f.e1[2] - f.o1;
-            let q2 = c[0] * f.e2[0] + c[1] * f.e2[1] + c[2] * f.e2[2] - f.o2;
-            let rr = b.r[l] + slack;
+            let q1 = c[0] * f.e1[0][0] + c[1] * f.e1[1][0] + c[2] * f.e1[2][0] - f.o1[0];
+            let q2 = c[0] * f.e2[0][0] + c[1] * f.e2[1][0] + c[2] * f.e2[2][0] - f.o2[0];
+            let rr = b.r[l] + f.slack[0];
             m |= ((q1 * q1 + q2 * q2 < rr * rr) as u32) << l;
         }
         m
@@ -223,7 +233,6 @@ pub(crate) struct Cursor {
     /// early so that its blocks are on their way while the current step is tested.
     ahead: Option<(DdaCell, bool)>,
     frame: RayFrame,
-    slack: f32,
 }
 
 /// One size class of a [`ParticleGrid`]: particles of similar inclusion radius in a uniform grid whose cells are at least
@@ -246,6 +255,8 @@ pub struct SubGrid {
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
+    /// The same grid as the DDA walks it (box, reciprocal cell edges), prepared once.
+    walk_frame: GridFrame,
     /// Largest inclusion radius.
     reach_max: f64,
     /// Neighbourhood half-width in cells scanned per traversal step: 0 (sparse) or 1 (dense).
@@ -433,6 +444,7 @@ impl SubGrid {
             start,
             inline,
             slot_particle,
+            walk_frame: GridFrame::new(lo, [cell; 3], dims),
             lo,
             cell,
             dims,
@@ -465,13 +477,6 @@ impl SubGrid {
             + self.start.len() * 4
     }
 
-    fn bounds(&self) -> Bounds3 {
-        Bounds3 {
-            lo: self.lo,
-            hi: [0, 1, 2].map(|a| self.lo[a] + self.dims[a] as f64 * self.cell),
-        }
-    }
-
     /// Does stored particle j contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
     #[inline]
     fn contribution(&self, j: usize, o: [f64; 3], d: [f64; 3]) -> Option<f64> {
@@ -496,10 +501,17 @@ impl SubGrid {
         }
     }
 
-    /// Start a traversal of [t0, t1) of the ray (o, d), |d| = 1.
-    pub(crate) fn cursor(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Cursor {
-        let b = self.bounds();
-        let dda = Dda::new(self.lo, [self.cell; 3], self.dims, o, d, t0, t1);
+    /// Start a traversal of [t0, t1) of the ray (o, d), |d| = 1, `inv_d` its reciprocals.
+    pub(crate) fn cursor(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        inv_d: [f64; 3],
+        t0: f64,
+        t1: f64,
+    ) -> Cursor {
+        let b = &self.walk_frame.bounds;
+        let dda = Dda::new_in(&self.walk_frame, o, d, inv_d, t0, t1);
         let scale = (0..3)
             .map(|a| o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
             .fold(0.0, f64::max);
@@ -511,8 +523,7 @@ impl SubGrid {
             t1,
             first: true,
             ahead: None,
-            frame: RayFrame::new(o, d),
-            slack: (PRETEST_SLACK * scale) as f32,
+            frame: RayFrame::new(o, d, (PRETEST_SLACK * scale) as f32),
         }
     }
 
@@ -612,7 +623,7 @@ impl SubGrid {
         cur: &Cursor,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
-        let mut m = lanes & block_pretest(&slots.0[blk], &cur.frame, cur.slack);
+        let mut m = lanes & block_pretest(&slots.0[blk], &cur.frame);
         while m != 0 {
             let s = 4 * blk + m.trailing_zeros() as usize;
             m &= m - 1;
@@ -701,7 +712,7 @@ impl SubGrid {
         if !(t1 > t0) {
             return;
         }
-        let mut cur = self.cursor(o, d, t0, t1);
+        let mut cur = self.cursor(o, d, inverse(d), t0, t1);
         let mut found = |t, j| visit(j, t);
         while let Some(f) = self.advance(&mut cur, &mut found) {
             if f == f64::INFINITY {
@@ -835,6 +846,35 @@ pub(crate) fn size_class(reach_max: f64, reach: f64) -> usize {
     } else {
         0
     }
+}
+
+/// Size classes merged, largest first, while the merged set is still sparse (its largest inclusion
+/// diameter at most its cell spacing, `SubGrid::build_class`'s k = 0 rule). A sparse grid references
+/// each ball from every cell it overlaps, so it needs no split by size; each class a ray walks costs a
+/// DDA set-up and a merge of its hits in t, several percent of a sparse render per extra class.
+/// The set of particles a ray meets is the same either way.
+fn merge_sparse_classes(
+    members: Vec<Vec<u32>>,
+    reach_of: impl Fn(&u32) -> f64,
+    volume: f64,
+    cells_per_particle: f64,
+) -> Vec<Vec<u32>> {
+    let sparse = |n: usize, reach_max: f64| {
+        let spacing = (volume / (n as f64 * cells_per_particle).clamp(1.0, MAX_CELLS)).cbrt();
+        2.0 * reach_max <= spacing
+    };
+    let mut out: Vec<(Vec<u32>, f64)> = Vec::new();
+    for ids in members.into_iter().filter(|m| !m.is_empty()) {
+        let reach_max = ids.iter().map(&reach_of).fold(0.0, f64::max);
+        match out.last_mut() {
+            // Classes come largest first: the group keeps its first class's largest reach.
+            Some((group, r)) if sparse(group.len() + ids.len(), *r) && sparse(group.len(), *r) => {
+                group.extend(ids)
+            }
+            _ => out.push((ids, reach_max)),
+        }
+    }
+    out.into_iter().map(|(ids, _)| ids).collect()
 }
 
 /// The volume the centres occupy, to size the cells by: their bounding box, less the cells that hold no
@@ -979,8 +1019,10 @@ impl ParticleGrid {
         }
         // Volume the centres occupy, shared by the classes as the density reference.
         let volume = occupied_volume(positions);
+        let reach_of = |i: &u32| query_radius + radius[*i as usize];
+        let members = merge_sparse_classes(members, reach_of, volume, cells_per_particle);
         let mut classes = Vec::new();
-        for ids in members.into_iter().filter(|m| !m.is_empty()) {
+        for ids in members {
             let pos: Vec<[f64; 3]> = ids.iter().map(|&i| positions[i as usize]).collect();
             let rad: Vec<f64> = ids.iter().map(|&i| radius[i as usize]).collect();
             let ce: Vec<f64> = ids
@@ -1083,7 +1125,7 @@ impl ParticleGrid {
         let mut pending: Vec<(f64, u32, u32)> = Vec::new();
         if let [c] = &self.classes[..] {
             // One class: each batch is complete up to its frontier, in t order once sorted.
-            let mut cur = c.cursor(o, d, t0, t1);
+            let mut cur = c.cursor(o, d, inverse(d), t0, t1);
             loop {
                 pending.clear();
                 let frontier = c.advance(&mut cur, &mut |t, j| {
@@ -1101,10 +1143,11 @@ impl ParticleGrid {
                 }
             }
         }
+        let inv_d = inverse(d);
         let mut cursors: Vec<(Cursor, f64)> = self
             .classes
             .iter()
-            .map(|c| (c.cursor(o, d, t0, t1), t0))
+            .map(|c| (c.cursor(o, d, inv_d, t0, t1), t0))
             .collect();
         loop {
             // Advance the class furthest behind.
@@ -1376,9 +1419,15 @@ mod tests {
             (0.05, 0.2),
             (0.2, 5.0),
             (0.0, 0.25),
+            (0.0, 20.0),
         ] {
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, rc, cpp).unwrap();
-            if rc == 0.0 {
+            if rc == 0.0 && cpp == 1.0 {
+                // Every class is sparse at this resolution: one grid (merge_sparse_classes).
+                assert_eq!(g.class_count(), 1);
+            }
+            if cpp == 20.0 {
+                // Fine cells make the largest grains a dense class apart from the sparse rest.
                 assert!(g.class_count() > 1, "the test needs several size classes");
             }
             let cell = g.classes[0].cell;
