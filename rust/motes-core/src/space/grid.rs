@@ -252,6 +252,11 @@ pub struct SubGrid {
     start: Vec<u32>,
     inline: Spheres,
     slot_particle: Vec<u32>,
+    /// Per slot (k = 0): the particle's τ per channel and its original index, so that a hit reads
+    /// them next to the slot instead of through `slot_particle` (two dependent cache misses per hit
+    /// on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
+    slot_tau: Vec<f32>,
+    slot_index: Vec<u32>,
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
@@ -434,8 +439,21 @@ impl SubGrid {
         } else {
             inline_slots(positions, &reach, &order, &particles, lo, cell, dims)
         };
-        let index = order.iter().map(|&i| ids[i as usize]).collect();
+        let index: Vec<u32> = order.iter().map(|&i| ids[i as usize]).collect();
         let prefetch_slots = inline.bytes().max(particles.bytes()) > PREFETCH_SLOTS_ABOVE_BYTES;
+        // What a hit reads, per slot (k = 0; padding slots: τ = 0, index unused).
+        let slot_of = |sp: &u32| (*sp != PADDING_SLOT).then_some(*sp as usize);
+        let mut slot_tau = vec![0f32; slot_particle.len() * channels];
+        for (s, sp) in slot_particle.iter().enumerate() {
+            if let Some(j) = slot_of(sp) {
+                slot_tau[s * channels..(s + 1) * channels]
+                    .copy_from_slice(&tau[j * channels..(j + 1) * channels]);
+            }
+        }
+        let slot_index: Vec<u32> = slot_particle
+            .iter()
+            .map(|sp| slot_of(sp).map_or(u32::MAX, |j| index[j]))
+            .collect();
         SubGrid {
             particles,
             tau,
@@ -444,6 +462,8 @@ impl SubGrid {
             start,
             inline,
             slot_particle,
+            slot_tau,
+            slot_index,
             walk_frame: GridFrame::new(lo, [cell; 3], dims),
             lo,
             cell,
@@ -472,6 +492,8 @@ impl SubGrid {
         self.particles.bytes()
             + self.inline.bytes()
             + self.slot_particle.len() * 4
+            + self.slot_tau.len() * 4
+            + self.slot_index.len() * 4
             + self.tau.len() * 4
             + self.index.len() * 4
             + self.start.len() * 4
@@ -498,6 +520,26 @@ impl SubGrid {
             self.slot_particle[s] as usize
         } else {
             s
+        }
+    }
+
+    /// τ per channel of the particle in slot `s` (what `found` and `traverse` report).
+    #[inline(always)]
+    fn hit_tau(&self, s: usize) -> &[f32] {
+        let tau = if self.k == 0 {
+            &self.slot_tau
+        } else {
+            &self.tau
+        };
+        &tau[s * self.channels..(s + 1) * self.channels]
+    }
+    /// Original index of the particle in slot `s`.
+    #[inline(always)]
+    fn hit_index(&self, s: usize) -> u32 {
+        if self.k == 0 {
+            self.slot_index[s]
+        } else {
+            self.index[s]
         }
     }
 
@@ -529,7 +571,7 @@ impl SubGrid {
 
     /// One batch of a traversal: the rows of cells of the next DDA steps (up to
     /// [`SEGMENTS_PER_BATCH`]), each level of loads prefetched for the whole batch before it is read,
-    /// then every contributing particle of those steps reported as `found(t, stored index)` (unsorted
+    /// then every contributing particle of those steps reported as `found(t, slot)` (unsorted
     /// within the batch). Returns the t before which this class has reported every contribution —
     /// infinity once the ray has left the grid — or None when `found` asked to stop.
     #[inline]
@@ -586,7 +628,7 @@ impl SubGrid {
     }
 
     /// Test the slots `sg.c0..sg.c1` (a step's spheres) against the ray and report each contribution
-    /// whose t lies in the step's range as `found(t, stored index)`; false when `found` asked to stop.
+    /// whose t lies in the step's range as `found(t, slot)`; false when `found` asked to stop.
     #[inline(always)]
     fn test_slots(
         &self,
@@ -611,7 +653,7 @@ impl SubGrid {
     }
 
     /// Test the `lanes` of slot block `blk` against the ray (pre-test, then the exact test) and report
-    /// each contribution in the step's t range as `found(t, stored index)`; false when `found` stops.
+    /// each contribution in the step's t range as `found(t, slot)`; false when `found` stops.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn test_block(
@@ -629,7 +671,13 @@ impl SubGrid {
             m &= m - 1;
             if let Some(t) = sphere_contribution(slots.get(s), cur.o, cur.d) {
                 let in_step = t >= sg.t_enter && t < sg.t_exit && t >= cur.t0 && t < cur.t1;
-                if in_step && !found(t, self.slot_particle(s)) {
+                if in_step && self.k == 0 {
+                    // A hit's τ and index are read when the batch's hits are merged in t order:
+                    // start fetching them now.
+                    prefetch(self.slot_tau.as_ptr().wrapping_add(s * self.channels));
+                    prefetch(self.slot_index.as_ptr().wrapping_add(s));
+                }
+                if in_step && !found(t, s) {
                     return false;
                 }
             }
@@ -699,7 +747,7 @@ impl SubGrid {
         Some(frontier)
     }
 
-    /// Every contributing particle with t in [t0, t1), as `visit(stored index, t)` in no particular
+    /// Every contributing particle with t in [t0, t1), as `visit(slot, t)` in no particular
     /// order; `visit` returns false to stop early.
     pub fn traverse(
         &self,
@@ -790,9 +838,9 @@ impl SubGrid {
     /// module docs).
     pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
-        self.traverse(o, d, t0, t1, |j, _| {
-            for ch in 0..self.channels {
-                out[ch] += self.tau[j * self.channels + ch] as f64;
+        self.traverse(o, d, t0, t1, |s, _| {
+            for (v, &tau) in out.iter_mut().zip(self.hit_tau(s)) {
+                *v += tau as f64;
             }
             true
         });
@@ -1055,6 +1103,10 @@ impl ParticleGrid {
     pub fn with_indices(mut self, ids: &[u32]) -> Self {
         for c in &mut self.classes {
             c.index.iter_mut().for_each(|i| *i = ids[*i as usize]);
+            c.slot_index
+                .iter_mut()
+                .filter(|i| **i != u32::MAX)
+                .for_each(|i| *i = ids[*i as usize]);
         }
         self
     }
@@ -1120,7 +1172,7 @@ impl ParticleGrid {
         let mut emit = |&(t, ci, j): &(f64, u32, u32)| {
             let c = &self.classes[ci as usize];
             let j = j as usize;
-            visit(t, &c.tau[j * c.channels..(j + 1) * c.channels], c.index[j])
+            visit(t, c.hit_tau(j), c.hit_index(j))
         };
         let mut pending: Vec<(f64, u32, u32)> = Vec::new();
         if let [c] = &self.classes[..] {
