@@ -74,3 +74,13 @@ pub fn require_len(
 ) -> Result<(), OpticsError> {
     require(argument, len as f64, len == expected, requirement)
 }
+
+/// An array argument that needs at least `min` entries (e.g. a non-empty list).
+pub fn require_min_len(
+    argument: &'static str,
+    len: usize,
+    min: usize,
+    requirement: &'static str,
+) -> Result<(), OpticsError> {
+    require(argument, len as f64, len >= min, requirement)
+}

@@ -24,6 +24,35 @@ pub(crate) mod test_rng {
             .wrapping_add(1442695040888963407);
         ((*s >> 11) as f64) / (1u64 << 53) as f64
     }
+
+    /// `n` points uniform in the unit cube, the coordinates of each drawn x, y, z in turn from `s`.
+    pub fn random_points(s: &mut u64, n: usize) -> Vec<[f64; 3]> {
+        (0..n).map(|_| [lcg(s), lcg(s), lcg(s)]).collect()
+    }
+
+    /// Runs `trials` free flights, `escapes(u)` each with a fresh uniform `u` from `s` (checking
+    /// what it likes, and returning whether the flight escaped), and checks the escapes with
+    /// [`assert_escape_fraction`].
+    pub fn assert_escape_rate(
+        s: &mut u64,
+        trials: usize,
+        expected: f64,
+        mut escapes: impl FnMut(f64) -> bool,
+    ) {
+        let escaped = (0..trials).filter(|_| escapes(lcg(s))).count();
+        assert_escape_fraction(escaped, trials, expected);
+    }
+
+    /// Asserts that `escaped` escapes in `trials` free flights are within 5 binomial standard
+    /// deviations of the escape probability `expected` (= e^{−τ}).
+    pub fn assert_escape_fraction(escaped: usize, trials: usize, expected: f64) {
+        let p = escaped as f64 / trials as f64;
+        let sd = (expected * (1.0 - expected) / trials as f64).sqrt();
+        assert!(
+            (p - expected).abs() < 5.0 * sd,
+            "escaped {p} vs e^-τ {expected}"
+        );
+    }
 }
 
 pub use ensemble::psd::Psd;

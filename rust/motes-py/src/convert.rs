@@ -1,5 +1,13 @@
 //! Conversions at the boundary: core errors to Python exceptions ([`MotesError`]), numpy array
 //! types, and rays and 3-vectors read from flat arrays (each checked once, here).
+//!
+//! ## Borrow or copy
+//! A numpy array is borrowed (`as_slice`, `as_array`) where Rust reads it with the GIL held, and
+//! copied (`to_vec`) where Rust reads it after releasing the GIL (`py.detach`, for rayon): a
+//! `PyReadonlyArray` stops other Rust code from writing the array, not another Python thread, which
+//! may run as soon as the GIL is released. The copies are O(n) next to work that is O(n) or more
+//! (a grid build, a batch of free flights), and they are the price of running that work on every core
+//! while Python threads go on.
 
 use motes_core::OpticsError;
 use numpy::{PyArray1, PyReadonlyArray1};

@@ -41,18 +41,18 @@ impl PyDiscreteMedium {
         let pos = points(&positions)?;
         let lam = lambda.as_slice()?.to_vec();
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
-        // Borrowed, not copied: the build reads them once; `bin` and `lambda` move into the medium.
+        // Copied: the build reads them with the GIL released (see `convert`'s module docs).
         let (r, c, b) = (
-            radius.as_slice()?,
-            c_ext.as_slice()?,
+            radius.as_slice()?.to_vec(),
+            c_ext.as_slice()?.to_vec(),
             bin.as_slice()?.to_vec(),
         );
         let medium = py
             .detach(|| {
                 motes_core::render::discrete::DiscreteMedium::build(
                     &pos,
-                    r,
-                    c,
+                    &r,
+                    &c,
                     b,
                     bins,
                     lam,

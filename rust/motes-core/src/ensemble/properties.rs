@@ -21,7 +21,7 @@
 
 use crate::cancel;
 use crate::ensemble::psd::{Psd, RippleResolution};
-use crate::error::{require, OpticsError};
+use crate::error::{require, require_len, require_min_len, OpticsError};
 use crate::optics::goa::GoaOptions;
 use crate::optics::mie::{series_length, MieCoefficients, MieIntensitySums};
 use crate::optics::{self, Method, Particle, Theory};
@@ -445,10 +445,10 @@ pub fn bulk_spectral(
     truncate_below_rad: f64,
     opts: &BulkOptions,
 ) -> Result<SpectralBulk, OpticsError> {
-    require(
+    require_len(
         "species (wavelengths)",
-        species.len() as f64,
-        species.len() == wavelength_um.len(),
+        species.len(),
+        wavelength_um.len(),
         "one list per wavelength",
     )?;
     for &l in wavelength_um {
@@ -575,12 +575,7 @@ fn check_ensemble(
         number_density_m3.is_finite() && number_density_m3 >= 0.0,
         "finite and >= 0",
     )?;
-    require(
-        "species (count)",
-        species.len() as f64,
-        !species.is_empty(),
-        ">= 1",
-    )?;
+    require_min_len("species (count)", species.len(), 1, ">= 1")?;
     require(
         "mie_dx",
         opts.mie_dx,
@@ -836,14 +831,19 @@ mod tests {
         }
     }
 
+    /// A species of one radius `radius_um` with index `eta`, in the given share.
+    fn monodisperse(radius_um: f64, eta: C64, share: f64) -> Species {
+        Species {
+            psd: Psd::Monodisperse { radius_um },
+            eta,
+            share,
+        }
+    }
+
     /// The monodisperse limit equals the single-particle values exactly: σ_t = N0 C_t.
     #[test]
     fn monodisperse_limit() {
-        let s = Species {
-            psd: Psd::Monodisperse { radius_um: 10.0 },
-            eta: C64::new(1.33, 1e-3),
-            share: 1.0,
-        };
+        let s = monodisperse(10.0, C64::new(1.33, 1e-3), 1.0);
         let theta = graded_angles(105.0, 200, 600);
         let b = bulk(&[s], 1e6, 0.6, 1.0, &theta, &opts(Method::Mie)).unwrap();
         let p = Particle::new(10.0, 0.6, C64::new(1.33, 1e-3), 1.0).unwrap();
@@ -859,11 +859,7 @@ mod tests {
     /// phase function, and is the identity at θc = 0.
     #[test]
     fn truncation_conserves() {
-        let s = Species {
-            psd: Psd::Monodisperse { radius_um: 100.0 },
-            eta: C64::new(1.31, 1e-6),
-            share: 1.0,
-        };
+        let s = monodisperse(100.0, C64::new(1.31, 1e-6), 1.0);
         let theta = graded_angles(1100.0, 400, 1400);
         let b = bulk(&[s], 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
         let (same, f0) = truncate_forward_peak(&b, &theta, 0.0).unwrap();
@@ -885,7 +881,7 @@ mod tests {
     /// Bulk properties are bitwise reproducible run to run (no scheduling-dependent reductions).
     #[test]
     fn bitwise_reproducible() {
-        let s = Species {
+        let s = [Species {
             psd: Psd::LogNormal {
                 median_um: 800.0,
                 sigma_g: 4.0,
@@ -894,27 +890,12 @@ mod tests {
             },
             eta: C64::new(1.31, 1e-8),
             share: 1.0,
-        };
+        }];
         let theta = graded_angles(2e4, 100, 300);
-        let first = bulk(
-            std::slice::from_ref(&s),
-            1e4,
-            0.55,
-            1.0,
-            &theta,
-            &opts(Method::Auto),
-        )
-        .unwrap();
+        let run = || bulk(&s, 1e4, 0.55, 1.0, &theta, &opts(Method::Auto)).unwrap();
+        let first = run();
         for _ in 0..5 {
-            let again = bulk(
-                std::slice::from_ref(&s),
-                1e4,
-                0.55,
-                1.0,
-                &theta,
-                &opts(Method::Auto),
-            )
-            .unwrap();
+            let again = run();
             assert_eq!(
                 (again.sigma_t, again.sigma_a, again.g),
                 (first.sigma_t, first.sigma_a, first.g)
@@ -926,16 +907,8 @@ mod tests {
     /// Species shares mix linearly: two species at shares c and 1 − c give the share-weighted σ's.
     #[test]
     fn species_mix_linearly() {
-        let a = Species {
-            psd: Psd::Monodisperse { radius_um: 5.0 },
-            eta: C64::new(1.33, 0.0),
-            share: 3.0,
-        };
-        let b = Species {
-            psd: Psd::Monodisperse { radius_um: 50.0 },
-            eta: C64::new(1.5, 0.01),
-            share: 1.0,
-        };
+        let a = monodisperse(5.0, C64::new(1.33, 0.0), 3.0);
+        let b = monodisperse(50.0, C64::new(1.5, 0.01), 1.0);
         let o = opts(Method::Auto);
         let both = bulk(&[a.clone(), b.clone()], 4e6, 0.55, 1.0, &[], &o).unwrap();
         let only_a = bulk(&[a], 3e6, 0.55, 1.0, &[], &o).unwrap();

@@ -8,7 +8,7 @@
 //! `{"type": "lognormal", "median_um": 800, "sigma_g": 4, "r_max_um": 2000}`.
 
 use crate::ensemble::quadrature::gauss_legendre;
-use crate::error::{require, OpticsError};
+use crate::error::{require, require_len, require_min_len, OpticsError};
 use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
@@ -92,10 +92,10 @@ impl Psd {
             }
             Psd::Histogram { edges_um, counts } => validate_histogram(edges_um, counts),
             Psd::Radii { radii_um } => {
-                require(
+                require_min_len(
                     "radii_um (length)",
-                    radii_um.len() as f64,
-                    radii_um.len() >= 2,
+                    radii_um.len(),
+                    2,
                     ">= 2 (an empty list has no particles; for one radius use Monodisperse)",
                 )?;
                 radii_um.iter().try_for_each(|&r| positive("radii_um", r))
@@ -250,18 +250,7 @@ impl Psd {
             Psd::Radii { radii_um } => {
                 radii_um.iter().filter(|&&x| x <= r).count() as f64 / radii_um.len() as f64
             }
-            Psd::Mixture {
-                weights,
-                components,
-            } => {
-                let total: f64 = weights.iter().sum();
-                components
-                    .iter()
-                    .zip(weights)
-                    .map(|(c, w)| w * c.cdf(r))
-                    .sum::<f64>()
-                    / total
-            }
+            Psd::Mixture { .. } => self.mixture_mean(|c| c.cdf(r)),
         }
     }
 
@@ -293,19 +282,27 @@ impl Psd {
                     .min(counts.len() - 1);
                 counts[i] / (total * (edges_um[i + 1] - edges_um[i]))
             }
-            Psd::Mixture {
-                weights,
-                components,
-            } => {
-                let total: f64 = weights.iter().sum();
-                components
-                    .iter()
-                    .zip(weights)
-                    .map(|(c, w)| w * c.pdf(r))
-                    .sum::<f64>()
-                    / total
-            }
+            Psd::Mixture { .. } => self.mixture_mean(|c| c.pdf(r)),
         }
+    }
+
+    /// Σ w_i f(c_i) / Σ w_i over a mixture's components c_i and weights w_i: the mixture's value of
+    /// a quantity linear in the distribution (its CDF, its density).
+    fn mixture_mean(&self, f: impl Fn(&Psd) -> f64) -> f64 {
+        let Psd::Mixture {
+            weights,
+            components,
+        } = self
+        else {
+            unreachable!("mixture_mean of a mixture only")
+        };
+        let total: f64 = weights.iter().sum();
+        components
+            .iter()
+            .zip(weights)
+            .map(|(c, w)| w * f(c))
+            .sum::<f64>()
+            / total
     }
 
     /// Point masses (radius, probability): monodisperse components and σ_g = 1 log-normals.
@@ -685,16 +682,11 @@ fn positive(name: &'static str, v: f64) -> Result<(), OpticsError> {
 }
 
 fn validate_histogram(edges_um: &[f64], counts: &[f64]) -> Result<(), OpticsError> {
-    require(
-        "edges_um (length)",
-        edges_um.len() as f64,
-        edges_um.len() >= 2,
-        ">= 2",
-    )?;
-    require(
+    require_min_len("edges_um (length)", edges_um.len(), 2, ">= 2")?;
+    require_len(
         "counts (length)",
-        counts.len() as f64,
-        counts.len() + 1 == edges_um.len(),
+        counts.len(),
+        edges_um.len() - 1,
         "len(edges_um) - 1",
     )?;
     for &e in edges_um {
@@ -703,40 +695,37 @@ fn validate_histogram(edges_um: &[f64], counts: &[f64]) -> Result<(), OpticsErro
     for w in edges_um.windows(2) {
         require("edges_um", w[1], w[1] > w[0], "strictly increasing")?;
     }
-    for &c in counts {
-        require("counts", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
-    }
-    require(
-        "counts (sum)",
-        counts.iter().sum(),
-        counts.iter().sum::<f64>() > 0.0,
-        "> 0",
-    )
+    require_shares("counts", "counts (sum)", counts)
 }
 
 fn validate_mixture(weights: &[f64], components: &[Psd]) -> Result<(), OpticsError> {
-    require(
-        "components (length)",
-        components.len() as f64,
-        !components.is_empty(),
-        ">= 1",
-    )?;
-    require(
+    require_min_len("components (length)", components.len(), 1, ">= 1")?;
+    require_len(
         "weights (length)",
-        weights.len() as f64,
-        weights.len() == components.len(),
+        weights.len(),
+        components.len(),
         "len(components)",
     )?;
-    for &w in weights {
-        require("weights", w, w.is_finite() && w >= 0.0, "finite and >= 0")?;
+    require_shares("weights", "weights (sum)", weights)?;
+    components.iter().try_for_each(Psd::validate)
+}
+
+/// Relative amounts (histogram counts, mixture weights): each finite and >= 0, else an error naming
+/// `each`, and some > 0 (a sum > 0), else one naming `sum`.
+fn require_shares(
+    each: &'static str,
+    sum: &'static str,
+    values: &[f64],
+) -> Result<(), OpticsError> {
+    for &v in values {
+        require(each, v, v.is_finite() && v >= 0.0, "finite and >= 0")?;
     }
     require(
-        "weights (sum)",
-        weights.iter().sum(),
-        weights.iter().sum::<f64>() > 0.0,
+        sum,
+        values.iter().sum(),
+        values.iter().sum::<f64>() > 0.0,
         "> 0",
-    )?;
-    components.iter().try_for_each(Psd::validate)
+    )
 }
 
 /// Where a radius quadrature must resolve Mie's ripple in the size parameter x = k r: panels that end in

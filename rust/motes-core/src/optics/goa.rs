@@ -430,13 +430,7 @@ impl PreparedRay {
         }
         let (sin_i, cos_i) = g.theta_i.sin_cos();
         let pf = p as f64;
-        let sgn = if d > 0.0 {
-            1.0
-        } else if d < 0.0 {
-            -1.0
-        } else {
-            0.0
-        };
+        let sgn = sign(d);
         Some(PreparedRay {
             eps: g.eps,
             sin2i: 2.0 * sin_i * cos_i,
@@ -689,6 +683,17 @@ pub fn ray_optics_weight(alpha: f64, m: C64) -> f64 {
     rho * rho / (rho * rho + 25.0)
 }
 
+/// The sign s of dθ/dθi in Eq. 10: 1, −1, or 0 where it vanishes (or is NaN), unlike `f64::signum`.
+fn sign(d: f64) -> f64 {
+    if d > 0.0 {
+        1.0
+    } else if d < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
 /// Normal-incidence amplitude of order p (θi → 0), the axial limit used by Eq. 12.
 fn axial_term(m: C64, p: u32, alpha: f64, regularise: bool) -> C64 {
     let g = ray_geometry(m, p, 0.0);
@@ -702,13 +707,7 @@ fn axial_term(m: C64, p: u32, alpha: f64, regularise: bool) -> C64 {
         return C64::new(0.0, 0.0);
     }
     let pf = p as f64;
-    let sgn = if d > 0.0 {
-        1.0
-    } else if d < 0.0 {
-        -1.0
-    } else {
-        0.0
-    };
+    let sgn = sign(d);
     // θ_p(0) = −(p−1)π = 2πl with q = s: φ_f = π/2 (2p − s) (Eq. 10).
     let phi_f = FRAC_PI_2 * (2.0 * pf - sgn);
     let phi_p = 2.0 * alpha * (1.0 - pf * g.eta_eff * g.cos_t);

@@ -388,16 +388,14 @@ fn phase_normaliser(
 /// `(C_ext, C_abs)` in µm² without the asymmetry parameter — cheap for GOA (Eq. 12 and the
 /// geometric absorption integral, no angular quadrature).
 pub fn extinction_and_absorption(p: &Particle, theory: Theory, opts: &GoaOptions) -> (f64, f64) {
-    let area = PI * p.radius_um * p.radius_um;
-    let m = p.relative_index();
-    let alpha = p.size_parameter();
     match theory {
         Theory::Mie => {
-            let c = MieCoefficients::new(alpha, m);
-            let (qe, qs) = (c.q_ext(), c.q_sca());
-            (qe * area, (qe - qs).max(0.0) * area)
+            let (_, [ext, _, abs]) = mie_cross_sections(p);
+            (ext, abs)
         }
         Theory::Goa => {
+            let area = PI * p.radius_um * p.radius_um;
+            let (m, alpha) = (p.relative_index(), p.size_parameter());
             let qa = goa::absorption_efficiency(alpha, m);
             // Outside GOA's validity (α ≲ 1) Eq. 12 can dip below the absorption: clamp so that
             // C_ext ≥ C_abs and C_sca ≥ 0 always hold.
@@ -414,6 +412,15 @@ pub fn extinction_and_absorption(p: &Particle, theory: Theory, opts: &GoaOptions
     }
 }
 
+/// Mie's series of one particle (App. A) and its `[C_ext, C_sca, C_abs]` in µm², with
+/// C_abs = C_ext − C_sca clamped at 0 against rounding.
+fn mie_cross_sections(p: &Particle) -> (MieCoefficients, [f64; 3]) {
+    let area = PI * p.radius_um * p.radius_um;
+    let c = MieCoefficients::new(p.size_parameter(), p.relative_index());
+    let (qe, qs) = (c.q_ext(), c.q_sca());
+    (c, [qe * area, qs * area, (qe - qs).max(0.0) * area])
+}
+
 /// Cross sections of one particle with the given theory. For GOA the geometry (size independent)
 /// is passed in so that callers can share it across radii.
 pub fn cross_sections_with(
@@ -422,17 +429,13 @@ pub fn cross_sections_with(
     geo: Option<&GoaGeometry>,
     opts: &GoaOptions,
 ) -> CrossSections {
-    let area = PI * p.radius_um * p.radius_um;
-    let m = p.relative_index();
-    let alpha = p.size_parameter();
     match theory {
         Theory::Mie => {
-            let c = MieCoefficients::new(alpha, m);
-            let (qe, qs) = (c.q_ext(), c.q_sca());
+            let (c, [ext, sca, abs]) = mie_cross_sections(p);
             CrossSections {
-                ext: qe * area,
-                sca: qs * area,
-                abs: ((qe - qs).max(0.0)) * area,
+                ext,
+                sca,
+                abs,
                 g: c.g(),
             }
         }
@@ -441,12 +444,12 @@ pub fn cross_sections_with(
             let geo = match geo {
                 Some(g) => g,
                 None => {
-                    owned = GoaGeometry::new(m, opts.p_max);
+                    owned = GoaGeometry::new(p.relative_index(), opts.p_max);
                     &owned
                 }
             };
             let (ext, abs) = extinction_and_absorption(p, theory, opts);
-            let (norm, first) = goa_angular_integrals(geo, alpha, opts);
+            let (norm, first) = goa_angular_integrals(geo, p.size_parameter(), opts);
             let g = if norm > 0.0 {
                 (first / norm).clamp(-1.0, 1.0)
             } else {

@@ -260,7 +260,7 @@ impl ContinuousField {
 mod tests {
     use super::*;
 
-    use crate::test_rng::lcg;
+    use crate::test_rng::{assert_escape_rate, lcg, random_points};
 
     /// The field's optical depth along long rays through a uniform random cloud equals σ_t L (the
     /// particles' summed extinction over the volume), free flights escape with probability e^{−τ},
@@ -269,9 +269,7 @@ mod tests {
     fn field_is_the_mean_of_the_particles() {
         let mut s = 5u64;
         let n = 200_000;
-        let pos: Vec<[f64; 3]> = (0..n)
-            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
-            .collect();
+        let pos = random_points(&mut s, n);
         let reach = vec![0.01; n];
         let w: Vec<f64> = (0..n).map(|_| 1e-5 * (0.5 + lcg(&mut s))).collect();
         let ids: Vec<u32> = (0..n as u32).collect();
@@ -286,29 +284,16 @@ mod tests {
             mean += f.optical_depth(o, d, 0.0, 3.0) / 200.0;
         }
         assert!((mean / sigma - 1.0).abs() < 0.02, "{mean} vs {sigma}");
-        let trials = 20_000;
-        let mut escaped = 0;
-        for _ in 0..trials {
-            let u: f64 = lcg(&mut s);
+        assert_escape_rate(&mut s, 20_000, (-tau).exp(), |u| {
             let (hit, walked) = f.free_flight(o, d, 0.0, 3.0, -(1.0 - u).ln());
-            match hit {
-                None => {
-                    escaped += 1;
-                    assert!((walked - tau).abs() < 1e-9);
-                }
-                Some(h) => {
-                    assert!(h.t >= 0.95 && h.t <= 2.05, "{}", h.t); // the box, to a cell (~0.034)
-                    assert!((f.optical_depth(o, d, 0.0, h.t) - walked).abs() < 1e-6 * tau.max(1.0));
-                }
+            if let Some(h) = hit {
+                assert!(h.t >= 0.95 && h.t <= 2.05, "{}", h.t); // the box, to a cell (~0.034)
+                assert!((f.optical_depth(o, d, 0.0, h.t) - walked).abs() < 1e-6 * tau.max(1.0));
+            } else {
+                assert!((walked - tau).abs() < 1e-9);
             }
-        }
-        let p = escaped as f64 / trials as f64;
-        let sd = ((-tau).exp() * (1.0 - (-tau).exp()) / trials as f64).sqrt();
-        assert!(
-            (p - (-tau).exp()).abs() < 5.0 * sd,
-            "{p} vs {}",
-            (-tau).exp()
-        );
+            hit.is_none()
+        });
         let c = f.cell_at([0.5, 0.5, 0.5]).unwrap();
         let m = f.members(c).to_vec();
         assert!(!m.is_empty());
@@ -329,11 +314,8 @@ mod tests {
     /// Sparse grains stay discrete, dense small-τ ones become continuous; an infinite threshold keeps all.
     #[test]
     fn resolvable_classes() {
-        let mut s = 9u64;
         let n = 20_000;
-        let pos: Vec<[f64; 3]> = (0..n)
-            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
-            .collect();
+        let pos = random_points(&mut 9, n);
         // Half the particles with R = 0.05 (many per cylinder: 1e4 π 0.05² ≈ 79), half with R = 0.002 (0.13).
         let reach: Vec<f64> = (0..n)
             .map(|i| if i % 2 == 0 { 0.05 } else { 0.002 })

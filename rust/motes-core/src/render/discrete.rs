@@ -153,6 +153,16 @@ fn ray_bits(o: &[f32; 3], d: &[f32; 3]) -> u64 {
     })
 }
 
+/// Lane `i`'s wavelengths in `lambda`: all of it when its `channels` wavelengths are shared by
+/// every lane, else the lane's own `channels` of them.
+fn lane_wavelengths(lambda: &[f64], channels: usize, i: usize) -> &[f64] {
+    if lambda.len() == channels {
+        lambda
+    } else {
+        &lambda[i * channels..(i + 1) * channels]
+    }
+}
+
 /// Uniform channel choice.
 fn uniform_channels(channels: usize) -> Vec<f64> {
     vec![1.0 / channels as f64; channels]
@@ -227,6 +237,16 @@ fn frame(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
         [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]],
         [b, sign + n[1] * n[1] * a, -n[1]],
     )
+}
+
+/// A mixture of particles as a phase function sees it (module docs): particle j of `members` weighs
+/// `scale(j)` × its albedo in each channel; `ls` are the channels' wavelength brackets (from
+/// `DiscreteMedium::bracket`) and `pi` the probabilities of sampling each channel.
+struct Mixture<'a, S> {
+    members: &'a [u32],
+    scale: S,
+    ls: &'a [(usize, usize, f64)],
+    pi: &'a [f64],
 }
 
 /// A sampled direction, its weights per channel (value / pdf) and pdf.
@@ -804,22 +824,17 @@ impl DiscreteMedium {
             pending.len() == n && active.len() == n,
             "the same lane count",
         )?;
-        let shared = lambda.len() == channels;
         require(
             "lambda (length)",
             lambda.len() as f64,
-            shared || lambda.len() == n * channels,
+            lambda.len() == channels || lambda.len() == n * channels,
             "channels or lanes × channels",
         )?;
         let albedo: Vec<f64> = (0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
                 let site = if active[i] { pending[i].0 } else { None };
-                let lam = if shared {
-                    &lambda[..]
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 (0..channels)
                     .map(move |c| site.map_or(0.0, |s| self.site_albedo(&s, self.bracket(lam[c]))))
             })
@@ -883,46 +898,39 @@ impl DiscreteMedium {
     }
 
     /// Phase function of a mixture of particles per channel at μ = cos θ, and the pdf Σ_c π_c f_c of
-    /// sampling it (module docs): particle j weighs `scale(j)` × its albedo in each channel.
-    fn mixture_phase(
-        &self,
-        members: &[u32],
-        scale: &impl Fn(u32) -> f64,
-        ls: &[(usize, usize, f64)],
-        pi: &[f64],
-        mu: f64,
-        values: &mut [f64],
-    ) -> f64 {
+    /// sampling it (module docs; see [`Mixture`]).
+    fn mixture_phase(&self, m: &Mixture<impl Fn(u32) -> f64>, mu: f64, values: &mut [f64]) -> f64 {
         let mut pdf = 0.0;
-        for (c, &l) in ls.iter().enumerate() {
+        for (c, &l) in m.ls.iter().enumerate() {
             let (mut num, mut den) = (0.0, 0.0);
-            for &j in members {
-                let w = scale(j) * self.albedo_at(j, l);
+            for &j in m.members {
+                let w = (m.scale)(j) * self.albedo_at(j, l);
                 num += w * self.phase_at(j, l, mu);
                 den += w;
             }
             values[c] = if den > 0.0 { num / den } else { 0.0 };
-            pdf += pi[c] * values[c];
+            pdf += m.pi[c] * values[c];
         }
         pdf
     }
 
     /// Sample a mixture (see [`Self::mixture_phase`]) around the propagation direction `w_in`: a channel
     /// with probability π_c, then a particle by its weight in that channel, then its table (lower/upper
-    /// wavelength), each by rescaling `u1`; `u2` draws the direction. Returns (wo, pdf) and the channel
-    /// values in `values`.
-    #[allow(clippy::too_many_arguments)]
+    /// wavelength), each by rescaling `u1`; `u2` draws the direction. Returns (wo, weight per
+    /// channel = value / pdf, pdf), or the null sample.
     fn mixture_sample(
         &self,
-        members: &[u32],
-        scale: &impl Fn(u32) -> f64,
-        ls: &[(usize, usize, f64)],
-        pi: &[f64],
+        m: &Mixture<impl Fn(u32) -> f64>,
         w_in: [f64; 3],
         u1: f64,
         u2: [f64; 2],
-        values: &mut [f64],
-    ) -> Option<([f64; 3], f64)> {
+    ) -> Sample {
+        let Mixture {
+            members,
+            scale,
+            ls,
+            pi,
+        } = m;
         let mut u = u1.clamp(0.0, 1.0 - f64::EPSILON);
         let mut c = ls.len() - 1;
         let mut acc = 0.0;
@@ -941,7 +949,7 @@ impl DiscreteMedium {
             .collect();
         let total: f64 = weights.iter().sum();
         if !(total > 0.0) {
-            return None;
+            return null_sample(ls.len());
         }
         let mut pick = members.len() - 1;
         let mut acc = 0.0;
@@ -960,7 +968,14 @@ impl DiscreteMedium {
         let st = (1.0 - mu * mu).max(0.0).sqrt();
         let (e1, e2) = frame(w_in);
         let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
-        Some((wo, self.mixture_phase(members, scale, ls, pi, mu, values)))
+        let mut v = vec![0.0; ls.len()];
+        let pdf = self.mixture_phase(m, mu, &mut v);
+        if pdf > 0.0 {
+            v.iter_mut().for_each(|x| *x /= pdf);
+            (wo, v, pdf)
+        } else {
+            null_sample(ls.len())
+        }
     }
 
     /// Local scattering at points (paper Eq. 24 with the per-particle normalisation of the grid): the
@@ -974,16 +989,11 @@ impl DiscreteMedium {
         lambda: &[f64],
         channels: usize,
     ) -> (Vec<f64>, Vec<f64>) {
-        let shared = lambda.len() == channels;
         let res: Vec<(Vec<f64>, Vec<f64>)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
                 let members = self.local_members(p[i]);
-                let lam = if shared {
-                    &lambda[..]
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
                 let scale = |j: u32| self.local_weight(j);
                 let sigma: Vec<f64> = ls
@@ -996,14 +1006,13 @@ impl DiscreteMedium {
                     })
                     .collect();
                 let mut f = vec![0.0; channels];
-                self.mixture_phase(
-                    &members,
-                    &scale,
-                    &ls,
-                    &uniform_channels(channels),
-                    mu[i].clamp(-1.0, 1.0),
-                    &mut f,
-                );
+                let mixture = Mixture {
+                    members: &members,
+                    scale,
+                    ls: &ls,
+                    pi: &uniform_channels(channels),
+                };
+                self.mixture_phase(&mixture, mu[i].clamp(-1.0, 1.0), &mut f);
                 let q = f.iter().zip(&sigma).map(|(a, b)| a * b).collect();
                 (sigma, q)
             })
@@ -1051,7 +1060,6 @@ impl DiscreteMedium {
         u1: &[f64],
         u2: &[[f64; 2]],
     ) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
-        let shared = lambda.len() == channels;
         let res: Vec<Sample> = (0..p.len())
             .into_par_iter()
             .map(|i| {
@@ -1059,46 +1067,18 @@ impl DiscreteMedium {
                 let Some(dir) = normalise(w_in[i]) else {
                     return null_sample(channels);
                 };
-                let lam = if shared {
-                    &lambda[..]
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                self.weighted_sample(
-                    &members,
-                    &|j| self.local_weight(j),
-                    &ls,
-                    &uniform_channels(channels),
-                    dir,
-                    u1[i],
-                    u2[i],
-                )
+                let mixture = Mixture {
+                    members: &members,
+                    scale: |j| self.local_weight(j),
+                    ls: &ls,
+                    pi: &uniform_channels(channels),
+                };
+                self.mixture_sample(&mixture, dir, u1[i], u2[i])
             })
             .collect();
         unzip_samples(res)
-    }
-
-    /// One mixture sample as (wo, weight per channel = value / pdf, pdf), or the null sample.
-    #[allow(clippy::too_many_arguments)]
-    fn weighted_sample(
-        &self,
-        members: &[u32],
-        scale: &impl Fn(u32) -> f64,
-        ls: &[(usize, usize, f64)],
-        pi: &[f64],
-        w_in: [f64; 3],
-        u1: f64,
-        u2: [f64; 2],
-    ) -> Sample {
-        let mut v = vec![0.0; ls.len()];
-        match self.mixture_sample(members, scale, ls, pi, w_in, u1, u2, &mut v) {
-            Some((wo, pdf)) if pdf > 0.0 => {
-                v.iter_mut().for_each(|x| *x /= pdf);
-                (wo, v, pdf)
-            }
-            _ => null_sample(ls.len()),
-        }
     }
 
     /// Evaluate the phase function of the event at `p` for incident direction `wi` (pointing back along
@@ -1112,16 +1092,11 @@ impl DiscreteMedium {
         lambda: &[f64],
         channels: usize,
     ) -> (Vec<f64>, Vec<f64>) {
-        let shared = lambda.len() == channels;
         let events = self.events.read().unwrap();
         let res: Vec<(Vec<f64>, f64)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let lam = if shared {
-                    &lambda[..]
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 let mut v = vec![0.0; channels];
                 let pdf = self.lane_phase_eval(&events, p[i], wi[i], wo[i], lam, &mut v);
                 (v, pdf)
@@ -1152,14 +1127,8 @@ impl DiscreteMedium {
         let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
         let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
         let pi = event_channels(&e, lam.len());
-        self.mixture_phase(
-            e.site.members(),
-            &|j| self.tau[j as usize] as f64,
-            &ls,
-            &pi,
-            mu,
-            v,
-        )
+        let mixture = self.event_mixture(&e, &ls, &pi);
+        self.mixture_phase(&mixture, mu, v)
     }
 
     /// Sample the phase function of the event at `p` (module docs): outgoing directions, weights
@@ -1173,16 +1142,11 @@ impl DiscreteMedium {
         u1: &[f64],
         u2: &[[f64; 2]],
     ) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
-        let shared = lambda.len() == channels;
         let events = self.events.read().unwrap();
         let res: Vec<(Sample, Option<[f32; MAX_CHANNELS]>)> = (0..p.len())
             .into_par_iter()
             .map(|i| {
-                let lam = if shared {
-                    &lambda[..]
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 self.lane_phase_sample(&events, p[i], wi[i], lam, u1[i], u2[i])
             })
             .collect();
@@ -1217,15 +1181,7 @@ impl DiscreteMedium {
         };
         let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
         let pi = event_channels(&e, channels);
-        let sample = self.weighted_sample(
-            e.site.members(),
-            &|j| self.tau[j as usize] as f64,
-            &ls,
-            &pi,
-            w_in,
-            u1,
-            u2,
-        );
+        let sample = self.mixture_sample(&self.event_mixture(&e, &ls, &pi), w_in, u1, u2);
         // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
         let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0).then(|| {
@@ -1234,6 +1190,22 @@ impl DiscreteMedium {
             )
         });
         (sample, t_out)
+    }
+
+    /// The mixture of an event's particles, each weighing its τ (module docs), at the channels'
+    /// wavelength brackets `ls`, sampled with channel probabilities `pi`.
+    fn event_mixture<'a>(
+        &'a self,
+        e: &'a Event,
+        ls: &'a [(usize, usize, f64)],
+        pi: &'a [f64],
+    ) -> Mixture<'a, impl Fn(u32) -> f64 + 'a> {
+        Mixture {
+            members: e.site.members(),
+            scale: |j| self.tau[j as usize] as f64,
+            ls,
+            pi,
+        }
     }
 
     /// The remembered event at `p`, or else the site found from the geometry (uniform channels).
@@ -1401,7 +1373,6 @@ impl DiscreteMedium {
         channels: usize,
         albedo: &mut [f64],
     ) {
-        let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
                 let a = &mut albedo[i * channels..(i + 1) * channels];
@@ -1409,11 +1380,7 @@ impl DiscreteMedium {
                 let (Some(pos), Some(site)) = (*pos, st.pending[i].site) else {
                     continue;
                 };
-                let lam = if shared {
-                    lambda
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 for (c, &l) in lam.iter().enumerate() {
                     a[c] = self.site_albedo(&site, self.bracket(l));
                 }
@@ -1433,18 +1400,13 @@ impl DiscreteMedium {
         wo: &mut [[f64; 3]],
         pdf: &mut [f64],
     ) {
-        let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
                 let Some((p, wi, u1, u2)) = *lane else {
                     continue;
                 };
-                let lam = if shared {
-                    lambda
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 let (sample, t_out) = self.lane_phase_sample(&st.events, p, wi, lam, u1, u2);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
                 if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(p))) {
@@ -1464,7 +1426,6 @@ impl DiscreteMedium {
         values: &mut [f64],
         pdf: &mut [f64],
     ) {
-        let shared = lambda.len() == channels;
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 let v = &mut values[i * channels..(i + 1) * channels];
@@ -1473,11 +1434,7 @@ impl DiscreteMedium {
                     v.iter_mut().for_each(|x| *x = 0.0);
                     continue;
                 };
-                let lam = if shared {
-                    lambda
-                } else {
-                    &lambda[i * channels..(i + 1) * channels]
-                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 pdf[i] = self.lane_phase_eval(&st.events, p, wi, w, lam, v);
             }
         })
@@ -1607,95 +1564,93 @@ mod tests {
         .unwrap()
     }
 
+    /// Runs `check(medium, continuous_count)` on the test medium of 4000 particles kept discrete
+    /// (an infinite `continuous_count`) and as a continuous field (1).
+    fn discrete_and_continuous(check: impl Fn(&DiscreteMedium, f64)) {
+        for continuous_count in [f64::INFINITY, 1.0] {
+            check(&medium_with(4000, continuous_count), continuous_count);
+        }
+    }
+
     /// Sites are sampled with the exact escape probability exp(−τ) (binomial 5σ bound), and the
     /// walked optical depth before a site never exceeds the segment's; the same with the particles
     /// as a continuous field.
     #[test]
     fn site_escape_probability() {
-        site_escape_probability_with(f64::INFINITY);
-        site_escape_probability_with(1.0);
-    }
-
-    fn site_escape_probability_with(continuous_count: f64) {
-        let m = medium_with(4000, continuous_count);
-        assert_eq!(m.continuous_len() > 0, continuous_count.is_finite());
-        let lanes = 40000;
-        let o = vec![[0.5f32, 0.5, -0.2]; lanes];
-        let d = vec![[0.0f32, 0.0, 1.0]; lanes];
-        let tm = vec![1.4; lanes];
-        let tau = [m.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4)];
-        let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
-        let escaped = res.iter().filter(|r| r.t.is_none()).count() as f64 / lanes as f64;
-        let p = (-tau[0]).exp();
-        assert!(tau[0] > 0.2, "{}", tau[0]);
-        assert!(
-            (escaped - p).abs() < 5.0 * (p * (1.0 - p) / lanes as f64).sqrt(),
-            "{escaped} vs {p}"
-        );
-        for r in &res {
-            assert!(r.tau_before <= tau[0] + 1e-6);
-        }
+        discrete_and_continuous(|m, continuous_count| {
+            assert_eq!(m.continuous_len() > 0, continuous_count.is_finite());
+            let lanes = 40000;
+            let o = vec![[0.5f32, 0.5, -0.2]; lanes];
+            let d = vec![[0.0f32, 0.0, 1.0]; lanes];
+            let tm = vec![1.4; lanes];
+            let tau = [m.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4)];
+            let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
+            let escaped = res.iter().filter(|r| r.t.is_none()).count();
+            assert!(tau[0] > 0.2, "{}", tau[0]);
+            crate::test_rng::assert_escape_fraction(escaped, lanes, (-tau[0]).exp());
+            for r in &res {
+                assert!(r.tau_before <= tau[0] + 1e-6);
+            }
+        });
     }
 
     /// Eq. 24 at points: the mean of σ_s(p) over random interior points is the bulk Σ C_s / V (6σ),
     /// and sampling the local mixture returns the pdf that evaluation gives (mean of Q_c / σ_s,c).
     #[test]
     fn local_scattering_is_unbiased_and_consistent() {
-        local_scattering_with(f64::INFINITY);
-        local_scattering_with(1.0);
-    }
-
-    fn local_scattering_with(continuous_count: f64) {
-        let m = medium_with(4000, continuous_count);
-        let mut s = 99u64;
-        let mut r = || crate::test_rng::lcg(&mut s);
-        // Discrete: interior points, away from the faces of the particles' unit box (balls stick out).
-        // Continuous: the whole box, because a sub-box's mean differs from the box's by the cells'
-        // own fluctuation (~8 particles per cell: 35 % per cell, ~2 % over a sub-box).
-        let (a, w) = if continuous_count.is_finite() {
-            (0.0, 1.0)
-        } else {
-            (0.1, 0.8)
-        };
-        let pts: Vec<[f64; 3]> = (0..40000)
-            .map(|_| [a + w * r(), a + w * r(), a + w * r()])
-            .collect();
-        let mu = vec![0.3; pts.len()];
-        let (sigma, q) = m.local_scattering(&pts, &mu, &[500.0], 1);
-        let mean = sigma.iter().sum::<f64>() / sigma.len() as f64;
-        let var = sigma.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (sigma.len() - 1) as f64;
-        // bulk: Σ_i C_t,i a_i / V over the unit box (albedo 1.0 / 0.5 by bin at 500 nm)
-        let bulk: f64 = (0..m.len())
-            .map(|i| m.c_ext[i] as f64 * m.bins[m.bin[i] as usize].albedo[0])
-            .sum::<f64>();
-        let se = (var / sigma.len() as f64).sqrt();
-        assert!(
-            (mean - bulk).abs() < 6.0 * se,
-            "mean σ_s {mean} vs bulk {bulk} (se {se})"
-        );
-        assert!(q
-            .iter()
-            .zip(&sigma)
-            .all(|(a, b)| *a >= 0.0 && (*b > 0.0 || *a == 0.0)));
-        let n = 2000;
-        let w_in = vec![[0.0, 0.0, 1.0]; n];
-        let u1: Vec<f64> = (0..n).map(|_| r()).collect();
-        let u2: Vec<[f64; 2]> = (0..n).map(|_| [r(), r()]).collect();
-        let (wo, w, pdf) = m.sample_local(&pts[..n], &w_in, &[500.0, 600.0], 2, &u1, &u2);
-        for i in 0..n {
-            if pdf[i] == 0.0 {
-                continue;
-            }
-            let (sg, qq) = m.local_scattering(&pts[i..i + 1], &[wo[i][2]], &[500.0, 600.0], 2);
-            let expect = (qq[0] / sg[0] + qq[1] / sg[1]) / 2.0;
+        discrete_and_continuous(|m, continuous_count| {
+            let mut s = 99u64;
+            let mut r = || crate::test_rng::lcg(&mut s);
+            // Discrete: interior points, away from the faces of the particles' unit box (balls
+            // stick out). Continuous: the whole box, because a sub-box's mean differs from the
+            // box's by the cells' own fluctuation (~8 particles per cell: 35 % per cell, ~2 % over
+            // a sub-box).
+            let (a, w) = if continuous_count.is_finite() {
+                (0.0, 1.0)
+            } else {
+                (0.1, 0.8)
+            };
+            let pts: Vec<[f64; 3]> = (0..40000)
+                .map(|_| [a + w * r(), a + w * r(), a + w * r()])
+                .collect();
+            let mu = vec![0.3; pts.len()];
+            let (sigma, q) = m.local_scattering(&pts, &mu, &[500.0], 1);
+            let mean = sigma.iter().sum::<f64>() / sigma.len() as f64;
+            let var =
+                sigma.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (sigma.len() - 1) as f64;
+            // bulk: Σ_i C_t,i a_i / V over the unit box (albedo 1.0 / 0.5 by bin at 500 nm)
+            let bulk: f64 = (0..m.len())
+                .map(|i| m.c_ext[i] as f64 * m.bins[m.bin[i] as usize].albedo[0])
+                .sum::<f64>();
+            let se = (var / sigma.len() as f64).sqrt();
             assert!(
-                (pdf[i] - expect).abs() < 1e-9 * expect.max(1.0),
-                "{} {}",
-                pdf[i],
-                expect
+                (mean - bulk).abs() < 6.0 * se,
+                "mean σ_s {mean} vs bulk {bulk} (se {se})"
             );
-            assert!((w[2 * i] * pdf[i] - qq[0] / sg[0]).abs() < 1e-9 * expect.max(1.0));
-        }
+            assert!(q
+                .iter()
+                .zip(&sigma)
+                .all(|(a, b)| *a >= 0.0 && (*b > 0.0 || *a == 0.0)));
+            let n = 2000;
+            let w_in = vec![[0.0, 0.0, 1.0]; n];
+            let u1: Vec<f64> = (0..n).map(|_| r()).collect();
+            let u2: Vec<[f64; 2]> = (0..n).map(|_| [r(), r()]).collect();
+            let (wo, w, pdf) = m.sample_local(&pts[..n], &w_in, &[500.0, 600.0], 2, &u1, &u2);
+            for i in 0..n {
+                if pdf[i] == 0.0 {
+                    continue;
+                }
+                let (sg, qq) = m.local_scattering(&pts[i..i + 1], &[wo[i][2]], &[500.0, 600.0], 2);
+                let expect = (qq[0] / sg[0] + qq[1] / sg[1]) / 2.0;
+                assert!(
+                    (pdf[i] - expect).abs() < 1e-9 * expect.max(1.0),
+                    "{} {}",
+                    pdf[i],
+                    expect
+                );
+                assert!((w[2 * i] * pdf[i] - qq[0] / sg[0]).abs() < 1e-9 * expect.max(1.0));
+            }
+        });
     }
 
     /// After an event is committed, a ray starting at its position skips the event's particles; the

@@ -260,8 +260,6 @@ pub struct SubGrid {
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
-    /// The same grid as the DDA walks it (box, reciprocal cell edges), prepared once.
-    walk_frame: GridFrame,
     /// Largest inclusion radius.
     reach_max: f64,
     /// Neighbourhood half-width in cells scanned per traversal step: 0 (sparse) or 1 (dense).
@@ -464,7 +462,6 @@ impl SubGrid {
             slot_particle,
             slot_tau,
             slot_index,
-            walk_frame: GridFrame::new(lo, [cell; 3], dims),
             lo,
             cell,
             dims,
@@ -501,6 +498,7 @@ impl SubGrid {
 
     /// Does stored particle j contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
     #[inline]
+    #[cfg(any(test, feature = "oracles"))]
     fn contribution(&self, j: usize, o: [f64; 3], d: [f64; 3]) -> Option<f64> {
         sphere_contribution(self.particles.get(j), o, d)
     }
@@ -552,8 +550,9 @@ impl SubGrid {
         t0: f64,
         t1: f64,
     ) -> Cursor {
-        let b = &self.walk_frame.bounds;
-        let dda = Dda::new_in(&self.walk_frame, o, d, inv_d, t0, t1);
+        let frame = GridFrame::new(self.lo, [self.cell; 3], self.dims);
+        let b = &frame.bounds;
+        let dda = Dda::new_in(&frame, o, d, inv_d, t0, t1);
         let scale = (0..3)
             .map(|a| o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
             .fold(0.0, f64::max);
@@ -847,6 +846,7 @@ impl SubGrid {
     }
 
     /// The same by a loop over every particle (the O(N) oracle of the tests).
+    #[cfg(any(test, feature = "oracles"))]
     pub fn optical_depth_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
         if !(t1 > t0) {
@@ -962,7 +962,7 @@ fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
 
 /// The checks of a particle set and its grid settings, each naming its argument: done once, where the
 /// particles enter the core ([`ParticleGrid::build`], `DiscreteMedium::build`); what is derived from
-/// checked inputs is built without checking again ([`ParticleGrid::from_checked`]).
+/// checked inputs is built without checking again (`ParticleGrid::from_checked`).
 pub fn check_particles(
     positions: &[[f64; 3]],
     radius: &[f64],
@@ -1149,6 +1149,7 @@ impl ParticleGrid {
         self.sum_classes(out, |c, part| c.optical_depth(o, d, t0, t1, part));
     }
 
+    #[cfg(any(test, feature = "oracles"))]
     pub fn optical_depth_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
         self.sum_classes(out, |c, part| c.optical_depth_brute(o, d, t0, t1, part));
     }
@@ -1324,6 +1325,7 @@ impl ParticleGrid {
     }
 
     /// The same by a loop over every particle (test oracle).
+    #[cfg(any(test, feature = "oracles"))]
     pub fn containing_brute(&self, p: [f64; 3]) -> Vec<u32> {
         let mut out = Vec::new();
         for c in &self.classes {
@@ -1358,6 +1360,7 @@ impl ParticleGrid {
     }
 
     /// The same by a loop over every particle (test oracle).
+    #[cfg(any(test, feature = "oracles"))]
     pub fn occupied_interval_brute(
         &self,
         o: [f64; 3],
@@ -1399,10 +1402,8 @@ impl ParticleGrid {
 mod tests {
     use super::*;
 
-    use crate::test_rng::lcg;
+    use crate::test_rng::{assert_escape_rate, lcg, random_points};
 
-    /// Grid traversal equals the O(N) loop for random rays, axis-aligned rays, rays starting inside,
-    /// rays on cell faces, zero-length segments and rays missing the grid.
     /// Free flights interact at a particle with exactly the probability the transmittance implies:
     /// P(no interaction on [t0, t1)) = exp(−τ) (binomial 5σ bound), and the interaction point has an
     /// accumulated optical depth straddling −ln(1 − u).
@@ -1410,9 +1411,7 @@ mod tests {
     fn free_flight_matches_transmittance() {
         let mut s = 11u64;
         let n = 2000;
-        let pos: Vec<[f64; 3]> = (0..n)
-            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
-            .collect();
+        let pos = random_points(&mut s, n);
         let rad: Vec<f64> = (0..n).map(|_| 0.005 + 0.01 * lcg(&mut s)).collect();
         let cext: Vec<f64> = rad
             .iter()
@@ -1425,15 +1424,12 @@ mod tests {
         g.optical_depth(o, d, 0.0, 3.0, &mut tau);
         let expected = (-tau[0]).exp();
         assert!(tau[0] > 0.3 && tau[0] < 3.0, "{}", tau[0]);
-        let trials = 20000;
-        let mut escaped = 0;
-        for _ in 0..trials {
-            let u = lcg(&mut s);
+        assert_escape_rate(&mut s, 20000, expected, |u| {
             let (hit, tr) = g.free_flight(o, d, 0.0, 3.0, 0, u);
             match hit {
                 None => {
-                    escaped += 1;
                     assert!((tr - expected).abs() < 1e-12);
+                    true
                 }
                 Some(h) => {
                     // accumulated depth before the hit ≤ target < accumulated + τ_hit
@@ -1442,24 +1438,19 @@ mod tests {
                     assert!(
                         before <= target + 1e-9 && target < before + g.tau_of(h.particle, 0) + 1e-9
                     );
+                    false
                 }
             }
-        }
-        let p = escaped as f64 / trials as f64;
-        let sd = (expected * (1.0 - expected) / trials as f64).sqrt();
-        assert!(
-            (p - expected).abs() < 5.0 * sd,
-            "escape {p} vs exp(-τ) {expected}"
-        );
+        });
     }
 
+    /// Grid traversal equals the O(N) loop for random rays, axis-aligned rays, rays starting inside,
+    /// rays on cell faces, zero-length segments and rays missing the grid.
     #[test]
     fn grid_equals_brute_force() {
         let mut s = 7u64;
         let n = 3000;
-        let pos: Vec<[f64; 3]> = (0..n)
-            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
-            .collect();
+        let pos = random_points(&mut s, n);
         let rad: Vec<f64> = (0..n).map(|_| 0.001 + 0.02 * lcg(&mut s)).collect();
         let cext: Vec<f64> = rad
             .iter()
