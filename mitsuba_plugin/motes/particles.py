@@ -209,15 +209,9 @@ class Gradient:
         return np.clip(d, min(self.start, self.end), max(self.start, self.end))
 
 
-_M1, _M2, _GOLDEN = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB), np.uint64(0x9E3779B97F4A7C15)
-
-
 def _mix(z: np.ndarray) -> np.ndarray:
-    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic)."""
-    z = z + _GOLDEN
-    z = (z ^ (z >> np.uint64(30))) * _M1
-    z = (z ^ (z >> np.uint64(27))) * _M2
-    return z ^ (z >> np.uint64(31))
+    """SplitMix64's output of each uint64 state (the core's one implementation, ``motes_core::rng``)."""
+    return _motes.splitmix64(np.ascontiguousarray(z, dtype=np.uint64))
 
 
 class Noise:

@@ -7,13 +7,15 @@
 //! * [`space`]: particles in space — a uniform grid, query cylinders (Eq. 18) and spheres (Eq. 24).
 //! * [`render`]: the discrete medium as a renderer queries it (Sec. 5), and size classes no pixel
 //!   resolves as a continuous medium.
-//! * [`error`] (one error type naming the bad argument) and [`cancel`] (Ctrl-C for long table builds).
+//! * [`error`] (one error type naming the bad argument), [`cancel`] (Ctrl-C for long table builds) and
+//!   [`rng`] (the SplitMix64 hash behind every random number the core draws).
 
 pub mod cancel;
 pub mod ensemble;
 pub mod error;
 pub mod optics;
 pub mod render;
+pub mod rng;
 pub mod space;
 
 #[cfg(test)]

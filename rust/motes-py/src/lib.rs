@@ -14,10 +14,24 @@ mod psd;
 
 use pyo3::prelude::*;
 
+/// FNV-1a 64 hash (hex) of the Rust sources this extension was built from (`build.rs`): it changes with
 /// the physics, so caches of computed tables key on it.
 #[pyfunction]
 fn core_hash() -> &'static str {
     env!("MOTES_CORE_HASH")
+}
+
+/// SplitMix64's output (`motes_core::rng::splitmix64`) of each uint64 state: the one implementation of
+/// the hash, for the procedural densities of the Python layer (`motes.Noise`).
+#[pyfunction]
+fn splitmix64<'py>(
+    py: Python<'py>,
+    z: numpy::PyReadonlyArray1<'py, u64>,
+) -> Bound<'py, numpy::PyArray1<u64>> {
+    use numpy::IntoPyArray;
+    z.as_array()
+        .mapv(motes_core::rng::splitmix64)
+        .into_pyarray(py)
 }
 
 /// The default wavelength sets (µm): (RGB, spectral), `motes_core::ensemble::wavelengths`.
@@ -42,6 +56,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(optics::material_index, m)?)?;
     m.add_function(wrap_pyfunction!(core_hash, m)?)?;
     m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;
+    m.add_function(wrap_pyfunction!(splitmix64, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::exit_on_wakeup, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::set_exit_message, m)?)?;
     m.add_function(wrap_pyfunction!(medium::check_discrete_inputs, m)?)?;

@@ -58,6 +58,7 @@
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, ContinuousField};
+use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
 use crate::space::grid::{bounding_box, check_cross_sections, check_particles, ParticleGrid, Site};
 use rayon::prelude::*;
@@ -220,12 +221,8 @@ fn key(p: [f32; 3]) -> [u32; 3] {
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
 /// renders are reproducible whatever the thread schedule.
 fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
-    let mut z =
-        seed ^ call.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 53) as f64
+    let z = seed ^ call.wrapping_mul(GOLDEN_GAMMA) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    unit_f64(splitmix64_finalise(z))
 }
 
 /// Unit vector and two perpendicular ones (Duff et al. 2017 branchless frame).
