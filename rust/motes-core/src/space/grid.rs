@@ -157,6 +157,15 @@ struct RayFrame {
 }
 
 impl RayFrame {
+    /// The frame of a cursor that tests no sphere.
+    const UNUSED: RayFrame = RayFrame {
+        e1: [[0.0; 4]; 3],
+        e2: [[0.0; 4]; 3],
+        o1: [0.0; 4],
+        o2: [0.0; 4],
+        slack: [0.0; 4],
+    };
+
     fn new(o: [f64; 3], d: [f64; 3], slack: f32) -> Self {
         // Any unit vector perpendicular to d, then d × e1 (Duff et al.'s branchless basis).
         let sign = 1f64.copysign(d[2]);
@@ -553,9 +562,16 @@ impl SubGrid {
         let frame = GridFrame::new(self.lo, [self.cell; 3], self.dims);
         let b = &frame.bounds;
         let dda = Dda::new_in(&frame, o, d, inv_d, t0, t1);
-        let scale = (0..3)
-            .map(|a| o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
-            .fold(0.0, f64::max);
+        // A ray that misses the grid tests nothing: no frame for it (in a room with a cloud in it,
+        // most shadow rays).
+        let frame = if dda.finished() {
+            RayFrame::UNUSED
+        } else {
+            let scale = (0..3)
+                .map(|a| o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
+                .fold(0.0, f64::max);
+            RayFrame::new(o, d, (PRETEST_SLACK * scale) as f32)
+        };
         Cursor {
             dda,
             o,
@@ -564,7 +580,7 @@ impl SubGrid {
             t1,
             first: true,
             ahead: None,
-            frame: RayFrame::new(o, d, (PRETEST_SLACK * scale) as f32),
+            frame,
         }
     }
 
