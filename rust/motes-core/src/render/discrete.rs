@@ -177,15 +177,15 @@ fn event_channels(e: &Event, channels: usize) -> Vec<f64> {
     channel_probabilities(&e.t_in, channels)[..channels].to_vec()
 }
 
-/// Events by the exact bits of their position, in two generations: lookups see both, inserts go to
-/// the current one, and the current one becomes the previous when it outgrows `capacity`. An event is
-/// looked up by the rays that start at it (its shadow rays and the scattered ray) within a few batches,
-/// long before two generations pass.
 /// Events one generation of the [`EventMap`] holds before it becomes the previous one: far more than
 /// the events of the paths in flight at once (a packet batch of a few thousand lanes), so an event is
 /// still found by the rays that start at it, and small enough (a few MB) to stay bounded.
 const EVENTS_PER_GENERATION: usize = 1 << 16;
 
+/// Events by the exact bits of their position, in two generations: lookups see both, inserts go to
+/// the current one, and the current one becomes the previous when it outgrows `capacity`. An event is
+/// looked up by the rays that start at it (its shadow rays and the scattered ray) within a few batches,
+/// long before two generations pass.
 struct EventMap {
     current: FxHashMap<[u32; 3], Event>,
     previous: FxHashMap<[u32; 3], Event>,
