@@ -256,14 +256,13 @@ pub struct SubGrid {
     index: Vec<u32>,
     channels: usize,
     /// Cell `c` holds slots `start[c]..start[c+1]`: k = 0, its own copies of the spheres of every
-    /// particle whose ball overlaps it (`inline`, `slot_particle`), so a step reads one contiguous
+    /// particle whose ball overlaps it (`inline`, with `slot_tau`, `slot_index`), so a step reads one contiguous
     /// run; k = 1, the particles whose centre it holds (slot = stored particle).
     start: Vec<u32>,
     inline: Spheres,
-    slot_particle: Vec<u32>,
     /// Per slot (k = 0): the particle's τ per channel and its original index, so that a hit reads
-    /// them next to the slot instead of through `slot_particle` (two dependent cache misses per hit
-    /// on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
+    /// them next to the slot instead of through the stored particle (two dependent cache misses per
+    /// hit on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
     slot_tau: Vec<f32>,
     slot_index: Vec<u32>,
     lo: [f64; 3],
@@ -408,14 +407,14 @@ impl SubGrid {
         let volume = volume_hint
             .unwrap_or(ext[0] * ext[1] * ext[2])
             .max(ext[0] * ext[1] * ext[2] * 1e-9);
-        let target_cells = (n as f64 * cells_per_particle).clamp(1.0, MAX_CELLS);
+
         // About `cells_per_particle` cells per particle. Sparse classes (inclusion diameter below the
         // cell) reference each particle from every cell its ball overlaps (k = 0: a traversal tests only
         // the ray's own cells). Dense classes (balls wider than the spacing) would need many references
         // per particle; there cells are at least R_max wide, each particle is referenced by its centre's
         // cell only, and a traversal scans the 3×3×3 cells around the ray's cell (k = 1).
-        let spacing = (volume / target_cells).cbrt();
-        let k: i64 = if 2.0 * reach_max <= spacing { 0 } else { 1 };
+        let spacing = cell_spacing(volume, n, cells_per_particle);
+        let k: i64 = if is_sparse(reach_max, spacing) { 0 } else { 1 };
         let cell = spacing.max(reach_max).max(1e-12);
         let dims =
             [0, 1, 2].map(|a| ((ext[a] / cell).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS));
@@ -468,7 +467,6 @@ impl SubGrid {
             channels,
             start,
             inline,
-            slot_particle,
             slot_tau,
             slot_index,
             lo,
@@ -497,7 +495,6 @@ impl SubGrid {
     pub fn bytes(&self) -> usize {
         self.particles.bytes()
             + self.inline.bytes()
-            + self.slot_particle.len() * 4
             + self.slot_tau.len() * 4
             + self.slot_index.len() * 4
             + self.tau.len() * 4
@@ -512,7 +509,7 @@ impl SubGrid {
         sphere_contribution(self.particles.get(j), o, d)
     }
 
-    /// The slots' spheres and the stored particle of slot s.
+    /// The slots' spheres.
     #[inline(always)]
     fn slots(&self) -> &Spheres {
         if self.k == 0 {
@@ -521,15 +518,6 @@ impl SubGrid {
             &self.particles
         }
     }
-    #[inline(always)]
-    fn slot_particle(&self, s: usize) -> usize {
-        if self.k == 0 {
-            self.slot_particle[s] as usize
-        } else {
-            s
-        }
-    }
-
     /// τ per channel of the particle in slot `s` (what `found` and `traverse` report).
     #[inline(always)]
     fn hit_tau(&self, s: usize) -> &[f32] {
@@ -823,7 +811,8 @@ impl SubGrid {
         n
     }
 
-    /// Every stored particle whose inclusion ball (radius R_i) contains the point `p`, as `visit(j)`.
+    /// Every particle whose inclusion ball (radius R_i) contains the point `p`, as `visit(slot)` (see
+    /// `hit_index`).
     pub fn containing(&self, p: [f64; 3], mut visit: impl FnMut(usize)) {
         let mut c = [0usize; 3];
         for a in 0..3 {
@@ -843,7 +832,7 @@ impl SubGrid {
                 let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
                 let r = q[3] as f64;
                 if dd < r * r {
-                    visit(self.slot_particle(s));
+                    visit(s);
                 }
             }
         }
@@ -912,6 +901,17 @@ pub(crate) fn size_class(reach_max: f64, reach: f64) -> usize {
     }
 }
 
+/// The cell edge of `n` particles in `volume` at about `cells_per_particle` cells each.
+fn cell_spacing(volume: f64, n: usize, cells_per_particle: f64) -> f64 {
+    (volume / (n as f64 * cells_per_particle).clamp(1.0, MAX_CELLS)).cbrt()
+}
+
+/// Can a class with inclusion radii up to `reach_max` reference each ball from every cell it overlaps
+/// (k = 0, balls narrower than the cells), at cell edge `spacing`?
+fn is_sparse(reach_max: f64, spacing: f64) -> bool {
+    2.0 * reach_max <= spacing
+}
+
 /// Size classes merged, largest first, while the merged set is still sparse (its largest inclusion
 /// diameter at most its cell spacing, `SubGrid::build_class`'s k = 0 rule). A sparse grid references
 /// each ball from every cell it overlaps, so it needs no split by size; each class a ray walks costs a
@@ -924,17 +924,15 @@ fn merge_sparse_classes(
     cells_per_particle: f64,
 ) -> Vec<Vec<u32>> {
     let sparse = |n: usize, reach_max: f64| {
-        let spacing = (volume / (n as f64 * cells_per_particle).clamp(1.0, MAX_CELLS)).cbrt();
-        2.0 * reach_max <= spacing
+        is_sparse(reach_max, cell_spacing(volume, n, cells_per_particle))
     };
     let mut out: Vec<(Vec<u32>, f64)> = Vec::new();
     for ids in members.into_iter().filter(|m| !m.is_empty()) {
         let reach_max = ids.iter().map(&reach_of).fold(0.0, f64::max);
         match out.last_mut() {
             // Classes come largest first: the group keeps its first class's largest reach.
-            Some((group, r)) if sparse(group.len() + ids.len(), *r) && sparse(group.len(), *r) => {
-                group.extend(ids)
-            }
+            // (sparse for more particles implies sparse for fewer: a dense group stays apart)
+            Some((group, r)) if sparse(group.len() + ids.len(), *r) => group.extend(ids),
             _ => out.push((ids, reach_max)),
         }
     }
@@ -1335,7 +1333,7 @@ impl ParticleGrid {
     pub fn containing(&self, p: [f64; 3]) -> Vec<u32> {
         let mut out = Vec::new();
         for c in &self.classes {
-            c.containing(p, |j| out.push(c.index[j]));
+            c.containing(p, |s| out.push(c.hit_index(s)));
         }
         out
     }
