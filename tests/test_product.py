@@ -116,6 +116,36 @@ def test_package_metadata():
     assert meta["entry-points"]["mitsuba"]["motes"] == "motes"
 
 
+
+def test_scalar_scene_medium_is_the_native_plugin():
+    """In scalar_rgb the scene's medium is the native C++ medium itself (no Python call per ray), and it
+    still answers what the Python plugin answers: .data, .stats, str(); other media have no .data; the
+    data is freed with the scene (the native plugin holds the only references left)."""
+    import gc
+
+    from motes import _motes
+
+    motes.set_variant("scalar_rgb")
+    if "scalar_rgb" not in motes.native_variants():
+        pytest.skip(f"native path unavailable: {motes.native.failure()}")
+    from motes.plugins.discrete_medium import plugin_class
+
+    scene = small_scene()
+    med = scene.shapes()[0].interior_medium()
+    assert not isinstance(med, plugin_class())
+    assert len(med.data) == 300 and str(med).startswith("DiscreteMedium[particles=300")
+    assert str(med.phase_function()).startswith("ParticlePhase[")
+    img = np.asarray(mi.render(scene, spp=4))
+    assert np.isfinite(img).all() and img.mean() > 0
+    assert med.stats["rays"] > med.stats["events"] > 0
+    assert not hasattr(mi.load_dict({"type": "homogeneous"}), "data")
+    core = med.data.core
+    assert core.native_references == 2  # the medium and its phase function
+    del med, scene, img
+    gc.collect()
+    assert core.native_references == 0
+    assert _motes.native_owner(12345) is None  # an unknown handle is never dereferenced
+
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb"])
 def test_albedo_scale_is_a_scene_parameter(variant):
     """mi.traverse lists the medium's albedo_scale (issue 12.1); setting it between renders acts like

@@ -105,6 +105,19 @@ class DiscreteMedium:
     @property
     def bytes(self) -> int: ...
     def __len__(self) -> int: ...
+    # The native render path (rust/motes-py/src/native.rs): a handle for a C++ plugin, which keeps
+    # ``owner`` alive until it releases the handle; (rays, events) it has rendered; references it holds.
+    def native_handle(self, owner: object | None = None) -> int: ...
+    @property
+    def native_counts(self) -> tuple[int, int]: ...
+    @property
+    def native_references(self) -> int: ...
+
+#: The owner given with a handle a native plugin still holds, or None (unknown or released handles).
+def native_owner(handle: int) -> object | None: ...
+#: Address and version of the native render path's C interface.
+NATIVE_API: int
+NATIVE_ABI: int
 
 #: Default cap on a particle's optical depth (rust/motes-core/src/render/discrete.rs).
 DEFAULT_TAU_MAX: float

@@ -181,7 +181,8 @@ def main() -> None:
     res, spp = args.res or res, args.spp or spp
     rows = run_variant(motes, mi, "llvm_ad_rgb", names, res, spp, args.reps, evaluated=not args.native_only)
     if not args.native_only:
-        rows += run_variant(motes, mi, "scalar_rgb", names, 48 if args.quick else 64, 4, 1)
+        # The same film and spp: scalar_rgb's scene medium is the native plugin itself (no Python per ray).
+        rows += run_variant(motes, mi, "scalar_rgb", names, res, spp, args.reps)
     result = {"rows": rows, "meta": C.meta(args, time.perf_counter() - t0)}
     if args.memory:
         result["memory"] = memory()

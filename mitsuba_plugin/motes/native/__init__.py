@@ -34,6 +34,7 @@ CXX_FLAGS = ("-std=c++17", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-D
 
 _folder: pathlib.Path | None = None
 _failure: str | None = None
+_library: ctypes.CDLL | None = None
 
 
 class NativeBuildError(RuntimeError):
@@ -106,7 +107,11 @@ def build(force: bool = False, verbose: bool = False) -> pathlib.Path:
                 link.symlink_to("motes_native.so")
             except FileExistsError:
                 pass
-    built_for = ctypes.CDLL(str(lib)).motes_native_mitsuba_version
+    global _library
+    _library = ctypes.CDLL(str(lib))
+    _library.motes_native_medium_handle.restype = ctypes.c_void_p
+    _library.motes_native_medium_handle.argtypes = [ctypes.c_void_p]
+    built_for = _library.motes_native_mitsuba_version
     built_for.restype = ctypes.c_char_p
     mi_v, _ = _versions()
     if built_for().decode() != mi_v:
@@ -128,6 +133,15 @@ def folder() -> pathlib.Path | None:
             except (NativeBuildError, OSError, AttributeError) as e:
                 _failure = str(e)
     return _folder
+
+
+def medium_handle(obj) -> int | None:
+    """The core medium handle of a native ``discrete`` medium object (a Mitsuba object), or None for any other
+    object (or when the native library is not loaded)."""
+    ptr = getattr(obj, "ptr", None)
+    if _library is None or not isinstance(ptr, int):
+        return None
+    return _library.motes_native_medium_handle(ptr) or None
 
 
 def failure() -> str | None:
@@ -153,4 +167,5 @@ def load(variant: str) -> bool:
     return True
 
 
-__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "requested"]
+__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "medium_handle",
+           "requested"]

@@ -10,7 +10,14 @@
 // api                     integer   address of the Rust core's NativeApi (motes._motes.NATIVE_API)
 // medium                  integer   a strong reference to the core medium (DiscreteMedium.native_handle())
 // channel_nm_0..2         float     RGB variants: the wavelength of each channel, nm
+// description             string    what `to_string` reports (the Python plugin's summary)
 // ======================  ========  =========================================================
+//
+// Scene parameters (`mi.traverse`): the medium lists `albedo_scale`, a one-element tensor, factor on every
+// particle's albedo (1 as built); `parameters_changed` hands it to Rust, which checks it (an error names
+// the parameter). In the scalar variants this medium is the scene's object itself (the Python `discrete`
+// plugin's factory returns it, so no call goes through Python); in the LLVM ones the Python plugin stays
+// the scene's object and forwards each traced call.
 //
 // Users never write these: the Python `discrete` plugin parses the scene's parameters, builds the
 // particles and optics in Rust and creates these objects. All physics is in the Rust core
@@ -31,7 +38,9 @@
 #include <mitsuba/core/properties.h>
 #include <mitsuba/render/medium.h>
 #include <mitsuba/render/phase.h>
+#include <drjit/tensor.h>
 #include <drjit-core/jit.h>
+#include <algorithm>
 #include <cstddef>
 #include <cstring>
 
@@ -43,8 +52,9 @@ struct MotesNativeApi {
     void (*packet)(const void *medium, uint32_t op, uint32_t width, const int32_t *valid, uint8_t *args,
                    const double *lambda, uint32_t channels);
     void (*release)(const void *medium);
+    int32_t (*set_albedo_scale)(const void *medium, double scale, char *message, size_t capacity);
 };
-static constexpr uint32_t MOTES_NATIVE_ABI = 1;
+static constexpr uint32_t MOTES_NATIVE_ABI = 2;
 enum MotesOp : uint32_t { FreeFlight = 0, Commit = 1, PhaseSample = 2, PhaseEval = 3 };
 /// sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 static constexpr float MOTES_MAJORANT = 1e20f;
@@ -78,6 +88,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
     double lambda[4] = { 0, 0, 0, 0 };
     MotesPayload payload[4];
     void *func = nullptr;
+    std::string description;
 
     /// Everything one native call returns.
     struct Out { Mask hit; Float t, u, v; UInt32 prim, inst; };
@@ -90,6 +101,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
         if (api->abi != MOTES_NATIVE_ABI)
             Throw("%s: the Rust core speaks native ABI %u, this plugin %u: rebuild it (motes.native.build())",
                   who, api->abi, MOTES_NATIVE_ABI);
+        description = props.get<std::string>("description", std::string(who) + "[]");
         bool rgb = is_rgb_v<Spectrum>;
         if (rgb)
             for (size_t c = 0; c < Channels; ++c)
@@ -189,6 +201,7 @@ public:
         m_is_homogeneous = false;
         m_has_spectral_extinction = false;  // grey free flights (discrete.rs, "Colour")
         m_call.init(props, "motes_discrete_native");
+        m_albedo_scale = TensorXf(dr::full<typename TensorXf::Array>(1.f, 1));
     }
     ~MotesDiscreteNative() { m_call.release(); }
 
@@ -214,13 +227,32 @@ public:
         return { Call::channels_of(r) * sigma_t, UnpolarizedSpectrum(0.f), sigma_t };
     }
 
-    std::string to_string() const override { return "MotesDiscreteNative[]"; }
+    void traverse(TraversalCallback *cb) override {
+        Base::traverse(cb);
+        cb->put("albedo_scale", m_albedo_scale, ParamFlags::NonDifferentiable);
+    }
+
+    void parameters_changed(const std::vector<std::string> &keys) override {
+        if (!keys.empty() && std::find(keys.begin(), keys.end(), "albedo_scale") == keys.end())
+            return;
+        if (dr::width(m_albedo_scale.array()) != 1)
+            Throw("discrete medium: albedo_scale must hold one value, got %zu", dr::width(m_albedo_scale.array()));
+        double scale = (double) dr::slice(m_albedo_scale.array(), 0);
+        char message[512] = { 0 };
+        if (m_call.api->set_albedo_scale(m_call.medium, scale, message, sizeof(message)) != 0)
+            Throw("discrete medium: %s", message);
+    }
+
+    std::string to_string() const override { return m_call.description; }
+    /// The core medium handle (motes_native_medium_handle).
+    const void *handle() const { return m_call.medium; }
     MI_DECLARE_CLASS(MotesDiscreteNative)
 
 private:
     using Call = MotesCall<Float, Spectrum>;
     Call m_call;
-    MI_TRAVERSE_CB(Base)
+    TensorXf m_albedo_scale;
+    MI_TRAVERSE_CB(Base, m_albedo_scale)
 };
 
 template <typename Float, typename Spectrum>
@@ -257,7 +289,7 @@ public:
         return { Spectrum(Call::channels_of(r)), pdf };
     }
 
-    std::string to_string() const override { return "MotesParticleNative[]"; }
+    std::string to_string() const override { return m_call.description; }
     MI_DECLARE_CLASS(MotesParticleNative)
 
 private:
@@ -289,6 +321,21 @@ extern "C" MI_EXPORT void init_plugin(std::string_view name, PluginRegisterFn fn
         motes_register<MotesParticleNative>(name, fn);
     else
         motes_register<MotesDiscreteNative>(name, fn);
+}
+
+/// The core medium handle of a `motes_discrete_native` object (its address, as Python's `.ptr`), or null for
+/// any other object: how Python finds the data of a scene whose medium is this plugin (scalar variants).
+extern "C" MI_EXPORT const void *motes_native_medium_handle(const Object *obj) {
+    using LF = dr::DiffArray<JitBackend::LLVM, float>;
+    if (auto m = dynamic_cast<const MotesDiscreteNative<float, Color<float, 3>> *>(obj))
+        return m->handle();
+    if (auto m = dynamic_cast<const MotesDiscreteNative<float, Spectrum<float, 4>> *>(obj))
+        return m->handle();
+    if (auto m = dynamic_cast<const MotesDiscreteNative<LF, Color<LF, 3>> *>(obj))
+        return m->handle();
+    if (auto m = dynamic_cast<const MotesDiscreteNative<LF, Spectrum<LF, 4>> *>(obj))
+        return m->handle();
+    return nullptr;
 }
 
 /// The Mitsuba version this library was compiled against (checked by motes/native/__init__.py).

@@ -69,11 +69,11 @@ def register() -> None:
         return
     from . import discrete_medium, particle_phase
 
-    medium, phase = discrete_medium.plugin_class(), particle_phase.plugin_class()
+    medium, phase = discrete_medium.factory(), particle_phase.plugin_class()
     mi.register_medium("discrete", lambda props: medium(props))
     mi.register_phase("particle", lambda props: phase(props))
     _registered.add(variant)
-    _media_classes.add(medium)
+    _media_classes.add(discrete_medium.plugin_class())
 
 
 _media_classes: set = set()
@@ -84,7 +84,9 @@ PRBVOLPATH_WARNING = ("motes: prbvolpath does not support the discrete medium (i
 def _scene_has_discrete_medium(scene) -> bool:
     media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
     media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
-    return any(isinstance(m, tuple(_media_classes)) for m in media if m is not None)
+    from .discrete_medium import native_data
+
+    return any(isinstance(m, tuple(_media_classes)) or native_data(m) is not None for m in media if m is not None)
 
 
 def _warn_under_prbvolpath() -> None:

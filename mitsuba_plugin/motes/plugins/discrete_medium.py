@@ -93,7 +93,9 @@ In ``llvm_ad_rgb``, ``llvm_ad_spectral``, ``scalar_rgb`` and ``scalar_spectral``
 validates its parameters and builds the particles and optics, then hands every call to the native C++
 medium and phase function (``motes/native/motes_native.cpp``), which run inside Mitsuba's default symbolic
 kernels: one call into Rust per SIMD packet, events kept per thread, free flights seeded by a hash of the
-ray (a render is a function of scene, seed and spp). In other variants, without a C++ compiler, with
+ray (a render is a function of scene, seed and spp). In the scalar variants the scene's medium is the
+native medium itself (the plugin's factory returns it, so no call per ray goes through Python); it still
+answers ``.data``, ``.stats``, ``str()`` and ``mi.traverse`` as below. In other variants, without a C++ compiler, with
 ``MOTES_NATIVE=0``, or when Dr.Jit is switched to evaluated mode, the calls go through numpy batches
 instead (the evaluated-mode path below).
 """
@@ -125,6 +127,10 @@ MAJORANT = 1e20
 class DiscreteMediumPlugin:
     """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.Medium``."""
 
+    #: The particles and optics (``motes.DiscreteMedium``), set by the constructor. (A class attribute so
+    #: that the accessor ``install_native_accessors`` puts on ``mi.Medium`` does not stand in its way.)
+    data: DiscreteMedium | None = None
+
     def __init__(self, props: mi.Properties):
         mi.Medium.__init__(self, props)
         self.m_is_homogeneous = False
@@ -150,7 +156,8 @@ class DiscreteMediumPlugin:
                              "(the medium supplies the particles it scatters from)")
         self._native = self._native_phase = None
         if native_in_use():
-            self._native, self._native_phase = _native_objects(self.data, bool(self.m_sample_emitters))
+            self._native, self._native_phase = _native_objects(self.data, bool(self.m_sample_emitters),
+                                                               self.to_string())
         phase.attach(self.data, self._native_phase)
         self._stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
         # Editable through mi.traverse (a one-element tensor: Mitsuba updates it in place).
@@ -431,20 +438,58 @@ def native_in_use() -> bool:
     return mi.variant() in native_variants()
 
 
-def _native_objects(data: DiscreteMedium, sample_emitters: bool):
+def _native_objects(data: DiscreteMedium, sample_emitters: bool, description: str):
     """The native medium and phase function over ``data``'s Rust medium (``motes/native/motes_native.cpp``);
-    each holds its own reference to it."""
+    each holds its own reference to it and to ``data`` (``native_data``)."""
     from .. import _motes
 
     def common():
-        d = {"api": int(_motes.NATIVE_API), "medium": int(data.core.native_handle())}
+        d = {"api": int(_motes.NATIVE_API), "medium": int(data.core.native_handle(data)), "description": description}
         if mi.is_rgb:
             d.update({f"channel_nm_{c}": float(x) for c, x in enumerate(data.channel_wavelength_nm)})
         return d
 
-    phase = mi.load_dict({"type": "motes_particle_native", **common()})
+    phase = mi.load_dict({"type": "motes_particle_native", **common(), "description": f"ParticlePhase[of {description}]"})
     medium = mi.load_dict({"type": "motes_discrete_native", "sample_emitters": sample_emitters, "phase": phase, **common()})
     return medium, phase
+
+
+def native_data(medium) -> DiscreteMedium | None:
+    """The data of a native ``discrete`` medium object (scalar variants' scene media), or None."""
+    from .. import _motes, native
+
+    handle = native.medium_handle(medium)
+    return None if handle is None else _motes.native_owner(handle)
+
+
+def _data_of_native(medium) -> DiscreteMedium:
+    data = native_data(medium)
+    if data is None:
+        raise AttributeError(f"'{type(medium).__name__}' object has no attribute 'data' (not a discrete medium)")
+    return data
+
+
+def _stats_of_native(medium) -> dict:
+    rays, events = _data_of_native(medium).core.native_counts
+    return {"intersect_calls": 0, "rays": rays, "events": events, "nulls": 0}
+
+
+def install_native_accessors() -> None:
+    """``data`` and ``stats`` on the current variant's ``mi.Medium``, answering for native ``discrete``
+    media (other media: AttributeError), as the Python plugin answers them."""
+    if not isinstance(getattr(mi.Medium, "data", None), property):
+        mi.Medium.data = property(_data_of_native, doc="The particles and optics of a discrete medium.")
+        mi.Medium.stats = property(_stats_of_native, doc="Render counters of a discrete medium.")
+
+
+def factory():
+    """What Mitsuba calls to make a ``discrete`` medium in the current variant: the Python plugin, or in
+    scalar variants with the native path its native medium itself (module docs, "Render paths")."""
+    cls = plugin_class()
+    if is_jit() or not native_in_use():
+        return cls
+    install_native_accessors()
+    return lambda props: cls(props)._native
 
 
 _classes: dict = {}

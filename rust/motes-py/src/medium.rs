@@ -6,11 +6,12 @@ use crate::native;
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use std::sync::Arc;
 
 /// The discrete medium as the renderer queries it (see `motes_core::render::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
 pub(crate) struct PyDiscreteMedium {
-    medium: std::sync::Arc<motes_core::render::discrete::DiscreteMedium>,
+    medium: Arc<motes_core::render::discrete::DiscreteMedium>,
 }
 
 #[pymethods]
@@ -65,14 +66,22 @@ impl PyDiscreteMedium {
             })
             .map_err(to_py)?;
         Ok(PyDiscreteMedium {
-            medium: std::sync::Arc::new(medium),
+            medium: Arc::new(medium),
         })
     }
 
-    /// A new strong reference to the core medium for the native plugins (an address; they release it
-    /// through the native API's `release`).
-    fn native_handle(&self) -> usize {
-        native::handle(&self.medium)
+    /// A new handle on the core medium for a native plugin (an address; it releases it through the
+    /// native API's `release`), which keeps `owner` alive until then (`native_owner`).
+    #[pyo3(signature = (owner=None))]
+    fn native_handle(&self, owner: Option<Py<PyAny>>) -> usize {
+        native::handle(&self.medium, owner)
+    }
+
+    /// How many references to the core medium live outside this object (native plugins not yet
+    /// destroyed, and calls in flight): 0 once every native plugin made over it is gone.
+    #[getter]
+    fn native_references(&self) -> usize {
+        Arc::strong_count(&self.medium) - 1
     }
 
     /// (rays, events) that went through the native render path so far.
@@ -401,4 +410,11 @@ pub(crate) fn check_discrete_inputs(
         continuous_count,
     )
     .map_err(to_py)
+}
+
+/// The owner given with a native handle that is still held by a native plugin, or None (an unknown or
+/// released handle: nothing is dereferenced then).
+#[pyfunction]
+pub fn native_owner(py: Python<'_>, handle: usize) -> Option<Py<PyAny>> {
+    native::owner(py, handle)
 }

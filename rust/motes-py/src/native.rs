@@ -2,7 +2,8 @@
 //! [`motes_packet`] once per SIMD packet from inside Mitsuba's symbolic LLVM kernels (through
 //! `jit_llvm_ray_trace`, the hook Mitsuba's own CPU ray tracers use), and once per ray in the scalar
 //! variants. They find it through [`NativeApi`], whose address Python hands them with a medium handle
-//! (an `Arc` of the core medium that [`NativeApi::release`] drops).
+//! (a [`NativeMedium`]: an `Arc` of the core medium and the Python object that owns it, which
+//! [`NativeApi::release`] drops).
 //!
 //! A packet is Embree's ray/hit record in structure-of-arrays layout, `width` lanes per field, in the
 //! field order of [`Field`]. What each operation reads and writes (lanes the renderer marks inactive in
@@ -21,11 +22,13 @@
 //! wavelength spacing).
 
 use motes_core::render::discrete::{DiscreteMedium, PacketRay, PACKET_LANES};
-use std::ffi::c_void;
-use std::sync::Arc;
+use pyo3::prelude::*;
+use std::collections::HashSet;
+use std::ffi::{c_char, c_void};
+use std::sync::{Arc, Mutex};
 
-/// Version of this interface; the C++ plugin refuses another.
-pub const NATIVE_ABI: u32 = 1;
+/// Version of this interface; the C++ plugin refuses another (2: `set_albedo_scale`).
+pub const NATIVE_ABI: u32 = 2;
 
 pub const FREE_FLIGHT: u32 = 0;
 pub const COMMIT: u32 = 1;
@@ -61,7 +64,7 @@ enum Field {
     InstId,
 }
 
-/// What C++ receives: the interface version and two functions.
+/// What C++ receives: the interface version and three functions.
 #[repr(C)]
 pub struct NativeApi {
     pub abi: u32,
@@ -75,17 +78,65 @@ pub struct NativeApi {
         channels: u32,
     ),
     pub release: unsafe extern "C" fn(medium: *const c_void),
+    /// The medium's `albedo_scale` (a scene parameter the C++ medium's `traverse` lists): 0 when set,
+    /// else 1 with the reason, NUL-terminated and cut to `capacity` bytes, in `message`.
+    pub set_albedo_scale: unsafe extern "C" fn(
+        medium: *const c_void,
+        scale: f64,
+        message: *mut c_char,
+        capacity: usize,
+    ) -> i32,
 }
 
 pub static API: NativeApi = NativeApi {
     abi: NATIVE_ABI,
     packet: motes_packet,
     release: motes_release,
+    set_albedo_scale: motes_set_albedo_scale,
 };
 
-/// A new strong reference to `medium` for C++ (dropped by [`NativeApi::release`]).
-pub fn handle(medium: &Arc<DiscreteMedium>) -> usize {
-    Arc::into_raw(Arc::clone(medium)) as usize
+/// What a handle points at: a strong reference to the core medium, and one to the Python object that
+/// owns it (`motes.DiscreteMedium`), so that a scene whose medium is the native plugin itself (scalar
+/// variants) can still report its data for as long as the plugin lives ([`owner`]).
+pub struct NativeMedium {
+    core: Arc<DiscreteMedium>,
+    owner: Option<Py<PyAny>>,
+}
+
+/// Handles not yet released: [`owner`] dereferences only these (its argument comes from Python).
+static LIVE: Mutex<Option<HashSet<usize>>> = Mutex::new(None);
+
+fn live() -> std::sync::MutexGuard<'static, Option<HashSet<usize>>> {
+    LIVE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A new handle on `medium` for C++ (dropped by [`NativeApi::release`]).
+pub fn handle(medium: &Arc<DiscreteMedium>, owner: Option<Py<PyAny>>) -> usize {
+    let h = Box::into_raw(Box::new(NativeMedium {
+        core: Arc::clone(medium),
+        owner,
+    })) as usize;
+    live().get_or_insert_with(HashSet::new).insert(h);
+    h
+}
+
+/// The owner given to the live handle `h` (None for an unknown or released handle).
+pub fn owner(py: Python<'_>, h: usize) -> Option<Py<PyAny>> {
+    let set = live();
+    if !set.as_ref().is_some_and(|s| s.contains(&h)) {
+        return None;
+    }
+    // SAFETY: `h` is live (released handles leave the set before they are freed, under this lock).
+    let m = unsafe { &*(h as *const NativeMedium) };
+    m.owner.as_ref().map(|o| o.clone_ref(py))
+}
+
+/// The core medium behind a handle.
+///
+/// # Safety
+/// `medium` comes from [`handle`] and is alive.
+unsafe fn core<'a>(medium: *const c_void) -> &'a DiscreteMedium {
+    &(*(medium as *const NativeMedium)).core
 }
 
 /// The record of one packet.
@@ -156,7 +207,7 @@ pub unsafe extern "C" fn motes_packet(
     lambda: *const f64,
     channels: u32,
 ) {
-    let m = &*(medium as *const DiscreteMedium);
+    let m = core(medium);
     let width = (width as usize).min(PACKET_LANES);
     let ch = (channels as usize).clamp(1, 4);
     let r = Record { args, width };
@@ -305,6 +356,31 @@ fn write_channels(r: &Record, lane: usize, v: &[f64]) {
 /// `medium` comes from [`handle`] and is released once.
 pub unsafe extern "C" fn motes_release(medium: *const c_void) {
     if !medium.is_null() {
-        drop(Arc::from_raw(medium as *const DiscreteMedium));
+        if let Some(s) = live().as_mut() {
+            s.remove(&(medium as usize));
+        }
+        drop(Box::from_raw(medium as *mut NativeMedium));
+    }
+}
+
+/// # Safety
+/// `medium` comes from [`handle`] and is alive; `message` holds `capacity` bytes (or is null).
+pub unsafe extern "C" fn motes_set_albedo_scale(
+    medium: *const c_void,
+    scale: f64,
+    message: *mut c_char,
+    capacity: usize,
+) -> i32 {
+    match core(medium).set_albedo_scale(scale) {
+        Ok(()) => 0,
+        Err(e) => {
+            if !message.is_null() && capacity > 0 {
+                let text = e.to_string();
+                let n = text.len().min(capacity - 1);
+                std::ptr::copy_nonoverlapping(text.as_ptr(), message.cast::<u8>(), n);
+                *message.add(n) = 0;
+            }
+            1
+        }
     }
 }
