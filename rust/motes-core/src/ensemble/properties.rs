@@ -24,9 +24,10 @@ use crate::ensemble::psd::{Psd, RippleResolution};
 use crate::error::{require, require_len, require_min_len, OpticsError};
 use crate::optics::goa::GoaOptions;
 use crate::optics::mie::{series_length, MieCoefficients, MieIntensitySums};
-use crate::optics::{self, Method, Particle, Theory};
+use crate::optics::{self, GoaRays, Method, Particle, Theory};
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
+use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::sync::OnceLock;
 
@@ -157,6 +158,8 @@ struct Ensemble<'a> {
     abs: f64,
     /// The Mie nodes up to [`MIE_RIPPLE_X_MAX`], summed in coefficient space on first use.
     mie: OnceLock<Option<MieIntensitySums>>,
+    /// The GOA nodes' ray geometry per relative index, shared by their radii (made on first use).
+    goa: OnceLock<HashMap<[u64; 2], GoaRays>>,
 }
 
 impl<'a> Ensemble<'a> {
@@ -201,6 +204,7 @@ impl<'a> Ensemble<'a> {
             ext,
             abs,
             mie: OnceLock::new(),
+            goa: OnceLock::new(),
         })
     }
 
@@ -227,7 +231,7 @@ impl<'a> Ensemble<'a> {
             .map(|chunk| {
                 chunk
                     .iter()
-                    .map(|node| node_intensity(node, theta, self.opts))
+                    .map(|node| node_intensity(node, theta, self.opts, self.goa_rays(&node.0)))
                     .fold(vec![0.0; n], add)
             })
             .collect();
@@ -239,6 +243,28 @@ impl<'a> Ensemble<'a> {
             }
             None => direct,
         }
+    }
+
+    /// The shared GOA rays of a node's relative index (None for a Mie node).
+    fn goa_rays(&self, p: &Particle) -> Option<&GoaRays> {
+        let key = |p: &Particle| {
+            let m = p.relative_index();
+            [m.re.to_bits(), m.im.to_bits()]
+        };
+        let p_max = self.opts.goa.p_max;
+        let is_goa = |p: &Particle| self.opts.method.theory(p, p_max) == Theory::Goa;
+        if !is_goa(p) {
+            return None;
+        }
+        let map = self.goa.get_or_init(|| {
+            let mut map = HashMap::new();
+            for (q, _) in self.nodes.iter().filter(|(q, _)| is_goa(q)) {
+                map.entry(key(q))
+                    .or_insert_with(|| GoaRays::new(q.relative_index(), p_max));
+            }
+            map
+        });
+        map.get(&key(p))
     }
 
     /// The coefficient-space sums of the Mie nodes, weights `w/(2k²)`; 16 fixed groups summed in order.
@@ -549,15 +575,18 @@ fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
 }
 
 /// One node's weighted intensity `w (|S1|²+|S2|²)/(2k²)` at every angle.
-fn node_intensity((p, w): &(Particle, f64), theta: &[f64], opts: &BulkOptions) -> Vec<f64> {
+fn node_intensity(
+    (p, w): &(Particle, f64),
+    theta: &[f64],
+    opts: &BulkOptions,
+    rays: Option<&GoaRays>,
+) -> Vec<f64> {
     if cancel::requested() {
         return vec![0.0; theta.len()];
     }
     let theory = opts.method.theory(p, opts.goa.p_max);
-    let geo = (theory == Theory::Goa)
-        .then(|| optics::cached_geometry(p.relative_index(), opts.goa.p_max));
     let k2 = p.k() * p.k();
-    optics::particle_amplitudes(p, theory, geo.as_deref(), theta, &opts.goa)
+    optics::particle_amplitudes(p, theory, rays, theta, &opts.goa)
         .into_iter()
         .map(|(s1, s2)| w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2))
         .collect()

@@ -11,7 +11,7 @@ use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::f64::consts::PI;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 /// Size parameter above which `Method::Auto` uses GOA. Chosen from the measured GOA-vs-Mie error of
 /// `scripts/figures/hybrid_threshold.py` (BENCHMARKS.md, "auto policy"): above it the RelMSE of
@@ -197,69 +197,57 @@ pub struct CrossSections {
     pub g: f64,
 }
 
-/// Process-wide cache of prepared GOA rays, keyed by (relative index, p_max, the exact angle array).
-/// The ray geometry does not depend on the particle size, so tables over radii and the quadrature
-/// grids below (shared by all radii with the same panel count) reuse it. Small LRU, bounded in bytes.
-mod prepared_cache {
-    use super::*;
-    use std::sync::Mutex;
+/// A GOA ray geometry (size independent: Eq. 4–10 depend on the relative index and the order only)
+/// together with the rays it has prepared at the angle grids asked of it so far, so that every radius of
+/// a batch or of an ensemble shares both. Owned by the computation that builds it (one batch call, one
+/// [`crate::ensemble`] wavelength); nothing is kept process-wide. The memo is a small LRU bounded in
+/// bytes.
+pub struct GoaRays {
+    pub geometry: GoaGeometry,
+    prepared: Mutex<Vec<(PreparedKey, Arc<goa::PreparedAngles>)>>,
+}
 
-    const ENTRIES: usize = 32;
+/// (p_max, hash of the angle array, its length): a hit is confirmed by comparing the arrays.
+type PreparedKey = (u32, u64, usize);
+
+impl GoaRays {
+    /// Prepared angle grids kept.
+    const PREPARED_ENTRIES: usize = 32;
+    /// A prepared grid larger than this is not kept.
     const MAX_BYTES_PER_ENTRY: usize = 64 << 20;
 
-    type Key = (u64, u64, u32, u64, usize);
-    static CACHE: Mutex<Vec<(Key, Arc<goa::PreparedAngles>)>> = Mutex::new(Vec::new());
+    pub fn new(m: C64, p_max: u32) -> Self {
+        GoaRays {
+            geometry: GoaGeometry::new(m, p_max),
+            prepared: Mutex::new(Vec::new()),
+        }
+    }
 
-    fn key(m: C64, p_max: u32, theta: &[f64]) -> Key {
-        // A fast multiplicative hash (FxHash-style): a hit is confirmed by comparing the arrays.
+    fn key(p_max: u32, theta: &[f64]) -> PreparedKey {
+        // A fast multiplicative hash (FxHash-style).
         let mut h: u64 = 0;
         for t in theta {
             h = (h.rotate_left(5) ^ t.to_bits()).wrapping_mul(0x517c_c1b7_2722_0a95);
         }
-        (m.re.to_bits(), m.im.to_bits(), p_max, h, theta.len())
+        (p_max, h, theta.len())
     }
 
-    type GeoKey = (u64, u64, u32);
-    static GEOMETRIES: Mutex<Vec<(GeoKey, Arc<GoaGeometry>)>> = Mutex::new(Vec::new());
-
-    /// The branch geometry of index `m` up to `p_max` (cached: it is size and angle independent).
-    pub fn geometry(m: C64, p_max: u32) -> Arc<GoaGeometry> {
-        let k = (m.re.to_bits(), m.im.to_bits(), p_max);
-        if let Some((_, g)) = GEOMETRIES
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter()
-            .find(|(kk, _)| *kk == k)
+    /// The rays leaving at `theta` (orders ≤ `p_max`), from the memo or computed (and kept if small enough).
+    pub fn prepared(&self, theta: &[f64], p_max: u32) -> Arc<goa::PreparedAngles> {
+        let k = Self::key(p_max, theta);
         {
-            return g.clone();
-        }
-        let g = Arc::new(GoaGeometry::new(m, p_max));
-        let mut c = GEOMETRIES.lock().unwrap_or_else(|e| e.into_inner());
-        if c.len() >= 4 * ENTRIES {
-            c.remove(0);
-        }
-        c.push((k, g.clone()));
-        g
-    }
-
-    /// The prepared rays of `geo` at `theta`, from the cache or computed (and cached if small enough).
-    pub fn get(geo: &GoaGeometry, theta: &[f64], p_max: u32) -> Arc<goa::PreparedAngles> {
-        let k = key(geo.m, p_max, theta);
-        {
-            let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-            if let Some(pos) = c.iter().position(|(kk, _)| *kk == k) {
+            let mut c = self.prepared.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(pos) = c.iter().position(|(kk, v)| *kk == k && v.theta == theta) {
                 let entry = c.remove(pos);
                 let v = entry.1.clone();
                 c.push(entry);
-                if v.theta == theta {
-                    return v;
-                }
+                return v;
             }
         }
-        let v = Arc::new(geo.prepare(theta, p_max));
-        if v.bytes() <= MAX_BYTES_PER_ENTRY {
-            let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-            if c.len() >= ENTRIES {
+        let v = Arc::new(self.geometry.prepare(theta, p_max));
+        if v.bytes() <= Self::MAX_BYTES_PER_ENTRY {
+            let mut c = self.prepared.lock().unwrap_or_else(|e| e.into_inner());
+            if c.len() >= Self::PREPARED_ENTRIES {
                 c.remove(0);
             }
             c.push((k, v.clone()));
@@ -272,7 +260,7 @@ mod prepared_cache {
 /// 8-point Gauss–Legendre on `2·half_panels` equal panels over [0, π], so that a panel edge sits at π/2
 /// where Eq. 11 switches diffraction off. `half_panels` is a power of two ≥ α, so every ray-interference
 /// fringe (period ≳ π/α) and the diffraction lobe (first zero 3.83/α) get several nodes, and radii of
-/// similar size share a node set (and the prepared-ray cache).
+/// similar size share a node set (and the prepared rays of their [`GoaRays`]).
 fn goa_quadrature(alpha: f64) -> (Vec<f64>, Vec<f64>) {
     let (x, w) = gauss_legendre(8);
     let half_panels = (alpha.ceil() as usize).max(64).next_power_of_two();
@@ -291,9 +279,9 @@ fn goa_quadrature(alpha: f64) -> (Vec<f64>, Vec<f64>) {
 }
 
 /// GOA angular integrals `(∫ (|S1|²+|S2|²) dΩ, ∫ (|S1|²+|S2|²) cosθ dΩ)`.
-/// Small grids go through the prepared-ray cache (shared by radii of similar size); large ones
+/// Small grids go through the prepared rays of `rays` (shared by radii of similar size); large ones
 /// (α ≳ 4000, up to ~5e5 nodes) are streamed node by node so that memory stays bounded.
-pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -> (f64, f64) {
+pub fn goa_angular_integrals(rays: &GoaRays, alpha: f64, opts: &GoaOptions) -> (f64, f64) {
     const CACHED_NODES: usize = 1 << 16;
     let (nodes, weights) = goa_quadrature(alpha);
     let moments = |(s1, s2): (C64, C64), t: f64, w: f64| {
@@ -302,8 +290,8 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
     };
     let add = |a: (f64, f64), b: (f64, f64)| (a.0 + b.0, a.1 + b.1);
     if nodes.len() <= CACHED_NODES {
-        let prepared = prepared_cache::get(geo, &nodes, opts.p_max);
-        let amps = goa::evaluate_prepared(geo.m, &prepared, alpha, opts);
+        let prepared = rays.prepared(&nodes, opts.p_max);
+        let amps = goa::evaluate_prepared(rays.geometry.m, &prepared, alpha, opts);
         amps.iter()
             .zip(nodes.iter().zip(&weights))
             .map(|(a, (t, w))| moments(*a, *t, *w))
@@ -321,7 +309,8 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
                     .iter()
                     .map(|&i| {
                         moments(
-                            geo.amplitudes(alpha, nodes[i], opts, &mut scratch),
+                            rays.geometry
+                                .amplitudes(alpha, nodes[i], opts, &mut scratch),
                             nodes[i],
                             weights[i],
                         )
@@ -338,15 +327,15 @@ pub fn goa_angular_integrals(geo: &GoaGeometry, alpha: f64, opts: &GoaOptions) -
 pub fn particle_amplitudes(
     p: &Particle,
     theory: Theory,
-    geo: Option<&GoaGeometry>,
+    rays: Option<&GoaRays>,
     theta: &[f64],
     opts: &GoaOptions,
 ) -> Vec<(C64, C64)> {
     let alpha = p.size_parameter();
-    match (theory, geo) {
-        (Theory::Goa, Some(geo)) => goa::evaluate_prepared(
-            geo.m,
-            &prepared_cache::get(geo, theta, opts.p_max),
+    match (theory, rays) {
+        (Theory::Goa, Some(rays)) => goa::evaluate_prepared(
+            rays.geometry.m,
+            &rays.prepared(theta, opts.p_max),
             alpha,
             opts,
         ),
@@ -365,22 +354,17 @@ pub fn particle_amplitudes(
 fn phase_normaliser(
     p: &Particle,
     theory: Theory,
-    geo: Option<&GoaGeometry>,
+    rays: Option<&GoaRays>,
     opts: &GoaOptions,
 ) -> f64 {
     let alpha = p.size_parameter();
-    match (theory, geo) {
+    match (theory, rays) {
         (Theory::Mie, _) => {
             2.0 * PI * alpha * alpha * MieCoefficients::new(alpha, p.relative_index()).q_sca()
         }
-        (Theory::Goa, Some(geo)) => goa_angular_integrals(geo, alpha, opts).0,
+        (Theory::Goa, Some(rays)) => goa_angular_integrals(rays, alpha, opts).0,
         (Theory::Goa, None) => {
-            goa_angular_integrals(
-                &GoaGeometry::new(p.relative_index(), opts.p_max),
-                alpha,
-                opts,
-            )
-            .0
+            goa_angular_integrals(&GoaRays::new(p.relative_index(), opts.p_max), alpha, opts).0
         }
     }
 }
@@ -426,7 +410,7 @@ fn mie_cross_sections(p: &Particle) -> (MieCoefficients, [f64; 3]) {
 pub fn cross_sections_with(
     p: &Particle,
     theory: Theory,
-    geo: Option<&GoaGeometry>,
+    rays: Option<&GoaRays>,
     opts: &GoaOptions,
 ) -> CrossSections {
     match theory {
@@ -441,15 +425,15 @@ pub fn cross_sections_with(
         }
         Theory::Goa => {
             let owned;
-            let geo = match geo {
-                Some(g) => g,
+            let rays = match rays {
+                Some(r) => r,
                 None => {
-                    owned = GoaGeometry::new(p.relative_index(), opts.p_max);
+                    owned = GoaRays::new(p.relative_index(), opts.p_max);
                     &owned
                 }
             };
             let (ext, abs) = extinction_and_absorption(p, theory, opts);
-            let (norm, first) = goa_angular_integrals(geo, p.size_parameter(), opts);
+            let (norm, first) = goa_angular_integrals(rays, p.size_parameter(), opts);
             let g = if norm > 0.0 {
                 (first / norm).clamp(-1.0, 1.0)
             } else {
@@ -560,12 +544,12 @@ fn check_options(opts: &GoaOptions) -> Result<(), OpticsError> {
     require("p_max", opts.p_max as f64, opts.p_max <= 1000, "<= 1000")
 }
 
-/// Shared GOA geometries for every distinct relative index of a batch.
+/// One [`GoaRays`] per distinct relative index of a batch, shared by its radii (owned by the call).
 fn geometries(
     groups: &[(Particle, Vec<usize>)],
     opts: &GoaOptions,
     needed: impl Fn(&Particle) -> bool,
-) -> HashMap<[u64; 2], Arc<GoaGeometry>> {
+) -> HashMap<[u64; 2], GoaRays> {
     let mut ms: Vec<C64> = groups
         .iter()
         .filter(|(p, _)| needed(p))
@@ -577,16 +561,12 @@ fn geometries(
         .map(|m| {
             (
                 [m.re.to_bits(), m.im.to_bits()],
-                prepared_cache::geometry(*m, opts.p_max),
+                GoaRays::new(*m, opts.p_max),
             )
         })
         .collect::<Vec<_>>()
         .into_iter()
         .collect()
-}
-
-pub(crate) fn cached_geometry(m: C64, p_max: u32) -> Arc<GoaGeometry> {
-    prepared_cache::geometry(m, p_max)
 }
 
 fn geo_key(p: &Particle) -> [u64; 2] {
@@ -617,7 +597,7 @@ pub fn amplitudes_batch(
                 return Vec::new();
             }
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
-            let geo = geos.get(&geo_key(p)).map(|g| g.as_ref());
+            let geo = geos.get(&geo_key(p));
             idx.iter()
                 .copied()
                 .zip(particle_amplitudes(p, theory, geo, &th, opts))
@@ -664,7 +644,7 @@ pub fn cross_sections_batch(
                 };
             }
             let geo = if theory == Theory::Goa {
-                Some(geos[&geo_key(p)].as_ref())
+                Some(&geos[&geo_key(p)])
             } else {
                 None
             };
@@ -702,7 +682,7 @@ pub fn phase_function_batch(
             }
             let theory = method.theory(p, opts.p_max);
             let geo = if theory == Theory::Goa {
-                Some(geos[&geo_key(p)].as_ref())
+                Some(&geos[&geo_key(p)])
             } else {
                 None
             };
@@ -731,4 +711,28 @@ pub fn phase_function_batch(
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `GoaRays` prepares each angle grid once (the second request returns the same rays) and gives
+    /// exactly what its geometry prepares directly; another grid is prepared anew.
+    #[test]
+    fn goa_rays_memoise_prepared_angles() {
+        let rays = GoaRays::new(C64::new(1.33, 1e-4), 4);
+        let a: Vec<f64> = (0..50).map(|i| i as f64 * PI / 49.0).collect();
+        let b: Vec<f64> = a.iter().map(|t| 0.5 * t).collect();
+        let first = rays.prepared(&a, 4);
+        assert!(Arc::ptr_eq(&first, &rays.prepared(&a, 4)));
+        assert!(!Arc::ptr_eq(&first, &rays.prepared(&b, 4)));
+        let opts = GoaOptions::default();
+        let direct = rays.geometry.prepare(&a, 4);
+        let (x, y) = (
+            goa::evaluate_prepared(rays.geometry.m, &first, 300.0, &opts),
+            goa::evaluate_prepared(rays.geometry.m, &direct, 300.0, &opts),
+        );
+        assert_eq!(x, y);
+    }
 }
