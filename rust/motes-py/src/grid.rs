@@ -51,15 +51,14 @@ impl PyParticleGrid {
         t1: F64In,
         brute: bool,
     ) -> PyResult<F64Out<'py>> {
-        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
-        let rs = rays(&origins, &directions, t0.len())?;
+        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
         let ch = self.grid.channels();
-        let out = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+        let out = per_segment(py, &segs, |_, ray| {
             let mut v = vec![0.0; ch];
             if brute {
-                self.grid.optical_depth_brute(o, d, a, b, &mut v);
+                self.grid.optical_depth_brute(ray, &mut v);
             } else {
-                self.grid.optical_depth(o, d, a, b, &mut v);
+                self.grid.optical_depth(ray, &mut v);
             }
             v
         });
@@ -89,9 +88,9 @@ impl PyParticleGrid {
                 "invalid u = {v}: must be in [0, 1)"
             )));
         }
-        let rs = rays(&origins, &directions, t0.len())?;
-        let res = per_segment(py, &rs, &t0, &t1, |i, &(o, d), a, b| {
-            let (hit, tr) = self.grid.free_flight(o, d, a, b, channel, u[i]);
+        let segs = segments(&origins, &directions, &t0, &t1)?;
+        let res = per_segment(py, &segs, |i, ray| {
+            let (hit, tr) = self.grid.free_flight(ray, channel, u[i]);
             match hit {
                 Some(h) => (h.t, h.particle as i64, tr),
                 None => (f64::NAN, -1, tr),
@@ -113,13 +112,12 @@ impl PyParticleGrid {
         t1: F64In,
         brute: bool,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
-        let rs = rays(&origins, &directions, t0.len())?;
-        let res = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+        let res = per_segment(py, &segs, |_, ray| {
             let r = if brute {
-                self.grid.occupied_interval_brute(o, d, a, b)
+                self.grid.occupied_interval_brute(ray)
             } else {
-                self.grid.occupied_interval(o, d, a, b)
+                self.grid.occupied_interval(ray)
             };
             r.unwrap_or((f64::NAN, f64::NAN))
         });

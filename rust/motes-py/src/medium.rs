@@ -305,12 +305,8 @@ impl PyDiscreteMedium {
         t0: F64In,
         t1: F64In,
     ) -> PyResult<F64Out<'py>> {
-        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
-        let rs = rays(&origins, &directions, t0.len())?;
-        let m = &self.medium;
-        let out = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
-            m.optical_depth(o, d, a, b)
-        });
+        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+        let out = per_segment(py, &segs, |_, ray| self.medium.optical_depth(ray));
         Ok(out.into_pyarray(py))
     }
 

@@ -61,6 +61,7 @@ use crate::render::continuous::{resolvable, ContinuousField};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
 use crate::space::grid::{bounding_box, check_cross_sections, check_particles, ParticleGrid, Site};
+use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
@@ -604,17 +605,14 @@ impl DiscreteMedium {
     pub fn continuous_len(&self) -> usize {
         self.field.as_ref().map_or(0, ContinuousField::len)
     }
-    /// Grey optical depth along [t0, t1) of a ray (|d| = 1) as the free flights see it: the discrete
+    /// Grey optical depth along a ray segment (|d| = 1) as the free flights see it: the discrete
     /// particles' staircase plus the continuous field's mean.
-    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> f64 {
+    pub fn optical_depth(&self, ray: &RaySegment) -> f64 {
         let mut v = [0.0];
         if let Some(g) = &self.grid {
-            g.optical_depth(o, d, t0, t1, &mut v);
+            g.optical_depth(ray, &mut v);
         }
-        v[0] + self
-            .field
-            .as_ref()
-            .map_or(0.0, |f| f.optical_depth(o, d, t0, t1))
+        v[0] + self.field.as_ref().map_or(0.0, |f| f.optical_depth(ray))
     }
     pub fn len(&self) -> usize {
         self.tau.len()
@@ -760,22 +758,19 @@ impl DiscreteMedium {
         } else {
             Event::default()
         };
-        let o = o.map(|x| x as f64);
+        let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
         // The continuous field first (one exponential per cell), then the particles up to its distance:
         // the nearer of two independent processes' interactions (crate::render::continuous).
         let (hit, tau_field) = match &self.field {
-            Some(f) => f.free_flight(
-                o,
-                dir,
-                0.0,
-                t_max,
-                -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln(),
-            ),
+            Some(f) => f.free_flight(&ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln()),
             None => (None, 0.0),
         };
         let t_end = hit.map_or(t_max, |h| h.t);
         let (site, tau) = match &self.grid {
-            Some(g) => g.sample_site(o, dir, 0.0, t_end, parent.site.members(), u, self.coincide),
+            Some(g) => {
+                let exclude = parent.site.members();
+                g.sample_site(&ray.between(0.0, t_end), exclude, u, self.coincide)
+            }
             None => (None, 0.0),
         };
         let site = site.or_else(|| {
@@ -791,7 +786,7 @@ impl DiscreteMedium {
         // the site: walked again when a caller asks for it (the packet interface does not).
         let tau_field = match (&self.field, site) {
             (Some(f), Some(s)) if want_tau && hit.map_or(true, |h| s.t < h.t) => {
-                f.optical_depth(o, dir, 0.0, s.t)
+                f.optical_depth(&ray.between(0.0, s.t))
             }
             _ => tau_field,
         };
@@ -871,7 +866,7 @@ impl DiscreteMedium {
         let tol = 4.0 * self.coincide + 1e-6 * o.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         let mut site = Site::default();
         if let Some(g) = &self.grid {
-            g.walk(o, w_in, -tol, tol, |t, _, i| {
+            g.walk(&RaySegment::new(o, w_in, -tol, tol), |t, _, i| {
                 if site.len == 0 {
                     site.t = t;
                 }
@@ -1580,7 +1575,8 @@ mod tests {
             let o = vec![[0.5f32, 0.5, -0.2]; lanes];
             let d = vec![[0.0f32, 0.0, 1.0]; lanes];
             let tm = vec![1.4; lanes];
-            let tau = [m.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4)];
+            let ray = RaySegment::new([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4);
+            let tau = [m.optical_depth(&ray)];
             let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
             let escaped = res.iter().filter(|r| r.t.is_none()).count();
             assert!(tau[0] > 0.2, "{}", tau[0]);
