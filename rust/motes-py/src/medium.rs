@@ -12,6 +12,19 @@ use std::sync::Arc;
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
 pub(crate) struct PyDiscreteMedium {
     medium: Arc<motes_core::render::discrete::DiscreteMedium>,
+    // The medium's figures fixed at its build, read by Python as attributes.
+    /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
+    #[pyo3(get)]
+    widened: usize,
+    /// Largest optical depth of a particle's disk.
+    #[pyo3(get)]
+    tau_max: f64,
+    /// Largest inclusion radius of a particle (scene units).
+    #[pyo3(get)]
+    reach_max: f64,
+    /// Particles sampled as a continuous medium (size classes no pixel resolves).
+    #[pyo3(get)]
+    continuous_particles: usize,
 }
 
 #[pymethods]
@@ -66,6 +79,10 @@ impl PyDiscreteMedium {
             })
             .map_err(to_py)?;
         Ok(PyDiscreteMedium {
+            widened: medium.widened(),
+            tau_max: medium.tau_max(),
+            reach_max: medium.reach_max(),
+            continuous_particles: medium.continuous_len(),
             medium: Arc::new(medium),
         })
     }
@@ -254,13 +271,6 @@ impl PyDiscreteMedium {
         Ok(sampled(py, out))
     }
 
-    /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
-    #[getter]
-    fn widened(&self) -> usize {
-        self.medium.widened()
-    }
-
-    /// Largest optical depth of a particle's disk.
     /// The factor on every particle's albedo (1 unless set; see `set_albedo_scale`).
     #[getter]
     fn albedo_scale(&self) -> f64 {
@@ -270,23 +280,6 @@ impl PyDiscreteMedium {
     /// Scale every particle's albedo from the next query on (between renders).
     fn set_albedo_scale(&self, scale: f64) -> PyResult<()> {
         self.medium.set_albedo_scale(scale).map_err(to_py)
-    }
-
-    #[getter]
-    fn tau_max(&self) -> f64 {
-        self.medium.tau_max()
-    }
-
-    /// Largest inclusion radius of a particle (scene units).
-    #[getter]
-    fn reach_max(&self) -> f64 {
-        self.medium.reach_max()
-    }
-
-    /// Particles sampled as a continuous medium (size classes no pixel resolves).
-    #[getter]
-    fn continuous_particles(&self) -> usize {
-        self.medium.continuous_len()
     }
 
     /// Remember an event of the given particles at `p` (tests and tools).

@@ -64,19 +64,15 @@ enum Field {
     InstId,
 }
 
+/// The packet entry point, [`motes_packet`]: (medium, op, width, valid, args, lambda, channels).
+pub type PacketFn =
+    unsafe extern "C" fn(*const c_void, u32, u32, *const i32, *mut u8, *const f64, u32);
+
 /// What C++ receives: the interface version and three functions.
 #[repr(C)]
 pub struct NativeApi {
     pub abi: u32,
-    pub packet: unsafe extern "C" fn(
-        medium: *const c_void,
-        op: u32,
-        width: u32,
-        valid: *const i32,
-        args: *mut u8,
-        lambda: *const f64,
-        channels: u32,
-    ),
+    pub packet: PacketFn,
     pub release: unsafe extern "C" fn(medium: *const c_void),
     /// The medium's `albedo_scale` (a scene parameter the C++ medium's `traverse` lists): 0 when set,
     /// else 1 with the reason, NUL-terminated and cut to `capacity` bytes, in `message`.
