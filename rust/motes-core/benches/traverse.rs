@@ -8,7 +8,7 @@
 //! median round is reported, so a busy machine shifts all columns alike.
 //!
 //!     cargo bench -p motes-core --bench traverse [-- sparse|dense]
-use motes_core::space::grid::{ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
+use motes_core::space::grid::{GridSettings, ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
 use motes_core::space::ray::RaySegment;
 use std::time::Instant;
 
@@ -57,7 +57,9 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
     let resolutions = [DEFAULT_CELLS_PER_PARTICLE, 1.0, 0.5, 0.25, 0.0625];
     let grids: Vec<ParticleGrid> = resolutions
         .iter()
-        .map(|&cpp| ParticleGrid::build(&pos, &rad, &c, 1, query_radius, cpp).unwrap())
+        .map(|&cpp| {
+            ParticleGrid::build(&pos, &rad, &c, 1, &GridSettings::new(query_radius, cpp)).unwrap()
+        })
         .collect();
     let mut times = vec![[const { Vec::new() }; 3]; grids.len()];
     let (mut hits, mut sites) = (0usize, 0usize);

@@ -1,6 +1,7 @@
 //! Particles in space: a grid built once and queried in batches (`motes_core::space::grid`).
 
 use crate::convert::*;
+use motes_core::space::grid::{GridSettings, ParticleGrid};
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -8,7 +9,7 @@ use pyo3::prelude::*;
 /// A particle grid (scene units): build once, query in batches.
 #[pyclass(name = "ParticleGrid", module = "motes._motes", frozen)]
 pub(crate) struct PyParticleGrid {
-    grid: motes_core::space::grid::ParticleGrid,
+    grid: ParticleGrid,
 }
 
 #[pymethods]
@@ -26,17 +27,9 @@ impl PyParticleGrid {
     ) -> PyResult<Self> {
         let pos = points(&positions)?;
         let (r, c) = (radius.as_slice()?.to_vec(), c_ext.as_slice()?.to_vec());
+        let settings = GridSettings::new(query_radius, cells_per_particle);
         let grid = py
-            .detach(|| {
-                motes_core::space::grid::ParticleGrid::build(
-                    &pos,
-                    &r,
-                    &c,
-                    channels,
-                    query_radius,
-                    cells_per_particle,
-                )
-            })
+            .detach(|| ParticleGrid::build(&pos, &r, &c, channels, &settings))
             .map_err(to_py)?;
         Ok(PyParticleGrid { grid })
     }

@@ -60,7 +60,9 @@ use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, ContinuousField};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
-use crate::space::grid::{bounding_box, check_cross_sections, check_particles, ParticleGrid, Site};
+use crate::space::grid::{
+    bounding_box, check_cross_sections, check_particles, GridSettings, ParticleGrid, Site,
+};
 use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -329,7 +331,11 @@ pub fn check_particles_and_settings(
     cells_per_particle: f64,
     continuous_count: f64,
 ) -> Result<(), OpticsError> {
-    check_particles(positions, radius, query_radius, cells_per_particle)?;
+    check_particles(
+        positions,
+        radius,
+        &GridSettings::new(query_radius, cells_per_particle),
+    )?;
     require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
     require(
         "continuous_count",
@@ -397,15 +403,14 @@ fn check_build_inputs(
 
 /// The structures a free flight walks: the grid of the particles whose grains a pixel can resolve and
 /// the continuous field of the others (`continuous_count`, crate::render::continuous), and which is which.
-#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+#[allow(clippy::type_complexity)]
 fn build_walk(
     positions: &[[f64; 3]],
     reach: &[f64],
     grid_radius: &[f64],
     grid_c: &[f64],
     c_ext: &[f64],
-    query_radius: f64,
-    cells_per_particle: f64,
+    settings: &GridSettings,
     continuous_count: f64,
 ) -> (Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>) {
     let n = positions.len();
@@ -421,8 +426,7 @@ fn build_walk(
             grid_radius,
             grid_c,
             1,
-            query_radius,
-            cells_per_particle,
+            settings,
         ))
     } else {
         // The grid reports original indices: build it on the discrete particles and map back.
@@ -435,8 +439,7 @@ fn build_walk(
             &pick(&discrete_ids, grid_radius),
             &pick(&discrete_ids, grid_c),
             1,
-            query_radius,
-            cells_per_particle,
+            settings,
         );
         Some(g.with_indices(&discrete_ids))
     };
@@ -548,8 +551,7 @@ impl DiscreteMedium {
             &grid_radius,
             &grid_c,
             c_ext,
-            query_radius,
-            cells_per_particle,
+            &GridSettings::new(query_radius, cells_per_particle),
             continuous_count,
         );
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);

@@ -384,19 +384,17 @@ fn inline_slots(
 impl SubGrid {
     /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
     /// particles' original indices.
-    #[allow(clippy::too_many_arguments)]
     fn build_class(
         positions: &[[f64; 3]],
         radius: &[f64],
         c_ext: &[f64],
         ids: &[u32],
         channels: usize,
-        query_radius: f64,
-        cells_per_particle: f64,
+        settings: &GridSettings,
         volume_hint: Option<f64>,
     ) -> Self {
         let n = positions.len();
-        let reach: Vec<f64> = radius.iter().map(|r| query_radius + r).collect();
+        let reach: Vec<f64> = radius.iter().map(|r| settings.query_radius + r).collect();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let (mut lo, mut hi) = bounding_box(positions);
         for a in 0..3 {
@@ -413,7 +411,7 @@ impl SubGrid {
         // the ray's own cells). Dense classes (balls wider than the spacing) would need many references
         // per particle; there cells are at least R_max wide, each particle is referenced by its centre's
         // cell only, and a traversal scans the 3×3×3 cells around the ray's cell (k = 1).
-        let spacing = cell_spacing(volume, n, cells_per_particle);
+        let spacing = cell_spacing(volume, n, settings.cells_per_particle);
         let k: i64 = if is_sparse(reach_max, spacing) { 0 } else { 1 };
         let cell = spacing.max(reach_max).max(1e-12);
         let dims =
@@ -867,6 +865,25 @@ impl SubGrid {
 /// falls with the cell count).
 pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 
+/// How a [`ParticleGrid`] is laid over its particles: the query radius r_c (scene units; a particle
+/// contributes to the rays passing within r_c + r_i of its centre, Sec. 5.3) and the resolution in
+/// cells per particle (paper Sec. 6.5: about one particle per voxel; see
+/// [`DEFAULT_CELLS_PER_PARTICLE`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridSettings {
+    pub query_radius: f64,
+    pub cells_per_particle: f64,
+}
+
+impl GridSettings {
+    pub fn new(query_radius: f64, cells_per_particle: f64) -> Self {
+        GridSettings {
+            query_radius,
+            cells_per_particle,
+        }
+    }
+}
+
 /// Size classes of a [`ParticleGrid`]: factors of two in inclusion radius, the last one open below.
 pub(crate) const SIZE_CLASSES: usize = 13;
 
@@ -960,9 +977,12 @@ fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
 pub fn check_particles(
     positions: &[[f64; 3]],
     radius: &[f64],
-    query_radius: f64,
-    cells_per_particle: f64,
+    settings: &GridSettings,
 ) -> Result<(), OpticsError> {
+    let GridSettings {
+        query_radius,
+        cells_per_particle,
+    } = *settings;
     let n = positions.len();
     require("positions (count)", n as f64, n >= 1, ">= 1")?;
     require_len("radius (length)", radius.len(), n, "one per particle")?;
@@ -1020,26 +1040,20 @@ pub struct ParticleGrid {
 }
 
 impl ParticleGrid {
-    /// Build from centres (scene units), geometric radii (scene units), extinction cross sections
-    /// (scene units², `[particle][channel]` row-major) and the query radius r_c (scene units).
-    /// `cells_per_particle` sets the resolution (paper Sec. 6.5: about one particle per voxel).
+    /// Build from centres (scene units), geometric radii (scene units) and extinction cross sections
+    /// (scene units², `[particle][channel]` row-major), with the query radius and resolution of
+    /// `settings`.
     pub fn build(
         positions: &[[f64; 3]],
         radius: &[f64],
         c_ext: &[f64],
         channels: usize,
-        query_radius: f64,
-        cells_per_particle: f64,
+        settings: &GridSettings,
     ) -> Result<Self, OpticsError> {
-        check_particles(positions, radius, query_radius, cells_per_particle)?;
+        check_particles(positions, radius, settings)?;
         check_cross_sections(c_ext, positions.len(), channels)?;
         Ok(Self::from_checked(
-            positions,
-            radius,
-            c_ext,
-            channels,
-            query_radius,
-            cells_per_particle,
+            positions, radius, c_ext, channels, settings,
         ))
     }
 
@@ -1050,9 +1064,12 @@ impl ParticleGrid {
         radius: &[f64],
         c_ext: &[f64],
         channels: usize,
-        query_radius: f64,
-        cells_per_particle: f64,
+        settings: &GridSettings,
     ) -> Self {
+        let GridSettings {
+            query_radius,
+            cells_per_particle,
+        } = *settings;
         let n = positions.len();
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
@@ -1081,8 +1098,7 @@ impl ParticleGrid {
                 &ce,
                 &ids,
                 channels,
-                query_radius,
-                cells_per_particle,
+                settings,
                 Some(volume),
             ));
         }
@@ -1368,6 +1384,7 @@ mod tests {
     use super::*;
 
     use crate::test_rng::{assert_escape_rate, lcg, random_direction, random_particles};
+    use std::f64::consts::PI;
 
     /// Free flights interact at a particle with exactly the probability the transmittance implies:
     /// P(no interaction on [t0, t1)) = exp(−τ) (binomial 5σ bound), and the interaction point has an
@@ -1376,11 +1393,8 @@ mod tests {
     fn free_flight_matches_transmittance() {
         let mut s = 11u64;
         let (pos, rad) = random_particles(&mut s, 2000, 0.005, 0.01);
-        let cext: Vec<f64> = rad
-            .iter()
-            .map(|r| 2.0 * std::f64::consts::PI * r * r * 15.0)
-            .collect();
-        let g = ParticleGrid::build(&pos, &rad, &cext, 1, 0.03, 1.0).unwrap();
+        let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r * 15.0).collect();
+        let g = ParticleGrid::build(&pos, &rad, &cext, 1, &GridSettings::new(0.03, 1.0)).unwrap();
         assert!(g.class_count() >= 1);
         let ray = RaySegment::new([0.5, 0.5, -0.5], [0.0, 0.6, 0.8], 0.0, 3.0);
         let mut tau = [0.0];
@@ -1485,7 +1499,7 @@ mod tests {
         let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
         let cext: Vec<f64> = rad
             .iter()
-            .flat_map(|r| [2.0 * std::f64::consts::PI * r * r, 3.0 * r * r])
+            .flat_map(|r| [2.0 * PI * r * r, 3.0 * r * r])
             .collect();
         for (rc, cpp) in [
             (0.0, 1.0),
@@ -1495,7 +1509,7 @@ mod tests {
             (0.0, 0.25),
             (0.0, 20.0),
         ] {
-            let g = ParticleGrid::build(&pos, &rad, &cext, 2, rc, cpp).unwrap();
+            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &GridSettings::new(rc, cpp)).unwrap();
             if rc == 0.0 && cpp == 1.0 {
                 // Every class is sparse at this resolution: one grid (merge_sparse_classes).
                 assert_eq!(g.class_count(), 1);
