@@ -3,6 +3,7 @@
 
 use crate::convert::*;
 use crate::native;
+use motes_core::render::discrete::{PhaseEvalLane, PhaseSampleLane};
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -154,6 +155,43 @@ impl PyDiscreteMedium {
         Ok(out.into_pyarray(py))
     }
 
+    /// Sample the phase function of the events at `p`: (wo n*3, weight n*channels, pdf n).
+    #[allow(clippy::too_many_arguments)]
+    fn phase_sample<'py>(
+        &self,
+        py: Python<'py>,
+        p: F32In,
+        wi: F32In,
+        lambda: F64In,
+        channels: usize,
+        u1: F64In,
+        u2: F64In,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+        let (pp, a, lam, s1, s2) = (
+            vec3s(&p, "p")?,
+            vec3s(&wi, "wi")?,
+            lambda.as_slice()?.to_vec(),
+            u1.as_slice()?,
+            u2.as_slice()?,
+        );
+        if a.len() != pp.len()
+            || s1.len() != pp.len()
+            || s2.len() != 2 * pp.len()
+            || !per_lane(&lam, channels, pp.len())
+        {
+            return Err(PyValueError::new_err(
+                "p, wi, u1, u2 and lambda must describe the same lanes",
+            ));
+        }
+        let lanes: Vec<PhaseSampleLane> = pp
+            .into_iter()
+            .zip(a.into_iter().zip(s1.iter().copied().zip(pairs(s2))))
+            .map(|(p, (wi, (u1, u2)))| PhaseSampleLane { p, wi, u1, u2 })
+            .collect();
+        let out = py.detach(|| self.medium.phase_sample(&lanes, &lam, channels));
+        Ok(sampled(py, out))
+    }
+
     /// Phase function of the events at `p`: (values n*channels, pdf n).
     fn phase_eval<'py>(
         &self,
@@ -175,41 +213,13 @@ impl PyDiscreteMedium {
                 "p, wi, wo and lambda must describe the same lanes",
             ));
         }
-        let (v, pdf) = py.detach(|| self.medium.phase_eval(&pp, &a, &b, &lam, channels));
+        let lanes: Vec<PhaseEvalLane> = pp
+            .into_iter()
+            .zip(a.into_iter().zip(b))
+            .map(|(p, (wi, wo))| PhaseEvalLane { p, wi, wo })
+            .collect();
+        let (v, pdf) = py.detach(|| self.medium.phase_eval(&lanes, &lam, channels));
         Ok((v.into_pyarray(py), pdf.into_pyarray(py)))
-    }
-
-    /// Sample the phase function of the events at `p`: (wo n*3, weight n*channels, pdf n).
-    #[allow(clippy::too_many_arguments)]
-    fn phase_sample<'py>(
-        &self,
-        py: Python<'py>,
-        p: F32In,
-        wi: F32In,
-        lambda: F64In,
-        channels: usize,
-        u1: F64In,
-        u2: F64In,
-    ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
-        let (pp, a, lam, s1, s2) = (
-            vec3s(&p, "p")?,
-            vec3s(&wi, "wi")?,
-            lambda.as_slice()?.to_vec(),
-            u1.as_slice()?.to_vec(),
-            u2.as_slice()?,
-        );
-        if a.len() != pp.len()
-            || s1.len() != pp.len()
-            || s2.len() != 2 * pp.len()
-            || !per_lane(&lam, channels, pp.len())
-        {
-            return Err(PyValueError::new_err(
-                "p, wi, u1, u2 and lambda must describe the same lanes",
-            ));
-        }
-        let s2 = pairs(s2);
-        let out = py.detach(|| self.medium.phase_sample(&pp, &a, &lam, channels, &s1, &s2));
-        Ok(sampled(py, out))
     }
 
     /// Eq. 24 at points (f64 n*3): (sigma_s n*channels, Q = sigma_s f at cos θ = `mu`, n*channels).

@@ -21,7 +21,9 @@
 //! 1/50 nm (spectral variants: 4 channels; the quantisation, 0.01 nm, is far below the tables'
 //! wavelength spacing).
 
-use motes_core::render::discrete::{DiscreteMedium, PacketRay, PACKET_LANES};
+use motes_core::render::discrete::{
+    DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, PACKET_LANES,
+};
 use pyo3::prelude::*;
 use std::collections::HashSet;
 use std::ffi::{c_char, c_void};
@@ -293,16 +295,14 @@ impl Packet<'_> {
 
     /// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
     fn phase_sample(&self) {
-        let l = self.gather(|i| {
-            (
-                self.r.v3(Field::Ox, i),
-                self.r.v3(Field::Dx, i),
-                self.r.f(Field::Tnear, i) as f64,
-                [
-                    self.r.f(Field::Time, i) as f64,
-                    self.r.f(Field::Tfar, i) as f64,
-                ],
-            )
+        let l = self.gather(|i| PhaseSampleLane {
+            p: self.r.v3(Field::Ox, i),
+            wi: self.r.v3(Field::Dx, i),
+            u1: self.r.f(Field::Tnear, i) as f64,
+            u2: [
+                self.r.f(Field::Time, i) as f64,
+                self.r.f(Field::Tfar, i) as f64,
+            ],
         });
         let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
         self.m
@@ -317,16 +317,14 @@ impl Packet<'_> {
 
     /// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
     fn phase_eval(&self) {
-        let l = self.gather(|i| {
-            (
-                self.r.v3(Field::Ox, i),
-                self.r.v3(Field::Dx, i),
-                [
-                    self.r.f(Field::Tnear, i),
-                    self.r.f(Field::Time, i),
-                    self.r.f(Field::Tfar, i),
-                ],
-            )
+        let l = self.gather(|i| PhaseEvalLane {
+            p: self.r.v3(Field::Ox, i),
+            wi: self.r.v3(Field::Dx, i),
+            wo: [
+                self.r.f(Field::Tnear, i),
+                self.r.f(Field::Time, i),
+                self.r.f(Field::Tfar, i),
+            ],
         });
         let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
         self.m
