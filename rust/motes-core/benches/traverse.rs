@@ -8,7 +8,8 @@
 //! median round is reported, so a busy machine shifts all columns alike.
 //!
 //!     cargo bench -p motes-core --bench traverse [-- sparse|dense]
-use motes_core::space::grid::{ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
+use motes_core::space::grid::{GridSettings, ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
+use motes_core::space::ray::RaySegment;
 use std::time::Instant;
 
 struct Lcg(u64);
@@ -45,18 +46,20 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
         .iter()
         .map(|x| 2.0 * std::f64::consts::PI * x * x)
         .collect();
-    let rays: Vec<([f64; 3], [f64; 3])> = (0..200_000)
+    let rays: Vec<RaySegment> = (0..200_000)
         .map(|_| {
             let o = point(&mut r);
             let d = [r.next() - 0.5, r.next() - 0.5, r.next() - 0.5];
             let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            (o, d.map(|x| x / l))
+            RaySegment::new(o, d.map(|x| x / l), 0.0, 40.0)
         })
         .collect();
     let resolutions = [DEFAULT_CELLS_PER_PARTICLE, 1.0, 0.5, 0.25, 0.0625];
     let grids: Vec<ParticleGrid> = resolutions
         .iter()
-        .map(|&cpp| ParticleGrid::build(&pos, &rad, &c, 1, query_radius, cpp).unwrap())
+        .map(|&cpp| {
+            ParticleGrid::build(&pos, &rad, &c, 1, &GridSettings::new(query_radius, cpp)).unwrap()
+        })
         .collect();
     let mut times = vec![[const { Vec::new() }; 3]; grids.len()];
     let (mut hits, mut sites) = (0usize, 0usize);
@@ -64,8 +67,8 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
         for (g, t) in grids.iter().zip(times.iter_mut()) {
             hits = 0;
             t[0].push(per_ray(rays.len(), || {
-                for (o, d) in &rays {
-                    g.walk(*o, *d, 0.0, 40.0, |_, _, _| {
+                for ray in &rays {
+                    g.walk(ray, |_, _, _| {
                         hits += 1;
                         true
                     });
@@ -73,15 +76,15 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
             }));
             let mut v = [0.0];
             t[1].push(per_ray(rays.len(), || {
-                for (o, d) in &rays {
-                    g.optical_depth(*o, *d, 0.0, 40.0, &mut v);
+                for ray in &rays {
+                    g.optical_depth(ray, &mut v);
                 }
             }));
             sites = 0;
             t[2].push(per_ray(rays.len(), || {
-                for (k, (o, d)) in rays.iter().enumerate() {
+                for (k, ray) in rays.iter().enumerate() {
                     let u = (k as f64 + 0.5) / rays.len() as f64;
-                    sites += g.sample_site(*o, *d, 0.0, 40.0, &[], u, 1e-6).0.is_some() as usize;
+                    sites += g.sample_site(ray, &[], u, 1e-6).0.is_some() as usize;
                 }
             }));
         }

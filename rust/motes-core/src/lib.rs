@@ -32,6 +32,27 @@ pub(crate) mod test_rng {
         (0..n).map(|_| [lcg(s), lcg(s), lcg(s)]).collect()
     }
 
+    /// `n` particles: centres from [`random_points`], then radii uniform in [r_min, r_min + r_span),
+    /// all drawn from `s`.
+    pub fn random_particles(
+        s: &mut u64,
+        n: usize,
+        r_min: f64,
+        r_span: f64,
+    ) -> (Vec<[f64; 3]>, Vec<f64>) {
+        let centres = random_points(s, n);
+        let radii = (0..n).map(|_| r_min + r_span * lcg(s)).collect();
+        (centres, radii)
+    }
+
+    /// A unit direction: three uniform components in [−0.5, 0.5), drawn x, y, z in turn from `s`,
+    /// normalised (not uniform on the sphere, which no test needs).
+    pub fn random_direction(s: &mut u64) -> [f64; 3] {
+        let d = [lcg(s) - 0.5, lcg(s) - 0.5, lcg(s) - 0.5];
+        let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        d.map(|x| x / l)
+    }
+
     /// Runs `trials` free flights, `escapes(u)` each with a fresh uniform `u` from `s` (checking
     /// what it likes, and returning whether the flight escaped), and checks the escapes with
     /// [`assert_escape_fraction`].

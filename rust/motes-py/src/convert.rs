@@ -9,6 +9,7 @@
 //! (a grid build, a batch of free flights), and they are the price of running that work on every core
 //! while Python threads go on.
 
+use motes_core::space::ray::RaySegment;
 use motes_core::OpticsError;
 use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
@@ -53,9 +54,6 @@ pub(crate) fn to_py(e: OpticsError) -> PyErr {
 pub(crate) type F64In<'py> = PyReadonlyArray1<'py, f64>;
 pub(crate) type F64Out<'py> = Bound<'py, PyArray1<f64>>;
 
-/// A ray as the grid and medium queries take it: origin and unit direction.
-pub(crate) type Ray = ([f64; 3], [f64; 3]);
-
 /// Points from a flat (n*3) array, unchecked: a trailing partial point is dropped.
 pub(crate) fn triples(flat: &[f64]) -> Vec<[f64; 3]> {
     flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
@@ -88,8 +86,15 @@ pub(crate) fn per_ray<const N: usize>(arrays: [(&str, &F64In); N]) -> PyResult<[
     Ok(out.try_into().expect("N arrays"))
 }
 
-/// `n` rays from flat (n*3) origins and directions, the directions normalised.
-pub(crate) fn rays(origins: &F64In, directions: &F64In, n: usize) -> PyResult<Vec<Ray>> {
+/// The ray segments [t0, t1) that the grid and medium queries take, from flat (n*3) origins and
+/// directions (the directions normalised) and the per-ray `t0` and `t1` (from [`per_ray`]).
+pub(crate) fn segments(
+    origins: &F64In,
+    directions: &F64In,
+    t0: &[f64],
+    t1: &[f64],
+) -> PyResult<Vec<RaySegment>> {
+    let n = t0.len();
     let (origins, directions) = (origins.as_slice()?, directions.as_slice()?);
     if origins.len() != 3 * n || directions.len() != 3 * n {
         return Err(invalid(
@@ -114,28 +119,33 @@ pub(crate) fn rays(origins: &F64In, directions: &F64In, n: usize) -> PyResult<Ve
                     format!("invalid ray {i}: origins must be finite and directions finite and non-zero"),
                 ));
             }
-            Ok((o, d.map(|x| x / l)))
+            Ok(RaySegment::new(o, d.map(|x| x / l), t0[i], t1[i]))
         })
         .collect()
 }
 
-/// `f(i, ray, t0, t1)` of each ray's segment [t0, t1), in parallel and without the GIL.
-pub(crate) fn per_segment<T, F>(
-    py: Python<'_>,
-    rays: &[Ray],
-    t0: &[f64],
-    t1: &[f64],
-    f: F,
-) -> Vec<T>
+/// [`segments`] from the per-ray `t0` and `t1` arrays as Python gives them.
+pub(crate) fn ray_segments(
+    origins: &F64In,
+    directions: &F64In,
+    t0: &F64In,
+    t1: &F64In,
+) -> PyResult<Vec<RaySegment>> {
+    let [t0, t1] = per_ray([("t0", t0), ("t1", t1)])?;
+    segments(origins, directions, &t0, &t1)
+}
+
+/// `f(i, segment)` of each ray segment, in parallel and without the GIL.
+pub(crate) fn per_segment<T, F>(py: Python<'_>, segments: &[RaySegment], f: F) -> Vec<T>
 where
     T: Send,
-    F: Fn(usize, &Ray, f64, f64) -> T + Sync + Send,
+    F: Fn(usize, &RaySegment) -> T + Sync + Send,
 {
     py.detach(|| {
-        rays.par_iter()
-            .zip(t0.par_iter().zip(t1.par_iter()))
+        segments
+            .par_iter()
             .enumerate()
-            .map(|(i, (r, (a, b)))| f(i, r, *a, *b))
+            .map(|(i, s)| f(i, s))
             .collect()
     })
 }

@@ -1,6 +1,7 @@
 //! Particles in space: a grid built once and queried in batches (`motes_core::space::grid`).
 
 use crate::convert::*;
+use motes_core::space::grid::{GridSettings, ParticleGrid};
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -8,7 +9,7 @@ use pyo3::prelude::*;
 /// A particle grid (scene units): build once, query in batches.
 #[pyclass(name = "ParticleGrid", module = "motes._motes", frozen)]
 pub(crate) struct PyParticleGrid {
-    grid: motes_core::space::grid::ParticleGrid,
+    grid: ParticleGrid,
 }
 
 #[pymethods]
@@ -26,17 +27,9 @@ impl PyParticleGrid {
     ) -> PyResult<Self> {
         let pos = points(&positions)?;
         let (r, c) = (radius.as_slice()?.to_vec(), c_ext.as_slice()?.to_vec());
+        let settings = GridSettings::new(query_radius, cells_per_particle);
         let grid = py
-            .detach(|| {
-                motes_core::space::grid::ParticleGrid::build(
-                    &pos,
-                    &r,
-                    &c,
-                    channels,
-                    query_radius,
-                    cells_per_particle,
-                )
-            })
+            .detach(|| ParticleGrid::build(&pos, &r, &c, channels, &settings))
             .map_err(to_py)?;
         Ok(PyParticleGrid { grid })
     }
@@ -51,15 +44,14 @@ impl PyParticleGrid {
         t1: F64In,
         brute: bool,
     ) -> PyResult<F64Out<'py>> {
-        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
-        let rs = rays(&origins, &directions, t0.len())?;
+        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
         let ch = self.grid.channels();
-        let out = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+        let out = per_segment(py, &segs, |_, ray| {
             let mut v = vec![0.0; ch];
             if brute {
-                self.grid.optical_depth_brute(o, d, a, b, &mut v);
+                self.grid.optical_depth_brute(ray, &mut v);
             } else {
-                self.grid.optical_depth(o, d, a, b, &mut v);
+                self.grid.optical_depth(ray, &mut v);
             }
             v
         });
@@ -89,9 +81,9 @@ impl PyParticleGrid {
                 "invalid u = {v}: must be in [0, 1)"
             )));
         }
-        let rs = rays(&origins, &directions, t0.len())?;
-        let res = per_segment(py, &rs, &t0, &t1, |i, &(o, d), a, b| {
-            let (hit, tr) = self.grid.free_flight(o, d, a, b, channel, u[i]);
+        let segs = segments(&origins, &directions, &t0, &t1)?;
+        let res = per_segment(py, &segs, |i, ray| {
+            let (hit, tr) = self.grid.free_flight(ray, channel, u[i]);
             match hit {
                 Some(h) => (h.t, h.particle as i64, tr),
                 None => (f64::NAN, -1, tr),
@@ -113,13 +105,12 @@ impl PyParticleGrid {
         t1: F64In,
         brute: bool,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
-        let rs = rays(&origins, &directions, t0.len())?;
-        let res = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
+        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+        let res = per_segment(py, &segs, |_, ray| {
             let r = if brute {
-                self.grid.occupied_interval_brute(o, d, a, b)
+                self.grid.occupied_interval_brute(ray)
             } else {
-                self.grid.occupied_interval(o, d, a, b)
+                self.grid.occupied_interval(ray)
             };
             r.unwrap_or((f64::NAN, f64::NAN))
         });

@@ -3,6 +3,7 @@
 
 use crate::convert::*;
 use crate::native;
+use motes_core::render::discrete::{PhaseEvalLane, PhaseSampleLane};
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -12,6 +13,19 @@ use std::sync::Arc;
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
 pub(crate) struct PyDiscreteMedium {
     medium: Arc<motes_core::render::discrete::DiscreteMedium>,
+    // The medium's figures fixed at its build, read by Python as attributes.
+    /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
+    #[pyo3(get)]
+    widened: usize,
+    /// Largest optical depth of a particle's disk.
+    #[pyo3(get)]
+    tau_max: f64,
+    /// Largest inclusion radius of a particle (scene units).
+    #[pyo3(get)]
+    reach_max: f64,
+    /// Particles sampled as a continuous medium (size classes no pixel resolves).
+    #[pyo3(get)]
+    continuous_particles: usize,
 }
 
 #[pymethods]
@@ -66,6 +80,10 @@ impl PyDiscreteMedium {
             })
             .map_err(to_py)?;
         Ok(PyDiscreteMedium {
+            widened: medium.widened(),
+            tau_max: medium.tau_max(),
+            reach_max: medium.reach_max(),
+            continuous_particles: medium.continuous_len(),
             medium: Arc::new(medium),
         })
     }
@@ -137,6 +155,43 @@ impl PyDiscreteMedium {
         Ok(out.into_pyarray(py))
     }
 
+    /// Sample the phase function of the events at `p`: (wo n*3, weight n*channels, pdf n).
+    #[allow(clippy::too_many_arguments)]
+    fn phase_sample<'py>(
+        &self,
+        py: Python<'py>,
+        p: F32In,
+        wi: F32In,
+        lambda: F64In,
+        channels: usize,
+        u1: F64In,
+        u2: F64In,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
+        let (pp, a, lam, s1, s2) = (
+            vec3s(&p, "p")?,
+            vec3s(&wi, "wi")?,
+            lambda.as_slice()?.to_vec(),
+            u1.as_slice()?,
+            u2.as_slice()?,
+        );
+        if a.len() != pp.len()
+            || s1.len() != pp.len()
+            || s2.len() != 2 * pp.len()
+            || !per_lane(&lam, channels, pp.len())
+        {
+            return Err(PyValueError::new_err(
+                "p, wi, u1, u2 and lambda must describe the same lanes",
+            ));
+        }
+        let lanes: Vec<PhaseSampleLane> = pp
+            .into_iter()
+            .zip(a.into_iter().zip(s1.iter().copied().zip(pairs(s2))))
+            .map(|(p, (wi, (u1, u2)))| PhaseSampleLane { p, wi, u1, u2 })
+            .collect();
+        let out = py.detach(|| self.medium.phase_sample(&lanes, &lam, channels));
+        Ok(sampled(py, out))
+    }
+
     /// Phase function of the events at `p`: (values n*channels, pdf n).
     fn phase_eval<'py>(
         &self,
@@ -158,41 +213,13 @@ impl PyDiscreteMedium {
                 "p, wi, wo and lambda must describe the same lanes",
             ));
         }
-        let (v, pdf) = py.detach(|| self.medium.phase_eval(&pp, &a, &b, &lam, channels));
+        let lanes: Vec<PhaseEvalLane> = pp
+            .into_iter()
+            .zip(a.into_iter().zip(b))
+            .map(|(p, (wi, wo))| PhaseEvalLane { p, wi, wo })
+            .collect();
+        let (v, pdf) = py.detach(|| self.medium.phase_eval(&lanes, &lam, channels));
         Ok((v.into_pyarray(py), pdf.into_pyarray(py)))
-    }
-
-    /// Sample the phase function of the events at `p`: (wo n*3, weight n*channels, pdf n).
-    #[allow(clippy::too_many_arguments)]
-    fn phase_sample<'py>(
-        &self,
-        py: Python<'py>,
-        p: F32In,
-        wi: F32In,
-        lambda: F64In,
-        channels: usize,
-        u1: F64In,
-        u2: F64In,
-    ) -> PyResult<(F64Out<'py>, F64Out<'py>, F64Out<'py>)> {
-        let (pp, a, lam, s1, s2) = (
-            vec3s(&p, "p")?,
-            vec3s(&wi, "wi")?,
-            lambda.as_slice()?.to_vec(),
-            u1.as_slice()?.to_vec(),
-            u2.as_slice()?,
-        );
-        if a.len() != pp.len()
-            || s1.len() != pp.len()
-            || s2.len() != 2 * pp.len()
-            || !per_lane(&lam, channels, pp.len())
-        {
-            return Err(PyValueError::new_err(
-                "p, wi, u1, u2 and lambda must describe the same lanes",
-            ));
-        }
-        let s2 = pairs(s2);
-        let out = py.detach(|| self.medium.phase_sample(&pp, &a, &lam, channels, &s1, &s2));
-        Ok(sampled(py, out))
     }
 
     /// Eq. 24 at points (f64 n*3): (sigma_s n*channels, Q = sigma_s f at cos θ = `mu`, n*channels).
@@ -254,13 +281,6 @@ impl PyDiscreteMedium {
         Ok(sampled(py, out))
     }
 
-    /// Particles whose disk the tau_max floor widened beyond query_radius + radius.
-    #[getter]
-    fn widened(&self) -> usize {
-        self.medium.widened()
-    }
-
-    /// Largest optical depth of a particle's disk.
     /// The factor on every particle's albedo (1 unless set; see `set_albedo_scale`).
     #[getter]
     fn albedo_scale(&self) -> f64 {
@@ -270,23 +290,6 @@ impl PyDiscreteMedium {
     /// Scale every particle's albedo from the next query on (between renders).
     fn set_albedo_scale(&self, scale: f64) -> PyResult<()> {
         self.medium.set_albedo_scale(scale).map_err(to_py)
-    }
-
-    #[getter]
-    fn tau_max(&self) -> f64 {
-        self.medium.tau_max()
-    }
-
-    /// Largest inclusion radius of a particle (scene units).
-    #[getter]
-    fn reach_max(&self) -> f64 {
-        self.medium.reach_max()
-    }
-
-    /// Particles sampled as a continuous medium (size classes no pixel resolves).
-    #[getter]
-    fn continuous_particles(&self) -> usize {
-        self.medium.continuous_len()
     }
 
     /// Remember an event of the given particles at `p` (tests and tools).
@@ -305,12 +308,8 @@ impl PyDiscreteMedium {
         t0: F64In,
         t1: F64In,
     ) -> PyResult<F64Out<'py>> {
-        let [t0, t1] = per_ray([("t0", &t0), ("t1", &t1)])?;
-        let rs = rays(&origins, &directions, t0.len())?;
-        let m = &self.medium;
-        let out = per_segment(py, &rs, &t0, &t1, |_, &(o, d), a, b| {
-            m.optical_depth(o, d, a, b)
-        });
+        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+        let out = per_segment(py, &segs, |_, ray| self.medium.optical_depth(ray));
         Ok(out.into_pyarray(py))
     }
 

@@ -21,7 +21,9 @@
 //! 1/50 nm (spectral variants: 4 channels; the quantisation, 0.01 nm, is far below the tables'
 //! wavelength spacing).
 
-use motes_core::render::discrete::{DiscreteMedium, PacketRay, PACKET_LANES};
+use motes_core::render::discrete::{
+    DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, PACKET_LANES,
+};
 use pyo3::prelude::*;
 use std::collections::HashSet;
 use std::ffi::{c_char, c_void};
@@ -64,19 +66,15 @@ enum Field {
     InstId,
 }
 
+/// The packet entry point, [`motes_packet`]: (medium, op, width, valid, args, lambda, channels).
+pub type PacketFn =
+    unsafe extern "C" fn(*const c_void, u32, u32, *const i32, *mut u8, *const f64, u32);
+
 /// What C++ receives: the interface version and three functions.
 #[repr(C)]
 pub struct NativeApi {
     pub abi: u32,
-    pub packet: unsafe extern "C" fn(
-        medium: *const c_void,
-        op: u32,
-        width: u32,
-        valid: *const i32,
-        args: *mut u8,
-        lambda: *const f64,
-        channels: u32,
-    ),
+    pub packet: PacketFn,
     pub release: unsafe extern "C" fn(medium: *const c_void),
     /// The medium's `albedo_scale` (a scene parameter the C++ medium's `traverse` lists): 0 when set,
     /// else 1 with the reason, NUL-terminated and cut to `capacity` bytes, in `message`.
@@ -297,16 +295,14 @@ impl Packet<'_> {
 
     /// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
     fn phase_sample(&self) {
-        let l = self.gather(|i| {
-            (
-                self.r.v3(Field::Ox, i),
-                self.r.v3(Field::Dx, i),
-                self.r.f(Field::Tnear, i) as f64,
-                [
-                    self.r.f(Field::Time, i) as f64,
-                    self.r.f(Field::Tfar, i) as f64,
-                ],
-            )
+        let l = self.gather(|i| PhaseSampleLane {
+            p: self.r.v3(Field::Ox, i),
+            wi: self.r.v3(Field::Dx, i),
+            u1: self.r.f(Field::Tnear, i) as f64,
+            u2: [
+                self.r.f(Field::Time, i) as f64,
+                self.r.f(Field::Tfar, i) as f64,
+            ],
         });
         let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
         self.m
@@ -321,16 +317,14 @@ impl Packet<'_> {
 
     /// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
     fn phase_eval(&self) {
-        let l = self.gather(|i| {
-            (
-                self.r.v3(Field::Ox, i),
-                self.r.v3(Field::Dx, i),
-                [
-                    self.r.f(Field::Tnear, i),
-                    self.r.f(Field::Time, i),
-                    self.r.f(Field::Tfar, i),
-                ],
-            )
+        let l = self.gather(|i| PhaseEvalLane {
+            p: self.r.v3(Field::Ox, i),
+            wi: self.r.v3(Field::Dx, i),
+            wo: [
+                self.r.f(Field::Tnear, i),
+                self.r.f(Field::Time, i),
+                self.r.f(Field::Tfar, i),
+            ],
         });
         let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
         self.m

@@ -17,8 +17,9 @@
 //! its cell with probability ∝ w_i: the site's albedo and phase function are that particle's, so the
 //! expected phase function is the cell's mixture weighted by extinction (Eq. 24's Q(θ) of the cell).
 
-use crate::space::dda::Dda;
+use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{bounding_box, size_class};
+use crate::space::ray::RaySegment;
 use std::f64::consts::PI;
 
 /// Default number of a class's particles a query cylinder must hold (over one mean free path, or
@@ -85,10 +86,8 @@ pub struct FieldHit {
 
 /// The continuous part of a discrete medium (module docs).
 pub struct ContinuousField {
-    lo: [f64; 3],
-    /// Cell edges per axis.
-    cell: [f64; 3],
-    dims: [usize; 3],
+    /// The cells: the centres' box, cell edges and cells per axis.
+    frame: GridFrame,
     /// σ_t of each cell (grey, per scene unit).
     sigma: Vec<f32>,
     /// Cell `c` holds `particle[start[c]..start[c + 1]]`.
@@ -162,9 +161,7 @@ impl ContinuousField {
         }
         let particle = order.iter().map(|&i| ids[i]).collect();
         ContinuousField {
-            lo,
-            cell,
-            dims,
+            frame: GridFrame::new(lo, cell, dims),
             sigma,
             start,
             particle,
@@ -179,33 +176,23 @@ impl ContinuousField {
         self.particle.is_empty()
     }
     pub fn dims(&self) -> [usize; 3] {
-        self.dims
+        self.frame.dims
     }
     pub fn cell_volume(&self) -> f64 {
-        self.cell[0] * self.cell[1] * self.cell[2]
+        let cell = self.frame.cell;
+        cell[0] * cell[1] * cell[2]
     }
     /// Heap bytes.
     pub fn bytes(&self) -> usize {
         (self.sigma.len() + self.start.len() + self.particle.len() + self.cdf.len()) * 4
     }
 
-    fn linear(&self, c: [usize; 3]) -> usize {
-        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
-    }
-
-    /// Exact free flight over [t0, t1) (|d| = 1): the first t where the optical depth walked exceeds
-    /// `target` (= −ln(1 − u)), and the optical depth walked up to it (or to t1).
-    pub fn free_flight(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-        target: f64,
-    ) -> (Option<FieldHit>, f64) {
+    /// Exact free flight over a ray segment (|d| = 1): the first t where the optical depth walked
+    /// exceeds `target` (= −ln(1 − u)), and the optical depth walked up to it (or to t1).
+    pub fn free_flight(&self, ray: &RaySegment, target: f64) -> (Option<FieldHit>, f64) {
         let mut acc = 0.0;
-        for c in Dda::new(self.lo, self.cell, self.dims, o, d, t0, t1) {
-            let idx = self.linear(c.cell);
+        for c in Dda::new(&self.frame, ray) {
+            let idx = c.index;
             let s = self.sigma[idx] as f64;
             if s > 0.0 {
                 let x = s * (c.t_exit - c.t_enter);
@@ -219,10 +206,10 @@ impl ContinuousField {
         (None, acc)
     }
 
-    /// Optical depth over [t0, t1) (|d| = 1).
-    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> f64 {
-        Dda::new(self.lo, self.cell, self.dims, o, d, t0, t1)
-            .map(|c| self.sigma[self.linear(c.cell)] as f64 * (c.t_exit - c.t_enter))
+    /// Optical depth of a ray segment (|d| = 1).
+    pub fn optical_depth(&self, ray: &RaySegment) -> f64 {
+        Dda::new(&self.frame, ray)
+            .map(|c| self.sigma[c.index] as f64 * (c.t_exit - c.t_enter))
             .sum()
     }
 
@@ -239,15 +226,16 @@ impl ContinuousField {
 
     /// The cell holding point `p`, if inside the field.
     pub fn cell_at(&self, p: [f64; 3]) -> Option<usize> {
+        let GridFrame { bounds, cell, dims } = &self.frame;
         let mut c = [0usize; 3];
         for a in 0..3 {
-            let x = (p[a] - self.lo[a]) / self.cell[a];
-            if !(x >= 0.0 && x < self.dims[a] as f64) {
+            let x = (p[a] - bounds.lo[a]) / cell[a];
+            if !(x >= 0.0 && x < dims[a] as f64) {
                 return None;
             }
             c[a] = x as usize;
         }
-        Some(self.linear(c))
+        Some((c[2] * dims[1] + c[1]) * dims[0] + c[0])
     }
 
     /// The particles of a cell (original indices).
@@ -275,20 +263,21 @@ mod tests {
         let ids: Vec<u32> = (0..n as u32).collect();
         let f = ContinuousField::build(&pos, &reach, &w, &ids);
         let sigma = w.iter().sum::<f64>(); // volume 1
-        let (o, d) = ([0.5, 0.5, -1.0], [0.0, 0.0, 1.0]);
-        let tau = f.optical_depth(o, d, 0.0, 3.0);
+        let ray = RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0);
+        let tau = f.optical_depth(&ray);
         assert!((tau / sigma - 1.0).abs() < 0.1, "{tau} vs {sigma}");
         let mut mean = 0.0;
         for _ in 0..200 {
             let o = [lcg(&mut s), lcg(&mut s), -1.0];
-            mean += f.optical_depth(o, d, 0.0, 3.0) / 200.0;
+            mean += f.optical_depth(&RaySegment { o, ..ray }) / 200.0;
         }
         assert!((mean / sigma - 1.0).abs() < 0.02, "{mean} vs {sigma}");
         assert_escape_rate(&mut s, 20_000, (-tau).exp(), |u| {
-            let (hit, walked) = f.free_flight(o, d, 0.0, 3.0, -(1.0 - u).ln());
+            let (hit, walked) = f.free_flight(&ray, -(1.0 - u).ln());
             if let Some(h) = hit {
                 assert!(h.t >= 0.95 && h.t <= 2.05, "{}", h.t); // the box, to a cell (~0.034)
-                assert!((f.optical_depth(o, d, 0.0, h.t) - walked).abs() < 1e-6 * tau.max(1.0));
+                let before = f.optical_depth(&ray.between(0.0, h.t));
+                assert!((before - walked).abs() < 1e-6 * tau.max(1.0));
             } else {
                 assert!((walked - tau).abs() < 1e-9);
             }

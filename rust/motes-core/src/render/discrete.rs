@@ -60,7 +60,10 @@ use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, ContinuousField};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
-use crate::space::grid::{bounding_box, check_cross_sections, check_particles, ParticleGrid, Site};
+use crate::space::grid::{
+    bounding_box, check_cross_sections, check_particles, GridSettings, ParticleGrid, Site,
+};
+use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
@@ -328,7 +331,11 @@ pub fn check_particles_and_settings(
     cells_per_particle: f64,
     continuous_count: f64,
 ) -> Result<(), OpticsError> {
-    check_particles(positions, radius, query_radius, cells_per_particle)?;
+    check_particles(
+        positions,
+        radius,
+        &GridSettings::new(query_radius, cells_per_particle),
+    )?;
     require("tau_max", tau_max, tau_max > 0.0, "> 0 (inf: no cap)")?;
     require(
         "continuous_count",
@@ -396,15 +403,14 @@ fn check_build_inputs(
 
 /// The structures a free flight walks: the grid of the particles whose grains a pixel can resolve and
 /// the continuous field of the others (`continuous_count`, crate::render::continuous), and which is which.
-#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+#[allow(clippy::type_complexity)]
 fn build_walk(
     positions: &[[f64; 3]],
     reach: &[f64],
     grid_radius: &[f64],
     grid_c: &[f64],
     c_ext: &[f64],
-    query_radius: f64,
-    cells_per_particle: f64,
+    settings: &GridSettings,
     continuous_count: f64,
 ) -> (Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>) {
     let n = positions.len();
@@ -420,8 +426,7 @@ fn build_walk(
             grid_radius,
             grid_c,
             1,
-            query_radius,
-            cells_per_particle,
+            settings,
         ))
     } else {
         // The grid reports original indices: build it on the discrete particles and map back.
@@ -434,8 +439,7 @@ fn build_walk(
             &pick(&discrete_ids, grid_radius),
             &pick(&discrete_ids, grid_c),
             1,
-            query_radius,
-            cells_per_particle,
+            settings,
         );
         Some(g.with_indices(&discrete_ids))
     };
@@ -494,6 +498,26 @@ pub struct SiteSample {
     pub tau_before: f64,
 }
 
+/// A lane of a phase-function sample: the event's position `p`, the incident direction `wi`
+/// (pointing back along the path, Mitsuba's convention), `u1` (picks channel, particle and table)
+/// and `u2` (the direction), uniform in [0, 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhaseSampleLane {
+    pub p: [f32; 3],
+    pub wi: [f32; 3],
+    pub u1: f64,
+    pub u2: [f64; 2],
+}
+
+/// A lane of a phase-function evaluation: the event's position `p`, the incident direction `wi`
+/// (pointing back along the path) and the outgoing direction `wo`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhaseEvalLane {
+    pub p: [f32; 3],
+    pub wi: [f32; 3],
+    pub wo: [f32; 3],
+}
+
 impl DiscreteMedium {
     /// `positions` and `radius` in scene units, `c_ext` the grey extinction cross section per particle
     /// (scene units²), `bin` each particle's index into `bins`, `lambda` the tabulated wavelengths
@@ -547,8 +571,7 @@ impl DiscreteMedium {
             &grid_radius,
             &grid_c,
             c_ext,
-            query_radius,
-            cells_per_particle,
+            &GridSettings::new(query_radius, cells_per_particle),
             continuous_count,
         );
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
@@ -604,17 +627,14 @@ impl DiscreteMedium {
     pub fn continuous_len(&self) -> usize {
         self.field.as_ref().map_or(0, ContinuousField::len)
     }
-    /// Grey optical depth along [t0, t1) of a ray (|d| = 1) as the free flights see it: the discrete
+    /// Grey optical depth along a ray segment (|d| = 1) as the free flights see it: the discrete
     /// particles' staircase plus the continuous field's mean.
-    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> f64 {
+    pub fn optical_depth(&self, ray: &RaySegment) -> f64 {
         let mut v = [0.0];
         if let Some(g) = &self.grid {
-            g.optical_depth(o, d, t0, t1, &mut v);
+            g.optical_depth(ray, &mut v);
         }
-        v[0] + self
-            .field
-            .as_ref()
-            .map_or(0.0, |f| f.optical_depth(o, d, t0, t1))
+        v[0] + self.field.as_ref().map_or(0.0, |f| f.optical_depth(ray))
     }
     pub fn len(&self) -> usize {
         self.tau.len()
@@ -760,22 +780,19 @@ impl DiscreteMedium {
         } else {
             Event::default()
         };
-        let o = o.map(|x| x as f64);
+        let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
         // The continuous field first (one exponential per cell), then the particles up to its distance:
         // the nearer of two independent processes' interactions (crate::render::continuous).
         let (hit, tau_field) = match &self.field {
-            Some(f) => f.free_flight(
-                o,
-                dir,
-                0.0,
-                t_max,
-                -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln(),
-            ),
+            Some(f) => f.free_flight(&ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln()),
             None => (None, 0.0),
         };
         let t_end = hit.map_or(t_max, |h| h.t);
         let (site, tau) = match &self.grid {
-            Some(g) => g.sample_site(o, dir, 0.0, t_end, parent.site.members(), u, self.coincide),
+            Some(g) => {
+                let exclude = parent.site.members();
+                g.sample_site(&ray.between(0.0, t_end), exclude, u, self.coincide)
+            }
             None => (None, 0.0),
         };
         let site = site.or_else(|| {
@@ -791,7 +808,7 @@ impl DiscreteMedium {
         // the site: walked again when a caller asks for it (the packet interface does not).
         let tau_field = match (&self.field, site) {
             (Some(f), Some(s)) if want_tau && hit.map_or(true, |h| s.t < h.t) => {
-                f.optical_depth(o, dir, 0.0, s.t)
+                f.optical_depth(&ray.between(0.0, s.t))
             }
             _ => tau_field,
         };
@@ -871,7 +888,7 @@ impl DiscreteMedium {
         let tol = 4.0 * self.coincide + 1e-6 * o.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         let mut site = Site::default();
         if let Some(g) = &self.grid {
-            g.walk(o, w_in, -tol, tol, |t, _, i| {
+            g.walk(&RaySegment::new(o, w_in, -tol, tol), |t, _, i| {
                 if site.len == 0 {
                     site.t = t;
                 }
@@ -1078,24 +1095,22 @@ impl DiscreteMedium {
         unzip_samples(res)
     }
 
-    /// Evaluate the phase function of the event at `p` for incident direction `wi` (pointing back along
-    /// the path, Mitsuba's convention) and outgoing `wo`: per-channel values (1/sr) and the pdf.
-    /// Positions without a remembered event give 0 and 0.
+    /// Evaluate the phase function of the event at each lane's `p` for its incident and outgoing
+    /// directions: per-channel values (1/sr) and the pdf. Positions without a remembered event give 0
+    /// and 0.
     pub fn phase_eval(
         &self,
-        p: &[[f32; 3]],
-        wi: &[[f32; 3]],
-        wo: &[[f32; 3]],
+        lanes: &[PhaseEvalLane],
         lambda: &[f64],
         channels: usize,
     ) -> (Vec<f64>, Vec<f64>) {
         let events = self.events.read().unwrap();
-        let res: Vec<(Vec<f64>, f64)> = (0..p.len())
+        let res: Vec<(Vec<f64>, f64)> = (0..lanes.len())
             .into_par_iter()
             .map(|i| {
                 let lam = lane_wavelengths(lambda, channels, i);
                 let mut v = vec![0.0; channels];
-                let pdf = self.lane_phase_eval(&events, p[i], wi[i], wo[i], lam, &mut v);
+                let pdf = self.lane_phase_eval(&events, &lanes[i], lam, &mut v);
                 (v, pdf)
             })
             .collect();
@@ -1107,18 +1122,17 @@ impl DiscreteMedium {
     fn lane_phase_eval(
         &self,
         events: &EventMap,
-        p: [f32; 3],
-        wi: [f32; 3],
-        wo: [f32; 3],
+        lane: &PhaseEvalLane,
         lam: &[f64],
         v: &mut [f64],
     ) -> f64 {
         v.iter_mut().for_each(|x| *x = 0.0);
-        let dirs = normalise(wi.map(|x| -(x as f64))).zip(normalise(wo.map(|x| x as f64)));
+        let dirs =
+            normalise(lane.wi.map(|x| -(x as f64))).zip(normalise(lane.wo.map(|x| x as f64)));
         let Some((w_in, w_out)) = dirs else {
             return 0.0;
         };
-        let Some(e) = self.event_or_geometry(events, p, w_in) else {
+        let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return 0.0;
         };
         let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
@@ -1128,29 +1142,26 @@ impl DiscreteMedium {
         self.mixture_phase(&mixture, mu, v)
     }
 
-    /// Sample the phase function of the event at `p` (module docs): outgoing directions, weights
-    /// (value / pdf per channel) and pdfs; `u1` picks channel, particle and table, `u2` the direction.
+    /// Sample the phase function of the event at each lane's `p` (module docs): outgoing directions,
+    /// weights (value / pdf per channel) and pdfs.
     pub fn phase_sample(
         &self,
-        p: &[[f32; 3]],
-        wi: &[[f32; 3]],
+        lanes: &[PhaseSampleLane],
         lambda: &[f64],
         channels: usize,
-        u1: &[f64],
-        u2: &[[f64; 2]],
     ) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
         let events = self.events.read().unwrap();
-        let res: Vec<(Sample, Option<[f32; MAX_CHANNELS]>)> = (0..p.len())
+        let res: Vec<(Sample, Option<[f32; MAX_CHANNELS]>)> = (0..lanes.len())
             .into_par_iter()
             .map(|i| {
                 let lam = lane_wavelengths(lambda, channels, i);
-                self.lane_phase_sample(&events, p[i], wi[i], lam, u1[i], u2[i])
+                self.lane_phase_sample(&events, &lanes[i], lam)
             })
             .collect();
         drop(events);
         let mut events = self.events.write().unwrap();
-        for (i, (_, t_out)) in res.iter().enumerate() {
-            if let (Some(t), Some(e)) = (t_out, events.get_mut(&key(p[i]))) {
+        for (lane, (_, t_out)) in lanes.iter().zip(&res) {
+            if let (Some(t), Some(e)) = (t_out, events.get_mut(&key(lane.p))) {
                 e.t_out = *t;
             }
         }
@@ -1163,22 +1174,20 @@ impl DiscreteMedium {
     fn lane_phase_sample(
         &self,
         events: &EventMap,
-        p: [f32; 3],
-        wi: [f32; 3],
+        lane: &PhaseSampleLane,
         lam: &[f64],
-        u1: f64,
-        u2: [f64; 2],
     ) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
         let channels = lam.len();
-        let Some(w_in) = normalise(wi.map(|x| -(x as f64))) else {
+        let Some(w_in) = normalise(lane.wi.map(|x| -(x as f64))) else {
             return (null_sample(channels), None);
         };
-        let Some(e) = self.event_or_geometry(events, p, w_in) else {
+        let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return (null_sample(channels), None);
         };
         let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
         let pi = event_channels(&e, channels);
-        let sample = self.mixture_sample(&self.event_mixture(&e, &ls, &pi), w_in, u1, u2);
+        let mixture = self.event_mixture(&e, &ls, &pi);
+        let sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
         // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
         let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0).then(|| {
@@ -1387,11 +1396,11 @@ impl DiscreteMedium {
         })
     }
 
-    /// Sample the phase functions of a packet's events: lanes (p, wi, u1, u2) → `wo` and `pdf` (0 where
-    /// there is no event); the events' throughputs are updated as [`Self::phase_sample`] does.
+    /// Sample the phase functions of a packet's events: lanes → `wo` and `pdf` (0 where there is no
+    /// event); the events' throughputs are updated as [`Self::phase_sample`] does.
     pub fn packet_phase_sample(
         &self,
-        lanes: &[Option<([f32; 3], [f32; 3], f64, [f64; 2])>],
+        lanes: &[Option<PhaseSampleLane>],
         lambda: &[f64],
         channels: usize,
         wo: &mut [[f64; 3]],
@@ -1400,24 +1409,24 @@ impl DiscreteMedium {
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
-                let Some((p, wi, u1, u2)) = *lane else {
+                let Some(lane) = lane else {
                     continue;
                 };
                 let lam = lane_wavelengths(lambda, channels, i);
-                let (sample, t_out) = self.lane_phase_sample(&st.events, p, wi, lam, u1, u2);
+                let (sample, t_out) = self.lane_phase_sample(&st.events, lane, lam);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
-                if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(p))) {
+                if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(lane.p))) {
                     e.t_out = t;
                 }
             }
         })
     }
 
-    /// Evaluate the phase functions of a packet's events: lanes (p, wi, wo) → `values` (`channels` per
-    /// lane) and `pdf`.
+    /// Evaluate the phase functions of a packet's events: lanes → `values` (`channels` per lane) and
+    /// `pdf`.
     pub fn packet_phase_eval(
         &self,
-        lanes: &[Option<([f32; 3], [f32; 3], [f32; 3])>],
+        lanes: &[Option<PhaseEvalLane>],
         lambda: &[f64],
         channels: usize,
         values: &mut [f64],
@@ -1427,12 +1436,12 @@ impl DiscreteMedium {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 let v = &mut values[i * channels..(i + 1) * channels];
                 pdf[i] = 0.0;
-                let Some((p, wi, w)) = *lane else {
+                let Some(lane) = lane else {
                     v.iter_mut().for_each(|x| *x = 0.0);
                     continue;
                 };
                 let lam = lane_wavelengths(lambda, channels, i);
-                pdf[i] = self.lane_phase_eval(&st.events, p, wi, w, lam, v);
+                pdf[i] = self.lane_phase_eval(&st.events, lane, lam, v);
             }
         })
     }
@@ -1486,14 +1495,13 @@ mod tests {
             let a = m.commit_events(&[p], &[true], &[500.0, 600.0], 2).unwrap();
             k += 1;
             let u = |s: u64| uniform(11, k, s);
-            let (wo, w, pdf) = m.phase_sample(
-                &[p],
-                &[d.map(|x| -x)],
-                &[500.0, 600.0],
-                2,
-                &[u(0)],
-                &[[u(1), u(2)]],
-            );
+            let lane = PhaseSampleLane {
+                p,
+                wi: d.map(|x| -x),
+                u1: u(0),
+                u2: [u(1), u(2)],
+            };
+            let (wo, w, pdf) = m.phase_sample(&[lane], &[500.0, 600.0], 2);
             if pdf[0] <= 0.0 {
                 continue;
             }
@@ -1580,7 +1588,8 @@ mod tests {
             let o = vec![[0.5f32, 0.5, -0.2]; lanes];
             let d = vec![[0.0f32, 0.0, 1.0]; lanes];
             let tm = vec![1.4; lanes];
-            let tau = [m.optical_depth([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4)];
+            let ray = RaySegment::new([0.5, 0.5, -0.2], [0.0, 0.0, 1.0], 0.0, 1.4);
+            let tau = [m.optical_depth(&ray)];
             let res = m.sample_sites(&o, &d, &tm, &vec![true; lanes]);
             let escaped = res.iter().filter(|r| r.t.is_none()).count();
             assert!(tau[0] > 0.2, "{}", tau[0]);
@@ -1697,19 +1706,25 @@ mod tests {
             m.commit_events(&[q], &[true], &[500.0, 600.0], 2).unwrap();
             assert!(m.event_at(q).is_none());
         }
-        let (wo, w, pdf) = m.phase_sample(
-            &[p; 64],
-            &[[0.0, 0.0, -1.0]; 64],
-            &[500.0, 600.0],
-            2,
-            &(0..64).map(|i| i as f64 / 64.0).collect::<Vec<_>>(),
-            &(0..64)
-                .map(|i| [((i * 37) % 64) as f64 / 64.0, ((i * 11) % 64) as f64 / 64.0])
-                .collect::<Vec<_>>(),
-        );
-        let wo32: Vec<[f32; 3]> = wo.iter().map(|v| v.map(|x| x as f32)).collect();
-        let (vals, pdf2) =
-            m.phase_eval(&[p; 64], &[[0.0, 0.0, -1.0]; 64], &wo32, &[500.0, 600.0], 2);
+        let wi = [0.0, 0.0, -1.0];
+        let lanes: Vec<PhaseSampleLane> = (0..64)
+            .map(|i| PhaseSampleLane {
+                p,
+                wi,
+                u1: i as f64 / 64.0,
+                u2: [((i * 37) % 64) as f64 / 64.0, ((i * 11) % 64) as f64 / 64.0],
+            })
+            .collect();
+        let (wo, w, pdf) = m.phase_sample(&lanes, &[500.0, 600.0], 2);
+        let lanes: Vec<PhaseEvalLane> = wo
+            .iter()
+            .map(|v| PhaseEvalLane {
+                p,
+                wi,
+                wo: v.map(|x| x as f32),
+            })
+            .collect();
+        let (vals, pdf2) = m.phase_eval(&lanes, &[500.0, 600.0], 2);
         for i in 0..64 {
             assert!(pdf[i] > 0.0);
             assert!(

@@ -5,6 +5,8 @@
 //! Paper: the grid traversal behind the query cylinders of Eq. 18 and the particle gathering of Sec. 5.3
 //! (the paper uses a uniform grid, Sec. 6.5); no equation of its own.
 
+use crate::space::ray::RaySegment;
+
 /// An axis-aligned box.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds3 {
@@ -13,24 +15,18 @@ pub struct Bounds3 {
 }
 
 impl Bounds3 {
-    /// The part [ta, tb) of [t0, t1) where the ray o + t d is inside the box (slab test), or None.
-    /// A direction component of 0 keeps the slab whole when o lies within it, else misses.
-    pub fn clip(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> Option<(f64, f64)> {
-        self.clip_inv(o, d, inverse(d), t0, t1)
+    /// The part [ta, tb) of the segment where its ray is inside the box (slab test), or None. A
+    /// direction component of 0 keeps the slab whole when the origin lies within it, else misses.
+    pub fn clip(&self, ray: &RaySegment) -> Option<(f64, f64)> {
+        self.clip_inv(ray, inverse(ray.d))
     }
 
     /// [`Bounds3::clip`] with the direction's reciprocals `inv_d` (from [`inverse`]) computed once
     /// by a caller that walks several grids along one ray.
     #[inline]
-    pub fn clip_inv(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        inv_d: [f64; 3],
-        t0: f64,
-        t1: f64,
-    ) -> Option<(f64, f64)> {
-        let (mut ta, mut tb) = (t0, t1);
+    pub fn clip_inv(&self, ray: &RaySegment, inv_d: [f64; 3]) -> Option<(f64, f64)> {
+        let (o, d) = (ray.o, ray.d);
+        let (mut ta, mut tb) = (ray.t0, ray.t1);
         for a in 0..3 {
             if d[a] == 0.0 {
                 if o[a] < self.lo[a] || o[a] > self.hi[a] {
@@ -89,9 +85,8 @@ pub struct DdaCell {
     pub t_exit: f64,
 }
 
-/// The cells of a grid (`lo`, cells of edges `cell` per axis, `dims`) that the ray o + t d crosses on
-/// [t0, t1), in order. The first interval starts at the box entry and the last ends at the box exit
-/// (both clipped to [t0, t1)).
+/// The cells of a grid ([`GridFrame`]) that a ray segment crosses, in order. The first interval
+/// starts at the box entry and the last ends at the box exit (both clipped to the segment).
 pub struct Dda {
     c: [i64; 3],
     step: [i64; 3],
@@ -107,31 +102,18 @@ pub struct Dda {
 }
 
 impl Dda {
-    pub fn new(
-        lo: [f64; 3],
-        cell: [f64; 3],
-        dims: [usize; 3],
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-    ) -> Self {
-        Self::new_in(&GridFrame::new(lo, cell, dims), o, d, inverse(d), t0, t1)
+    /// The walk of `ray` through the grid `g`.
+    pub fn new(g: &GridFrame, ray: &RaySegment) -> Self {
+        Self::new_in(g, ray, inverse(ray.d))
     }
 
-    /// [`Dda::new`] on a prepared grid, with the direction's reciprocals (no division).
+    /// [`Dda::new`] with the direction's reciprocals (no division).
     #[inline]
-    pub fn new_in(
-        g: &GridFrame,
-        o: [f64; 3],
-        d: [f64; 3],
-        inv_d: [f64; 3],
-        t0: f64,
-        t1: f64,
-    ) -> Self {
+    pub fn new_in(g: &GridFrame, ray: &RaySegment, inv_d: [f64; 3]) -> Self {
         let (lo, cell) = (g.bounds.lo, g.cell);
+        let (o, d) = (ray.o, ray.d);
         let dims_i = g.dims.map(|x| x as i64);
-        let Some((ta, tb)) = g.bounds.clip_inv(o, d, inv_d, t0, t1) else {
+        let Some((ta, tb)) = g.bounds.clip_inv(ray, inv_d) else {
             return Dda {
                 c: [0; 3],
                 step: [0; 3],
@@ -230,6 +212,7 @@ impl Iterator for Dda {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::{lcg, random_direction};
 
     /// The cells' intervals tile the clipped segment without gaps, each cell holds the midpoint of its
     /// interval, and rays along the axes, on cell faces and missing the box behave.
@@ -237,14 +220,14 @@ mod tests {
     fn cells_tile_the_segment() {
         let (lo, cell, dims) = ([-1.0, 0.0, 2.0], [0.25, 0.2, 0.3], [8usize, 5, 7]);
         let mut s = 3u64;
-        let mut rnd = || crate::test_rng::lcg(&mut s);
         let mut rays = Vec::new();
         for _ in 0..500 {
-            let o = [rnd() * 4.0 - 3.0, rnd() * 3.0 - 1.0, rnd() * 4.0];
-            let mut d = [rnd() - 0.5, rnd() - 0.5, rnd() - 0.5];
-            let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            d = d.map(|x| x / l);
-            rays.push((o, d));
+            let o = [
+                lcg(&mut s) * 4.0 - 3.0,
+                lcg(&mut s) * 3.0 - 1.0,
+                lcg(&mut s) * 4.0,
+            ];
+            rays.push((o, random_direction(&mut s)));
         }
         for a in 0..3 {
             let mut d = [0.0; 3];
@@ -253,9 +236,11 @@ mod tests {
             rays.push(([-0.4, 0.6, 3.1], d.map(|x| -x)));
         }
         let hi = [lo[0] + 2.0, 1.0, 4.1];
+        let grid = GridFrame::new(lo, cell, dims);
         for (o, d) in rays {
-            let cells: Vec<DdaCell> = Dda::new(lo, cell, dims, o, d, 0.0, 10.0).collect();
-            match (Bounds3 { lo, hi }).clip(o, d, 0.0, 10.0) {
+            let ray = RaySegment::new(o, d, 0.0, 10.0);
+            let cells: Vec<DdaCell> = Dda::new(&grid, &ray).collect();
+            match (Bounds3 { lo, hi }).clip(&ray) {
                 None => assert!(cells.is_empty()),
                 Some((ta, tb)) => {
                     assert_eq!(cells[0].t_enter, ta);
@@ -282,9 +267,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(
-            Dda::new(lo, cell, dims, [5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0).count(),
-            0
-        );
+        let miss = RaySegment::new([5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0);
+        assert_eq!(Dda::new(&grid, &miss).count(), 0);
     }
 }

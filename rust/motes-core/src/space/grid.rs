@@ -27,6 +27,7 @@
 
 use crate::error::{require, require_len, OpticsError};
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
+use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 
 /// Axis-aligned bounding box of the centres.
@@ -91,9 +92,11 @@ fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
-/// Does the sphere (centre, R) contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
+/// Does the sphere (centre, R) contribute to the ray (|d| = 1; the segment's t range aside), and where
+/// (t of its projection)?
 #[inline]
-fn sphere_contribution(p: [f32; 4], o: [f64; 3], d: [f64; 3]) -> Option<f64> {
+fn sphere_contribution(p: [f32; 4], ray: &RaySegment) -> Option<f64> {
+    let (o, d) = (ray.o, ray.d);
     let v = [p[0] as f64 - o[0], p[1] as f64 - o[1], p[2] as f64 - o[2]];
     let t = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
     let q = [v[0] - t * d[0], v[1] - t * d[1], v[2] - t * d[2]];
@@ -166,7 +169,8 @@ impl RayFrame {
         slack: [0.0; 4],
     };
 
-    fn new(o: [f64; 3], d: [f64; 3], slack: f32) -> Self {
+    fn new(ray: &RaySegment, slack: f32) -> Self {
+        let (o, d) = (ray.o, ray.d);
         // Any unit vector perpendicular to d, then d × e1 (Duff et al.'s branchless basis).
         let sign = 1f64.copysign(d[2]);
         let a = -1.0 / (sign + d[2]);
@@ -232,11 +236,8 @@ fn block_pretest(b: &Block, f: &RayFrame) -> u32 {
 /// A traversal of one [`SubGrid`] in progress: the DDA and what the pre-test needs.
 pub(crate) struct Cursor {
     dda: Dda,
-    /// The ray, |d| = 1 (the exact test's double precision).
-    o: [f64; 3],
-    d: [f64; 3],
-    t0: f64,
-    t1: f64,
+    /// The segment walked, |d| = 1 (the exact test's double precision).
+    ray: RaySegment,
     first: bool,
     /// The cached sparse walk's next step (and whether it is the last), taken from the DDA one step
     /// early so that its blocks are on their way while the current step is tested.
@@ -265,9 +266,8 @@ pub struct SubGrid {
     /// hit on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
     slot_tau: Vec<f32>,
     slot_index: Vec<u32>,
-    lo: [f64; 3],
-    cell: f64,
-    dims: [usize; 3],
+    /// The cells (cubes) as a DDA walks them.
+    frame: GridFrame,
     /// Largest inclusion radius.
     reach_max: f64,
     /// Neighbourhood half-width in cells scanned per traversal step: 0 (sparse) or 1 (dense).
@@ -384,19 +384,17 @@ fn inline_slots(
 impl SubGrid {
     /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
     /// particles' original indices.
-    #[allow(clippy::too_many_arguments)]
     fn build_class(
         positions: &[[f64; 3]],
         radius: &[f64],
         c_ext: &[f64],
         ids: &[u32],
         channels: usize,
-        query_radius: f64,
-        cells_per_particle: f64,
+        settings: &GridSettings,
         volume_hint: Option<f64>,
     ) -> Self {
         let n = positions.len();
-        let reach: Vec<f64> = radius.iter().map(|r| query_radius + r).collect();
+        let reach: Vec<f64> = radius.iter().map(|r| settings.query_radius + r).collect();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let (mut lo, mut hi) = bounding_box(positions);
         for a in 0..3 {
@@ -413,7 +411,7 @@ impl SubGrid {
         // the ray's own cells). Dense classes (balls wider than the spacing) would need many references
         // per particle; there cells are at least R_max wide, each particle is referenced by its centre's
         // cell only, and a traversal scans the 3×3×3 cells around the ray's cell (k = 1).
-        let spacing = cell_spacing(volume, n, cells_per_particle);
+        let spacing = cell_spacing(volume, n, settings.cells_per_particle);
         let k: i64 = if is_sparse(reach_max, spacing) { 0 } else { 1 };
         let cell = spacing.max(reach_max).max(1e-12);
         let dims =
@@ -469,9 +467,7 @@ impl SubGrid {
             inline,
             slot_tau,
             slot_index,
-            lo,
-            cell,
-            dims,
+            frame: GridFrame::new(lo, [cell; 3], dims),
             reach_max,
             k,
             prefetch_slots,
@@ -488,7 +484,7 @@ impl SubGrid {
         self.channels
     }
     pub fn dims(&self) -> [usize; 3] {
-        self.dims
+        self.frame.dims
     }
 
     /// Heap bytes of the grid and the particles it stores.
@@ -502,11 +498,12 @@ impl SubGrid {
             + self.start.len() * 4
     }
 
-    /// Does stored particle j contribute to the ray (o, d) — |d| = 1 — and where (t of its projection)?
+    /// Does stored particle j contribute to the ray (|d| = 1; the segment's t range aside), and where
+    /// (t of its projection)?
     #[inline]
     #[cfg(any(test, feature = "oracles"))]
-    fn contribution(&self, j: usize, o: [f64; 3], d: [f64; 3]) -> Option<f64> {
-        sphere_contribution(self.particles.get(j), o, d)
+    fn contribution(&self, j: usize, ray: &RaySegment) -> Option<f64> {
+        sphere_contribution(self.particles.get(j), ray)
     }
 
     /// The slots' spheres.
@@ -538,34 +535,23 @@ impl SubGrid {
         }
     }
 
-    /// Start a traversal of [t0, t1) of the ray (o, d), |d| = 1, `inv_d` its reciprocals.
-    pub(crate) fn cursor(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        inv_d: [f64; 3],
-        t0: f64,
-        t1: f64,
-    ) -> Cursor {
-        let frame = GridFrame::new(self.lo, [self.cell; 3], self.dims);
-        let b = &frame.bounds;
-        let dda = Dda::new_in(&frame, o, d, inv_d, t0, t1);
+    /// Start a traversal of a ray segment, |d| = 1, `inv_d` the direction's reciprocals.
+    pub(crate) fn cursor(&self, ray: &RaySegment, inv_d: [f64; 3]) -> Cursor {
+        let b = &self.frame.bounds;
+        let dda = Dda::new_in(&self.frame, ray, inv_d);
         // A ray that misses the grid tests nothing: no frame for it (in a room with a cloud in it,
         // most shadow rays).
         let frame = if dda.finished() {
             RayFrame::UNUSED
         } else {
             let scale = (0..3)
-                .map(|a| o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
+                .map(|a| ray.o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
                 .fold(0.0, f64::max);
-            RayFrame::new(o, d, (PRETEST_SLACK * scale) as f32)
+            RayFrame::new(ray, (PRETEST_SLACK * scale) as f32)
         };
         Cursor {
             dda,
-            o,
-            d,
-            t0,
-            t1,
+            ray: *ray,
             first: true,
             ahead: None,
             frame,
@@ -598,8 +584,8 @@ impl SubGrid {
             // The first step starts at t0 (particles before the box entry are too far from the ray
             // to count), the last ends at t1.
             let last = cur.dda.finished();
-            let t_enter = if cur.first { cur.t0 } else { step.t_enter };
-            let t_exit = if last { cur.t1 } else { step.t_exit };
+            let t_enter = if cur.first { cur.ray.t0 } else { step.t_enter };
+            let t_exit = if last { cur.ray.t1 } else { step.t_exit };
             cur.first = false;
             n += self.step_rows(step.cell, step.index, t_enter, t_exit, &mut segs[n..]);
             if last {
@@ -672,8 +658,8 @@ impl SubGrid {
         while m != 0 {
             let s = 4 * blk + m.trailing_zeros() as usize;
             m &= m - 1;
-            if let Some(t) = sphere_contribution(slots.get(s), cur.o, cur.d) {
-                let in_step = t >= sg.t_enter && t < sg.t_exit && t >= cur.t0 && t < cur.t1;
+            if let Some(t) = sphere_contribution(slots.get(s), &cur.ray) {
+                let in_step = t >= sg.t_enter && t < sg.t_exit && cur.ray.contains(t);
                 if in_step && self.k == 0 {
                     // A hit's τ and index are read when the batch's hits are merged in t order:
                     // start fetching them now.
@@ -700,10 +686,8 @@ impl SubGrid {
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> Option<f64> {
         let slots = &self.inline;
-        let cell_of =
-            |st: &DdaCell| (st.cell[2] * self.dims[1] + st.cell[1]) * self.dims[0] + st.cell[0];
         let take = |cur: &mut Cursor| cur.dda.next().map(|st| (st, cur.dda.finished()));
-        let mut frontier = cur.t0;
+        let mut frontier = cur.ray.t0;
         let mut this = match cur.ahead.take() {
             Some(a) => Some(a),
             None => take(cur),
@@ -719,7 +703,7 @@ impl SubGrid {
                 let b = slots
                     .0
                     .as_ptr()
-                    .wrapping_add(self.start[cell_of(st)] as usize / 4);
+                    .wrapping_add(self.start[st.index] as usize / 4);
                 for k in 0..PREFETCH_AHEAD_BLOCKS {
                     prefetch(b.wrapping_add(k));
                 }
@@ -728,8 +712,8 @@ impl SubGrid {
             let sg = Segment {
                 c0: self.start[c] as usize,
                 c1: self.start[c + 1] as usize,
-                t_enter: if cur.first { cur.t0 } else { step.t_enter },
-                t_exit: if last { cur.t1 } else { step.t_exit },
+                t_enter: if cur.first { cur.ray.t0 } else { step.t_enter },
+                t_exit: if last { cur.ray.t1 } else { step.t_exit },
             };
             cur.first = false;
             // Whole blocks (padded cells): every lane is tested.
@@ -750,20 +734,13 @@ impl SubGrid {
         Some(frontier)
     }
 
-    /// Every contributing particle with t in [t0, t1), as `visit(slot, t)` in no particular
+    /// Every contributing particle with t in the segment, as `visit(slot, t)` in no particular
     /// order; `visit` returns false to stop early.
-    pub fn traverse(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-        mut visit: impl FnMut(usize, f64) -> bool,
-    ) {
-        if !(t1 > t0) {
+    pub fn traverse(&self, ray: &RaySegment, mut visit: impl FnMut(usize, f64) -> bool) {
+        if ray.is_empty() {
             return;
         }
-        let mut cur = self.cursor(o, d, inverse(d), t0, t1);
+        let mut cur = self.cursor(ray, inverse(ray.d));
         let mut found = |t, j| visit(j, t);
         while let Some(f) = self.advance(&mut cur, &mut found) {
             if f == f64::INFINITY {
@@ -793,12 +770,13 @@ impl SubGrid {
             return 1;
         }
         let mut n = 0;
+        let dims = self.frame.dims;
         let x0 = c[0].saturating_sub(1);
-        let x1 = (c[0] + 1).min(self.dims[0] - 1);
-        for z in c[2].saturating_sub(1)..=(c[2] + 1).min(self.dims[2] - 1) {
-            for y in c[1].saturating_sub(1)..=(c[1] + 1).min(self.dims[1] - 1) {
+        let x1 = (c[0] + 1).min(dims[0] - 1);
+        for z in c[2].saturating_sub(1)..=(c[2] + 1).min(dims[2] - 1) {
+            for y in c[1].saturating_sub(1)..=(c[1] + 1).min(dims[1] - 1) {
                 // A row of cells is contiguous in `start`, so their slots are one run.
-                let row = (z * self.dims[1] + y) * self.dims[0];
+                let row = (z * dims[1] + y) * dims[0];
                 out[n] = Segment {
                     c0: row + x0,
                     c1: row + x1 + 1,
@@ -814,16 +792,17 @@ impl SubGrid {
     /// Every particle whose inclusion ball (radius R_i) contains the point `p`, as `visit(slot)` (see
     /// `hit_index`).
     pub fn containing(&self, p: [f64; 3], mut visit: impl FnMut(usize)) {
+        let GridFrame { bounds, cell, dims } = &self.frame;
         let mut c = [0usize; 3];
         for a in 0..3 {
-            let x = ((p[a] - self.lo[a]) / self.cell).floor();
-            if !(x >= 0.0 && x < self.dims[a] as f64) {
+            let x = ((p[a] - bounds.lo[a]) / cell[a]).floor();
+            if !(x >= 0.0 && x < dims[a] as f64) {
                 return; // outside the grid box: no ball reaches there
             }
             c[a] = x as usize;
         }
         let mut rows = [Segment::default(); ROWS_PER_STEP];
-        let index = (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0];
+        let index = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
         let n = self.step_rows(c, index, 0.0, 0.0, &mut rows);
         let slots = self.slots();
         for sg in &rows[..n] {
@@ -838,11 +817,10 @@ impl SubGrid {
         }
     }
 
-    /// Optical depth of the segment [t0, t1) of the ray (o, d), per channel (Eq. 18, normalised as in the
-    /// module docs).
-    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
+    /// Optical depth of a ray segment, per channel (Eq. 18, normalised as in the module docs).
+    pub fn optical_depth(&self, ray: &RaySegment, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
-        self.traverse(o, d, t0, t1, |s, _| {
+        self.traverse(ray, |s, _| {
             for (v, &tau) in out.iter_mut().zip(self.hit_tau(s)) {
                 *v += tau as f64;
             }
@@ -852,14 +830,14 @@ impl SubGrid {
 
     /// The same by a loop over every particle (the O(N) oracle of the tests).
     #[cfg(any(test, feature = "oracles"))]
-    pub fn optical_depth_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
+    pub fn optical_depth_brute(&self, ray: &RaySegment, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
-        if !(t1 > t0) {
+        if ray.is_empty() {
             return;
         }
         for j in 0..self.len() {
-            if let Some(t) = self.contribution(j, o, d) {
-                if t >= t0 && t < t1 {
+            if let Some(t) = self.contribution(j, ray) {
+                if ray.contains(t) {
                     for ch in 0..self.channels {
                         out[ch] += self.tau[j * self.channels + ch] as f64;
                     }
@@ -886,6 +864,25 @@ impl SubGrid {
 /// 0.44, 0.38, 0.34, 0.36 us per sparse ray; 3.98, 3.76, 3.66, 3.74, 4.02 us per dense one; memory
 /// falls with the cell count).
 pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
+
+/// How a [`ParticleGrid`] is laid over its particles: the query radius r_c (scene units; a particle
+/// contributes to the rays passing within r_c + r_i of its centre, Sec. 5.3) and the resolution in
+/// cells per particle (paper Sec. 6.5: about one particle per voxel; see
+/// [`DEFAULT_CELLS_PER_PARTICLE`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridSettings {
+    pub query_radius: f64,
+    pub cells_per_particle: f64,
+}
+
+impl GridSettings {
+    pub fn new(query_radius: f64, cells_per_particle: f64) -> Self {
+        GridSettings {
+            query_radius,
+            cells_per_particle,
+        }
+    }
+}
 
 /// Size classes of a [`ParticleGrid`]: factors of two in inclusion radius, the last one open below.
 pub(crate) const SIZE_CLASSES: usize = 13;
@@ -980,9 +977,12 @@ fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
 pub fn check_particles(
     positions: &[[f64; 3]],
     radius: &[f64],
-    query_radius: f64,
-    cells_per_particle: f64,
+    settings: &GridSettings,
 ) -> Result<(), OpticsError> {
+    let GridSettings {
+        query_radius,
+        cells_per_particle,
+    } = *settings;
     let n = positions.len();
     require("positions (count)", n as f64, n >= 1, ">= 1")?;
     require_len("radius (length)", radius.len(), n, "one per particle")?;
@@ -1040,26 +1040,20 @@ pub struct ParticleGrid {
 }
 
 impl ParticleGrid {
-    /// Build from centres (scene units), geometric radii (scene units), extinction cross sections
-    /// (scene units², `[particle][channel]` row-major) and the query radius r_c (scene units).
-    /// `cells_per_particle` sets the resolution (paper Sec. 6.5: about one particle per voxel).
+    /// Build from centres (scene units), geometric radii (scene units) and extinction cross sections
+    /// (scene units², `[particle][channel]` row-major), with the query radius and resolution of
+    /// `settings`.
     pub fn build(
         positions: &[[f64; 3]],
         radius: &[f64],
         c_ext: &[f64],
         channels: usize,
-        query_radius: f64,
-        cells_per_particle: f64,
+        settings: &GridSettings,
     ) -> Result<Self, OpticsError> {
-        check_particles(positions, radius, query_radius, cells_per_particle)?;
+        check_particles(positions, radius, settings)?;
         check_cross_sections(c_ext, positions.len(), channels)?;
         Ok(Self::from_checked(
-            positions,
-            radius,
-            c_ext,
-            channels,
-            query_radius,
-            cells_per_particle,
+            positions, radius, c_ext, channels, settings,
         ))
     }
 
@@ -1070,9 +1064,12 @@ impl ParticleGrid {
         radius: &[f64],
         c_ext: &[f64],
         channels: usize,
-        query_radius: f64,
-        cells_per_particle: f64,
+        settings: &GridSettings,
     ) -> Self {
+        let GridSettings {
+            query_radius,
+            cells_per_particle,
+        } = *settings;
         let n = positions.len();
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
@@ -1101,8 +1098,7 @@ impl ParticleGrid {
                 &ce,
                 &ids,
                 channels,
-                query_radius,
-                cells_per_particle,
+                settings,
                 Some(volume),
             ));
         }
@@ -1139,7 +1135,7 @@ impl ParticleGrid {
         self.classes
             .iter()
             .max_by_key(|c| c.len())
-            .map(|c| c.dims)
+            .map(|c| c.frame.dims)
             .unwrap_or([0; 3])
     }
     pub fn class_count(&self) -> usize {
@@ -1159,29 +1155,22 @@ impl ParticleGrid {
         }
     }
 
-    pub fn optical_depth(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
-        self.sum_classes(out, |c, part| c.optical_depth(o, d, t0, t1, part));
+    pub fn optical_depth(&self, ray: &RaySegment, out: &mut [f64]) {
+        self.sum_classes(out, |c, part| c.optical_depth(ray, part));
     }
 
     #[cfg(any(test, feature = "oracles"))]
-    pub fn optical_depth_brute(&self, o: [f64; 3], d: [f64; 3], t0: f64, t1: f64, out: &mut [f64]) {
-        self.sum_classes(out, |c, part| c.optical_depth_brute(o, d, t0, t1, part));
+    pub fn optical_depth_brute(&self, ray: &RaySegment, out: &mut [f64]) {
+        self.sum_classes(out, |c, part| c.optical_depth_brute(ray, part));
     }
 
-    /// Visit every contributing particle with t in [t0, t1), over all classes, in increasing t, as
+    /// Visit every contributing particle with t in the segment, over all classes, in increasing t, as
     /// `visit(t, τ per channel, original index)`; `visit` returns false to stop. Each class advances
     /// its own traversal a batch at a time (the class furthest behind first); a hit is passed on once
     /// every class has reported everything before it, so a walk that stops early costs only the
     /// batches it reached, and no traversal restarts.
-    pub fn walk(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-        mut visit: impl FnMut(f64, &[f32], u32) -> bool,
-    ) {
-        if !(t1 > t0) {
+    pub fn walk(&self, ray: &RaySegment, mut visit: impl FnMut(f64, &[f32], u32) -> bool) {
+        if ray.is_empty() {
             return;
         }
         let mut emit = |&(t, ci, j): &(f64, u32, u32)| {
@@ -1192,7 +1181,7 @@ impl ParticleGrid {
         let mut pending: Vec<(f64, u32, u32)> = Vec::new();
         if let [c] = &self.classes[..] {
             // One class: each batch is complete up to its frontier, in t order once sorted.
-            let mut cur = c.cursor(o, d, inverse(d), t0, t1);
+            let mut cur = c.cursor(ray, inverse(ray.d));
             loop {
                 pending.clear();
                 let frontier = c.advance(&mut cur, &mut |t, j| {
@@ -1210,11 +1199,11 @@ impl ParticleGrid {
                 }
             }
         }
-        let inv_d = inverse(d);
+        let inv_d = inverse(ray.d);
         let mut cursors: Vec<(Cursor, f64)> = self
             .classes
             .iter()
-            .map(|c| (c.cursor(o, d, inv_d, t0, t1), t0))
+            .map(|c| (c.cursor(ray, inv_d), ray.t0))
             .collect();
         loop {
             // Advance the class furthest behind.
@@ -1249,22 +1238,14 @@ impl ParticleGrid {
         }
     }
 
-    /// Exact free flight over [t0, t1) in `channel`: each particle interacts with probability
+    /// Exact free flight over a ray segment in `channel`: each particle interacts with probability
     /// 1 − exp(−τ_i); equivalently, particles are walked in t order and the path interacts where the accumulated optical depth first exceeds −ln(1 − u).
     /// Returns the hit (or None) and the transmittance up to it (or to t1).
-    pub fn free_flight(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-        channel: usize,
-        u: f64,
-    ) -> (Option<Hit>, f64) {
+    pub fn free_flight(&self, ray: &RaySegment, channel: usize, u: f64) -> (Option<Hit>, f64) {
         let target = -(1.0 - u).ln();
         let mut acc = 0.0;
         let mut found = None;
-        self.walk(o, d, t0, t1, |t, tau, i| {
+        self.walk(ray, |t, tau, i| {
             let x = tau[channel] as f64;
             if acc + x > target {
                 found = Some(Hit { t, particle: i });
@@ -1282,10 +1263,7 @@ impl ParticleGrid {
     /// its origin) are skipped. Returns the site and the optical depth walked before it.
     pub fn sample_site(
         &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
+        ray: &RaySegment,
         exclude: &[u32],
         u: f64,
         coincide: f64,
@@ -1296,7 +1274,7 @@ impl ParticleGrid {
         let mut group_tau = 0.0;
         let mut last_t = f64::NEG_INFINITY;
         let mut found = None;
-        self.walk(o, d, t0, t1, |t, tau, i| {
+        self.walk(ray, |t, tau, i| {
             if exclude.contains(&i) {
                 return true;
             }
@@ -1354,17 +1332,12 @@ impl ParticleGrid {
         out
     }
 
-    /// First and last t in [t0, t1) where any particle contributes (for empty-space skipping), or None.
-    pub fn occupied_interval(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-    ) -> Option<(f64, f64)> {
+    /// First and last t in the segment where any particle contributes (for empty-space skipping), or
+    /// None.
+    pub fn occupied_interval(&self, ray: &RaySegment) -> Option<(f64, f64)> {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for c in &self.classes {
-            c.traverse(o, d, t0, t1, |_, t| {
+            c.traverse(ray, |_, t| {
                 lo = lo.min(t);
                 hi = hi.max(t);
                 true
@@ -1375,19 +1348,13 @@ impl ParticleGrid {
 
     /// The same by a loop over every particle (test oracle).
     #[cfg(any(test, feature = "oracles"))]
-    pub fn occupied_interval_brute(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t0: f64,
-        t1: f64,
-    ) -> Option<(f64, f64)> {
+    pub fn occupied_interval_brute(&self, ray: &RaySegment) -> Option<(f64, f64)> {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        if t1 > t0 {
+        if !ray.is_empty() {
             for c in &self.classes {
                 for j in 0..c.len() {
-                    if let Some(t) = c.contribution(j, o, d) {
-                        if t >= t0 && t < t1 {
+                    if let Some(t) = c.contribution(j, ray) {
+                        if ray.contains(t) {
                             lo = lo.min(t);
                             hi = hi.max(t);
                         }
@@ -1416,7 +1383,8 @@ impl ParticleGrid {
 mod tests {
     use super::*;
 
-    use crate::test_rng::{assert_escape_rate, lcg, random_points};
+    use crate::test_rng::{assert_escape_rate, lcg, random_direction, random_particles};
+    use std::f64::consts::PI;
 
     /// Free flights interact at a particle with exactly the probability the transmittance implies:
     /// P(no interaction on [t0, t1)) = exp(−τ) (binomial 5σ bound), and the interaction point has an
@@ -1424,22 +1392,17 @@ mod tests {
     #[test]
     fn free_flight_matches_transmittance() {
         let mut s = 11u64;
-        let n = 2000;
-        let pos = random_points(&mut s, n);
-        let rad: Vec<f64> = (0..n).map(|_| 0.005 + 0.01 * lcg(&mut s)).collect();
-        let cext: Vec<f64> = rad
-            .iter()
-            .map(|r| 2.0 * std::f64::consts::PI * r * r * 15.0)
-            .collect();
-        let g = ParticleGrid::build(&pos, &rad, &cext, 1, 0.03, 1.0).unwrap();
+        let (pos, rad) = random_particles(&mut s, 2000, 0.005, 0.01);
+        let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r * 15.0).collect();
+        let g = ParticleGrid::build(&pos, &rad, &cext, 1, &GridSettings::new(0.03, 1.0)).unwrap();
         assert!(g.class_count() >= 1);
-        let (o, d) = ([0.5, 0.5, -0.5], [0.0, 0.6, 0.8]);
+        let ray = RaySegment::new([0.5, 0.5, -0.5], [0.0, 0.6, 0.8], 0.0, 3.0);
         let mut tau = [0.0];
-        g.optical_depth(o, d, 0.0, 3.0, &mut tau);
+        g.optical_depth(&ray, &mut tau);
         let expected = (-tau[0]).exp();
         assert!(tau[0] > 0.3 && tau[0] < 3.0, "{}", tau[0]);
         assert_escape_rate(&mut s, 20000, expected, |u| {
-            let (hit, tr) = g.free_flight(o, d, 0.0, 3.0, 0, u);
+            let (hit, tr) = g.free_flight(&ray, 0, u);
             match hit {
                 None => {
                     assert!((tr - expected).abs() < 1e-12);
@@ -1458,17 +1421,85 @@ mod tests {
         });
     }
 
+    /// The segments `grid_equals_brute_force` queries: random ones (whole and in part), rays along
+    /// each axis from outside, rays on a cell face of the grid (`lo0 + 3 cell` in x) starting inside,
+    /// a zero-length segment and a ray missing the grid.
+    fn test_rays(s: &mut u64, lo0: f64, cell: f64) -> Vec<RaySegment> {
+        let mut rays = Vec::new();
+        for _ in 0..300 {
+            let o = [lcg(s) * 3.0 - 1.0, lcg(s) * 3.0 - 1.0, lcg(s) * 3.0 - 1.0];
+            let ray = RaySegment::new(o, random_direction(s), 0.0, 4.0);
+            rays.push(ray);
+            rays.push(ray.between(lcg(s), lcg(s) + 1.0));
+        }
+        for a in 0..3 {
+            for sign in [1.0, -1.0] {
+                let mut d = [0.0; 3];
+                d[a] = sign;
+                let mut o = [0.5, 0.5, 0.5];
+                o[a] -= sign * 2.0;
+                rays.push(RaySegment::new(o, d, 0.0, 5.0));
+                // on a cell face of the grid and starting inside
+                let mut o2 = [lo0 + 3.0 * cell, 0.37, 0.61];
+                o2[a] = 0.5;
+                rays.push(RaySegment::new(o2, d, 0.0, 3.0));
+            }
+        }
+        let x = [1.0, 0.0, 0.0];
+        rays.push(RaySegment::new([0.5, 0.5, 0.5], x, 0.3, 0.3)); // zero length
+        rays.push(RaySegment::new([5.0, 5.0, 5.0], x, 0.0, 10.0)); // misses
+        rays
+    }
+
+    /// The walk, the optical depth and the occupied interval of `ray` equal the O(N) loops: the walk
+    /// merges the classes' traversals, every contributing particle once, in t order.
+    fn assert_queries_match_brute(g: &ParticleGrid, ray: &RaySegment, rc: f64) {
+        assert_eq!(g.occupied_interval(ray), g.occupied_interval_brute(ray));
+        let mut walked = Vec::new();
+        g.walk(ray, |t, _, i| {
+            walked.push((t, i));
+            true
+        });
+        assert!(
+            walked.windows(2).all(|w| w[0].0 <= w[1].0),
+            "walk out of order"
+        );
+        let mut expect = Vec::new();
+        for c in &g.classes {
+            for j in 0..c.len() {
+                match c.contribution(j, ray) {
+                    Some(t) if ray.contains(t) => expect.push(c.index[j]),
+                    _ => {}
+                }
+            }
+        }
+        let mut got: Vec<u32> = walked.iter().map(|w| w.1).collect();
+        got.sort();
+        expect.sort();
+        let RaySegment { o, d, t0, t1 } = *ray;
+        assert_eq!(got, expect, "walk rc={rc} o={o:?} d={d:?}");
+        let (mut a, mut b) = (vec![0.0; 2], vec![0.0; 2]);
+        g.optical_depth(ray, &mut a);
+        g.optical_depth_brute(ray, &mut b);
+        for ch in 0..2 {
+            assert!(
+                (a[ch] - b[ch]).abs() <= 1e-9 * b[ch].abs().max(1e-300),
+                "rc={rc} o={o:?} d={d:?} [{t0},{t1}) grid {} brute {}",
+                a[ch],
+                b[ch]
+            );
+        }
+    }
+
     /// Grid traversal equals the O(N) loop for random rays, axis-aligned rays, rays starting inside,
     /// rays on cell faces, zero-length segments and rays missing the grid.
     #[test]
     fn grid_equals_brute_force() {
         let mut s = 7u64;
-        let n = 3000;
-        let pos = random_points(&mut s, n);
-        let rad: Vec<f64> = (0..n).map(|_| 0.001 + 0.02 * lcg(&mut s)).collect();
+        let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
         let cext: Vec<f64> = rad
             .iter()
-            .flat_map(|r| [2.0 * std::f64::consts::PI * r * r, 3.0 * r * r])
+            .flat_map(|r| [2.0 * PI * r * r, 3.0 * r * r])
             .collect();
         for (rc, cpp) in [
             (0.0, 1.0),
@@ -1478,7 +1509,7 @@ mod tests {
             (0.0, 0.25),
             (0.0, 20.0),
         ] {
-            let g = ParticleGrid::build(&pos, &rad, &cext, 2, rc, cpp).unwrap();
+            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &GridSettings::new(rc, cpp)).unwrap();
             if rc == 0.0 && cpp == 1.0 {
                 // Every class is sparse at this resolution: one grid (merge_sparse_classes).
                 assert_eq!(g.class_count(), 1);
@@ -1487,34 +1518,8 @@ mod tests {
                 // Fine cells make the largest grains a dense class apart from the sparse rest.
                 assert!(g.class_count() > 1, "the test needs several size classes");
             }
-            let cell = g.classes[0].cell;
-            let lo0 = g.classes[0].lo[0];
-            let mut rays: Vec<([f64; 3], [f64; 3], f64, f64)> = Vec::new();
-            for _ in 0..300 {
-                let o = [
-                    lcg(&mut s) * 3.0 - 1.0,
-                    lcg(&mut s) * 3.0 - 1.0,
-                    lcg(&mut s) * 3.0 - 1.0,
-                ];
-                let mut d = [lcg(&mut s) - 0.5, lcg(&mut s) - 0.5, lcg(&mut s) - 0.5];
-                let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                d = d.map(|x| x / l);
-                rays.push((o, d, 0.0, 4.0));
-                rays.push((o, d, lcg(&mut s), lcg(&mut s) + 1.0));
-            }
-            for a in 0..3 {
-                for sign in [1.0, -1.0] {
-                    let mut d = [0.0; 3];
-                    d[a] = sign;
-                    let mut o = [0.5, 0.5, 0.5];
-                    o[a] -= sign * 2.0;
-                    rays.push((o, d, 0.0, 5.0));
-                    // on a cell face of the grid and starting inside
-                    let mut o2 = [lo0 + 3.0 * cell, 0.37, 0.61];
-                    o2[a] = 0.5;
-                    rays.push((o2, d, 0.0, 3.0));
-                }
-            }
+            let frame = &g.classes[0].frame;
+            let rays = test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]);
             for _ in 0..200 {
                 let p = [
                     lcg(&mut s) * 1.4 - 0.2,
@@ -1526,48 +1531,8 @@ mod tests {
                 b.sort();
                 assert_eq!(a, b, "containing({p:?}) rc={rc}");
             }
-            rays.push(([0.5, 0.5, 0.5], [1.0, 0.0, 0.0], 0.3, 0.3)); // zero length
-            rays.push(([5.0, 5.0, 5.0], [1.0, 0.0, 0.0], 0.0, 10.0)); // misses
-            let (mut a, mut b) = (vec![0.0; 2], vec![0.0; 2]);
-            for (o, d, t0, t1) in rays {
-                assert_eq!(
-                    g.occupied_interval(o, d, t0, t1),
-                    g.occupied_interval_brute(o, d, t0, t1)
-                );
-                // The walk merges the classes' traversals: every contributing particle once, in t
-                // order.
-                let mut walked = Vec::new();
-                g.walk(o, d, t0, t1, |t, _, i| {
-                    walked.push((t, i));
-                    true
-                });
-                assert!(
-                    walked.windows(2).all(|w| w[0].0 <= w[1].0),
-                    "walk out of order"
-                );
-                let mut expect = Vec::new();
-                for c in &g.classes {
-                    for j in 0..c.len() {
-                        match c.contribution(j, o, d) {
-                            Some(t) if t >= t0 && t < t1 => expect.push(c.index[j]),
-                            _ => {}
-                        }
-                    }
-                }
-                let mut got: Vec<u32> = walked.iter().map(|w| w.1).collect();
-                got.sort();
-                expect.sort();
-                assert_eq!(got, expect, "walk rc={rc} o={o:?} d={d:?}");
-                g.optical_depth(o, d, t0, t1, &mut a);
-                g.optical_depth_brute(o, d, t0, t1, &mut b);
-                for ch in 0..2 {
-                    assert!(
-                        (a[ch] - b[ch]).abs() <= 1e-9 * b[ch].abs().max(1e-300),
-                        "rc={rc} o={o:?} d={d:?} [{t0},{t1}) grid {} brute {}",
-                        a[ch],
-                        b[ch]
-                    );
-                }
+            for ray in &rays {
+                assert_queries_match_brute(&g, ray, rc);
             }
         }
     }

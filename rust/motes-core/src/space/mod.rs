@@ -1,5 +1,6 @@
 //! Particles in space: where the grains are and what a ray meets.
 //!
+//! * [`ray`]: the segment [t0, t1) of a ray that every query along a ray takes.
 //! * [`dda`]: an axis-aligned box with one slab test and the 3D-DDA walk of a ray through a uniform
 //!   grid (Amanatides & Woo).
 //! * [`grid`]: a uniform grid over particle centres; optical depth along a query cylinder (Eq. 18),
@@ -7,3 +8,4 @@
 
 pub mod dda;
 pub mod grid;
+pub mod ray;
