@@ -273,7 +273,7 @@ class DiscreteMedium:
         m = o.shape[0]
         a = np.ascontiguousarray(np.broadcast_to(np.asarray(t0, dtype=np.float64), (m,)))
         b = np.ascontiguousarray(np.broadcast_to(np.asarray(t1, dtype=np.float64), (m,)))
-        return self._core.optical_depth(np.ascontiguousarray(o).ravel(), np.ascontiguousarray(d).ravel(), a, b)
+        return self._core.optical_depth((np.ascontiguousarray(o).ravel(), np.ascontiguousarray(d).ravel(), a, b))
 
 
 __all__ = ["DiscreteMedium"]

@@ -117,13 +117,13 @@ class ParticleGrid:
         """Optical depth of the segments [t0, t1) of the rays (directions need not be unit; t is in units
         of the normalised direction), shape (n_rays, channels). ``brute=True``: the O(N) loop."""
         o, d, (a, b), n = self._rays(origins, directions, t0, t1)
-        return self._grid.optical_depth(o, d, a, b, bool(brute)).reshape(n, self.channels)
+        return self._grid.optical_depth((o, d, a, b), bool(brute)).reshape(n, self.channels)
 
     def occupied_interval(self, origins, directions, t0, t1, *, brute: bool = False):
         """(first, last): the smallest and largest t on [t0, t1) where a particle contributes, NaN where
         none — everything outside can be skipped (empty-space skipping)."""
         o, d, (a, b), n = self._rays(origins, directions, t0, t1)
-        return self._grid.occupied_interval(o, d, a, b, bool(brute))
+        return self._grid.occupied_interval((o, d, a, b), bool(brute))
 
     def transmittance(self, origins, directions, t0, t1) -> np.ndarray:
         return np.exp(-self.optical_depth(origins, directions, t0, t1))
@@ -132,7 +132,7 @@ class ParticleGrid:
         """Exact free-flight sampling: (t, particle index, transmittance up to t); t = NaN and index = -1
         where the ray leaves [t0, t1) without interacting (then the transmittance is the segment's)."""
         o, d, (a, b, uu), n = self._rays(origins, directions, t0, t1, u)
-        return self._grid.free_flight(o, d, a, b, uu, int(channel))
+        return self._grid.free_flight((o, d, a, b), uu, int(channel))
 
 
 def uniform_box(n: int, lo, hi, psd, seed: int = 0):

@@ -68,6 +68,20 @@ pub(crate) fn points(flat: &F64In) -> PyResult<Vec<[f64; 3]>> {
     Ok(triples(p))
 }
 
+/// A particle set's columns — positions (flat n*3), radii (n) and extinction cross sections — copied:
+/// the builds read them with the GIL released (module docs).
+pub(crate) fn particle_columns(
+    positions: &F64In,
+    radius: &F64In,
+    c_ext: &F64In,
+) -> PyResult<(Vec<[f64; 3]>, Vec<f64>, Vec<f64>)> {
+    Ok((
+        points(positions)?,
+        radius.as_slice()?.to_vec(),
+        c_ext.as_slice()?.to_vec(),
+    ))
+}
+
 /// Per-ray arrays (t0, t1, u, …), copied; they must be equally long ("t0, t1 and u must have one
 /// value per ray", from their names).
 pub(crate) fn per_ray<const N: usize>(arrays: [(&str, &F64In); N]) -> PyResult<[Vec<f64>; N]> {
@@ -124,15 +138,17 @@ pub(crate) fn segments(
         .collect()
 }
 
-/// [`segments`] from the per-ray `t0` and `t1` arrays as Python gives them.
-pub(crate) fn ray_segments(
-    origins: &F64In,
-    directions: &F64In,
-    t0: &F64In,
-    t1: &F64In,
-) -> PyResult<Vec<RaySegment>> {
-    let [t0, t1] = per_ray([("t0", t0), ("t1", t1)])?;
-    segments(origins, directions, &t0, &t1)
+/// Ray segments as Python passes them to a query: one tuple `(origins, directions, t0, t1)` of flat
+/// (n*3) origins and directions and per-ray `t0` and `t1` (the Python layer broadcasts them).
+#[derive(FromPyObject)]
+pub(crate) struct SegmentsIn<'py>(F64In<'py>, F64In<'py>, F64In<'py>, F64In<'py>);
+
+impl SegmentsIn<'_> {
+    /// The checked [`segments`].
+    pub(crate) fn get(&self) -> PyResult<Vec<RaySegment>> {
+        let [t0, t1] = per_ray([("t0", &self.2), ("t1", &self.3)])?;
+        segments(&self.0, &self.1, &t0, &t1)
+    }
 }
 
 /// `f(i, segment)` of each ray segment, in parallel and without the GIL.

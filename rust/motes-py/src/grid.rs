@@ -25,8 +25,7 @@ impl PyParticleGrid {
         query_radius: f64,
         cells_per_particle: f64,
     ) -> PyResult<Self> {
-        let pos = points(&positions)?;
-        let (r, c) = (radius.as_slice()?.to_vec(), c_ext.as_slice()?.to_vec());
+        let (pos, r, c) = particle_columns(&positions, &radius, &c_ext)?;
         let settings = GridSettings::new(query_radius, cells_per_particle);
         let grid = py
             .detach(|| ParticleGrid::build(&pos, &r, &c, channels, &settings))
@@ -38,13 +37,10 @@ impl PyParticleGrid {
     fn optical_depth<'py>(
         &self,
         py: Python<'py>,
-        origins: F64In,
-        directions: F64In,
-        t0: F64In,
-        t1: F64In,
+        segments: SegmentsIn,
         brute: bool,
     ) -> PyResult<F64Out<'py>> {
-        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+        let segs = segments.get()?;
         let ch = self.grid.channels();
         let out = per_segment(py, &segs, |_, ray| {
             let mut v = vec![0.0; ch];
@@ -62,14 +58,17 @@ impl PyParticleGrid {
     fn free_flight<'py>(
         &self,
         py: Python<'py>,
-        origins: F64In,
-        directions: F64In,
-        t0: F64In,
-        t1: F64In,
+        segments: SegmentsIn,
         u: F64In,
         channel: usize,
     ) -> PyResult<(F64Out<'py>, Bound<'py, PyArray1<i64>>, F64Out<'py>)> {
-        let [t0, t1, u] = per_ray([("t0", &t0), ("t1", &t1), ("u", &u)])?;
+        let segs = segments.get()?;
+        let u = u.as_slice()?;
+        if u.len() != segs.len() {
+            return Err(PyValueError::new_err(
+                "t0, t1 and u must have one value per ray",
+            ));
+        }
         if channel >= self.grid.channels() {
             return Err(PyValueError::new_err(format!(
                 "invalid channel = {channel}: the grid has {} channels",
@@ -81,7 +80,6 @@ impl PyParticleGrid {
                 "invalid u = {v}: must be in [0, 1)"
             )));
         }
-        let segs = segments(&origins, &directions, &t0, &t1)?;
         let res = per_segment(py, &segs, |i, ray| {
             let (hit, tr) = self.grid.free_flight(ray, channel, u[i]);
             match hit {
@@ -99,13 +97,10 @@ impl PyParticleGrid {
     fn occupied_interval<'py>(
         &self,
         py: Python<'py>,
-        origins: F64In,
-        directions: F64In,
-        t0: F64In,
-        t1: F64In,
+        segments: SegmentsIn,
         brute: bool,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+        let segs = segments.get()?;
         let res = per_segment(py, &segs, |_, ray| {
             let r = if brute {
                 self.grid.occupied_interval_brute(ray)

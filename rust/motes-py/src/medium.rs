@@ -53,15 +53,11 @@ impl PyDiscreteMedium {
         continuous_count: f64,
         seed: u64,
     ) -> PyResult<Self> {
-        let pos = points(&positions)?;
         let lam = lambda.as_slice()?.to_vec();
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
-        // Copied: the build reads them with the GIL released (see `convert`'s module docs).
-        let (r, c, b) = (
-            radius.as_slice()?.to_vec(),
-            c_ext.as_slice()?.to_vec(),
-            bin.as_slice()?.to_vec(),
-        );
+        let (pos, r, c) = particle_columns(&positions, &radius, &c_ext)?;
+        // Copied: the build reads it with the GIL released (see `convert`'s module docs).
+        let b = bin.as_slice()?.to_vec();
         let medium = py
             .detach(|| {
                 motes_core::render::discrete::DiscreteMedium::build(
@@ -300,15 +296,8 @@ impl PyDiscreteMedium {
     }
 
     /// Grey optical depth of segments [t0, t1) (f64 rays), as used by the free flights.
-    fn optical_depth<'py>(
-        &self,
-        py: Python<'py>,
-        origins: F64In,
-        directions: F64In,
-        t0: F64In,
-        t1: F64In,
-    ) -> PyResult<F64Out<'py>> {
-        let segs = ray_segments(&origins, &directions, &t0, &t1)?;
+    fn optical_depth<'py>(&self, py: Python<'py>, segments: SegmentsIn) -> PyResult<F64Out<'py>> {
+        let segs = segments.get()?;
         let out = per_segment(py, &segs, |_, ray| self.medium.optical_depth(ray));
         Ok(out.into_pyarray(py))
     }

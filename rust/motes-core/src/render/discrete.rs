@@ -196,6 +196,14 @@ struct EventMap {
 }
 
 impl EventMap {
+    /// An empty map whose generations hold `capacity` events each.
+    fn new(capacity: usize) -> Self {
+        EventMap {
+            current: FxHashMap::default(),
+            previous: FxHashMap::default(),
+            capacity,
+        }
+    }
     fn get(&self, key: &[u32; 3]) -> Option<&Event> {
         self.current.get(key).or_else(|| self.previous.get(key))
     }
@@ -518,14 +526,26 @@ pub struct PhaseEvalLane {
     pub wo: [f32; 3],
 }
 
+/// The grid reaches r_c + radius and spreads c / (π reach²): the widened disks (R, τ) handed to it as
+/// radii and cross sections τ π R², so that it walks exactly these disks.
+fn grid_disks(disks: &[(f64, f64)], radius: &[f64], query_radius: f64) -> (Vec<f64>, Vec<f64>) {
+    let grid_radius = disks
+        .iter()
+        .zip(radius)
+        .map(|(d, &r)| (d.0 - query_radius).max(r))
+        .collect();
+    let grid_c = disks.iter().map(|&(r, t)| t * PI * r * r).collect();
+    (grid_radius, grid_c)
+}
+
 impl DiscreteMedium {
     /// `positions` and `radius` in scene units, `c_ext` the grey extinction cross section per particle
     /// (scene units²), `bin` each particle's index into `bins`, `lambda` the tabulated wavelengths
     /// (increasing), `query_radius` r_c (scene units), `tau_max` the cap on each disk's optical depth
     /// (module docs; [`DEFAULT_TAU_MAX`], `f64::INFINITY` for none).
-    #[allow(clippy::too_many_arguments)]
     /// `continuous_count`: size classes holding at least this many particles per query cylinder are
     /// sampled as a continuous medium ([`crate::render::continuous`]; `f64::INFINITY`: none).
+    #[allow(clippy::too_many_arguments)]
     pub fn build(
         positions: &[[f64; 3]],
         radius: &[f64],
@@ -558,12 +578,7 @@ impl DiscreteMedium {
         let widened = (0..n)
             .filter(|&i| disks[i].0 > query_radius + radius[i])
             .count();
-        // The grid reaches r_c + radius and spreads c / (π reach²): hand it the widened disks as radii
-        // and τ π R² as cross sections, so that it walks exactly these disks.
-        let grid_radius: Vec<f64> = (0..n)
-            .map(|i| (disks[i].0 - query_radius).max(radius[i]))
-            .collect();
-        let grid_c: Vec<f64> = disks.iter().map(|&(r, t)| t * PI * r * r).collect();
+        let (grid_radius, grid_c) = grid_disks(&disks, radius, query_radius);
         let reach: Vec<f64> = disks.iter().map(|d| d.0).collect();
         let (grid, field, keep) = build_walk(
             positions,
@@ -579,11 +594,6 @@ impl DiscreteMedium {
         let reach = disks.iter().map(|d| d.0 as f32).collect();
         let c_ext = c_ext.iter().map(|&c| c as f32).collect();
         let (coincide, event_box) = event_geometry(positions, reach_max);
-        let events = EventMap {
-            current: FxHashMap::default(),
-            previous: FxHashMap::default(),
-            capacity: EVENTS_PER_GENERATION,
-        };
         Ok(DiscreteMedium {
             grid,
             field,
@@ -596,7 +606,7 @@ impl DiscreteMedium {
             bins,
             lambda,
             coincide,
-            events: RwLock::new(events),
+            events: RwLock::new(EventMap::new(EVENTS_PER_GENERATION)),
             pending: Mutex::new(FxHashMap::default()),
             seed,
             calls: AtomicU64::new(0),
@@ -1280,14 +1290,9 @@ struct PacketState {
 
 impl Default for PacketState {
     fn default() -> Self {
-        let events = EventMap {
-            current: FxHashMap::default(),
-            previous: FxHashMap::default(),
-            capacity: PACKET_EVENT_CAPACITY,
-        };
         PacketState {
             pending: [PendingLane::default(); PACKET_LANES],
-            events,
+            events: EventMap::new(PACKET_EVENT_CAPACITY),
             epoch: 0,
         }
     }

@@ -381,6 +381,42 @@ fn inline_slots(
     (start, inline, slot_particle)
 }
 
+/// Each particle's optical depth per channel, in storage order: C_ext / (π R²), the disk of its
+/// inclusion radius R (the caller has already capped it at tau_max by widening R).
+fn disk_tau(order: &[u32], reach: &[f64], c_ext: &[f64], channels: usize) -> Vec<f32> {
+    let mut tau = vec![0f32; order.len() * channels];
+    for (j, &i) in order.iter().enumerate() {
+        let area = std::f64::consts::PI * reach[i as usize] * reach[i as usize];
+        for ch in 0..channels {
+            tau[j * channels + ch] = (c_ext[i as usize * channels + ch] / area) as f32;
+        }
+    }
+    tau
+}
+
+/// What a hit reads, per slot of a k = 0 class: its particle's τ per channel and original index
+/// (padding slots: τ = 0, index unused).
+fn slot_hits(
+    slot_particle: &[u32],
+    tau: &[f32],
+    index: &[u32],
+    channels: usize,
+) -> (Vec<f32>, Vec<u32>) {
+    let slot_of = |sp: &u32| (*sp != PADDING_SLOT).then_some(*sp as usize);
+    let mut slot_tau = vec![0f32; slot_particle.len() * channels];
+    for (s, sp) in slot_particle.iter().enumerate() {
+        if let Some(j) = slot_of(sp) {
+            slot_tau[s * channels..(s + 1) * channels]
+                .copy_from_slice(&tau[j * channels..(j + 1) * channels]);
+        }
+    }
+    let slot_index = slot_particle
+        .iter()
+        .map(|sp| slot_of(sp).map_or(u32::MAX, |j| index[j]))
+        .collect();
+    (slot_tau, slot_index)
+}
+
 impl SubGrid {
     /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
     /// particles' original indices.
@@ -430,13 +466,7 @@ impl SubGrid {
             [p[0] as f32, p[1] as f32, p[2] as f32, reach[i] as f32]
         };
         let particles = Spheres::from_iter(n, |j| sphere_of(order[j] as usize));
-        let mut tau = vec![0f32; n * channels];
-        for (j, &i) in order.iter().enumerate() {
-            let area = std::f64::consts::PI * reach[i as usize] * reach[i as usize];
-            for ch in 0..channels {
-                tau[j * channels + ch] = (c_ext[i as usize * channels + ch] / area) as f32;
-            }
-        }
+        let tau = disk_tau(&order, &reach, c_ext, channels);
         let (start, inline, slot_particle) = if k == 1 {
             // Each cell's slots are its own particles, already in cell order.
             (centre_start, Spheres::default(), Vec::new())
@@ -445,19 +475,7 @@ impl SubGrid {
         };
         let index: Vec<u32> = order.iter().map(|&i| ids[i as usize]).collect();
         let prefetch_slots = inline.bytes().max(particles.bytes()) > PREFETCH_SLOTS_ABOVE_BYTES;
-        // What a hit reads, per slot (k = 0; padding slots: τ = 0, index unused).
-        let slot_of = |sp: &u32| (*sp != PADDING_SLOT).then_some(*sp as usize);
-        let mut slot_tau = vec![0f32; slot_particle.len() * channels];
-        for (s, sp) in slot_particle.iter().enumerate() {
-            if let Some(j) = slot_of(sp) {
-                slot_tau[s * channels..(s + 1) * channels]
-                    .copy_from_slice(&tau[j * channels..(j + 1) * channels]);
-            }
-        }
-        let slot_index: Vec<u32> = slot_particle
-            .iter()
-            .map(|sp| slot_of(sp).map_or(u32::MAX, |j| index[j]))
-            .collect();
+        let (slot_tau, slot_index) = slot_hits(&slot_particle, &tau, &index, channels);
         SubGrid {
             particles,
             tau,
