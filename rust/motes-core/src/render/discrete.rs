@@ -967,17 +967,15 @@ impl DiscreteMedium {
             acc += p;
         }
         let l = ls[c];
-        let weights: Vec<f64> = members
-            .iter()
-            .map(|&j| scale(j) * self.albedo_at(j, l))
-            .collect();
-        let total: f64 = weights.iter().sum();
+        // Weights computed twice (the total, then the pick) rather than stored: no allocation per sample.
+        let weight = |j: u32| scale(j) * self.albedo_at(j, l);
+        let total: f64 = members.iter().map(|&j| weight(j)).sum();
         if !(total > 0.0) {
             return null_sample(ls.len());
         }
         let mut pick = members.len() - 1;
         let mut acc = 0.0;
-        for (k, w) in weights.iter().enumerate() {
+        for (k, w) in members.iter().map(|&j| weight(j)).enumerate() {
             if u * total < acc + w {
                 pick = k;
                 u = ((u * total - acc) / w).clamp(0.0, 1.0 - f64::EPSILON);
