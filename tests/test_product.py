@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+import weakref
 import tomllib
 import pathlib
 
@@ -139,12 +140,32 @@ def test_scalar_scene_medium_is_the_native_plugin():
     assert np.isfinite(img).all() and img.mean() > 0
     assert med.stats["rays"] > med.stats["events"] > 0
     assert not hasattr(mi.load_dict({"type": "homogeneous"}), "data")
-    core = med.data.core
+    core, data = med.data.core, weakref.ref(med.data)
     assert core.native_references == 2  # the medium and its phase function
     del med, scene, img
     gc.collect()
-    assert core.native_references == 0
+    assert core.native_references == 0 and data() is None  # freed with the scene, not at a later call
     assert _motes.native_owner(12345) is None  # an unknown handle is never dereferenced
+
+
+def test_scalar_native_medium_keeps_its_id_and_leaves_other_media_alone():
+    """The native medium a scalar scene holds keeps the XML id (so mi.traverse keys and <ref> stay the
+    user's names), and the .data accessor on mi.Medium does not stop a Python medium from setting its
+    own .data."""
+    motes.set_variant("scalar_rgb")
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath"}, "env": {"type": "constant"},
+        "smoke": {"type": "discrete", "count": 300, "phase": {"type": "particle"}},
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "smoke"}}})
+    assert scene.shapes()[0].interior_medium().id() == "smoke"
+    assert "smoke.albedo_scale" in mi.traverse(scene).keys()
+
+    class Mine(mi.Medium):
+        def __init__(self, props):
+            mi.Medium.__init__(self, props)
+            self.data = "mine"
+
+    assert Mine(mi.Properties()).data == "mine"
 
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb"])
 def test_albedo_scale_is_a_scene_parameter(variant):

@@ -108,15 +108,16 @@ def build(force: bool = False, verbose: bool = False) -> pathlib.Path:
             except FileExistsError:
                 pass
     global _library
-    _library = ctypes.CDLL(str(lib))
-    _library.motes_native_medium_handle.restype = ctypes.c_void_p
-    _library.motes_native_medium_handle.argtypes = [ctypes.c_void_p]
-    built_for = _library.motes_native_mitsuba_version
+    library = ctypes.CDLL(str(lib))
+    built_for = library.motes_native_mitsuba_version
     built_for.restype = ctypes.c_char_p
     mi_v, _ = _versions()
     if built_for().decode() != mi_v:
         raise NativeBuildError(f"{lib} was built for Mitsuba {built_for().decode()}, this is Mitsuba {mi_v}: "
                                "delete it or call motes.native.build(force=True)")
+    library.motes_native_medium_handle.restype = ctypes.c_void_p
+    library.motes_native_medium_handle.argtypes = [ctypes.c_void_p]
+    _library = library
     return folder
 
 
@@ -138,9 +139,11 @@ def folder() -> pathlib.Path | None:
 def medium_handle(obj) -> int | None:
     """The core medium handle of a native ``discrete`` medium object (a Mitsuba object), or None for any other
     object (or when the native library is not loaded)."""
-    ptr = getattr(obj, "ptr", None)
-    if _library is None or not isinstance(ptr, int):
+    import mitsuba as mi
+
+    if _library is None or not isinstance(obj, mi.Object):
         return None
+    ptr = obj.ptr
     return _library.motes_native_medium_handle(ptr) or None
 
 

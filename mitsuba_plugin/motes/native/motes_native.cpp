@@ -119,10 +119,13 @@ template <typename Float, typename Spectrum> struct MotesCall {
         }
     }
 
-    void release() {
+    MotesCall() = default;
+    MotesCall(const MotesCall &) = delete;  // one release per handle
+    MotesCall &operator=(const MotesCall &) = delete;
+    /// Releases the core medium handle; also when the plugin's constructor throws after `init` read it.
+    ~MotesCall() {
         if (api && medium)
             api->release(medium);
-        medium = nullptr;
     }
 
     /// Per-lane wavelengths packed for Rust (spectral variants; zeros in RGB ones).
@@ -203,7 +206,6 @@ public:
         m_call.init(props, "motes_discrete_native");
         m_albedo_scale = TensorXf(dr::full<typename TensorXf::Array>(1.f, 1));
     }
-    ~MotesDiscreteNative() { m_call.release(); }
 
     std::tuple<Mask, Float, Float> intersect_aabb(const Ray3f &ray) const override {
         Float zero = dr::zeros<Float>();
@@ -266,7 +268,6 @@ public:
         m_components.push_back(m_flags);
         m_call.init(props, "motes_particle_native");
     }
-    ~MotesParticleNative() { m_call.release(); }
 
     std::tuple<Vector3f, Spectrum, Float> sample(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
                                                  Float sample1, const Point2f &sample2,

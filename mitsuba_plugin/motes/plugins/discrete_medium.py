@@ -127,8 +127,7 @@ MAJORANT = 1e20
 class DiscreteMediumPlugin:
     """Methods of the plugin; ``plugin_class()`` binds them to the current variant's ``mi.Medium``."""
 
-    #: The particles and optics (``motes.DiscreteMedium``), set by the constructor. (A class attribute so
-    #: that the accessor ``install_native_accessors`` puts on ``mi.Medium`` does not stand in its way.)
+    #: The particles and optics (``motes.DiscreteMedium``), set by the constructor.
     data: DiscreteMedium | None = None
 
     def __init__(self, props: mi.Properties):
@@ -474,12 +473,23 @@ def _stats_of_native(medium) -> dict:
     return {"intersect_calls": 0, "rays": rays, "events": events, "nulls": 0}
 
 
+class _NativeAccessor:
+    """A read-only attribute of native ``discrete`` media on ``mi.Medium``. A non-data descriptor (no
+    ``__set__``): an instance attribute of the same name, as any Python medium may set, still wins."""
+
+    def __init__(self, get, doc: str):
+        self._get, self.__doc__ = get, doc
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else self._get(obj)
+
+
 def install_native_accessors() -> None:
     """``data`` and ``stats`` on the current variant's ``mi.Medium``, answering for native ``discrete``
     media (other media: AttributeError), as the Python plugin answers them."""
-    if not isinstance(getattr(mi.Medium, "data", None), property):
-        mi.Medium.data = property(_data_of_native, doc="The particles and optics of a discrete medium.")
-        mi.Medium.stats = property(_stats_of_native, doc="Render counters of a discrete medium.")
+    if not isinstance(mi.Medium.__dict__.get("data"), _NativeAccessor):
+        mi.Medium.data = _NativeAccessor(_data_of_native, "The particles and optics of a discrete medium.")
+        mi.Medium.stats = _NativeAccessor(_stats_of_native, "Render counters of a discrete medium.")
 
 
 def factory():
@@ -489,7 +499,13 @@ def factory():
     if is_jit() or not native_in_use():
         return cls
     install_native_accessors()
-    return lambda props: cls(props)._native
+
+    def make(props):
+        medium = cls(props)._native
+        medium.set_id(props.id())  # the scene's name for it (mi.traverse keys, <ref id=...>)
+        return medium
+
+    return make
 
 
 _classes: dict = {}

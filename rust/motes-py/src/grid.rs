@@ -63,7 +63,8 @@ impl PyParticleGrid {
         channel: usize,
     ) -> PyResult<(F64Out<'py>, Bound<'py, PyArray1<i64>>, F64Out<'py>)> {
         let segs = segments.get()?;
-        let u = u.as_slice()?;
+        // Copied: read with the GIL released (see `convert`'s module docs).
+        let u = u.as_slice()?.to_vec();
         if u.len() != segs.len() {
             return Err(PyValueError::new_err(
                 "t0, t1 and u must have one value per ray",

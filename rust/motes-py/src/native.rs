@@ -346,6 +346,12 @@ fn write_channels(r: &Record, lane: usize, v: &[f64]) {
     }
 }
 
+extern "C" {
+    /// CPython's "does this thread hold the GIL" (in every CPython this module loads into, though not
+    /// in the limited API that pyo3's abi3 bindings declare).
+    fn PyGILState_Check() -> std::ffi::c_int;
+}
+
 /// # Safety
 /// `medium` comes from [`handle`] and is released once.
 pub unsafe extern "C" fn motes_release(medium: *const c_void) {
@@ -353,7 +359,15 @@ pub unsafe extern "C" fn motes_release(medium: *const c_void) {
         if let Some(s) = live().as_mut() {
             s.remove(&(medium as usize));
         }
-        drop(Box::from_raw(medium as *mut NativeMedium));
+        let m = Box::from_raw(medium as *mut NativeMedium);
+        // The owner (the Python data, large) goes now where this thread holds the GIL (a scene
+        // destroyed from Python, under nanobind's GIL, which pyo3 does not count as its own); elsewhere
+        // pyo3 queues the decref for the next time it holds the GIL.
+        if pyo3::ffi::Py_IsInitialized() != 0 && PyGILState_Check() == 1 {
+            Python::attach(|_| drop(m));
+        } else {
+            drop(m);
+        }
     }
 }
 
@@ -370,7 +384,10 @@ pub unsafe extern "C" fn motes_set_albedo_scale(
         Err(e) => {
             if !message.is_null() && capacity > 0 {
                 let text = e.to_string();
-                let n = text.len().min(capacity - 1);
+                let mut n = text.len().min(capacity - 1);
+                while !text.is_char_boundary(n) {
+                    n -= 1;
+                }
                 std::ptr::copy_nonoverlapping(text.as_ptr(), message.cast::<u8>(), n);
                 *message.add(n) = 0;
             }
