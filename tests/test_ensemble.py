@@ -322,3 +322,20 @@ def test_explicit_radius_lists():
         motes.Radii([10.0])
     with pytest.raises(ValueError, match="radii_um"):
         motes.Radii([10.0, -1.0])
+
+
+def test_goa_cache_is_shared_and_changes_nothing():
+    """A caller-owned GoaCache (what a discrete medium's size bins share) gives bit-identical bulk
+    properties and holds one entry per relative index used (no process-wide state)."""
+    from motes import _motes
+
+    sp = motes.Species(motes.Uniform(300.0, 600.0), complex(1.31, 1e-5))
+    lam = [0.45, 0.65]
+    cache = _motes.GoaCache()
+    assert len(cache) == 0
+    shared = [motes.bulk_properties(sp, 1e6, lam, cache=False, goa_cache=cache) for _ in range(2)]
+    alone = motes.bulk_properties(sp, 1e6, lam, cache=False)
+    assert len(cache) == 1  # one index (constant eta) at both wavelengths, reused by the second call
+    for key in ("sigma_t", "sigma_s", "g", "phase", "peak_fraction"):
+        np.testing.assert_array_equal(shared[0][key], alone[key])
+        np.testing.assert_array_equal(shared[1][key], alone[key])

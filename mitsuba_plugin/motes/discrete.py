@@ -107,11 +107,13 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     return pos, r, idx, species, lam_in, lam
 
 
-def _bin_optics(sp: Species, lo: float, hi: float, lam, eta_medium, method, truncate_below_rad):
-    """One radius bin [lo, hi] of species ``sp``: its extinction efficiency per wavelength and its bulk properties."""
+def _bin_optics(sp: Species, lo: float, hi: float, lam, eta_medium, method, truncate_below_rad, goa_cache):
+    """One radius bin [lo, hi] of species ``sp``: its extinction efficiency per wavelength and its bulk
+    properties (``goa_cache``: the GOA ray geometry every bin shares)."""
     psd = Monodisperse(lo) if hi <= lo else Uniform(lo, hi)
     area = np.pi * psd.mean(2)  # <pi r^2>, um^2
-    bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method, truncate_below_rad=truncate_below_rad)
+    bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method, truncate_below_rad=truncate_below_rad,
+                           goa_cache=goa_cache)
     # n = 1 / m^3: sigma (1/m) is the mean cross section in m^2.
     return bulk["sigma_t"] * 1e12 / area, bulk
 
@@ -147,6 +149,7 @@ class DiscreteMedium:
         self.bin_radius_um, self.bin_species, self.bin_q_ext, self.bin_albedo = [], [], [], []
         nb = 0
         t_tables = t_said = time.perf_counter()
+        goa_cache = _motes.GoaCache()  # shared by this medium's bins, dropped after the build
         for k, sp in enumerate(species):
             sel = np.flatnonzero(idx == k)
             if sel.size == 0:
@@ -155,7 +158,7 @@ class DiscreteMedium:
             which = np.clip(np.searchsorted(edges, r[sel], side="right") - 1, 0, max(edges.size - 2, 0))
             for b in np.unique(which):
                 lo, hi = float(edges[b]), float(edges[b + 1])
-                q_t, bulk = _bin_optics(sp, lo, hi, lam, eta_medium, method, truncate_below_rad)
+                q_t, bulk = _bin_optics(sp, lo, hi, lam, eta_medium, method, truncate_below_rad, goa_cache)
                 members = sel[which == b]
                 bin_of[members] = nb
                 q_ext[members] = float(np.mean(q_t))

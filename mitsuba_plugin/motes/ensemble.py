@@ -165,12 +165,14 @@ def _cache_store(path: pathlib.Path, result: dict) -> None:
 def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium: float = 1.0, method="auto", *,
                     theta=None, phase: bool = True, max_log_step: float = 0.05, mie_dx: float | None = None, p_max: int = 3,
                     hybrid_radius_um: float = HYBRID_RADIUS_UM, truncate_below_rad: float | None = None,
-                    refine_tol: float = 0.0, refine_max_nodes: int = 200_000, cache: bool = True) -> dict:
+                    refine_tol: float = 0.0, refine_max_nodes: int = 200_000, cache: bool = True,
+                    goa_cache=None) -> dict:
     """Bulk coefficients and the ensemble phase function of a cloud of ``species`` (see module docs).
 
     Results are cached on disk (``cache_dir()``), keyed by every argument, each species' PSD spec and
     refractive index at each wavelength, the package version and ``CORE_HASH`` (the Rust sources);
-    ``cache=False`` bypasses the cache.
+    ``cache=False`` bypasses the cache. ``goa_cache`` (a ``motes._motes.GoaCache``) lets several calls
+    over the same materials share GOA ray geometry (results are identical with or without it).
 
     ``refine_tol`` (e.g. 0.01) refines the angle grid adaptively until the tabulated (piecewise-linear in
     cos theta) phase function is within that relative error of direct evaluation between its nodes,
@@ -216,7 +218,8 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
         [s.psd._json() for s in species], [float(s.share) for s in species],
         np.ascontiguousarray(eta.real.ravel()), np.ascontiguousarray(eta.imag.ravel()), lam,
         float(number_density_m3), float(eta_medium), _method(method), float(hybrid_radius_um), _p_max(p_max),
-        float(max_log_step), mie_dx if mie_dx is None else float(mie_dx), th, bool(phase), cut, float(refine_tol), int(refine_max_nodes))
+        float(max_log_step), mie_dx if mie_dx is None else float(mie_dx), th, bool(phase), cut, float(refine_tol), int(refine_max_nodes),
+        goa_cache)
     albedo = np.divide(ss, st, out=np.zeros_like(st), where=st > 0)
     result = {"wavelength_um": lam, "sigma_t": st, "sigma_s": ss, "sigma_a": sa, "albedo": albedo, "g": g,
               "theta": th, "phase": ph, "energy_ratio": ratio, "peak_fraction": frac}

@@ -45,6 +45,7 @@ pub(crate) fn bulk_properties<'py>(
     truncate_below_rad: f64,
     refine_tol: f64,
     refine_max_nodes: usize,
+    goa_cache: Option<PyRef<'_, PyGoaCache>>,
 ) -> PyResult<BulkOut<'py>> {
     use motes_core::ensemble::{self, BulkOptions, PhaseAngles};
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
@@ -84,6 +85,7 @@ pub(crate) fn bulk_properties<'py>(
         mie_dx,
         refine_tol,
         refine_max_nodes,
+        goa_cache: goa_cache.map(|c| c.cache.clone()),
     };
     let out = interruptible(py, || {
         ensemble::bulk_spectral(
@@ -154,6 +156,28 @@ fn bulk_out<'py>(
         out.theta.clone().into_pyarray(py),
         out.peak_fraction.clone().into_pyarray(py),
     ))
+}
+
+/// GOA ray geometry that several `bulk_properties` calls share (a medium's size bins): build one, pass
+/// it to each call, drop it when done.
+#[pyclass(name = "GoaCache", module = "motes._motes", frozen)]
+pub(crate) struct PyGoaCache {
+    cache: std::sync::Arc<motes_core::optics::GoaCache>,
+}
+
+#[pymethods]
+impl PyGoaCache {
+    #[new]
+    fn new() -> Self {
+        PyGoaCache {
+            cache: Default::default(),
+        }
+    }
+
+    /// Relative indices held.
+    fn __len__(&self) -> usize {
+        self.cache.len()
+    }
 }
 
 /// A tabulated phase function (nodes `theta` from 0 to π, values `f`), validated and prepared for

@@ -64,6 +64,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MotesError", m.py().get_type::<convert::MotesError>())?;
     m.add_class::<psd::PyPsd>()?;
     m.add_class::<ensemble::PyPhaseTable>()?;
+    m.add_class::<ensemble::PyGoaCache>()?;
     m.add_class::<grid::PyParticleGrid>()?;
     m.add_class::<medium::PyDiscreteMedium>()?;
     m.add(

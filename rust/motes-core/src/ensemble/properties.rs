@@ -24,12 +24,12 @@ use crate::ensemble::psd::{Psd, RippleResolution};
 use crate::error::{require, require_len, require_min_len, OpticsError};
 use crate::optics::goa::GoaOptions;
 use crate::optics::mie::{series_length, MieCoefficients, MieIntensitySums};
-use crate::optics::{self, GoaRays, Method, Particle, Theory};
+use crate::optics::{self, GoaCache, GoaRays, Method, Particle, Theory};
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::f64::consts::PI;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 /// One particle species of a medium.
 #[derive(Clone, Debug)]
@@ -42,7 +42,7 @@ pub struct Species {
 }
 
 /// Options of a bulk computation.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct BulkOptions {
     pub method: Method,
     pub goa: GoaOptions,
@@ -55,6 +55,8 @@ pub struct BulkOptions {
     pub refine_tol: f64,
     /// Cap on the number of angles after refinement.
     pub refine_max_nodes: usize,
+    /// GOA ray geometry shared with the caller's other computations (None: this computation's own).
+    pub goa_cache: Option<Arc<GoaCache>>,
 }
 
 /// Default [`BulkOptions::mie_dx`]. Mie's ripple (resonances in x = k r far narrower than a panel of
@@ -159,7 +161,7 @@ struct Ensemble<'a> {
     /// The Mie nodes up to [`MIE_RIPPLE_X_MAX`], summed in coefficient space on first use.
     mie: OnceLock<Option<MieIntensitySums>>,
     /// The GOA nodes' ray geometry per relative index, shared by their radii (made on first use).
-    goa: OnceLock<HashMap<[u64; 2], GoaRays>>,
+    goa: OnceLock<HashMap<[u64; 2], Arc<GoaRays>>>,
 }
 
 impl<'a> Ensemble<'a> {
@@ -260,11 +262,14 @@ impl<'a> Ensemble<'a> {
             let mut map = HashMap::new();
             for (q, _) in self.nodes.iter().filter(|(q, _)| is_goa(q)) {
                 map.entry(key(q))
-                    .or_insert_with(|| GoaRays::new(q.relative_index(), p_max));
+                    .or_insert_with(|| match &self.opts.goa_cache {
+                        Some(cache) => cache.rays(q.relative_index(), p_max),
+                        None => Arc::new(GoaRays::new(q.relative_index(), p_max)),
+                    });
             }
             map
         });
-        map.get(&key(p))
+        map.get(&key(p)).map(|r| r.as_ref())
     }
 
     /// The coefficient-space sums of the Mie nodes, weights `w/(2k²)`; 16 fixed groups summed in order.
@@ -857,6 +862,7 @@ mod tests {
             mie_dx: MIE_RIPPLE_DX,
             refine_tol: 0.0,
             refine_max_nodes: 0,
+            goa_cache: None,
         }
     }
 

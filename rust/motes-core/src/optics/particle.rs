@@ -256,6 +256,50 @@ impl GoaRays {
     }
 }
 
+/// The [`GoaRays`] of each relative index, for a caller that runs several computations over the same
+/// materials (a medium's optics: one bulk computation per size bin) and wants them to share the ray
+/// geometry and its prepared angle grids. Owned by that caller and dropped with it.
+#[derive(Default)]
+pub struct GoaCache {
+    rays: Mutex<HashMap<(u64, u64, u32), Arc<GoaRays>>>,
+}
+
+impl GoaCache {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The rays of relative index `m` up to order `p_max` (made on first use).
+    pub fn rays(&self, m: C64, p_max: u32) -> Arc<GoaRays> {
+        let key = (m.re.to_bits(), m.im.to_bits(), p_max);
+        if let Some(r) = self.lock().get(&key) {
+            return r.clone();
+        }
+        // Made outside the lock (it may take a while); a concurrent first use keeps the first one.
+        let made = Arc::new(GoaRays::new(m, p_max));
+        self.lock().entry(key).or_insert(made).clone()
+    }
+
+    /// How many relative indices it holds.
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<(u64, u64, u32), Arc<GoaRays>>> {
+        self.rays.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl std::fmt::Debug for GoaCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "GoaCache({} indices)", self.len())
+    }
+}
+
 /// Quadrature nodes and weights (in θ, including 2π sin θ) for the GOA angular integrals: composite
 /// 8-point Gauss–Legendre on `2·half_panels` equal panels over [0, π], so that a panel edge sits at π/2
 /// where Eq. 11 switches diffraction off. `half_panels` is a power of two ≥ α, so every ray-interference
