@@ -204,7 +204,7 @@ def test_albedo_scale_is_a_scene_parameter(variant):
         # events a full map evicts) follows the schedule: back to within noise, not bit for bit (one
         # clean-clone CI run differed). Events of an older albedo are dropped (DiscreteMedium epoch).
         assert abs(again.mean() - full.mean()) < 0.01 * full.mean()
-    with pytest.raises(Exception, match="albedo_scale"):
+    with pytest.raises(ValueError, match="albedo_scale"):
         params[key] = mi.TensorXf(np.array([2.0], dtype=np.float32))
         params.update()
 

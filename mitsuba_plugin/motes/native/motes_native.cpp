@@ -41,6 +41,8 @@
 #include <drjit/tensor.h>
 #include <drjit-core/jit.h>
 #include <algorithm>
+#include <stdexcept>
+#include <string>
 #include <cstddef>
 #include <cstring>
 
@@ -237,12 +239,15 @@ public:
     void parameters_changed(const std::vector<std::string> &keys) override {
         if (!keys.empty() && std::find(keys.begin(), keys.end(), "albedo_scale") == keys.end())
             return;
+        // std::invalid_argument reaches Python as ValueError (the LLVM variants' Python plugin raises
+        // MotesError, a ValueError, for the same value).
         if (dr::width(m_albedo_scale.array()) != 1)
-            Throw("discrete medium: albedo_scale must hold one value, got %zu", dr::width(m_albedo_scale.array()));
+            throw std::invalid_argument("discrete medium: albedo_scale must hold one value, got " +
+                                        std::to_string(dr::width(m_albedo_scale.array())));
         double scale = (double) dr::slice(m_albedo_scale.array(), 0);
         char message[512] = { 0 };
         if (m_call.api->set_albedo_scale(m_call.medium, scale, message, sizeof(message)) != 0)
-            Throw("discrete medium: %s", message);
+            throw std::invalid_argument(std::string("discrete medium: ") + message);
     }
 
     std::string to_string() const override { return m_call.description; }
