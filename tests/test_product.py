@@ -207,6 +207,7 @@ def test_albedo_scale_is_a_scene_parameter(variant):
     with pytest.raises(ValueError, match="albedo_scale"):
         params[key] = mi.TensorXf(np.array([2.0], dtype=np.float32))
         params.update()
+    assert float(np.asarray(mi.traverse(s)[key]).ravel()[0]) == 1.0  # back to the value in use
 
 
 def test_readme_psd_and_species_examples_load():

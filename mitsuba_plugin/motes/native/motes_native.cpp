@@ -246,8 +246,12 @@ public:
                                         std::to_string(dr::width(m_albedo_scale.array())));
         double scale = (double) dr::slice(m_albedo_scale.array(), 0);
         char message[512] = { 0 };
-        if (m_call.api->set_albedo_scale(m_call.medium, scale, message, sizeof(message)) != 0)
+        if (m_call.api->set_albedo_scale(m_call.medium, scale, message, sizeof(message)) != 0) {
+            // The parameter goes back to the value in use, so that what mi.traverse shows is true.
+            m_albedo_scale = TensorXf(dr::full<typename TensorXf::Array>((float) m_applied_scale, 1));
             throw std::invalid_argument(std::string("discrete medium: ") + message);
+        }
+        m_applied_scale = scale;
     }
 
     std::string to_string() const override { return m_call.description; }
@@ -259,6 +263,7 @@ private:
     using Call = MotesCall<Float, Spectrum>;
     Call m_call;
     TensorXf m_albedo_scale;
+    double m_applied_scale = 1.0;
     MI_TRAVERSE_CB(Base, m_albedo_scale)
 };
 

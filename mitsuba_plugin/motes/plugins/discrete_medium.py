@@ -216,7 +216,12 @@ class DiscreteMediumPlugin:
 
     def parameters_changed(self, keys=None):
         if keys is None or "albedo_scale" in keys:
-            self.data.core.set_albedo_scale(float(np.asarray(self._albedo_scale).ravel()[0]))
+            try:
+                self.data.core.set_albedo_scale(float(np.asarray(self._albedo_scale).ravel()[0]))
+            except ValueError:
+                # The parameter goes back to the value in use, so that what mi.traverse shows is true.
+                self._albedo_scale = mi.TensorXf(np.full(1, self.data.core.albedo_scale, dtype=np.float32))
+                raise
 
     @property
     def stats(self) -> dict:
