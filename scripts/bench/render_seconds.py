@@ -1,5 +1,7 @@
-"""Seconds per render of one `bench_native` configuration (llvm_ad_rgb, symbolic mode): the measurement
-behind this project's A/B comparisons of two builds, run alternately on this shared machine, e.g.
+"""Seconds per render of one `bench_native` configuration, or of the discrete medium in one of
+`ept_time_to_error`'s scenes (`lamp`, `cornell`: 80 px, its default grains), in llvm_ad_rgb's symbolic
+mode: the measurement behind this project's A/B comparisons of two builds, run alternately on this
+shared machine, e.g.
 
     for i in 1 2 3; do
       PYTHONPATH=/tmp/basepkg .venv/bin/python scripts/bench/render_seconds.py sparse   # the other build
@@ -7,7 +9,8 @@ behind this project's A/B comparisons of two builds, run alternately on this sha
     done
 
 (`pip install --no-deps --target /tmp/basepkg <checkout of the other commit>` installs the other build.)
-Prints the mean of `--renders` renders after a compiling warm-up, and the medium's ray and event counts.
+Prints the mean of `--renders` renders after a compiling warm-up (and per sample per pixel), and the
+medium's ray and event counts. Under `perf record -e cpu-clock` it shows where a render's time goes.
 """
 
 from __future__ import annotations
@@ -24,10 +27,27 @@ import _common as C  # noqa: E402
 import bench_native as B  # noqa: E402
 
 
+EPT_SCENES = ("lamp", "cornell")
+
+
+def ept_scene(mi, name: str, res: int):
+    """The discrete-medium scene of ``ept_time_to_error`` (its grains, seed 0), and the temporary folder
+    holding the particle file (keep it alive while the scene is)."""
+    import tempfile  # noqa: PLC0415
+
+    import bench_ept as BE  # noqa: PLC0415
+    import ept_time_to_error as E  # noqa: PLC0415
+
+    pos, r_um = E.make_scene_particles(name, E.SCENES[name]["count"], 0)
+    tmp = tempfile.TemporaryDirectory()
+    fname = BE.save_particle_file(pathlib.Path(tmp.name) / "grains.npz", pos, r_um)
+    return mi.load_dict(E.scene_dict(mi, name, res=res, filename=fname)), tmp
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("config", choices=B.KNOWN)
-    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("config", choices=(*B.KNOWN, *EPT_SCENES))
+    ap.add_argument("--res", type=int, default=None, help="film width (default 128; EPT scenes 80)")
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--renders", type=int, default=10)
     args = ap.parse_args()
@@ -35,7 +55,12 @@ def main() -> None:
     motes.set_variant("llvm_ad_rgb")
     import mitsuba as mi  # noqa: PLC0415
 
-    _, scene = B.scenes(motes, mi, args.config, args.res, args.spp)
+    if args.config in EPT_SCENES:
+        args.res = args.res or 80
+        scene, keep = ept_scene(mi, args.config, args.res)
+    else:
+        args.res = args.res or 128
+        _, scene = B.scenes(motes, mi, args.config, args.res, args.spp)
     B.render(mi, scene, args.spp)
     t = time.perf_counter()
     for i in range(args.renders):
@@ -43,7 +68,8 @@ def main() -> None:
     per = (time.perf_counter() - t) / args.renders
     media = [s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None]
     stats = getattr(media[0], "stats", {}) if media else {}
-    print(f"{args.config} {args.res}px {args.spp}spp: {per:.4f} s per render; rays {stats.get('rays')}, "
+    print(f"{args.config} {args.res}px {args.spp}spp: {per:.4f} s per render ({1e3 * per / args.spp:.2f} ms per spp); "
+          f"rays {stats.get('rays')}, "
           f"events {stats.get('events')}")
 
 
