@@ -68,13 +68,16 @@ pub(crate) fn points(flat: &F64In) -> PyResult<Vec<[f64; 3]>> {
     Ok(triples(p))
 }
 
+/// Positions, radii and extinction cross sections of a particle set.
+pub(crate) type ParticleColumns = (Vec<[f64; 3]>, Vec<f64>, Vec<f64>);
+
 /// A particle set's columns — positions (flat n*3), radii (n) and extinction cross sections — copied:
 /// the builds read them with the GIL released (module docs).
 pub(crate) fn particle_columns(
     positions: &F64In,
     radius: &F64In,
     c_ext: &F64In,
-) -> PyResult<(Vec<[f64; 3]>, Vec<f64>, Vec<f64>)> {
+) -> PyResult<ParticleColumns> {
     Ok((
         points(positions)?,
         radius.as_slice()?.to_vec(),

@@ -24,6 +24,7 @@
 //!   scatters exactly C_s,i of a beam;
 //! * a floor on the disk, R_i = max(r_c + r_i, √(C_t,i / (π x_max))) with x_max = 1 − e^{−τ_max}, so
 //!   that x_i < 1 and τ_i ≤ τ_max ([`DEFAULT_TAU_MAX`]; τ_max = ∞ allows opaque disks of area C_t,i).
+//!
 //! The grid walks these τ_i and R_i; Eq. 24's local density keeps the true C_t,i / (4/3 π R_i³).
 //!
 //! ## Colour weights along a path (throughput-proportional channel choice)
@@ -817,7 +818,7 @@ impl DiscreteMedium {
         // Before a discrete site nearer than the field's interaction, the field's depth counts only up to
         // the site: walked again when a caller asks for it (the packet interface does not).
         let tau_field = match (&self.field, site) {
-            (Some(f), Some(s)) if want_tau && hit.map_or(true, |h| s.t < h.t) => {
+            (Some(f), Some(s)) if want_tau && hit.is_none_or(|h| s.t < h.t) => {
                 f.optical_depth(&ray.between(0.0, s.t))
             }
             _ => tau_field,
