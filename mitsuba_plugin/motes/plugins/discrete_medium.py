@@ -158,7 +158,7 @@ class DiscreteMediumPlugin:
             self._native, self._native_phase = _native_objects(self.data, bool(self.m_sample_emitters),
                                                                self.to_string())
         phase.attach(self.data, self._native_phase)
-        self._stats = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
+        self._stats = dict(_NO_EVALUATED_CALLS)
         # Editable through mi.traverse (a one-element tensor: Mitsuba updates it in place).
         self._albedo_scale = mi.TensorXf(np.ones(1, dtype=np.float32))
 
@@ -227,8 +227,7 @@ class DiscreteMediumPlugin:
     def stats(self) -> dict:
         """Counters of the render path so far: rays and events (both paths), batched intersect calls
         and null collisions (the evaluated-mode path)."""
-        rays, events = self.data.core.native_counts
-        return dict(self._stats, rays=self._stats["rays"] + rays, events=self._stats["events"] + events)
+        return _stats(self.data.core, self._stats)
 
     def to_string(self):
         d = self.data
@@ -448,13 +447,14 @@ def _native_objects(data: DiscreteMedium, sample_emitters: bool, description: st
     from .. import _motes
 
     def common():
-        d = {"api": int(_motes.NATIVE_API), "medium": int(data.core.native_handle(data)), "description": description}
+        d = {"api": int(_motes.NATIVE_API), "medium": int(data.core.native_handle(data))}
         if mi.is_rgb:
             d.update({f"channel_nm_{c}": float(x) for c, x in enumerate(data.channel_wavelength_nm)})
         return d
 
-    phase = mi.load_dict({"type": "motes_particle_native", **common(), "description": f"ParticlePhase[of {description}]"})
-    medium = mi.load_dict({"type": "motes_discrete_native", "sample_emitters": sample_emitters, "phase": phase, **common()})
+    phase = mi.load_dict({"type": "motes_particle_native", "description": f"ParticlePhase[of {description}]", **common()})
+    medium = mi.load_dict({"type": "motes_discrete_native", "sample_emitters": sample_emitters, "phase": phase,
+                           "description": description, **common()})
     return medium, phase
 
 
@@ -473,9 +473,19 @@ def _data_of_native(medium) -> DiscreteMedium:
     return data
 
 
+def _stats(core, evaluated: dict) -> dict:
+    """The ``stats`` of a discrete medium: the evaluated-mode path's counters plus the native path's rays
+    and events (kept by the Rust medium)."""
+    rays, events = core.native_counts
+    return dict(evaluated, rays=evaluated["rays"] + rays, events=evaluated["events"] + events)
+
+
+#: The evaluated-mode counters of a medium that never used that path.
+_NO_EVALUATED_CALLS = {"intersect_calls": 0, "rays": 0, "events": 0, "nulls": 0}
+
+
 def _stats_of_native(medium) -> dict:
-    rays, events = _data_of_native(medium).core.native_counts
-    return {"intersect_calls": 0, "rays": rays, "events": events, "nulls": 0}
+    return _stats(_data_of_native(medium).core, _NO_EVALUATED_CALLS)
 
 
 class _NativeAccessor:

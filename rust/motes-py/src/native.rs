@@ -25,7 +25,7 @@ use motes_core::render::discrete::{
     DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, PACKET_LANES,
 };
 use pyo3::prelude::*;
-use std::collections::HashSet;
+use std::collections::BTreeSet;
 use std::ffi::{c_char, c_void};
 use std::sync::{Arc, Mutex};
 
@@ -102,9 +102,9 @@ pub struct NativeMedium {
 }
 
 /// Handles not yet released: [`owner`] dereferences only these (its argument comes from Python).
-static LIVE: Mutex<Option<HashSet<usize>>> = Mutex::new(None);
+static LIVE: Mutex<BTreeSet<usize>> = Mutex::new(BTreeSet::new());
 
-fn live() -> std::sync::MutexGuard<'static, Option<HashSet<usize>>> {
+fn live() -> std::sync::MutexGuard<'static, BTreeSet<usize>> {
     LIVE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
@@ -114,14 +114,14 @@ pub fn handle(medium: &Arc<DiscreteMedium>, owner: Option<Py<PyAny>>) -> usize {
         core: Arc::clone(medium),
         owner,
     })) as usize;
-    live().get_or_insert_with(HashSet::new).insert(h);
+    live().insert(h);
     h
 }
 
 /// The owner given to the live handle `h` (None for an unknown or released handle).
 pub fn owner(py: Python<'_>, h: usize) -> Option<Py<PyAny>> {
     let set = live();
-    if !set.as_ref().is_some_and(|s| s.contains(&h)) {
+    if !set.contains(&h) {
         return None;
     }
     // SAFETY: `h` is live (released handles leave the set before they are freed, under this lock).
@@ -356,9 +356,7 @@ extern "C" {
 /// `medium` comes from [`handle`] and is released once.
 pub unsafe extern "C" fn motes_release(medium: *const c_void) {
     if !medium.is_null() {
-        if let Some(s) = live().as_mut() {
-            s.remove(&(medium as usize));
-        }
+        live().remove(&(medium as usize));
         let m = Box::from_raw(medium as *mut NativeMedium);
         // The owner (the Python data, large) goes now where this thread holds the GIL (a scene
         // destroyed from Python, under nanobind's GIL, which pyo3 does not count as its own); elsewhere

@@ -27,7 +27,6 @@ use crate::optics::mie::{series_length, MieCoefficients, MieIntensitySums};
 use crate::optics::{self, GoaCache, GoaRays, Method, Particle, Theory};
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
-use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::sync::{Arc, OnceLock};
 
@@ -160,8 +159,9 @@ struct Ensemble<'a> {
     abs: f64,
     /// The Mie nodes up to [`MIE_RIPPLE_X_MAX`], summed in coefficient space on first use.
     mie: OnceLock<Option<MieIntensitySums>>,
-    /// The GOA nodes' ray geometry per relative index, shared by their radii (made on first use).
-    goa: OnceLock<HashMap<[u64; 2], Arc<GoaRays>>>,
+    /// The GOA nodes' ray geometry per relative index, shared by their radii (the caller's cache, or
+    /// this ensemble's own).
+    goa: Arc<GoaCache>,
 }
 
 impl<'a> Ensemble<'a> {
@@ -206,7 +206,7 @@ impl<'a> Ensemble<'a> {
             ext,
             abs,
             mie: OnceLock::new(),
-            goa: OnceLock::new(),
+            goa: opts.goa_cache.clone().unwrap_or_default(),
         })
     }
 
@@ -233,7 +233,9 @@ impl<'a> Ensemble<'a> {
             .map(|chunk| {
                 chunk
                     .iter()
-                    .map(|node| node_intensity(node, theta, self.opts, self.goa_rays(&node.0)))
+                    .map(|node| {
+                        node_intensity(node, theta, self.opts, self.goa_rays(&node.0).as_deref())
+                    })
                     .fold(vec![0.0; n], add)
             })
             .collect();
@@ -248,28 +250,10 @@ impl<'a> Ensemble<'a> {
     }
 
     /// The shared GOA rays of a node's relative index (None for a Mie node).
-    fn goa_rays(&self, p: &Particle) -> Option<&GoaRays> {
-        let key = |p: &Particle| {
-            let m = p.relative_index();
-            [m.re.to_bits(), m.im.to_bits()]
-        };
+    fn goa_rays(&self, p: &Particle) -> Option<Arc<GoaRays>> {
         let p_max = self.opts.goa.p_max;
-        let is_goa = |p: &Particle| self.opts.method.theory(p, p_max) == Theory::Goa;
-        if !is_goa(p) {
-            return None;
-        }
-        let map = self.goa.get_or_init(|| {
-            let mut map = HashMap::new();
-            for (q, _) in self.nodes.iter().filter(|(q, _)| is_goa(q)) {
-                map.entry(key(q))
-                    .or_insert_with(|| match &self.opts.goa_cache {
-                        Some(cache) => cache.rays(q.relative_index(), p_max),
-                        None => Arc::new(GoaRays::new(q.relative_index(), p_max)),
-                    });
-            }
-            map
-        });
-        map.get(&key(p)).map(|r| r.as_ref())
+        (self.opts.method.theory(p, p_max) == Theory::Goa)
+            .then(|| self.goa.rays(p.relative_index(), p_max))
     }
 
     /// The coefficient-space sums of the Mie nodes, weights `w/(2k²)`; 16 fixed groups summed in order.
