@@ -193,6 +193,23 @@ fn lane_lambda(r: &Record, lane: usize, out: &mut [f64]) {
     }
 }
 
+/// Clear the upper halves of the vector registers (`vzeroupper`) on entry from Mitsuba's kernels.
+///
+/// Why: the symbolic LLVM kernels run AVX-512/AVX2 code and call the packet function with the upper
+/// halves of the vector registers still in use; the core is built for baseline x86-64, whose SSE
+/// instructions then each wait on (and merge into) the whole wide register. Clearing that state once
+/// per packet made the sparse render 24 % faster (`scripts/bench/render_seconds.py sparse`, 0.305 ->
+/// 0.233 s, BENCHMARKS 10.1); the traversal benchmark, which has no AVX code around it, never saw the
+/// cost. Nothing is lost: a caller's vector registers are not preserved across a C call anyway.
+#[inline(always)]
+fn clear_upper_vector_state() {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: AVX is present (checked); vzeroupper only clears call-clobbered register halves.
+        unsafe { std::arch::x86_64::_mm256_zeroupper() };
+    }
+}
+
 /// # Safety
 /// `medium` comes from [`handle`] and is alive; `args` holds a record of `width` ≤ 16 lanes; `valid` is
 /// null or holds `width` entries; `lambda` is null or holds `channels` ≤ 4 values.
@@ -205,6 +222,7 @@ pub unsafe extern "C" fn motes_packet(
     lambda: *const f64,
     channels: u32,
 ) {
+    clear_upper_vector_state();
     let m = core(medium);
     let width = (width as usize).min(PACKET_LANES);
     let ch = (channels as usize).clamp(1, 4);
