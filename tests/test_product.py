@@ -107,6 +107,34 @@ def test_evaluated_path_from_a_thread_fails_with_one_sentence():
     assert "errors 1 True means 1 True" in out.stdout, out.stdout + out.stderr[-2000:]
 
 
+def test_native_plugin_built_for_another_mitsuba_is_refused_in_one_sentence(tmp_path):
+    """A native plugin whose recorded Mitsuba version differs from the running one is not loaded: build()
+    raises NativeBuildError naming both versions and the fix (here a copy of the real plugin is put where a
+    faked Mitsuba version would look for it)."""
+    code = textwrap.dedent(f"""
+        import os, pathlib, shutil
+        import motes.native as n
+        real = n.build() / "plugins" / "motes_native.so"
+        os.environ["MOTES_CACHE_DIR"] = {str(tmp_path)!r}
+        mi_v, dr_v = n._versions()
+        n._versions = lambda: ("0.0.0", dr_v)
+        fake = n._cache_root() / n._key() / "plugins"
+        fake.mkdir(parents=True)
+        shutil.copy(real, fake / "motes_native.so")
+        try:
+            n.build()
+            print("loaded")
+        except n.NativeBuildError as e:
+            print("refused:", e)
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    line = out.stdout.strip()
+    assert line.startswith("refused:"), line
+    assert f"built for Mitsuba {mi.__version__}, this is Mitsuba 0.0.0" in line, line
+    assert "build(force=True)" in line and line.count("\n") == 0, line
+
+
 def test_package_metadata():
     """`pip install .` alone gives a working plugin: Mitsuba and Dr.Jit are runtime dependencies, the
     licence file exists, and the plugins are declared under Mitsuba's entry-point group."""
