@@ -90,14 +90,16 @@ def test_sse_and_avx2_walks_render_the_same_image(tmp_path):
         from conftest import cube_scene
         scene = cube_scene({{"type": "discrete", "count": 3000, "phase": {{"type": "particle"}}}}, res=24)
         np.save(sys.argv[1], np.asarray(mi.render(scene, spp=16, seed=5)))
+        print(motes.native.simd())
     """)
     images = []
-    for simd in ("sse", "auto"):
+    for simd, walk in (("sse", "sse"), ("auto", "avx2")):
         env = dict(os.environ, MOTES_SIMD=simd)
         path = tmp_path / f"{simd}.npy"
         out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True,
                              timeout=600, env=env)
         assert out.returncode == 0, out.stderr[-2000:]
+        assert out.stdout.split()[-1] == walk, out.stdout
         images.append(np.load(path))
     assert images[0].mean() > 0
     assert np.allclose(images[0], images[1], rtol=1e-5, atol=0)

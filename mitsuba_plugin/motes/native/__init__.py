@@ -147,6 +147,14 @@ def medium_handle(obj) -> int | None:
     return _library.motes_native_medium_handle(ptr) or None
 
 
+def simd() -> str:
+    """The particle walk the core runs on this CPU: ``"avx2"`` (AVX2 + FMA, eight spheres per pre-test) or
+    ``"sse"`` (CPUs without them, or ``MOTES_SIMD=sse``); both find the same particles."""
+    from motes import _motes
+
+    return _motes.simd_walk()
+
+
 def failure() -> str | None:
     """Why the native path is unavailable (None when it is available or not yet tried)."""
     return _failure
@@ -170,5 +178,5 @@ def load(variant: str) -> bool:
     return True
 
 
-__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "medium_handle",
+__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "medium_handle", "simd",
            "requested"]

@@ -34,6 +34,17 @@ fn splitmix64<'py>(
         .into_pyarray(py)
 }
 
+/// The particle walk this CPU runs: "avx2" (AVX2 + FMA, eight spheres per pre-test) or "sse"
+/// (baseline, also where `MOTES_SIMD=sse` asks for it); `motes_core::space::grid::wide_simd`.
+#[pyfunction]
+fn simd_walk() -> &'static str {
+    if motes_core::space::grid::wide_simd() {
+        "avx2"
+    } else {
+        "sse"
+    }
+}
+
 /// The default wavelength sets (µm): (RGB, spectral), `motes_core::ensemble::wavelengths`.
 #[pyfunction]
 fn default_wavelengths() -> (Vec<f64>, Vec<f64>) {
@@ -56,6 +67,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(optics::material_index, m)?)?;
     m.add_function(wrap_pyfunction!(core_hash, m)?)?;
     m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;
+    m.add_function(wrap_pyfunction!(simd_walk, m)?)?;
     m.add_function(wrap_pyfunction!(splitmix64, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::exit_on_wakeup, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::set_exit_message, m)?)?;
