@@ -605,7 +605,7 @@ impl SubGrid {
             &self.particles
         }
     }
-    /// τ per channel of the particle in slot `s` (what `found` and `traverse` report).
+    /// τ per channel of the particle in slot `s` (what `walk` reports).
     #[inline(always)]
     fn hit_tau(&self, s: usize) -> &[f32] {
         let tau = if self.k == 0 {
@@ -828,42 +828,6 @@ impl SubGrid {
         Some(frontier)
     }
 
-    /// Every contributing particle with t in the segment, as `visit(slot, t)` in no particular
-    /// order; `visit` returns false to stop early.
-    pub fn traverse(&self, ray: &RaySegment, visit: impl FnMut(usize, f64) -> bool) {
-        #[cfg(target_arch = "x86_64")]
-        if wide_simd() {
-            // SAFETY: the CPU has AVX2 and FMA (`wide_simd`).
-            return unsafe { self.traverse_avx2(ray, visit) };
-        }
-        self.traverse_lanes::<false>(ray, visit)
-    }
-
-    /// [`Self::traverse`] compiled for AVX2 + FMA (the whole walk, so that its pre-tests inline).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn traverse_avx2(&self, ray: &RaySegment, visit: impl FnMut(usize, f64) -> bool) {
-        self.traverse_lanes::<true>(ray, visit)
-    }
-
-    #[inline(always)]
-    fn traverse_lanes<const WIDE: bool>(
-        &self,
-        ray: &RaySegment,
-        mut visit: impl FnMut(usize, f64) -> bool,
-    ) {
-        if ray.is_empty() {
-            return;
-        }
-        let mut cur = self.cursor(ray, inverse(ray.d));
-        let mut found = |t, j| visit(j, t);
-        while let Some(f) = self.advance::<WIDE>(&mut cur, &mut found) {
-            if f == f64::INFINITY {
-                return;
-            }
-        }
-    }
-
     /// The rows of cells one DDA step at cell `c` (linear `index`) scans (k = 0: the cell; k = 1: the 3×3 rows of the
     /// 3×3×3 block around it), as segments [first cell, last cell + 1) of `start`; returns how many.
     #[inline(always)]
@@ -932,18 +896,8 @@ impl SubGrid {
         }
     }
 
-    /// Optical depth of a ray segment, per channel (Eq. 18, normalised as in the module docs).
-    pub fn optical_depth(&self, ray: &RaySegment, out: &mut [f64]) {
-        out.iter_mut().for_each(|v| *v = 0.0);
-        self.traverse(ray, |s, _| {
-            for (v, &tau) in out.iter_mut().zip(self.hit_tau(s)) {
-                *v += tau as f64;
-            }
-            true
-        });
-    }
-
-    /// The same by a loop over every particle (the O(N) oracle of the tests).
+    /// Optical depth of a ray segment, per channel, by a loop over every particle (the O(N) oracle of
+    /// the tests).
     #[cfg(any(test, feature = "oracles"))]
     pub fn optical_depth_brute(&self, ray: &RaySegment, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
@@ -1260,23 +1214,24 @@ impl ParticleGrid {
         self.classes.iter().map(SubGrid::bytes).sum()
     }
 
-    /// Sum a per-class optical-depth query over the classes.
-    fn sum_classes(&self, out: &mut [f64], query: impl Fn(&SubGrid, &mut [f64])) {
+    /// Optical depth of a ray segment, per channel (Eq. 18, normalised as in the module docs).
+    pub fn optical_depth(&self, ray: &RaySegment, out: &mut [f64]) {
+        out.iter_mut().for_each(|v| *v = 0.0);
+        self.walk(ray, |_, tau, _| {
+            out.iter_mut().zip(tau).for_each(|(v, &x)| *v += x as f64);
+            true
+        });
+    }
+
+    /// The same by a loop over every particle of every class (test oracle).
+    #[cfg(any(test, feature = "oracles"))]
+    pub fn optical_depth_brute(&self, ray: &RaySegment, out: &mut [f64]) {
         let mut part = vec![0.0; self.channels];
         out.iter_mut().for_each(|v| *v = 0.0);
         for c in &self.classes {
-            query(c, &mut part);
+            c.optical_depth_brute(ray, &mut part);
             out.iter_mut().zip(&part).for_each(|(a, b)| *a += b);
         }
-    }
-
-    pub fn optical_depth(&self, ray: &RaySegment, out: &mut [f64]) {
-        self.sum_classes(out, |c, part| c.optical_depth(ray, part));
-    }
-
-    #[cfg(any(test, feature = "oracles"))]
-    pub fn optical_depth_brute(&self, ray: &RaySegment, out: &mut [f64]) {
-        self.sum_classes(out, |c, part| c.optical_depth_brute(ray, part));
     }
 
     /// Visit every contributing particle with t in the segment, over all classes, in increasing t, as
@@ -1472,13 +1427,11 @@ impl ParticleGrid {
     /// None.
     pub fn occupied_interval(&self, ray: &RaySegment) -> Option<(f64, f64)> {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for c in &self.classes {
-            c.traverse(ray, |_, t| {
-                lo = lo.min(t);
-                hi = hi.max(t);
-                true
-            });
-        }
+        self.walk(ray, |t, _, _| {
+            lo = lo.min(t);
+            hi = hi.max(t);
+            true
+        });
         (lo <= hi).then_some((lo, hi))
     }
 
