@@ -276,3 +276,34 @@ def test_invisible_sphere_has_no_extinction():
         assert ext < 1e-6 * math.pi * 100.0
     a = 2.0 * math.pi * 10.0 / LAM
     assert abs(motes.goa_extinction_efficiency(a, 1.0001) - motes.goa_extinction_efficiency(a, 0.9999)) < 1e-3
+
+
+def test_free_functions_keep_goa_geometry_between_calls():
+    """Issue 23.1: goa_amplitudes / phase_function / cross_sections reuse the ray geometry of a relative
+    index from one call to the next (a bounded cache owned by the binding, not the core); clearing it
+    changes no number."""
+    theta = np.linspace(0.0, np.pi, 181)
+    motes.clear_goa_cache()
+    assert motes.goa_cache_info()["indices"] == 0
+    s1, s2 = motes.goa_amplitudes(500.0, 0.6, 1.33, theta)
+    info = motes.goa_cache_info()
+    assert info["indices"] == 1 and info["bytes"] > 0
+    t1, t2 = motes.goa_amplitudes(800.0, 0.6, 1.33, theta)  # same index: no new entry
+    assert motes.goa_cache_info()["indices"] == 1
+    motes.clear_goa_cache()
+    u1, u2 = motes.goa_amplitudes(800.0, 0.6, 1.33, theta)
+    np.testing.assert_array_equal(t1, u1)
+    np.testing.assert_array_equal(t2, u2)
+    f = motes.phase_function(800.0, 0.6, 1.5, theta, method="goa")
+    assert motes.goa_cache_info()["indices"] == 2
+    motes.clear_goa_cache()
+    np.testing.assert_array_equal(f, motes.phase_function(800.0, 0.6, 1.5, theta, method="goa"))
+
+
+def test_free_function_goa_cache_is_bounded():
+    """Many relative indices do not grow the free functions' cache without bound."""
+    theta = np.linspace(0.0, np.pi, 19)
+    motes.clear_goa_cache()
+    for n in np.linspace(1.2, 1.8, 20):
+        motes.goa_amplitudes(300.0, 0.6, float(n), theta)
+    assert motes.goa_cache_info()["indices"] <= 8

@@ -14,6 +14,7 @@ real index, so the relative index is ``eta / eta_medium`` and the size parameter
 ``phase_function``          f_p(theta) of Eq. 1, normalised so that the integral over the sphere is 1
 ``size_parameter``          alpha for given radius, wavelength and host index
 ``resolve_method``          which theory ("mie"/"goa") a method picks for each particle
+``clear_goa_cache``         free the GOA ray geometry these functions keep between calls
 ==========================  ==================================================================
 
 Beyond single particles
@@ -53,8 +54,10 @@ from ._optics import (
     AUTO_SIZE_PARAMETER,
     AXIAL_CAUSTIC_WINDOW,
     HYBRID_RADIUS_UM,
+    clear_goa_cache,
     cross_sections,
     goa_amplitudes,
+    goa_cache_info,
     goa_extinction_efficiency,
     mie_amplitudes,
     phase_function,
@@ -94,8 +97,10 @@ __all__ = [
     "AUTO_SIZE_PARAMETER",
     "AXIAL_CAUSTIC_WINDOW",
     "HYBRID_RADIUS_UM",
+    "clear_goa_cache",
     "cross_sections",
     "goa_amplitudes",
+    "goa_cache_info",
     "goa_extinction_efficiency",
     "mie_amplitudes",
     "phase_function",

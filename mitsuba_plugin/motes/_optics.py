@@ -105,6 +105,21 @@ def goa_amplitudes(radius_um, wavelength_um, eta, theta, p_max=3, diffraction=Tr
     return s1.reshape(shape), s2.reshape(shape)
 
 
+def clear_goa_cache() -> None:
+    """Free the GOA ray geometry that ``goa_amplitudes``, ``cross_sections`` and ``phase_function`` keep
+    between calls. They keep it for the 8 most recently used relative indices (with each one's angle grids,
+    at most 256 MiB in all per index), so that a sweep over radii or repeated calls at the same angles cost
+    only the size-dependent part (~0.3 ms at 1800 angles instead of ~1-3 ms); ``goa_cache_info()`` says
+    what it holds. Results never depend on it."""
+    _motes.clear_goa_cache()
+
+
+def goa_cache_info() -> dict:
+    """``{"indices": n, "bytes": b}``: what the free functions' GOA cache holds (see ``clear_goa_cache``)."""
+    n, b = _motes.goa_cache_info()
+    return {"indices": n, "bytes": b}
+
+
 def _method(method) -> str:
     if method not in ("auto", "mie", "goa", "hybrid"):
         raise ValueError(f'method must be one of "auto", "mie", "goa", "hybrid", got {method!r}')

@@ -58,6 +58,8 @@ fn default_wavelengths() -> (Vec<f64>, Vec<f64>) {
 fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(optics::mie_amplitudes, m)?)?;
     m.add_function(wrap_pyfunction!(optics::goa_amplitudes, m)?)?;
+    m.add_function(wrap_pyfunction!(optics::clear_goa_cache, m)?)?;
+    m.add_function(wrap_pyfunction!(optics::goa_cache_info, m)?)?;
     m.add_function(wrap_pyfunction!(optics::cross_sections, m)?)?;
     m.add_function(wrap_pyfunction!(optics::phase_function, m)?)?;
     m.add_function(wrap_pyfunction!(optics::goa_extinction_efficiency, m)?)?;

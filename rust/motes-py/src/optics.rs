@@ -4,7 +4,7 @@
 use crate::convert::*;
 use crate::interrupt::interruptible;
 use motes_core::optics::goa::GoaOptions;
-use motes_core::optics::{self, Method, ParticleColumns, Theory};
+use motes_core::optics::{self, GoaCache, Method, ParticleColumns, Theory};
 use num_complex::Complex64 as C64;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::PyValueError;
@@ -82,6 +82,28 @@ pub(crate) fn options(
     }
 }
 
+/// Relative indices whose GOA ray geometry (with its prepared angle grids) the free functions keep.
+const FREE_FUNCTION_INDICES: usize = 8;
+
+/// The GOA ray geometry the binding's free functions (`goa_amplitudes`, `cross_sections`,
+/// `phase_function`) share from one call to the next: owned by the binding, not by the core, bounded
+/// (the [`FREE_FUNCTION_INDICES`] most recently used relative indices, each memo bounded in bytes) and
+/// emptied by `clear_goa_cache` (issue 23: without it every call rebuilt the geometry, ~1 ms).
+static FREE_FUNCTION_GOA: std::sync::LazyLock<GoaCache> =
+    std::sync::LazyLock::new(|| GoaCache::bounded(FREE_FUNCTION_INDICES));
+
+/// Empty the free functions' GOA cache.
+#[pyfunction]
+pub(crate) fn clear_goa_cache() {
+    FREE_FUNCTION_GOA.clear();
+}
+
+/// (relative indices held, approximate bytes) of the free functions' GOA cache.
+#[pyfunction]
+pub(crate) fn goa_cache_info() -> (usize, usize) {
+    (FREE_FUNCTION_GOA.len(), FREE_FUNCTION_GOA.bytes())
+}
+
 pub(crate) type Amps<'py> = (Bound<'py, PyArray1<C64>>, Bound<'py, PyArray1<C64>>);
 
 pub(crate) fn amplitudes<'py>(
@@ -93,7 +115,13 @@ pub(crate) fn amplitudes<'py>(
 ) -> PyResult<Amps<'py>> {
     let theta = theta.as_array().to_vec();
     let out = interruptible(py, || {
-        optics::amplitudes_batch(&cols.view(), &theta, theory, &opts)
+        optics::amplitudes_batch(
+            &cols.view(),
+            &theta,
+            theory,
+            &opts,
+            Some(&FREE_FUNCTION_GOA),
+        )
     })?
     .map_err(to_py)?;
     let (s1, s2): (Vec<C64>, Vec<C64>) = out.into_iter().unzip();
@@ -138,7 +166,13 @@ particle_pyfunction! {
         let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
         let opts = options(p_max, true, regularise, edge_correction);
         let cs = interruptible(py, || {
-            optics::cross_sections_batch(&cols.view(), method, &opts, with_g)
+            optics::cross_sections_batch(
+                &cols.view(),
+                method,
+                &opts,
+                with_g,
+                Some(&FREE_FUNCTION_GOA),
+            )
         })?
         .map_err(to_py)?;
         let col = |f: fn(&optics::CrossSections) -> f64| {
@@ -164,7 +198,13 @@ particle_pyfunction! {
         let theta = theta.as_array().to_vec();
         let opts = options(p_max, true, regularise, edge_correction);
         let f = interruptible(py, || {
-            optics::phase_function_batch(&cols.view(), &theta, method, &opts)
+            optics::phase_function_batch(
+                &cols.view(),
+                &theta,
+                method,
+                &opts,
+                Some(&FREE_FUNCTION_GOA),
+            )
         })?
         .map_err(to_py)?;
         Ok(f.into_pyarray(py))

@@ -215,6 +215,8 @@ impl GoaRays {
     const PREPARED_ENTRIES: usize = 32;
     /// A prepared grid larger than this is not kept.
     const MAX_BYTES_PER_ENTRY: usize = 64 << 20;
+    /// Bytes of prepared grids kept in all (the oldest go first).
+    const MAX_BYTES: usize = 256 << 20;
 
     pub fn new(m: C64, p_max: u32) -> Self {
         GoaRays {
@@ -232,6 +234,12 @@ impl GoaRays {
         (p_max, h, theta.len())
     }
 
+    /// Approximate heap bytes of the prepared angle grids in the memo.
+    pub fn prepared_bytes(&self) -> usize {
+        let c = self.prepared.lock().unwrap_or_else(|e| e.into_inner());
+        c.iter().map(|(_, p)| p.bytes()).sum()
+    }
+
     /// The rays leaving at `theta` (orders ≤ `p_max`), from the memo or computed (and kept if small enough).
     pub fn prepared(&self, theta: &[f64], p_max: u32) -> Arc<goa::PreparedAngles> {
         let k = Self::key(p_max, theta);
@@ -247,37 +255,67 @@ impl GoaRays {
         let v = Arc::new(self.geometry.prepare(theta, p_max));
         if v.bytes() <= Self::MAX_BYTES_PER_ENTRY {
             let mut c = self.prepared.lock().unwrap_or_else(|e| e.into_inner());
-            if c.len() >= Self::PREPARED_ENTRIES {
+            c.push((k, v.clone()));
+            while c.len() > Self::PREPARED_ENTRIES
+                || c.iter().map(|(_, p)| p.bytes()).sum::<usize>() > Self::MAX_BYTES
+            {
                 c.remove(0);
             }
-            c.push((k, v.clone()));
         }
         v
     }
 }
 
 /// The [`GoaRays`] of each relative index, for a caller that runs several computations over the same
-/// materials (a medium's optics: one bulk computation per size bin) and wants them to share the ray
-/// geometry and its prepared angle grids. Owned by that caller and dropped with it.
+/// materials (a medium's optics: one bulk computation per size bin; the binding's free functions: one
+/// call after another) and wants them to share the ray geometry and its prepared angle grids. Owned by
+/// that caller and dropped with it. [`GoaCache::bounded`] keeps only the most recently used indices.
 #[derive(Default)]
 pub struct GoaCache {
-    rays: Mutex<HashMap<(u64, u64, u32), Arc<GoaRays>>>,
+    rays: Mutex<CacheEntries>,
+    /// Most relative indices kept (least recently used dropped first); `None`: all.
+    capacity: Option<usize>,
 }
+
+/// The cache's entries by (Re m, Im m, p_max), each with the tick of its last use.
+type CacheEntries = HashMap<(u64, u64, u32), (Arc<GoaRays>, u64)>;
 
 impl GoaCache {
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// A cache that keeps at most `capacity` (≥ 1) relative indices, dropping the least recently used.
+    pub fn bounded(capacity: usize) -> Self {
+        GoaCache {
+            rays: Mutex::default(),
+            capacity: Some(capacity.max(1)),
+        }
+    }
+
     /// The rays of relative index `m` up to order `p_max` (made on first use).
     pub fn rays(&self, m: C64, p_max: u32) -> Arc<GoaRays> {
         let key = (m.re.to_bits(), m.im.to_bits(), p_max);
-        if let Some(r) = self.lock().get(&key) {
-            return r.clone();
+        {
+            let mut c = self.lock();
+            let tick = Self::next_tick(&c);
+            if let Some((r, used)) = c.get_mut(&key) {
+                *used = tick;
+                return r.clone();
+            }
         }
         // Made outside the lock (it may take a while); a concurrent first use keeps the first one.
         let made = Arc::new(GoaRays::new(m, p_max));
-        self.lock().entry(key).or_insert(made).clone()
+        let mut c = self.lock();
+        let tick = Self::next_tick(&c);
+        let kept = c.entry(key).or_insert((made, tick)).0.clone();
+        if let Some(cap) = self.capacity {
+            while c.len() > cap {
+                let oldest = *c.iter().min_by_key(|(_, (_, used))| *used).unwrap().0;
+                c.remove(&oldest);
+            }
+        }
+        kept
     }
 
     /// How many relative indices it holds.
@@ -289,7 +327,21 @@ impl GoaCache {
         self.len() == 0
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<(u64, u64, u32), Arc<GoaRays>>> {
+    /// Drop every entry (the memory they hold is freed once no computation uses them).
+    pub fn clear(&self) {
+        self.lock().clear();
+    }
+
+    /// Approximate heap bytes of the prepared angle grids it holds.
+    pub fn bytes(&self) -> usize {
+        self.lock().values().map(|(r, _)| r.prepared_bytes()).sum()
+    }
+
+    fn next_tick(c: &CacheEntries) -> u64 {
+        c.values().map(|(_, used)| *used).max().unwrap_or(0) + 1
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, CacheEntries> {
         self.rays.lock().unwrap_or_else(|e| e.into_inner())
     }
 }
@@ -588,12 +640,15 @@ fn check_options(opts: &GoaOptions) -> Result<(), OpticsError> {
     require("p_max", opts.p_max as f64, opts.p_max <= 1000, "<= 1000")
 }
 
-/// One [`GoaRays`] per distinct relative index of a batch, shared by its radii (owned by the call).
+/// One [`GoaRays`] per distinct relative index of a batch, shared by its radii: from the caller's
+/// `cache` when given (so that repeated calls reuse the ray geometry and its prepared angle grids),
+/// else made for this call and dropped with it.
 fn geometries(
     groups: &[(Particle, Vec<usize>)],
     opts: &GoaOptions,
+    cache: Option<&GoaCache>,
     needed: impl Fn(&Particle) -> bool,
-) -> HashMap<[u64; 2], GoaRays> {
+) -> HashMap<[u64; 2], Arc<GoaRays>> {
     let mut ms: Vec<C64> = groups
         .iter()
         .filter(|(p, _)| needed(p))
@@ -603,10 +658,11 @@ fn geometries(
     ms.dedup();
     ms.par_iter()
         .map(|m| {
-            (
-                [m.re.to_bits(), m.im.to_bits()],
-                GoaRays::new(*m, opts.p_max),
-            )
+            let rays = match cache {
+                Some(c) => c.rays(*m, opts.p_max),
+                None => Arc::new(GoaRays::new(*m, opts.p_max)),
+            };
+            ([m.re.to_bits(), m.im.to_bits()], rays)
         })
         .collect::<Vec<_>>()
         .into_iter()
@@ -624,13 +680,14 @@ pub fn amplitudes_batch(
     theta: &[f64],
     theory: Theory,
     opts: &GoaOptions,
+    cache: Option<&GoaCache>,
 ) -> Result<Vec<(C64, C64)>, OpticsError> {
     cols.check_lengths(Some(theta.len()))?;
     check_theta(theta)?;
     check_options(opts)?;
     let groups = cols.group()?;
     let geos = if theory == Theory::Goa {
-        geometries(&groups, opts, |_| true)
+        geometries(&groups, opts, cache, |_| true)
     } else {
         HashMap::new()
     };
@@ -641,7 +698,7 @@ pub fn amplitudes_batch(
                 return Vec::new();
             }
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
-            let geo = geos.get(&geo_key(p));
+            let geo = geos.get(&geo_key(p)).map(|r| &**r);
             idx.iter()
                 .copied()
                 .zip(particle_amplitudes(p, theory, geo, &th, opts))
@@ -664,11 +721,12 @@ pub fn cross_sections_batch(
     method: Method,
     opts: &GoaOptions,
     with_g: bool,
+    cache: Option<&GoaCache>,
 ) -> Result<Vec<CrossSections>, OpticsError> {
     cols.check_lengths(None)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| {
+    let geos = geometries(&groups, opts, cache, |p| {
         with_g && method.theory(p, opts.p_max) == Theory::Goa
     });
     let per_group: Vec<CrossSections> = groups
@@ -688,7 +746,7 @@ pub fn cross_sections_batch(
                 };
             }
             let geo = if theory == Theory::Goa {
-                Some(&geos[&geo_key(p)])
+                Some(&*geos[&geo_key(p)])
             } else {
                 None
             };
@@ -710,12 +768,13 @@ pub fn phase_function_batch(
     theta: &[f64],
     method: Method,
     opts: &GoaOptions,
+    cache: Option<&GoaCache>,
 ) -> Result<Vec<f64>, OpticsError> {
     cols.check_lengths(Some(theta.len()))?;
     check_theta(theta)?;
     check_options(opts)?;
     let groups = cols.group()?;
-    let geos = geometries(&groups, opts, |p| {
+    let geos = geometries(&groups, opts, cache, |p| {
         method.theory(p, opts.p_max) == Theory::Goa
     });
     let per_group: Vec<Vec<(usize, f64)>> = groups
@@ -726,7 +785,7 @@ pub fn phase_function_batch(
             }
             let theory = method.theory(p, opts.p_max);
             let geo = if theory == Theory::Goa {
-                Some(&geos[&geo_key(p)])
+                Some(&*geos[&geo_key(p)])
             } else {
                 None
             };
@@ -778,5 +837,59 @@ mod tests {
             goa::evaluate_prepared(rays.geometry.m, &direct, 300.0, &opts),
         );
         assert_eq!(x, y);
+    }
+
+    /// A bounded `GoaCache` keeps the most recently used indices only: a reused index survives, the
+    /// least recently used one is dropped, and `clear` empties it.
+    #[test]
+    fn bounded_goa_cache_drops_least_recently_used() {
+        let cache = GoaCache::bounded(2);
+        let m = |re: f64| C64::new(re, 0.0);
+        let a = cache.rays(m(1.31), 3);
+        cache.rays(m(1.5), 3);
+        assert!(Arc::ptr_eq(&a, &cache.rays(m(1.31), 3))); // 1.31 now the most recent
+        cache.rays(m(1.7), 3); // drops 1.5
+        assert_eq!(cache.len(), 2);
+        assert!(Arc::ptr_eq(&a, &cache.rays(m(1.31), 3)));
+        let before = cache.rays(m(1.5), 3); // made again; drops 1.7
+        assert_eq!(cache.len(), 2);
+        assert!(Arc::ptr_eq(&before, &cache.rays(m(1.5), 3)));
+        cache.clear();
+        assert!(cache.is_empty());
+    }
+
+    /// The batch functions give the same numbers with a caller's cache (cold and warm) as without one.
+    #[test]
+    fn batch_results_do_not_depend_on_the_cache() {
+        let theta: Vec<f64> = (0..64).map(|i| i as f64 * PI / 63.0).collect();
+        let n = theta.len();
+        let (r, lam, er, ei, em) = (
+            vec![250.0; n],
+            vec![0.6; n],
+            vec![1.33; n],
+            vec![1e-4; n],
+            vec![1.0; n],
+        );
+        let cols = ParticleColumns {
+            radius_um: &r,
+            wavelength_um: &lam,
+            eta_re: &er,
+            eta_im: &ei,
+            eta_medium: &em,
+        };
+        let opts = GoaOptions::default();
+        let cache = GoaCache::bounded(1);
+        let none = amplitudes_batch(&cols, &theta, Theory::Goa, &opts, None).unwrap();
+        for _ in 0..2 {
+            let with = amplitudes_batch(&cols, &theta, Theory::Goa, &opts, Some(&cache)).unwrap();
+            assert_eq!(none, with);
+        }
+        assert_eq!(cache.len(), 1);
+        let f0 = phase_function_batch(&cols, &theta, Method::Goa, &opts, None).unwrap();
+        let f1 = phase_function_batch(&cols, &theta, Method::Goa, &opts, Some(&cache)).unwrap();
+        assert_eq!(f0, f1);
+        let c0 = cross_sections_batch(&cols, Method::Goa, &opts, true, None).unwrap();
+        let c1 = cross_sections_batch(&cols, Method::Goa, &opts, true, Some(&cache)).unwrap();
+        assert_eq!(c0, c1);
     }
 }
