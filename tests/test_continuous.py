@@ -98,3 +98,17 @@ def test_continuous_count_is_checked():
     motes.set_variant("llvm_ad_rgb")
     with pytest.raises(Exception, match="continuous_count"):
         _env_scene(_two_sizes(2000, 0.0), 8, 1)
+
+
+def test_grain_depth_parameter():
+    """``grain_depth`` (issue 25) reaches the medium as set (default 1), and a bad value names it."""
+    motes.set_variant("scalar_rgb")
+    for depth, expect in ((None, motes.DEFAULT_GRAIN_DEPTH), (3, 3)):
+        med = _two_sizes(400, 16.0)
+        if depth is not None:
+            med["grain_depth"] = depth
+        assert _medium(_env_scene(med, 4, 1)).data.core.grain_depth == expect
+    assert motes.DEFAULT_GRAIN_DEPTH == 1
+    for bad in (0, -2, 1.5):
+        with pytest.raises((ValueError, RuntimeError), match="invalid grain_depth|grain_depth. must be"):
+            _env_scene(dict(_two_sizes(400, 16.0), grain_depth=bad), 4, 1)

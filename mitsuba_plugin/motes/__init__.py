@@ -109,10 +109,10 @@ __all__ = [
 ]
 __version__ = "0.1.0"
 
-from .discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX, DiscreteMedium  # noqa: E402
+from .discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH, DEFAULT_TAU_MAX, DiscreteMedium  # noqa: E402
 from .plugins import native_variants, register, set_evaluated_mode, set_variant  # noqa: E402
 
-__all__ += ["MotesError", "DEFAULT_CELLS_PER_PARTICLE", "DEFAULT_CONTINUOUS_COUNT", "DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "native_variants", "register", "set_evaluated_mode", "set_variant"]
+__all__ += ["MotesError", "DEFAULT_CELLS_PER_PARTICLE", "DEFAULT_CONTINUOUS_COUNT", "DEFAULT_GRAIN_DEPTH", "DEFAULT_TAU_MAX", "DEFAULT_TRUNCATE_RAD", "DiscreteMedium", "native_variants", "register", "set_evaluated_mode", "set_variant"]
 
 
 def _register_if_mitsuba_is_ready() -> None:

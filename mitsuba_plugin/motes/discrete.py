@@ -29,6 +29,11 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
                             the same mean extinction and local phase mixture: no pixel resolves their
                             grains, and they cost about what ``homogeneous`` costs
                             (``rust/motes-core/src/render/continuous.rs``); inf: every particle discrete
+``grain_depth``             a path's rays see grains one by one until its ``grain_depth``-th scattering
+                            event (``DEFAULT_GRAIN_DEPTH`` = 1); rays leaving that event or a later one
+                            see the grains' continuous equivalent (same extinction per cell and local
+                            phase mixture; Müller et al. 2016, Sec. 4.3). Ignored when
+                            ``continuous_count`` is inf, which makes the medium exact
 ``seed``                    seed of the free-flight random numbers
 ``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
                             default: the physical one)
@@ -60,6 +65,8 @@ DEFAULT_TAU_MAX: float = _motes.DEFAULT_TAU_MAX
 #: Default particles per query cylinder from which a size class is continuous (module docs).
 DEFAULT_CONTINUOUS_COUNT: float = _motes.DEFAULT_CONTINUOUS_COUNT
 DEFAULT_CELLS_PER_PARTICLE: float = _motes.DEFAULT_CELLS_PER_PARTICLE
+#: Default scattering event from which a path's rays see the grains' continuous equivalent (module docs).
+DEFAULT_GRAIN_DEPTH: int = _motes.DEFAULT_GRAIN_DEPTH
 #: A query radius that tau_max overrides for more than this share of the particles raises a warning (a few
 #: of the largest grains in a log-normal tail are widened silently: they change nothing a user could see).
 WIDENED_WARN_SHARE: float = 1e-3
@@ -125,7 +132,9 @@ class DiscreteMedium:
                  query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
-                 continuous_count: float = DEFAULT_CONTINUOUS_COUNT):
+                 continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH):
+        if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
+            raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
         pos, r, idx, species, lam_in, lam = _checked_inputs(
             positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius, tau_max,
             cells_per_particle, continuous_count)
@@ -139,6 +148,9 @@ class DiscreteMedium:
                                                     truncate_below_rad, albedo)
         self._build_core(pos, r, idx, lam_in, lam, bin_of, q_ext, tables, scale_m, query_radius, tau_max,
                          cells_per_particle, continuous_count, seed, warn_widened)
+        self._core.set_grain_depth(int(grain_depth))
+        #: See the module docs.
+        self.grain_depth = int(grain_depth)
 
     def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo):
         """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""

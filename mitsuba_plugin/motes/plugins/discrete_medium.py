@@ -34,6 +34,10 @@ Parameter               Type       Meaning (default)
 ``continuous_count``    float      size classes with at least this many particles per query cylinder
                                    (over a mean free path or across the cloud) are rendered as a
                                    continuous medium: no pixel resolves their grains (16; inf: none)
+``grain_depth``         integer    a path's rays walk grains one by one until its ``grain_depth``-th
+                                   scattering event, and see their continuous equivalent after (1:
+                                   grains are seen where a path meets them first; ignored when
+                                   ``continuous_count`` is inf, which keeps every ray exact)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
 ``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
@@ -113,7 +117,7 @@ import numpy as np
 
 from ..discrete import DiscreteMedium, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
-from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_TAU_MAX
+from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH, DEFAULT_TAU_MAX
 from ..particle_io import load_particles
 from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
 from .. import _memory
@@ -148,7 +152,8 @@ class DiscreteMediumPlugin:
                                    size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
                                    truncate_below_rad=truncate if truncate > 0 else None,
                                    cells_per_particle=p.cells, seed=p.seed, albedo=p.albedo, tau_max=p.tau_max,
-                                   warn_widened=user_radius, continuous_count=p.continuous)
+                                   warn_widened=user_radius, continuous_count=p.continuous,
+                                   grain_depth=p.grain_depth)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
@@ -270,6 +275,7 @@ def _read_parameters(props) -> SimpleNamespace:
     p.truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
     p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
+    p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
     p.wavelengths = _get(props, "wavelengths", None, str)
     p.seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
     p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")

@@ -93,6 +93,10 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "DEFAULT_CONTINUOUS_COUNT",
         motes_core::render::continuous::DEFAULT_CONTINUOUS_COUNT,
     )?;
+    m.add(
+        "DEFAULT_GRAIN_DEPTH",
+        motes_core::render::discrete::DEFAULT_GRAIN_DEPTH,
+    )?;
     // The native render path's C interface (rust/motes-py/src/native.rs): its address and version.
     m.add(
         "NATIVE_API",

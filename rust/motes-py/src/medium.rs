@@ -288,6 +288,19 @@ impl PyDiscreteMedium {
         self.medium.set_albedo_scale(scale).map_err(to_py)
     }
 
+    /// Scattering events of a path from which its rays see the grains' continuous equivalent (1 as
+    /// built; see `set_grain_depth`).
+    #[getter]
+    fn grain_depth(&self) -> u32 {
+        self.medium.grain_depth()
+    }
+
+    /// Rays leaving a path's `depth`-th scattering event or a later one see the grains' continuous
+    /// equivalent instead of walking them (ignored when `continuous_count` is infinite: exact).
+    fn set_grain_depth(&self, depth: u32) -> PyResult<()> {
+        self.medium.set_grain_depth(depth).map_err(to_py)
+    }
+
     /// Remember an event of the given particles at `p` (tests and tools).
     fn insert_event(&self, p: (f32, f32, f32), particles: Vec<u32>) -> PyResult<()> {
         self.medium

@@ -27,6 +27,19 @@
 //!
 //! The grid walks these τ_i and R_i; Eq. 24's local density keeps the true C_t,i / (4/3 π R_i³).
 //!
+//! ## Grains along a path (issue 25; Müller et al. 2016, Sec. 4.3 and 7.1)
+//! A viewer sees a grain one by one only where a path meets it first: directly visible grains and their
+//! glints. Once a path has scattered, the grains its later rays meet are seen only through the light
+//! they pass on, and the continuous equivalent of the same cells (per-cell extinction Σ C_t,i / V and the
+//! cell's phase mixture, `crate::render::continuous`) carries the same expected transport. So rays that
+//! leave a path's `grain_depth`-th event or a later one (events remember their depth in the chain;
+//! default [`DEFAULT_GRAIN_DEPTH`] = 1: every ray after the first scattering) sample that field instead
+//! of walking grains; camera rays, and rays from surfaces, still walk them. What changes is the grain
+//! texture of multiply scattered light, which no pixel resolves (measured against the fully discrete
+//! render by `scripts/bench/bench_dense.py`: image means within noise and per-pixel differences at
+//! noise level). An infinite `continuous_count` keeps the medium exact: no field is built and every ray
+//! walks the grains.
+//!
 //! ## Colour weights along a path (throughput-proportional channel choice)
 //! The phase function is sampled from a mixture over channels, q(ω) = Σ_c π_c f_c(ω), and returns the
 //! weights f_c / q. With π uniform (the channel mean) every bounce's weights average 1, but their
@@ -58,7 +71,7 @@
 
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
-use crate::render::continuous::{resolvable, ContinuousField};
+use crate::render::continuous::{resolvable, ContinuousField, FieldHit};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
 use crate::space::grid::{
@@ -82,6 +95,9 @@ pub struct BinOptics {
 /// Default cap on a particle's optical depth τ_i (module docs): its disk is widened until
 /// τ_i ≤ 1, i.e. a ray through it interacts with probability at most 1 − e^{−1} = 63 %.
 pub const DEFAULT_TAU_MAX: f64 = 1.0;
+/// Default grain depth (`DiscreteMedium::set_grain_depth`): rays leaving a path's first scattering
+/// event or a later one see the grains' continuous equivalent.
+pub const DEFAULT_GRAIN_DEPTH: u32 = 1;
 /// Share of uniform channel choice mixed into the throughput-proportional one (module docs): bounds a
 /// bounce's weights by C / ε even for a channel whose throughput has fallen to 0.
 pub const DEFENSIVE_MIX: f64 = 0.1;
@@ -101,6 +117,10 @@ struct Event {
     site: Site,
     t_in: [f32; MAX_CHANNELS],
     t_out: [f32; MAX_CHANNELS],
+    /// Which event of its chain this is (1: the first since the path entered the medium; 0: no
+    /// event). A ray leaving an event at or past the medium's grain depth sees the grains' continuous
+    /// equivalent (module docs, "Grains along a path").
+    depth: u32,
 }
 
 /// Channel choice probabilities π from a throughput (zeros: uniform), `channels` of them.
@@ -131,7 +151,8 @@ fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
 
 /// The event remembered at a site: the path's channel throughput after the site's albedo `a` (module
 /// docs), from the throughput `parent` of the event the ray started at (zeros: unknown).
-fn event_after(site: Site, parent: &[f32; MAX_CHANNELS], a: &[f64]) -> Event {
+fn event_after(site: Site, parent: &Parent, a: &[f64]) -> Event {
+    let (depth, parent) = (parent.depth.saturating_add(1), &parent.t_out);
     let known = parent.iter().any(|&x| x > 0.0);
     let t_in = if a.len() <= MAX_CHANNELS {
         normalised_throughput(a.iter().enumerate().map(|(c, &x)| {
@@ -148,7 +169,16 @@ fn event_after(site: Site, parent: &[f32; MAX_CHANNELS], a: &[f64]) -> Event {
         site,
         t_in,
         t_out: t_in,
+        depth,
     }
+}
+
+/// What a ray takes from the event it starts at for the event it may lead to: the path's throughput
+/// and the event's depth in its chain (both zero for a ray that starts at no event).
+#[derive(Clone, Copy, Debug, Default)]
+struct Parent {
+    t_out: [f32; MAX_CHANNELS],
+    depth: u32,
 }
 
 /// Bits of a ray's origin and direction, mixed (FNV-style): the ray's share of its random numbers.
@@ -230,6 +260,23 @@ fn key(p: [f32; 3]) -> [u32; 3] {
     p.map(f32::to_bits)
 }
 
+/// The site of an interaction in a continuous field: one particle of the hit cell, picked ∝ its
+/// extinction by the free flight's own stream.
+fn field_site(f: &ContinuousField, hit: FieldHit, u: f64) -> Option<Site> {
+    let mut s = Site {
+        t: hit.t,
+        ..Site::default()
+    };
+    s.push(f.pick(hit.cell, uniform(u.to_bits(), FIELD_STREAM, 1))?);
+    Some(s)
+}
+
+/// A free flight through a continuous field alone: the site and the optical depth walked before it.
+fn field_free_flight(f: &ContinuousField, ray: &RaySegment, u: f64) -> (Option<Site>, f64) {
+    let (hit, tau) = f.free_flight(ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln());
+    (hit.and_then(|h| field_site(f, h, u)), tau)
+}
+
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
 /// renders are reproducible whatever the thread schedule.
 fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
@@ -279,7 +326,7 @@ fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
 
 /// A lane of the last `sample_sites` call awaiting `commit_events`: its site, whether to remember it,
 /// and the channel throughput of the event its ray started at (zeros: none).
-type Pending = (Option<Site>, bool, [f32; MAX_CHANNELS]);
+type Pending = (Option<Site>, bool, Parent);
 
 /// The discrete medium: particles in a grid with grey optical depths, and per-bin optics.
 pub struct DiscreteMedium {
@@ -321,6 +368,12 @@ pub struct DiscreteMedium {
     /// within its particles' disks). A free flight from outside it (a camera, a wall) starts at no event
     /// and skips the event lookup.
     event_box: Bounds3,
+    /// The continuous equivalent of every particle, discrete classes included (None when
+    /// `continuous_count` is infinite: the medium is then exact, fully discrete).
+    grains_field: Option<ContinuousField>,
+    /// Rays leaving the `grain_depth`-th event of a path or a later one sample `grains_field` instead
+    /// of walking grains (module docs, "Grains along a path"); `u32::MAX`: never.
+    grain_depth: std::sync::atomic::AtomicU32,
     /// Set once `insert_event` placed an event anywhere: then every free flight looks events up.
     events_anywhere: std::sync::atomic::AtomicBool,
     /// Counts changes of the optics (`set_albedo_scale`): per-thread events of an older epoch are
@@ -590,6 +643,12 @@ impl DiscreteMedium {
             continuous_count,
         );
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
+        // Every particle's continuous equivalent, for rays past the grain depth (weighted by C_t,i as
+        // the continuous classes are); none when the medium must stay exact.
+        let grains_field = continuous_count.is_finite().then(|| {
+            let ids: Vec<u32> = (0..n as u32).collect();
+            ContinuousField::build(positions, &reach, c_ext, &ids)
+        });
         let tau = disks.iter().map(|d| d.1 as f32).collect();
         let reach = disks.iter().map(|d| d.0 as f32).collect();
         let c_ext = c_ext.iter().map(|&c| c as f32).collect();
@@ -616,6 +675,8 @@ impl DiscreteMedium {
             event_box,
             events_anywhere: std::sync::atomic::AtomicBool::new(false),
             optics_epoch: AtomicU64::new(0),
+            grains_field,
+            grain_depth: std::sync::atomic::AtomicU32::new(DEFAULT_GRAIN_DEPTH),
         })
     }
 
@@ -654,6 +715,7 @@ impl DiscreteMedium {
     pub fn bytes(&self) -> usize {
         self.grid.as_ref().map_or(0, ParticleGrid::bytes)
             + self.field.as_ref().map_or(0, ContinuousField::bytes)
+            + self.grains_field.as_ref().map_or(0, ContinuousField::bytes)
             + self.tau.len() * 13
             + self.bin.len() * 4
     }
@@ -733,7 +795,7 @@ impl DiscreteMedium {
     ) -> Vec<SiteSample> {
         let call = self.calls.fetch_add(1, Ordering::Relaxed);
         let events = self.events.read().unwrap();
-        let res: Vec<(Option<Site>, f64, [f32; MAX_CHANNELS])> = o
+        let res: Vec<(Option<Site>, f64, Parent)> = o
             .par_iter()
             .zip(d.par_iter().zip(t_max.par_iter()))
             .enumerate()
@@ -764,7 +826,7 @@ impl DiscreteMedium {
     }
 
     /// One ray's free flight to its next site (skipping the particles of the event it starts at), the
-    /// optical depth walked before it and the throughput of that parent event; `u` uniform in [0, 1).
+    /// optical depth walked before it and what it takes from that parent event; `u` uniform in [0, 1).
     fn lane_free_flight(
         &self,
         events: &EventMap,
@@ -773,12 +835,12 @@ impl DiscreteMedium {
         t_max: f64,
         u: f64,
         want_tau: bool,
-    ) -> (Option<Site>, f64, [f32; MAX_CHANNELS]) {
+    ) -> (Option<Site>, f64, Parent) {
         let (Some(dir), true) = (
             normalise(d.map(|x| x as f64)),
             o.iter().all(|x| x.is_finite()),
         ) else {
-            return (None, 0.0, [0.0; MAX_CHANNELS]);
+            return (None, 0.0, Parent::default());
         };
         let may_be_event = self.events_anywhere.load(Ordering::Relaxed)
             || (0..3).all(|a| {
@@ -789,7 +851,15 @@ impl DiscreteMedium {
         } else {
             Event::default()
         };
+        let from = Parent {
+            t_out: parent.t_out,
+            depth: parent.depth,
+        };
         let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
+        if let Some(all) = self.grains_field_from(&parent) {
+            let (site, tau) = field_free_flight(all, &ray, u);
+            return (site, tau, from);
+        }
         // The continuous field first (one exponential per cell), then the particles up to its distance:
         // the nearer of two independent processes' interactions (crate::render::continuous).
         let (hit, tau_field) = match &self.field {
@@ -804,15 +874,7 @@ impl DiscreteMedium {
             }
             None => (None, 0.0),
         };
-        let site = site.or_else(|| {
-            let (h, f) = (hit?, self.field.as_ref()?);
-            let mut s = Site {
-                t: h.t,
-                ..Site::default()
-            };
-            s.push(f.pick(h.cell, uniform(u.to_bits(), FIELD_STREAM, 1))?);
-            Some(s)
-        });
+        let site = site.or_else(|| field_site(self.field.as_ref()?, hit?, u));
         // Before a discrete site nearer than the field's interaction, the field's depth counts only up to
         // the site: walked again when a caller asks for it (the packet interface does not).
         let tau_field = match (&self.field, site) {
@@ -821,7 +883,32 @@ impl DiscreteMedium {
             }
             _ => tau_field,
         };
-        (site, tau + tau_field, parent.t_out)
+        (site, tau + tau_field, from)
+    }
+
+    /// The continuous equivalent of all particles when a ray leaving `parent` is to see it rather than
+    /// the grains: `parent` is the `grain_depth`-th event of its path or a later one (module docs).
+    fn grains_field_from(&self, parent: &Event) -> Option<&ContinuousField> {
+        let depth = self.grain_depth.load(Ordering::Relaxed);
+        (parent.depth > 0 && parent.depth >= depth)
+            .then_some(self.grains_field.as_ref())
+            .flatten()
+    }
+
+    /// Rays leaving the `depth`-th scattering event of a path or a later one see the continuous
+    /// equivalent of the grains (the same mean extinction and local phase mixture per cell) instead of
+    /// walking them one by one: 1 sees grains only until a path first scatters (Müller et al. 2016),
+    /// `u32::MAX` always (exact). Ignored when every class is kept discrete (`continuous_count`
+    /// infinite): then the medium is exact whatever this says.
+    pub fn set_grain_depth(&self, depth: u32) -> Result<(), OpticsError> {
+        require("grain_depth", depth as f64, depth >= 1, ">= 1")?;
+        self.grain_depth.store(depth, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// See [`Self::set_grain_depth`].
+    pub fn grain_depth(&self) -> u32 {
+        self.grain_depth.load(Ordering::Relaxed)
     }
 
     /// Record the events of this thread's last [`Self::sample_sites`] call at the positions the renderer placed
@@ -1268,7 +1355,7 @@ pub const PACKET_LANES: usize = 16;
 #[derive(Clone, Copy, Default)]
 struct PendingLane {
     site: Option<Site>,
-    parent: [f32; MAX_CHANNELS],
+    parent: Parent,
 }
 
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
@@ -1687,6 +1774,54 @@ mod tests {
                 assert!((w[2 * i] * pdf[i] - qq[0] / sg[0]).abs() < 1e-9 * expect.max(1.0));
             }
         });
+    }
+
+    /// A ray leaving an event at or past the grain depth sees the grains' continuous equivalent: it
+    /// escapes with probability exp(−τ of that field) and interacts anywhere along the ray, not only at
+    /// grains; below the grain depth, or with an infinite `continuous_count`, it walks the grains.
+    #[test]
+    fn rays_past_the_grain_depth_see_the_continuous_equivalent() {
+        for continuous_count in [1e12, f64::INFINITY] {
+            let m = medium_with(4000, continuous_count);
+            assert_eq!(m.continuous_len(), 0); // every class discrete either way
+            let (o, d) = ([[0.5f32, 0.5, -0.2]], [[0.0f32, 0.0, 1.0]]);
+            let t = (0..200)
+                .find_map(|_| m.sample_sites(&o, &d, &[f64::INFINITY], &[true])[0].t)
+                .expect("an event");
+            let p = [0.5f32, 0.5, (-0.2 + t) as f32];
+            m.commit_events(&[p], &[true], &[500.0, 600.0], 2).unwrap();
+            let lanes = 20000;
+            let sites_from_event = |depth: u32| {
+                m.set_grain_depth(depth).unwrap();
+                let r = m.sample_sites(
+                    &vec![p; lanes],
+                    &vec![d[0]; lanes],
+                    &vec![1.0; lanes],
+                    &vec![false; lanes],
+                );
+                r.iter().map(|x| x.t).collect::<Vec<_>>()
+            };
+            let distinct = |ts: &[Option<f64>]| {
+                let mut v: Vec<u64> = ts.iter().flatten().map(|t| t.to_bits()).collect();
+                v.sort_unstable();
+                v.dedup();
+                v.len()
+            };
+            let walked = sites_from_event(2);
+            assert!(distinct(&walked) < 100, "{}", distinct(&walked)); // grains only
+            let seen = sites_from_event(1);
+            match &m.grains_field {
+                Some(f) => {
+                    assert!(distinct(&seen) > 1000, "{}", distinct(&seen));
+                    let ray = RaySegment::new(p.map(|x| x as f64), [0.0, 0.0, 1.0], 0.0, 1.0);
+                    let escaped = seen.iter().filter(|t| t.is_none()).count();
+                    let tau = f.optical_depth(&ray);
+                    assert!(tau > 0.1, "{tau}");
+                    crate::test_rng::assert_escape_fraction(escaped, lanes, (-tau).exp());
+                }
+                None => assert!(distinct(&seen) < 100, "{}", distinct(&seen)), // exact: no field at all
+            }
+        }
     }
 
     /// After an event is committed, a ray starting at its position skips the event's particles; the
