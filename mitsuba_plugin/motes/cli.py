@@ -24,6 +24,7 @@ import signal
 import socket
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -322,8 +323,15 @@ def one_line(e: BaseException) -> str:
     return " ".join(text.split()) or type(e).__name__
 
 
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """Warnings on the command line as one line each: a user reads the message, not motes's source line."""
+    text = str(message)
+    return f"{text if text.startswith('motes:') else f'motes: {category.__name__}: {text}'}\n"
+
+
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    warnings.formatwarning = _one_line_warning
     try:
         return args.run(args)
     except KeyboardInterrupt:

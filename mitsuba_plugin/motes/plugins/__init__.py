@@ -2,10 +2,11 @@
 
 ``motes.set_variant(name)`` picks a Mitsuba variant and makes it ready for the plugins:
 
-* LLVM variants need a libLLVM that Dr.Jit can drive: ``DRJIT_LIBLLVM_PATH`` is set to Debian's
-  ``libLLVM-19.so`` when unset and present (it must happen before Dr.Jit loads, so ``import motes`` does it
-  too); without a usable LLVM, a ``llvm_*`` request falls back to the matching ``scalar_*`` variant with a
-  warning.
+* LLVM variants need a libLLVM that Dr.Jit can compile with, which loading it does not prove (Debian 12's
+  libLLVM-15 loads, then aborts the process on the first kernel). ``import motes`` tries each candidate once
+  in a subprocess, caches the verdict and points ``DRJIT_LIBLLVM_PATH`` at one that works (``motes.plugins.llvm``;
+  it must happen before Dr.Jit loads); without one, a ``llvm_*`` request falls back to the matching
+  ``scalar_*`` variant with one warning naming the fix.
 * In ``scalar_rgb``, ``scalar_spectral``, ``llvm_ad_rgb`` and ``llvm_ad_spectral`` the plugins render through
   the native C++ plugin (``motes.native``; built on first use), in Mitsuba's default symbolic mode. In the
   other variants (or with ``MOTES_NATIVE=0``, or when it cannot be built: a warning says why) they hand
@@ -20,8 +21,7 @@ from __future__ import annotations
 import os
 import warnings
 
-LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
-                   "/usr/lib/llvm-19/lib/libLLVM.so")
+from . import llvm as _llvm
 
 _registered: set[str] = set()
 _native: set[str] = set()
@@ -34,13 +34,21 @@ def native_variants() -> frozenset[str]:
 
 
 def configure_llvm() -> str | None:
-    """Point Dr.Jit at a usable libLLVM if ``DRJIT_LIBLLVM_PATH`` is unset; returns the path in use."""
-    if os.environ.get("DRJIT_LIBLLVM_PATH"):
-        return os.environ["DRJIT_LIBLLVM_PATH"]
-    for path in LLVM_CANDIDATES:
-        if os.path.exists(path):
-            os.environ["DRJIT_LIBLLVM_PATH"] = path
-            return path
+    """Point Dr.Jit at a libLLVM it can compile with (``motes.plugins.llvm.choose``); returns the path in use,
+    or None when there is none."""
+    return _llvm.choose()
+
+
+def _llvm_problem() -> str | None:
+    """Why the LLVM variants cannot run in this process, or None when they can. When Dr.Jit was imported
+    before motes, the library it loaded is probed now (cached), so that a bad one is never asked to compile."""
+    if not _llvm.usable():
+        return _llvm.problem
+    loaded = _llvm.loaded_library()
+    if loaded is not None:
+        verdict = _llvm.probe(loaded)
+        if not verdict["ok"]:
+            return f"the libLLVM Dr.Jit loaded ({loaded}) cannot compile its kernels: {verdict['reason']}"
     return None
 
 
@@ -133,20 +141,28 @@ def set_variant(name: str = "llvm_ad_rgb") -> str:
 
     if name not in mi.variants():
         raise ValueError(f"unknown Mitsuba variant {name!r}; available: {', '.join(mi.variants())}")
+    problem = _llvm_problem() if name.startswith("llvm_") else None
     try:
+        if problem is not None:
+            raise RuntimeError(problem)  # never hand a kernel to a libLLVM that aborts the process
         mi.set_variant(name)
         if name.startswith("llvm_"):
             import drjit as dr
 
-            dr.eval(mi.Float([1.0, 2.0]) * 2)  # the first kernel is where a bad libLLVM fails
+            dr.eval(mi.Float([1.0, 2.0]) * 2)  # any other failure of the backend shows on the first kernel
     except Exception as e:  # noqa: BLE001 - any failure of the LLVM backend
         if not name.startswith("llvm_"):
             raise
-        fallback = "scalar_" + name.split("_")[-1]
-        warnings.warn(f"motes: Mitsuba variant {name} is unusable here ({e}); falling back to {fallback}. "
-                      "Install libllvm19 (apt) for the LLVM variants.", RuntimeWarning, stacklevel=2)
+        fallback = "scalar_" + name.split("_", 2)[-1]
+        fallback = fallback if fallback in mi.variants() else "scalar_rgb"
+        reason = " ".join(str(e).split())
+        warnings.warn(f"motes: {name} cannot run here ({reason}); rendering in {fallback} instead. To use the "
+                      f"LLVM variants, {_llvm.FIX}.", RuntimeWarning, stacklevel=2)
         mi.set_variant(fallback)
         name = fallback
+    else:
+        if name.startswith("llvm_") and _llvm.problem is not None:  # a bad DRJIT_LIBLLVM_PATH was replaced
+            warnings.warn(f"motes: {_llvm.problem}", RuntimeWarning, stacklevel=2)
     register()
     return name
 
