@@ -3,7 +3,7 @@
 Debian 12's libLLVM-15 loads into Dr.Jit 1.5 and then aborts the process on Mitsuba's first kernel with pages of
 LLVM dump; libLLVM-14 is refused at load. These tests run motes in subprocesses against the real old libraries
 when they are installed (skipped otherwise), with ``MOTES_LLVM_SEARCH`` standing for a machine that has only
-those, and a private probe cache (``XDG_CACHE_HOME``).
+those, and a private probe cache (``MOTES_CACHE_DIR``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ DUMP_MARKS = ("In function: drjit_", "LLVM ERROR", "Stack dump", "TargetConstant
 
 def run(code_or_args, cache: pathlib.Path, **env):
     full = {k: v for k, v in os.environ.items() if k not in ("DRJIT_LIBLLVM_PATH", "MOTES_LLVM_SEARCH")}
-    full.update(env, XDG_CACHE_HOME=str(cache))
+    full.update(env, MOTES_CACHE_DIR=str(cache))
     args = code_or_args if isinstance(code_or_args, list) else [sys.executable, "-c", textwrap.dedent(code_or_args)]
     return subprocess.run(args, env=full, capture_output=True, text=True, timeout=600, cwd=cache)
 
@@ -49,12 +49,12 @@ def test_candidates_put_19_first_then_newest(tmp_path, monkeypatch):
 
 
 def test_a_file_that_is_no_library_fails_the_probe_and_the_verdict_is_cached(tmp_path, monkeypatch):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("MOTES_CACHE_DIR", str(tmp_path))
     fake = tmp_path / "libLLVM-99.so"
     fake.write_bytes(b"not a shared object")
     verdict = llvm.probe(str(fake))
     assert verdict["ok"] is False and verdict["reason"]
-    cache = json.loads((tmp_path / "motes" / "llvm-probe.json").read_text())
+    cache = json.loads((tmp_path / "llvm-probe.json").read_text())
     (key,) = cache
     assert key.startswith(str(fake.resolve())) and "drjit" in key and cache[key]["ok"] is False
 
@@ -117,7 +117,7 @@ def test_a_bad_drjit_libllvm_path_is_replaced_by_one_that_works(tmp_path):
 def test_a_cached_verdict_is_used_without_probing_again(tmp_path):
     """A cached 'fails' for the only candidate is believed (no subprocess): the LLVM variant falls back. This
     also shows the cache key: real path, size, mtime, versions, CPU."""
-    cache = tmp_path / "motes" / "llvm-probe.json"
+    cache = tmp_path / "llvm-probe.json"
     r = run("""
         from motes.plugins import llvm
         print("KEY", llvm._key(llvm.candidates()[0]))

@@ -230,6 +230,8 @@ class DiscreteMedium:
         self.radii_um = r
         self.c_ext_scene = c_ext
         lo_, hi_ = pos.min(axis=0), pos.max(axis=0)
+        #: The box of the particles' centres (scene units).
+        self.centre_box = (lo_, hi_)
         reach = float(self._core.reach_max)
         self.bbox = (lo_ - reach, hi_ + reach)
 

@@ -12,6 +12,8 @@
   other variants (or with ``MOTES_NATIVE=0``, or when it cannot be built: a warning says why) they hand
   numpy batches to Rust, which in JIT variants needs the evaluated ("wavefront") mode: ``SymbolicLoops``
   and ``SymbolicCalls`` are then switched off on the calling thread.
+* Mitsuba's scene loaders (``mi.load_file``, ``load_dict``, ``load_string``) warn when a ``discrete``
+  medium's particles lie mostly outside the shape that holds it (``motes.plugins.scene_checks``).
 * The plugins are registered for the variant (registration is per variant; ``register()`` does only that,
   and ``import motes`` calls it when a variant is already set).
 """
@@ -73,6 +75,9 @@ def register() -> None:
         set_evaluated_mode(True)
     # Mitsuba may re-import its Python integrators on a variant change: guard the class in use each time.
     _warn_under_prbvolpath()
+    from .scene_checks import wrap_loaders
+
+    wrap_loaders()  # a medium outside its shape warns at load
     if variant in _registered:
         return
     from . import discrete_medium, particle_phase

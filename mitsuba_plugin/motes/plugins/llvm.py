@@ -4,7 +4,7 @@ A libLLVM that loads is not necessarily one Dr.Jit can drive: Debian 12's libLLV
 process inside instruction selection on Mitsuba's first kernel with pages of LLVM dump (and libLLVM-14 is
 refused). No in-process check can catch an abort, so each candidate is tried once in a **subprocess** that
 renders a tiny ``volpath`` + ``homogeneous`` scene in ``llvm_ad_rgb``; the verdict is cached in
-``$XDG_CACHE_HOME/motes/llvm-probe.json`` (default ``~/.cache``), keyed by the library's real path, size and
+``llvm-probe.json`` in motes's cache (``$MOTES_CACHE_DIR``, else ``~/.cache/motes``), keyed by the library's real path, size and
 modification time, the Dr.Jit and Mitsuba versions and the CPU's feature flags, so the probe runs once per
 machine and library (about a second).
 
@@ -87,9 +87,13 @@ def candidates() -> list[str]:
     return out
 
 
-def _cache_file() -> str:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "motes", "llvm-probe.json")
+def _cache_file() -> str | None:
+    """``llvm-probe.json`` in motes's cache (``$MOTES_CACHE_DIR``, else ``~/.cache/motes``; ``""`` keeps none)."""
+    env = os.environ.get("MOTES_CACHE_DIR")
+    if env == "":
+        return None
+    base = env if env is not None else os.path.join(os.path.expanduser("~"), ".cache", "motes")
+    return os.path.join(base, "llvm-probe.json")
 
 
 def _cpu_flags() -> str:
@@ -122,6 +126,8 @@ def _key(path: str) -> str:
 
 
 def _load_cache() -> dict:
+    if _cache_file() is None:
+        return {}
     try:
         with open(_cache_file()) as f:
             data = json.load(f)
@@ -132,6 +138,8 @@ def _load_cache() -> dict:
 
 def _store(key: str, verdict: dict) -> None:
     path = _cache_file()
+    if path is None:
+        return
     try:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         data = _load_cache()

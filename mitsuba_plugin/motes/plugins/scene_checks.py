@@ -1,0 +1,102 @@
+"""Checks of a loaded scene that catch silent mistakes with ``discrete`` media.
+
+A ``discrete`` medium takes its particle positions in scene units, after its own ``to_world``; the shape that
+holds it has a separate ``to_world``. Forgetting to repeat the shape's transform on the medium, or a particle
+file in other units, puts the particles outside the shape, and the render shows an empty medium without a
+word. After every ``mi.load_file`` / ``mi.load_dict`` / ``mi.load_string`` (wrapped once per process by
+``wrap_loaders``; ``motes render`` goes through them too), ``check_scene`` compares, for each shape with a
+``discrete`` interior medium, the box of the particles' centres with the shape's bounding box, and warns
+when less than ``INSIDE_WARN_SHARE`` of the particles' box lies inside the shape's.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+
+import numpy as np
+
+#: Below this share of the particles' box inside the shape's box, loading warns.
+INSIDE_WARN_SHARE = 0.5
+
+
+def inside_share(lo, hi, shape_lo, shape_hi) -> float:
+    """Share of the box [lo, hi] (its volume; along a flat axis, whether it lies in range) inside
+    [shape_lo, shape_hi]."""
+    share = 1.0
+    for a, b, c, d in zip(lo, hi, shape_lo, shape_hi):
+        if b > a:
+            share *= max(0.0, min(b, d) - max(a, c)) / (b - a)
+        else:
+            share *= float(c <= a <= d)
+    return share
+
+
+def _discrete_data(medium):
+    from ..discrete import DiscreteMedium
+
+    try:
+        data = getattr(medium, "data", None)
+    except Exception:  # noqa: BLE001 - a foreign medium's property may raise anything
+        return None
+    return data if isinstance(data, DiscreteMedium) else None
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{float(x):.4g}" for x in v) + ")"
+
+
+def outside_warnings(scene) -> list[str]:
+    """A message for each shape whose ``discrete`` interior medium's particles lie mostly outside it."""
+    out = []
+    for shape in scene.shapes():
+        medium = shape.interior_medium()
+        data = None if medium is None else _discrete_data(medium)
+        if data is None:
+            continue
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in data.centre_box)
+        box = shape.bbox()
+        s_lo, s_hi = np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)
+        share = inside_share(lo, hi, s_lo, s_hi)
+        if share < INSIDE_WARN_SHARE:
+            out.append(
+                f"motes: the discrete medium {medium.id() or '(unnamed)'!r} lies mostly outside the shape "
+                f"{shape.id() or '(unnamed)'!r} that holds it ({share:.0%} of the particles' box inside; "
+                f"particles' box {_fmt(lo)}..{_fmt(hi)}, shape's box {_fmt(s_lo)}..{_fmt(s_hi)}, scene units), so "
+                "the render will show little or none of it: give the medium the shape's to_world (the medium's "
+                "to_world places its particles in the scene), or check the particle file's units")
+    return out
+
+
+def check_scene(scene, stacklevel: int = 2) -> None:
+    for message in outside_warnings(scene):
+        warnings.warn(message, RuntimeWarning, stacklevel=stacklevel + 1)
+
+
+def _wrapped(load):
+    if getattr(load, "_motes_checked", False):
+        return load
+
+    @functools.wraps(load)
+    def load_and_check(*args, **kwargs):
+        obj = load(*args, **kwargs)
+        if hasattr(obj, "shapes") and hasattr(obj, "sensors"):  # a scene (load_dict also makes plugins)
+            check_scene(obj, stacklevel=3)
+        return obj
+
+    load_and_check._motes_checked = True
+    return load_and_check
+
+
+def wrap_loaders() -> None:
+    """Make Mitsuba's scene loaders run ``check_scene`` (once per process; the loaders are shared by all
+    variants)."""
+    import mitsuba as mi
+
+    for name in ("load_file", "load_dict", "load_string"):
+        fn = getattr(mi, name, None)
+        if fn is not None:
+            setattr(mi, name, _wrapped(fn))
+
+
+__all__ = ["INSIDE_WARN_SHARE", "check_scene", "inside_share", "outside_warnings", "wrap_loaders"]
