@@ -331,7 +331,7 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    warnings.formatwarning = _one_line_warning
+    formatwarning, warnings.formatwarning = warnings.formatwarning, _one_line_warning
     try:
         return args.run(args)
     except KeyboardInterrupt:
@@ -342,6 +342,8 @@ def main(argv=None) -> int:
             raise
         print(f"motes: error: {one_line(e)}", file=sys.stderr)
         return 2
+    finally:
+        warnings.formatwarning = formatwarning  # main() may be called in-process (tests, scripts)
 
 
 if __name__ == "__main__":
