@@ -32,6 +32,15 @@ pub const DEFAULT_CONTINUOUS_COUNT: f64 = 16.0;
 /// a class this dense does not resolve anyway.
 const PARTICLES_PER_CELL: f64 = 8.0;
 
+/// Cells per axis of a majorant block: [`ContinuousField::sample_free_flight`] walks blocks of this
+/// many cells cubed, each with the largest σ_t of its cells, and looks up σ_t only at tentative
+/// collisions (delta tracking) instead of crossing every cell (one exponential per cell). Each cell
+/// holds ~8 particles, so σ_t varies ±35 % from cell to cell and a block's majorant is its largest
+/// fluctuation: wider blocks mean fewer steps but more null collisions. Measured side by side
+/// (`scripts/bench/bench_dense.py --rows 1.6e6x80,4e6x20 --reps 3`, llvm_ad_rgb, default render,
+/// seconds): cell by cell 1.10 / 0.67, blocks of 4 1.28 / 0.50, blocks of 2 1.08 / 0.54.
+const MAJORANT_BLOCK: usize = 2;
+
 /// Most cells along one axis (and in all) of the field.
 const MAX_AXIS_CELLS: usize = 1 << 10;
 const MAX_CELLS: f64 = 1.0e8;
@@ -96,6 +105,10 @@ pub struct ContinuousField {
     particle: Vec<u32>,
     /// Running share of the cell's extinction up to and including each particle (for picking one).
     cdf: Vec<f32>,
+    /// Blocks of [`MAJORANT_BLOCK`]³ cells (the last ones along an axis may reach past the field's
+    /// box, where σ_t = 0) and the largest σ_t of each.
+    block_frame: GridFrame,
+    majorant: Vec<f32>,
 }
 
 impl ContinuousField {
@@ -160,12 +173,15 @@ impl ContinuousField {
             }
         }
         let particle = order.iter().map(|&i| ids[i]).collect();
+        let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
         ContinuousField {
             frame: GridFrame::new(lo, cell, dims),
             sigma,
             start,
             particle,
             cdf,
+            block_frame,
+            majorant,
         }
     }
 
@@ -184,7 +200,35 @@ impl ContinuousField {
     }
     /// Heap bytes.
     pub fn bytes(&self) -> usize {
-        (self.sigma.len() + self.start.len() + self.particle.len() + self.cdf.len()) * 4
+        (self.sigma.len() + self.start.len() + self.particle.len() + self.cdf.len() + self.majorant.len())
+            * 4
+    }
+
+    /// The same free flight as [`Self::free_flight`] in distribution, by delta tracking (Woodcock
+    /// tracking; pbrt-v4's majorant grid): tentative collisions at the rate of each block's majorant,
+    /// accepted with probability σ_t / majorant. Costs one σ_t lookup per tentative collision instead of
+    /// one exponential per cell crossed, but gives no optical depth. `next_u` supplies uniforms in [0, 1).
+    pub fn sample_free_flight(&self, ray: &RaySegment, mut next_u: impl FnMut() -> f64) -> Option<FieldHit> {
+        for b in Dda::new(&self.block_frame, ray) {
+            let m = self.majorant[b.index] as f64;
+            if m <= 0.0 {
+                continue;
+            }
+            let mut t = b.t_enter;
+            loop {
+                t -= (1.0 - next_u()).ln() / m;
+                if t >= b.t_exit {
+                    break;
+                }
+                let p = [0, 1, 2].map(|a| ray.o[a] + t * ray.d[a]);
+                // Outside the field's box (blocks reach past it): σ_t = 0, a null collision.
+                let Some(cell) = self.cell_at(p) else { continue };
+                if next_u() * m < self.sigma[cell] as f64 {
+                    return Some(FieldHit { t, cell });
+                }
+            }
+        }
+        None
     }
 
     /// Exact free flight over a ray segment (|d| = 1): the first t where the optical depth walked
@@ -244,6 +288,24 @@ impl ContinuousField {
     }
 }
 
+/// The majorant blocks over cells `dims` of edge `cell` from `lo`: their frame and the largest σ_t of
+/// each block's cells.
+fn block_majorants(lo: [f64; 3], cell: [f64; 3], dims: [usize; 3], sigma: &[f32]) -> (GridFrame, Vec<f32>) {
+    let bd = dims.map(|n| n.div_ceil(MAJORANT_BLOCK));
+    let mut majorant = vec![0f32; bd[0] * bd[1] * bd[2]];
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let s = sigma[(z * dims[1] + y) * dims[0] + x];
+                let b = ((z / MAJORANT_BLOCK) * bd[1] + y / MAJORANT_BLOCK) * bd[0] + x / MAJORANT_BLOCK;
+                majorant[b] = majorant[b].max(s);
+            }
+        }
+    }
+    let frame = GridFrame::new(lo, cell.map(|c| c * MAJORANT_BLOCK as f64), bd);
+    (frame, majorant)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -297,6 +359,52 @@ mod tests {
             let p = w[i as usize] / total;
             let sd = (p * (1.0 - p) / picks as f64).sqrt();
             assert!((counts[k] as f64 / picks as f64 - p).abs() < 5.0 * sd);
+        }
+    }
+
+    /// Delta tracking against the majorant blocks samples the same free-flight distribution as the
+    /// cell-by-cell walk: P(t_hit < t) = 1 − exp(−τ(0, t)) on a cloud whose density rises steeply
+    /// along the ray (z³: majorants far above most cells' σ_t), along and across the gradient, with
+    /// rays starting inside and outside the box.
+    #[test]
+    fn delta_tracking_samples_the_exact_free_flight() {
+        let mut s = 11u64;
+        let n = 100_000;
+        let pos: Vec<[f64; 3]> = random_points(&mut s, n)
+            .into_iter()
+            .map(|p| [p[0], p[1], p[2].cbrt()])
+            .collect();
+        let reach = vec![0.01; n];
+        let w = vec![3e-5; n];
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let f = ContinuousField::build(&pos, &reach, &w, &ids);
+        let rays = [
+            RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0),
+            RaySegment::new([0.3, 0.7, 0.2], [0.0, 0.0, 1.0], 0.0, 3.0),
+            RaySegment::new([-0.5, 0.4, 0.9], [0.8, 0.0, -0.6], 0.0, 4.0),
+            RaySegment::new([0.5, 0.5, 2.0], [0.0, 0.6, -0.8], 0.0, 5.0),
+        ];
+        for ray in rays {
+            let trials = 40_000;
+            let mut times = Vec::with_capacity(trials);
+            for _ in 0..trials {
+                let mut seed = (lcg(&mut s) * 2f64.powi(52)) as u64;
+                let hit = f.sample_free_flight(&ray, || {
+                    seed = seed.wrapping_add(crate::rng::GOLDEN_GAMMA);
+                    crate::rng::unit_f64(crate::rng::splitmix64_finalise(seed))
+                });
+                if let Some(h) = hit {
+                    assert!(f.sigma[h.cell] > 0.0 && h.t >= ray.t0 && h.t <= ray.t1);
+                    times.push(h.t);
+                }
+            }
+            for q in [0.2, 0.4, 0.6, 0.8, 1.0] {
+                let t = ray.t0 + q * (ray.t1 - ray.t0);
+                let expect = 1.0 - (-f.optical_depth(&ray.between(ray.t0, t))).exp();
+                let got = times.iter().filter(|&&x| x < t).count() as f64 / trials as f64;
+                let se = (expect * (1.0 - expect) / trials as f64).sqrt().max(1e-4);
+                assert!((got - expect).abs() < 5.0 * se, "t = {t}: {got} vs {expect}");
+            }
         }
     }
 

@@ -271,10 +271,27 @@ fn field_site(f: &ContinuousField, hit: FieldHit, u: f64) -> Option<Site> {
     Some(s)
 }
 
-/// A free flight through a continuous field alone: the site and the optical depth walked before it.
-fn field_free_flight(f: &ContinuousField, ray: &RaySegment, u: f64) -> (Option<Site>, f64) {
-    let (hit, tau) = f.free_flight(ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln());
+/// A free flight through a continuous field alone: the site and the optical depth walked before it
+/// (0 unless `want_tau`).
+fn field_free_flight(f: &ContinuousField, ray: &RaySegment, u: f64, want_tau: bool) -> (Option<Site>, f64) {
+    let (hit, tau) = field_hit(f, ray, u, want_tau);
     (hit.and_then(|h| field_site(f, h, u)), tau)
+}
+
+/// Where a free flight through a field interacts, and the optical depth walked before it. Without
+/// `want_tau` (the native path never asks) by delta tracking against the field's majorant blocks, which
+/// gives no optical depth (0) but skips the cells crossed; with it, cell by cell. The two sample the
+/// same distribution from different random numbers.
+fn field_hit(f: &ContinuousField, ray: &RaySegment, u: f64, want_tau: bool) -> (Option<FieldHit>, f64) {
+    if want_tau {
+        return f.free_flight(ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln());
+    }
+    let mut k = 0u64;
+    let hit = f.sample_free_flight(ray, || {
+        k += 1;
+        uniform(u.to_bits(), FIELD_STREAM, 1 + k)
+    });
+    (hit, 0.0)
 }
 
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
@@ -857,13 +874,13 @@ impl DiscreteMedium {
         };
         let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
         if let Some(all) = self.grains_field_from(&parent) {
-            let (site, tau) = field_free_flight(all, &ray, u);
+            let (site, tau) = field_free_flight(all, &ray, u, want_tau);
             return (site, tau, from);
         }
-        // The continuous field first (one exponential per cell), then the particles up to its distance:
-        // the nearer of two independent processes' interactions (crate::render::continuous).
+        // The continuous field first, then the particles up to its distance: the nearer of two
+        // independent processes' interactions (crate::render::continuous).
         let (hit, tau_field) = match &self.field {
-            Some(f) => f.free_flight(&ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln()),
+            Some(f) => field_hit(f, &ray, u, want_tau),
             None => (None, 0.0),
         };
         let t_end = hit.map_or(t_max, |h| h.t);
