@@ -82,6 +82,7 @@ def test_default_criterion_by_regime():
     more classes continuous."""
     motes.set_variant("llvm_ad_rgb")
     med = {k: v for k, v in _two_sizes(20000, 16.0).items() if k != "continuous_count"}
+    med["storage"] = "full"  # to read the radii back
     data = _medium(_env_scene(med, 8, 1)).data
     r = data.radii_um
     assert 0 < data.continuous_particles == int(np.sum(r < 50))

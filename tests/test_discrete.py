@@ -20,7 +20,7 @@ def medium():
     idx = rng.integers(0, 2, n)
     radii = np.where(idx == 0, species[0].psd.sample(n, seed=1), species[1].psd.sample(n, seed=2))
     return motes.DiscreteMedium(pos, radii, idx, species, motes.RGB_WAVELENGTHS_UM, scale_m=1e-3,
-                                query_radius=0.01, size_bins=6)
+                                query_radius=0.01, size_bins=6, storage="full")
 
 
 def test_local_sigma_s_is_the_bulk_on_average(medium):

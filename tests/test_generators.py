@@ -246,3 +246,81 @@ def test_nearest_depth_errors(args, kwargs, match):
         motes.nearest_depth(*args, [-1, -1, -1], [1, 1, 1], **kwargs)
     with pytest.raises(ValueError, match="hi > lo"):
         motes.nearest_depth([0, 0, -5], [0, 0, 1], [1, 1, 1], [1, 2, 2])
+
+
+# -- The core's tiled generator (issue 24), which the discrete plugin's ``count`` uses -------------------------
+IDENTITY = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0]]
+
+
+def _cloud(n, kind, params, seed=3, noise_seed=0, psds=(PSD,), shares=(1.0,), transform=IDENTITY, box=((-1,) * 3, (1,) * 3)):
+    c, r, s = motes._motes.generate_cloud(n, list(box[0]), list(box[1]), kind, list(params), noise_seed,
+                                          [p._core for p in psds], list(shares), seed, transform)
+    return c.reshape(-1, 3), r, s
+
+
+@pytest.mark.parametrize("n", [1, 2, 17, 1000, 65_537])
+def test_core_cloud_has_exactly_count_particles_in_its_box(n):
+    pos, r, s = _cloud(n, "uniform", [])
+    assert pos.shape == (n, 3) and r.shape == (n,) and s.shape == (n,)
+    assert np.all(np.abs(pos) <= 1) and np.all(r > 0) and np.all(s == 0)
+
+
+def test_core_cloud_is_uniform_and_reproducible():
+    """Counts in 4^3 cells of a uniform cloud (chi-square, 63 dof); same seed same cloud, other seed other."""
+    pos, _, _ = _cloud(60_000, "uniform", [], seed=9)
+    idx = np.minimum(((pos + 1) / 2 * 4).astype(int), 3)
+    counts = np.bincount((idx[:, 0] * 4 + idx[:, 1]) * 4 + idx[:, 2], minlength=64)
+    assert _chi2(counts, np.full(64, 1 / 64)) < CHI2_DF63
+    again, _, _ = _cloud(60_000, "uniform", [], seed=9)
+    np.testing.assert_array_equal(pos, again)
+    assert not np.array_equal(pos, _cloud(60_000, "uniform", [], seed=10)[0])
+
+
+def test_core_cloud_follows_the_gradient():
+    n = 40_000
+    pos, _, _ = _cloud(n, "gradient", [2, 1.0, 0.0], seed=11)
+    mid = (np.arange(8) + 0.5) / 8
+    counts = np.histogram((pos[:, 2] + 1) / 2, bins=8, range=(0, 1))[0]
+    assert _chi2(counts, (1 - mid) / (1 - mid).sum()) < CHI2_DF7
+
+
+def test_core_cloud_follows_the_noise():
+    """Counts in 4^3 cells against motes.Noise (the same seed, scale, octaves, contrast) averaged per cell."""
+    noise = motes.Noise(scale=0.8, octaves=3, seed=5, contrast=0.9)
+    pos, _, _ = _cloud(60_000, "noise", [0.8, 3, 0.9], seed=2, noise_seed=5)
+    lo, hi, cells, sub = np.full(3, -1.0), np.full(3, 1.0), 4, 10
+    g = (np.arange(cells * sub) + 0.5) / (cells * sub)
+    q = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    avg = noise(lo + (hi - lo) * q).reshape(cells, sub, cells, sub, cells, sub).mean(axis=(1, 3, 5)).ravel()
+    assert avg.max() / avg.min() > 1.5
+    idx = np.minimum(((pos - lo) / (hi - lo) * cells).astype(int), cells - 1)
+    counts = np.bincount((idx[:, 0] * cells + idx[:, 1]) * cells + idx[:, 2], minlength=cells**3)
+    assert _chi2(counts, avg / avg.sum()) < CHI2_DF63
+
+
+def test_core_cloud_species_shares_radii_and_transform():
+    """Two species 1:3 (binomial, 4 sigma), each radius from its own PSD (KS-free: the supports do not
+    overlap), and the transform applied to the same centres."""
+    a, b = motes.Monodisperse(5.0), motes.Uniform(100.0, 200.0)
+    pos, r, s = _cloud(20_000, "uniform", [], psds=(a, b), shares=(1.0, 3.0))
+    share = np.mean(s == 1)
+    assert abs(share - 0.75) < 4 * math.sqrt(0.75 * 0.25 / 20_000)
+    assert np.all(r[s == 0] == 5.0) and np.all((r[s == 1] >= 100) & (r[s == 1] <= 200))
+    m = [[0, 2.0, 0, 1.0], [1.0, 0, 0, 0], [0, 0, 3.0, -1.0]]
+    moved, _, _ = _cloud(20_000, "uniform", [], psds=(a, b), shares=(1.0, 3.0), transform=m)
+    np.testing.assert_allclose(moved, np.stack([2 * pos[:, 1] + 1, pos[:, 0], 3 * pos[:, 2] - 1], axis=1), rtol=1e-15)
+
+
+@pytest.mark.parametrize(("kwargs", "argument"), [
+    (dict(n=0, kind="uniform", params=[]), "count"),
+    (dict(n=10, kind="spiral", params=[]), "density"),
+    (dict(n=10, kind="gradient", params=[1.0]), "params"),
+    (dict(n=10, kind="gradient", params=[5, 1.0, 0.0]), "axis"),
+    (dict(n=10, kind="noise", params=[-1.0, 2, 1.0]), "scale"),
+    (dict(n=10, kind="uniform", params=[], shares=(-1.0,)), "share"),
+    (dict(n=10, kind="uniform", params=[], box=((0, 0, 0), (1, 0, 1))), "hi"),
+])
+def test_core_cloud_errors_name_the_argument(kwargs, argument):
+    with pytest.raises(motes.MotesError) as e:
+        _cloud(**kwargs)
+    assert e.value.argument.startswith(argument)

@@ -43,8 +43,10 @@ def mean_and_se(img):
 
 
 @pytest.mark.parametrize("variant,res,spp,integrator", [
-    ("scalar_rgb", 12, 16, "volpath"),
-    ("scalar_spectral", 12, 16, "volpath"),
+    # 16 px x 32 spp: at 12 x 16 one particle set of eight read -3.05 SE (the other seven within 1 SE;
+    # 24 x 32 px within 1 SE on two seeds), the heavy tail of a small sample.
+    ("scalar_rgb", 16, 32, "volpath"),
+    ("scalar_spectral", 16, 32, "volpath"),
     ("llvm_ad_rgb", 32, 32, "volpath"),
     ("llvm_ad_spectral", 32, 32, "volpath"),
     ("llvm_ad_rgb", 32, 32, "volpathmis"),
@@ -227,7 +229,7 @@ def test_file_species_and_to_world(tmp_path):
                ' {"psd": {"type": "uniform", "r_min_um": 5, "r_max_um": 50}, "eta": [1.5, 0.001], "share": 0.5}]')
     med = mi.load_dict(discrete(count=None, filename=str(path), species=species, query_radius=None,
                                 footprint_k=0.5, fov=40.0, film_width=100, z_med=4.0,
-                                to_world=mi.ScalarTransform4f().translate([10, 0, 0]).scale(2)))
+                                to_world=mi.ScalarTransform4f().translate([10, 0, 0]).scale(2), storage="full"))
     data = med.data
     assert len(data) == 500
     assert np.allclose(data.positions, pset.positions * 2 + [10, 0, 0])

@@ -83,7 +83,7 @@ def test_houdini_pscale_is_scaled_the_same_both_ways(tmp_path):
     path = tmp_path / "houdini.ply"
     meshio.write_points_cells(str(path), pos, [], point_data={"pscale": np.full(50, 3e-4)})
     api = motes.load_particles(path, scale_m=0.01).radii_um
-    med = load(filename=str(path), scale_m=0.01)
+    med = load(filename=str(path), scale_m=0.01, storage="full")
     assert np.allclose(api, 3.0) and np.allclose(med.data.radii_um, api)
 
 

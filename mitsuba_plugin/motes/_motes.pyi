@@ -4,6 +4,8 @@ Every function takes flat float64 arrays of one common length (the Python layer 
 the GIL and runs in parallel. Invalid values raise ``MotesError`` (a ``ValueError``) naming the argument.
 """
 
+from typing import Sequence
+
 import numpy as np
 import numpy.typing as npt
 
@@ -56,8 +58,15 @@ class PhaseTable:
     def regular_mu(self, n: int) -> F64: ...
 def material_index(name: str, wavelength_um: F64) -> C128: ...
 def core_hash() -> str: ...
-def splitmix64(z: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
-    """SplitMix64's output for each state (rust/motes-core/src/rng.rs)."""
+def generate_cloud(count: int, lo: Sequence[float], hi: Sequence[float], kind: str, params: Sequence[float],
+                   noise_seed: int, psds: Sequence[Psd], shares: Sequence[float], seed: int,
+                   transform: Sequence[Sequence[float]]) -> tuple[F64, F64, npt.NDArray[np.uint32]]:
+    """Exactly ``count`` particles in [lo, hi] after a density (``kind`` "uniform"; "gradient" with params
+    [axis, start, end]; "noise" with params [scale, octaves, contrast] and ``noise_seed``), species by
+    ``shares`` with radii from ``psds``, centres through ``transform`` (3x4): flat centres (count*3), radii
+    (um), species indices (rust/motes-core/src/space/cloud.rs)."""
+def value_noise(points: F64, scale: float, octaves: int, seed: int, contrast: float) -> F64:
+    """fBm value noise v(x) in [0, 1] at points (n*3) (rust/motes-core/src/space/cloud.rs)."""
 def default_wavelengths() -> tuple[list[float], list[float]]: ...
 def simd_walk() -> str: ...
 

@@ -34,6 +34,13 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
                             see the grains' continuous equivalent (same extinction per cell and local
                             phase mixture; Müller et al. 2016, Sec. 4.3). Ignored when
                             ``continuous_count`` is inf, which makes the medium exact
+``storage``                 ``compact`` (default): each particle is a class of its optics bin and one of
+                            1024 radius levels per bin (radii move by at most half a level, 2e-4 for a
+                            bin 1.5 wide), 4 bytes per particle for its optics instead of 17, and the
+                            per-particle arrays below are not kept; ``full``: every particle's radius
+                            as given, and ``positions``, ``radii_um``, ``species_index``,
+                            ``particle_bin``, ``c_ext_scene`` kept for inspection
+                            (``rust/motes-core/src/render/storage.rs``)
 ``seed``                    seed of the free-flight random numbers
 ``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
                             default: the physical one)
@@ -70,6 +77,9 @@ DEFAULT_GRAIN_DEPTH: int = _motes.DEFAULT_GRAIN_DEPTH
 #: A query radius that tau_max overrides for more than this share of the particles raises a warning (a few
 #: of the largest grains in a log-normal tail are widened silently: they change nothing a user could see).
 WIDENED_WARN_SHARE: float = 1e-3
+#: How a medium stores its particles (module docs): ``compact`` (default) or ``full``.
+STORAGES = ("compact", "full")
+DEFAULT_STORAGE = "compact"
 
 
 def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
@@ -89,7 +99,9 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     n = pos.shape[0]
     _memory.require(_memory.BYTES_PER_PARTICLE * n, f"a discrete medium of {n} particles")
     r = np.asarray(radii_um, dtype=np.float64).ravel()
-    idx = np.asarray(species_index, dtype=np.int64).ravel()
+    idx = np.asarray(species_index).ravel()
+    if idx.dtype.kind not in "iu":  # kept in its integer type: an int64 copy of 1e8 indices is 800 MB
+        idx = idx.astype(np.int64)
     if r.size != n or idx.size != n:
         raise ValueError(f"radii_um and species_index must have one entry per particle ({n})")
     if isinstance(species, Species):
@@ -97,7 +109,7 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     species = list(species)
     if not species or not all(isinstance(s, Species) for s in species):
         raise ValueError("species must be a Species or a non-empty list of Species")
-    if idx.min() < 0 or idx.max() >= len(species):
+    if idx.size and (int(idx.min()) < 0 or int(idx.max()) >= len(species)):
         bad = int(np.flatnonzero((idx < 0) | (idx >= len(species)))[0])
         raise ValueError(f"species_index[{bad}] = {idx[bad]}: unknown species (have {len(species)})")
     lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
@@ -132,7 +144,11 @@ class DiscreteMedium:
                  query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0, method: str = "auto",
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
-                 continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH):
+                 continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
+                 storage: str = DEFAULT_STORAGE):
+        if storage not in STORAGES:
+            raise ValueError(f"invalid storage = {storage!r}: must be one of {', '.join(STORAGES)}")
+        self.storage = storage
         if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
         pos, r, idx, species, lam_in, lam = _checked_inputs(
@@ -163,17 +179,23 @@ class DiscreteMedium:
         t_tables = t_said = time.perf_counter()
         goa_cache = _motes.GoaCache()  # shared by this medium's bins, dropped after the build
         for k, sp in enumerate(species):
-            sel = np.flatnonzero(idx == k)
-            if sel.size == 0:
+            # One species (the common case): every particle, without index arrays (1e8 particles).
+            sel = slice(None) if len(species) == 1 else np.flatnonzero(idx == k)
+            rs = r[sel]
+            if rs.size == 0:
                 continue
-            edges = _bins(r[sel], size_bins)
-            which = np.clip(np.searchsorted(edges, r[sel], side="right") - 1, 0, max(edges.size - 2, 0))
-            for b in np.unique(which):
+            edges = _bins(rs, size_bins)
+            which = np.searchsorted(edges, rs, side="right")
+            which -= 1
+            np.clip(which, 0, max(edges.size - 2, 0), out=which)
+            del rs
+            global_bin = np.zeros(max(edges.size - 1, 1), dtype=np.uint32)
+            bin_q = np.zeros(global_bin.size)
+            for b in np.flatnonzero(np.bincount(which, minlength=global_bin.size)):
                 lo, hi = float(edges[b]), float(edges[b + 1])
                 q_t, bulk = _bin_optics(sp, lo, hi, lam, eta_medium, method, truncate_below_rad, goa_cache)
-                members = sel[which == b]
-                bin_of[members] = nb
-                q_ext[members] = float(np.mean(q_t))
+                global_bin[b] = nb
+                bin_q[b] = float(np.mean(q_t))
                 albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if albedo is None else np.full(lam.size, float(albedo)))
                 for row in bulk["phase"]:
                     theta.append(bulk["theta"])
@@ -187,6 +209,9 @@ class DiscreteMedium:
                 if time.perf_counter() - t_said > 1.0:  # long builds say where they are, once a second
                     t_said = time.perf_counter()
                     log.info("optics tables: %d bins so far (species %d), %.1f s", nb, k, t_said - t_tables)
+            bin_of[sel] = global_bin[which]
+            q_ext[sel] = bin_q[which]
+            del which
         log.info("optics tables: %d bins in %.1f s", nb, time.perf_counter() - t_tables)
         self.n_bins = nb
         return bin_of, q_ext, (albedos, theta, f, offsets)
@@ -198,18 +223,21 @@ class DiscreteMedium:
         albedos, theta, f, offsets = tables
         t_grid = time.perf_counter()
         um = 1e-6 / scale_m
-        c_ext = np.pi * r * r * q_ext * um * um
+        c_ext = r * r  # in place from here: each temporary of 1e8 particles is 800 MB
+        c_ext *= q_ext
+        c_ext *= np.pi * um * um
+        del q_ext
         self.scale_m = float(scale_m)
         self.query_radius = float(query_radius)
         self.wavelength_um = lam
         #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         self._core = _motes.DiscreteMedium(
-            pos.ravel(), np.ascontiguousarray(r * um), np.ascontiguousarray(c_ext), bin_of,
+            pos.ravel(), r * um, c_ext, bin_of,
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
-            float(continuous_count), int(seed) & (2**64 - 1))
+            float(continuous_count), int(seed) & (2**64 - 1), self.storage)
         log.info("grid: %d particles, %.1f MB, %.1f s", n, self._core.bytes / 1e6, time.perf_counter() - t_grid)
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened
@@ -223,13 +251,15 @@ class DiscreteMedium:
             warnings.warn(f"query_radius = {query_radius:g} would give {self.widened} of {n} particles an optical "
                           f"depth above tau_max = {tau_max:g} (up to {tau:.3g}); their disks were widened to keep it "
                           "below (see the tau_max parameter)", stacklevel=3)
-        self.positions = pos
-        self.species_index = idx
-        #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo).
-        self.particle_bin = bin_of
-        self.radii_um = r
-        self.c_ext_scene = c_ext
         lo_, hi_ = pos.min(axis=0), pos.max(axis=0)
+        # Per-particle arrays only where the user asked for full storage (at 1e8 particles they are 5 GB).
+        full = self.storage == "full"
+        self.positions = pos if full else None
+        self.species_index = idx if full else None
+        #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo); full storage only.
+        self.particle_bin = bin_of if full else None
+        self.radii_um = r if full else None
+        self.c_ext_scene = c_ext if full else None
         #: The box of the particles' centres (scene units).
         self.centre_box = (lo_, hi_)
         reach = float(self._core.reach_max)

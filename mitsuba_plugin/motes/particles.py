@@ -209,11 +209,6 @@ class Gradient:
         return np.clip(d, min(self.start, self.end), max(self.start, self.end))
 
 
-def _mix(z: np.ndarray) -> np.ndarray:
-    """SplitMix64's output of each uint64 state (the core's one implementation, ``motes_core::rng``)."""
-    return _motes.splitmix64(np.ascontiguousarray(z, dtype=np.uint64))
-
-
 class Noise:
     """Preset density for ``density_box``: smooth procedural fBm value noise, deterministic from ``seed``.
 
@@ -237,33 +232,14 @@ class Noise:
         self.contrast = _finite(contrast, "contrast")
         if self.contrast < 0:
             raise ValueError(f"contrast must be >= 0, got {contrast!r}")
-        # a random lattice offset per octave, so that octaves do not share lattice points
-        self._offsets = np.random.default_rng([self.seed, 0x6E6F697365]).random((self.octaves, 3))
-
     def __repr__(self) -> str:
         return f"Noise(scale={self.scale}, octaves={self.octaves}, seed={self.seed}, contrast={self.contrast})"
 
     def value(self, positions) -> np.ndarray:
-        """v(x) in [0, 1], shape (m,)."""
-        p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-        total = np.zeros(p.shape[0])
-        weights = 0.5 ** np.arange(self.octaves)
-        for o in range(self.octaves):  # loop over octaves only; vectorised over positions
-            q = p * (2.0**o / self.scale) + self._offsets[o]
-            i = np.floor(q)
-            f = q - i
-            w = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
-            i = i.astype(np.int64).view(np.uint64)
-            base = _mix(np.full(p.shape[0], np.uint64(self.seed)) ^ np.uint64(o + 1))
-            acc = np.zeros(p.shape[0])
-            for corner in range(8):
-                c = [(corner >> a) & 1 for a in range(3)]
-                h = _mix(_mix(_mix(base ^ (i[:, 0] + np.uint64(c[0]))) ^ (i[:, 1] + np.uint64(c[1]))) ^ (i[:, 2] + np.uint64(c[2])))
-                val = (h >> np.uint64(11)).astype(np.float64) * 2.0**-53
-                wt = np.prod([w[:, a] if c[a] else 1.0 - w[:, a] for a in range(3)], axis=0)
-                acc += wt * val
-            total += weights[o] * acc
-        return np.clip(total / weights.sum(), 0.0, 1.0)
+        """v(x) in [0, 1], shape (m,) (computed in the core: ``motes_core::space::cloud::ValueNoise``, the
+        same noise the ``discrete`` plugin's ``distribution="noise"`` generates from)."""
+        p = np.ascontiguousarray(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
+        return _motes.value_noise(p.ravel(), self.scale, self.octaves, self.seed, 1.0)
 
     def __call__(self, positions) -> np.ndarray:
         return np.clip(1.0 + self.contrast * (2.0 * self.value(positions) - 1.0), 0.0, 1.0 + self.contrast)

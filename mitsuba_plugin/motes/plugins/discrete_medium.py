@@ -10,7 +10,9 @@ Parameter               Type       Meaning (default)
                                    generated in the local cube [-1, 1]^3:
 ``count``               integer    number of generated particles (10000)
 ``distribution``        string     ``uniform``, ``gradient`` (concentration falling linearly along
-                                   local +z) or ``noise`` (fBm noise, scale 0.5) (``uniform``)
+                                   local +z) or ``noise`` (fBm noise, scale 0.5) (``uniform``).
+                                   Generated in the core tile by tile (``seed`` fixes every grain
+                                   whatever the thread count; ``rust/motes-core/src/space/cloud.rs``)
 ``radius_median``       float      log-normal PSD of the radii: median in um (20)
 ``radius_sigma_g``      float      log-normal geometric standard deviation, >= 1 (1.5)
 ``psd``                 string     any PSD as JSON, e.g. ``{"type": "uniform", "r_min_um": 5,
@@ -38,6 +40,10 @@ Parameter               Type       Meaning (default)
                                    scattering event, and see their continuous equivalent after (1:
                                    grains are seen where a path meets them first; ignored when
                                    ``continuous_count`` is inf, which keeps every ray exact)
+``storage``             string     ``compact``: each particle is a class (its optics bin and one of 1024
+                                   radius levels per bin; radii move by at most half a level), 4 bytes
+                                   of optics per particle; ``full``: radii as given, 17 bytes
+                                   (``compact``; see ``motes.DiscreteMedium``)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
 ``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
@@ -117,10 +123,10 @@ import numpy as np
 
 from ..discrete import DiscreteMedium, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
-from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH, DEFAULT_TAU_MAX
+from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH, DEFAULT_STORAGE, DEFAULT_TAU_MAX, STORAGES
 from ..particle_io import load_particles
-from ..particles import Gradient, Noise, density_box, query_radius_from_camera, uniform_box
-from .. import _memory
+from ..particles import query_radius_from_camera
+from .. import _memory, _motes
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 
@@ -153,7 +159,7 @@ class DiscreteMediumPlugin:
                                    truncate_below_rad=truncate if truncate > 0 else None,
                                    cells_per_particle=p.cells, seed=p.seed, albedo=p.albedo, tau_max=p.tau_max,
                                    warn_widened=user_radius, continuous_count=p.continuous,
-                                   grain_depth=p.grain_depth)
+                                   grain_depth=p.grain_depth, storage=p.storage)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
@@ -276,8 +282,9 @@ def _read_parameters(props) -> SimpleNamespace:
     p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
+    p.storage = _get(props, "storage", DEFAULT_STORAGE, str, lambda v: v in STORAGES, "one of " + ", ".join(STORAGES))
     p.wavelengths = _get(props, "wavelengths", None, str)
-    p.seed = _get(props, "seed", 0, int, lambda v: v >= 0, "an integer >= 0")
+    p.seed = _get(props, "seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
     p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
     p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
     return p
@@ -356,16 +363,17 @@ def _species_entry(e: dict, i: int) -> Species:
 def _particles(p: SimpleNamespace, props, species: list):
     """Positions (scene units, after ``to_world``), radii (um) and species indices: read from ``filename`` or generated."""
     t_particles = time.perf_counter()
-    if p.filename is not None:
-        pos, radii, sidx = _read_particles(p, props, species)
-    else:
-        pos, radii, sidx = _generated_particles(p, species)
-    log.info("particles: %d %s in %.1f s", len(pos), "read" if p.filename is not None else "generated",
-             time.perf_counter() - t_particles)
     m = np.array(p.to_world.matrix, dtype=np.float64)
     if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
         raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
-    return pos @ m[:3, :3].T + m[:3, 3], radii, sidx
+    if p.filename is not None:
+        pos, radii, sidx = _read_particles(p, props, species)
+        pos = pos @ m[:3, :3].T + m[:3, 3]
+    else:
+        pos, radii, sidx = _generated_particles(p, species, m)
+    log.info("particles: %d %s in %.1f s", len(pos), "read" if p.filename is not None else "generated",
+             time.perf_counter() - t_particles)
+    return pos, radii, sidx
 
 
 def _read_particles(p: SimpleNamespace, props, species: list):
@@ -385,25 +393,22 @@ def _read_particles(p: SimpleNamespace, props, species: list):
     return pset.positions, pset.radii_um, pset.species
 
 
-def _generated_particles(p: SimpleNamespace, species: list):
-    """``count`` particles in the local cube [-1, 1]^3 after ``distribution``: positions, radii (um), species indices."""
-    count, seed = p.count, p.seed
-    lo, hi = np.full(3, -1.0), np.full(3, 1.0)
-    shares = np.array([s.share for s in species], dtype=np.float64)
-    if not np.all(shares >= 0) or shares.sum() <= 0:
+#: ``distribution`` -> the core's density (``motes_core::space::cloud``) and its parameters: a gradient from
+#: 1 on the local cube's z = -1 face to 0 on z = 1; fBm noise of scale 0.5 (4 octaves, contrast 1).
+_DENSITIES = {"uniform": ("uniform", []), "gradient": ("gradient", [2, 1.0, 0.0]), "noise": ("noise", [0.5, 4, 1.0])}
+
+
+def _generated_particles(p: SimpleNamespace, species: list, to_world: np.ndarray):
+    """``count`` particles in the local cube [-1, 1]^3 after ``distribution``, mapped by ``to_world``
+    (generated in the core, tile by tile: ``motes_core::space::cloud``): positions, radii (um), species."""
+    shares = [float(s.share) for s in species]
+    if not all(v >= 0 for v in shares) or sum(shares) <= 0:
         raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
-    rng = np.random.default_rng(seed)
-    sidx = rng.choice(len(species), size=count, p=shares / shares.sum())
-    radii = np.empty(count)
-    for i, s in enumerate(species):
-        sel = sidx == i
-        radii[sel] = s.psd.sample(int(sel.sum()), seed=seed + 7919 * (i + 1)) if sel.any() else 0
-    if p.distribution == "uniform":
-        pos, _ = uniform_box(count, lo, hi, species[0].psd, seed=seed)
-    else:
-        density = Gradient(axis=2, start=1.0, end=0.0) if p.distribution == "gradient" else Noise(scale=0.5, seed=seed)
-        pos, _ = density_box(count, lo, hi, density, species[0].psd, seed=seed)
-    return pos, radii, sidx
+    kind, params = _DENSITIES[p.distribution]
+    pos, radii, sidx = _motes.generate_cloud(p.count, [-1.0] * 3, [1.0] * 3, kind, params, p.seed,
+                                             [s.psd._core for s in species], shares, p.seed,
+                                             to_world[:3, :4].tolist())
+    return pos.reshape(-1, 3), radii, sidx
 
 
 def _query_radius(p: SimpleNamespace, pos: np.ndarray):

@@ -68,6 +68,17 @@ pub(crate) fn points(flat: &F64In) -> PyResult<Vec<[f64; 3]>> {
     Ok(triples(p))
 }
 
+/// Particle positions from a flat (n*3) array, borrowed (for work done with the GIL held: a build that
+/// must not copy 10^8 positions).
+pub(crate) fn points_view(flat: &[f64]) -> PyResult<&[[f64; 3]]> {
+    if flat.len() % 3 != 0 {
+        return Err(PyValueError::new_err("positions must have shape (n, 3)"));
+    }
+    // SAFETY: [f64; 3] is three f64 without padding and with f64's alignment, so n*3 contiguous f64
+    // are n contiguous [f64; 3]; the borrow keeps `flat`'s lifetime.
+    Ok(unsafe { std::slice::from_raw_parts(flat.as_ptr() as *const [f64; 3], flat.len() / 3) })
+}
+
 /// Positions, radii and extinction cross sections of a particle set.
 pub(crate) type ParticleColumns = (Vec<[f64; 3]>, Vec<f64>, Vec<f64>);
 

@@ -3,6 +3,7 @@
 //! topic: [`optics`], [`psd`], [`ensemble`], [`grid`], [`medium`]; [`convert`] holds the boundary's
 //! conversions and the error type, [`interrupt`] Ctrl-C, [`native`] the native render path's C ABI.
 
+mod cloud;
 mod convert;
 mod ensemble;
 mod grid;
@@ -19,19 +20,6 @@ use pyo3::prelude::*;
 #[pyfunction]
 fn core_hash() -> &'static str {
     env!("MOTES_CORE_HASH")
-}
-
-/// SplitMix64's output (`motes_core::rng::splitmix64`) of each uint64 state: the one implementation of
-/// the hash, for the procedural densities of the Python layer (`motes.Noise`).
-#[pyfunction]
-fn splitmix64<'py>(
-    py: Python<'py>,
-    z: numpy::PyReadonlyArray1<'py, u64>,
-) -> Bound<'py, numpy::PyArray1<u64>> {
-    use numpy::IntoPyArray;
-    z.as_array()
-        .mapv(motes_core::rng::splitmix64)
-        .into_pyarray(py)
 }
 
 /// The particle walk this CPU runs: "avx2" (AVX2 + FMA, eight spheres per pre-test) or "sse"
@@ -70,7 +58,8 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(core_hash, m)?)?;
     m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;
     m.add_function(wrap_pyfunction!(simd_walk, m)?)?;
-    m.add_function(wrap_pyfunction!(splitmix64, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::generate_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::value_noise, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::exit_on_wakeup, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::set_exit_message, m)?)?;
     m.add_function(wrap_pyfunction!(medium::check_discrete_inputs, m)?)?;

@@ -33,8 +33,10 @@ impl PyDiscreteMedium {
     /// positions (n*3), radius (n), c_ext (n, grey) in scene units; bin (n) into the bins; albedo
     /// (bins*K); phase tables as flat theta/f with offsets (bins*K + 1); lambda (K, increasing);
     /// tau_max caps each particle's optical depth by widening its disk (inf: no cap); size classes with
-    /// at least continuous_count particles per query cylinder are sampled as a continuous medium.
+    /// at least continuous_count particles per query cylinder are sampled as a continuous medium;
+    /// storage "compact" (per-class optics, quantised radii) or "full" (`motes_core::render::storage`).
     #[new]
+    #[pyo3(signature = (positions, radius, c_ext, bin, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, storage="full"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -52,29 +54,34 @@ impl PyDiscreteMedium {
         cells_per_particle: f64,
         continuous_count: f64,
         seed: u64,
+        storage: &str,
     ) -> PyResult<Self> {
+        let storage = motes_core::render::storage::Storage::parse(storage).map_err(to_py)?;
         let lam = lambda.as_slice()?.to_vec();
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
-        let (pos, r, c) = particle_columns(&positions, &radius, &c_ext)?;
-        // Copied: the build reads it with the GIL released (see `convert`'s module docs).
-        let b = bin.as_slice()?.to_vec();
-        let medium = py
-            .detach(|| {
-                motes_core::render::discrete::DiscreteMedium::build(
-                    &pos,
-                    &r,
-                    &c,
-                    b,
-                    bins,
-                    lam,
-                    query_radius,
-                    tau_max,
-                    cells_per_particle,
-                    continuous_count,
-                    seed,
-                )
-            })
-            .map_err(to_py)?;
+        // Borrowed, not copied (10^8 particles: 4 GB): the build holds the GIL instead of releasing it,
+        // so no Python thread can change the arrays under it (its rayon workers need no GIL).
+        let (pos, r, c) = (
+            points_view(positions.as_slice()?)?,
+            radius.as_slice()?,
+            c_ext.as_slice()?,
+        );
+        let _ = py;
+        let medium = motes_core::render::discrete::DiscreteMedium::build(
+            pos,
+            r,
+            c,
+            bin.as_slice()?.to_vec(),
+            bins,
+            lam,
+            query_radius,
+            tau_max,
+            cells_per_particle,
+            continuous_count,
+            seed,
+            storage,
+        )
+        .map_err(to_py)?;
         Ok(PyDiscreteMedium {
             widened: medium.widened(),
             tau_max: medium.tau_max(),
@@ -403,7 +410,7 @@ pub(crate) fn check_discrete_inputs(
     continuous_count: f64,
 ) -> PyResult<()> {
     motes_core::render::discrete::check_particles_and_settings(
-        &points(&positions)?,
+        points_view(positions.as_slice()?)?,
         radius.as_slice()?,
         query_radius,
         tau_max,

@@ -14,6 +14,13 @@ pub(crate) struct PyPsd {
     psd: motes_core::Psd,
 }
 
+impl PyPsd {
+    /// The core distribution.
+    pub(crate) fn inner(&self) -> &motes_core::Psd {
+        &self.psd
+    }
+}
+
 #[pymethods]
 impl PyPsd {
     #[new]

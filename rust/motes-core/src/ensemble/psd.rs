@@ -64,6 +64,37 @@ fn std_normal() -> Normal {
     Normal::new(0.0, 1.0).expect("standard normal")
 }
 
+/// Radii from uniform numbers, as [`Psd::draw`] gives them (see [`Psd::sampler`]).
+pub(crate) enum RadiusSampler<'a> {
+    LogNormal {
+        median_um: f64,
+        ln_sigma: f64,
+        z: (f64, f64),
+        cdf: (f64, f64),
+        normal: Normal,
+    },
+    Any(&'a Psd),
+}
+
+impl RadiusSampler<'_> {
+    pub(crate) fn draw(&self, u_pick: f64, u: f64) -> f64 {
+        match self {
+            RadiusSampler::LogNormal {
+                median_um,
+                ln_sigma,
+                z,
+                cdf,
+                normal,
+            } => {
+                let p = (cdf.0 + u.clamp(0.0, 1.0) * (cdf.1 - cdf.0))
+                    .clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON);
+                median_um * (normal.inverse_cdf(p).clamp(z.0, z.1) * ln_sigma).exp()
+            }
+            RadiusSampler::Any(psd) => psd.draw(u_pick, u),
+        }
+    }
+}
+
 impl Psd {
     /// Parse and validate a JSON spec.
     pub fn from_json(spec: &str) -> Result<Self, OpticsError> {
@@ -386,9 +417,31 @@ impl Psd {
         }
     }
 
+    /// A sampler of this distribution's radii that draws exactly what [`Self::draw`] draws, with the
+    /// truncated log-normal's bound CDFs computed once instead of per radius (two of its three normal
+    /// CDF evaluations: ~3x faster on generated clouds).
+    pub(crate) fn sampler(&self) -> RadiusSampler<'_> {
+        match self {
+            Psd::LogNormal {
+                median_um, sigma_g, ..
+            } if *sigma_g != 1.0 => {
+                let (lo, hi) = self.lognormal_z();
+                let n = std_normal();
+                RadiusSampler::LogNormal {
+                    median_um: *median_um,
+                    ln_sigma: sigma_g.ln(),
+                    z: (lo, hi),
+                    cdf: (n.cdf(lo), n.cdf(hi)),
+                    normal: n,
+                }
+            }
+            _ => RadiusSampler::Any(self),
+        }
+    }
+
     /// One radius from uniform numbers: a mixture first picks its component by weight (`u_pick`),
     /// then the component inverts its CDF at `u`.
-    fn draw(&self, u_pick: f64, u: f64) -> f64 {
+    pub(crate) fn draw(&self, u_pick: f64, u: f64) -> f64 {
         match self {
             Psd::Mixture {
                 weights,

@@ -20,6 +20,7 @@
 use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{bounding_box, size_class};
 use crate::space::ray::RaySegment;
+use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// Default number of a class's particles a query cylinder must hold (over one mean free path, or
@@ -141,30 +142,32 @@ impl ContinuousField {
                 [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell[a]).max(0.0) as usize).min(dims[a] - 1));
             (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
         };
-        let which: Vec<usize> = positions.iter().map(cell_of).collect();
+        // Counting sort by cell, in u32 (the field takes at most 2^32 particles, as the grid does).
+        let which: Vec<u32> = positions.par_iter().map(|p| cell_of(p) as u32).collect();
         let mut start = vec![0u32; n_cells + 1];
         for &c in &which {
-            start[c + 1] += 1;
+            start[c as usize + 1] += 1;
         }
         for c in 0..n_cells {
             start[c + 1] += start[c];
         }
         let mut fill = start.clone();
-        let mut order = vec![0usize; n];
+        let mut order = vec![0u32; n];
         for (i, &c) in which.iter().enumerate() {
-            order[fill[c] as usize] = i;
-            fill[c] += 1;
+            order[fill[c as usize] as usize] = i as u32;
+            fill[c as usize] += 1;
         }
+        drop((which, fill));
         let cell_volume = cell[0] * cell[1] * cell[2];
         let mut sigma = vec![0f32; n_cells];
         let mut cdf = vec![0f32; n];
         for c in 0..n_cells {
             let (a, b) = (start[c] as usize, start[c + 1] as usize);
-            let total: f64 = order[a..b].iter().map(|&i| weight[i]).sum();
+            let total: f64 = order[a..b].iter().map(|&i| weight[i as usize]).sum();
             sigma[c] = (total / cell_volume) as f32;
             let mut acc = 0.0;
             for j in a..b {
-                acc += weight[order[j]];
+                acc += weight[order[j] as usize];
                 cdf[j] = if total > 0.0 {
                     (acc / total) as f32
                 } else {
@@ -172,7 +175,7 @@ impl ContinuousField {
                 };
             }
         }
-        let particle = order.iter().map(|&i| ids[i]).collect();
+        let particle = order.iter().map(|&i| ids[i as usize]).collect();
         let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
         ContinuousField {
             frame: GridFrame::new(lo, cell, dims),
@@ -200,7 +203,11 @@ impl ContinuousField {
     }
     /// Heap bytes.
     pub fn bytes(&self) -> usize {
-        (self.sigma.len() + self.start.len() + self.particle.len() + self.cdf.len() + self.majorant.len())
+        (self.sigma.len()
+            + self.start.len()
+            + self.particle.len()
+            + self.cdf.len()
+            + self.majorant.len())
             * 4
     }
 
@@ -208,7 +215,11 @@ impl ContinuousField {
     /// tracking; pbrt-v4's majorant grid): tentative collisions at the rate of each block's majorant,
     /// accepted with probability σ_t / majorant. Costs one σ_t lookup per tentative collision instead of
     /// one exponential per cell crossed, but gives no optical depth. `next_u` supplies uniforms in [0, 1).
-    pub fn sample_free_flight(&self, ray: &RaySegment, mut next_u: impl FnMut() -> f64) -> Option<FieldHit> {
+    pub fn sample_free_flight(
+        &self,
+        ray: &RaySegment,
+        mut next_u: impl FnMut() -> f64,
+    ) -> Option<FieldHit> {
         for b in Dda::new(&self.block_frame, ray) {
             let m = self.majorant[b.index] as f64;
             if m <= 0.0 {
@@ -222,7 +233,9 @@ impl ContinuousField {
                 }
                 let p = [0, 1, 2].map(|a| ray.o[a] + t * ray.d[a]);
                 // Outside the field's box (blocks reach past it): σ_t = 0, a null collision.
-                let Some(cell) = self.cell_at(p) else { continue };
+                let Some(cell) = self.cell_at(p) else {
+                    continue;
+                };
                 if next_u() * m < self.sigma[cell] as f64 {
                     return Some(FieldHit { t, cell });
                 }
@@ -290,14 +303,20 @@ impl ContinuousField {
 
 /// The majorant blocks over cells `dims` of edge `cell` from `lo`: their frame and the largest σ_t of
 /// each block's cells.
-fn block_majorants(lo: [f64; 3], cell: [f64; 3], dims: [usize; 3], sigma: &[f32]) -> (GridFrame, Vec<f32>) {
+fn block_majorants(
+    lo: [f64; 3],
+    cell: [f64; 3],
+    dims: [usize; 3],
+    sigma: &[f32],
+) -> (GridFrame, Vec<f32>) {
     let bd = dims.map(|n| n.div_ceil(MAJORANT_BLOCK));
     let mut majorant = vec![0f32; bd[0] * bd[1] * bd[2]];
     for z in 0..dims[2] {
         for y in 0..dims[1] {
             for x in 0..dims[0] {
                 let s = sigma[(z * dims[1] + y) * dims[0] + x];
-                let b = ((z / MAJORANT_BLOCK) * bd[1] + y / MAJORANT_BLOCK) * bd[0] + x / MAJORANT_BLOCK;
+                let b = ((z / MAJORANT_BLOCK) * bd[1] + y / MAJORANT_BLOCK) * bd[0]
+                    + x / MAJORANT_BLOCK;
                 majorant[b] = majorant[b].max(s);
             }
         }
@@ -403,7 +422,10 @@ mod tests {
                 let expect = 1.0 - (-f.optical_depth(&ray.between(ray.t0, t))).exp();
                 let got = times.iter().filter(|&&x| x < t).count() as f64 / trials as f64;
                 let se = (expect * (1.0 - expect) / trials as f64).sqrt().max(1e-4);
-                assert!((got - expect).abs() < 5.0 * se, "t = {t}: {got} vs {expect}");
+                assert!(
+                    (got - expect).abs() < 5.0 * se,
+                    "t = {t}: {got} vs {expect}"
+                );
             }
         }
     }

@@ -72,6 +72,7 @@
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, ContinuousField, FieldHit};
+use crate::render::storage::{classes, ParticleOptics, Storage};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
 use crate::space::grid::{
@@ -273,7 +274,12 @@ fn field_site(f: &ContinuousField, hit: FieldHit, u: f64) -> Option<Site> {
 
 /// A free flight through a continuous field alone: the site and the optical depth walked before it
 /// (0 unless `want_tau`).
-fn field_free_flight(f: &ContinuousField, ray: &RaySegment, u: f64, want_tau: bool) -> (Option<Site>, f64) {
+fn field_free_flight(
+    f: &ContinuousField,
+    ray: &RaySegment,
+    u: f64,
+    want_tau: bool,
+) -> (Option<Site>, f64) {
     let (hit, tau) = field_hit(f, ray, u, want_tau);
     (hit.and_then(|h| field_site(f, h, u)), tau)
 }
@@ -282,7 +288,12 @@ fn field_free_flight(f: &ContinuousField, ray: &RaySegment, u: f64, want_tau: bo
 /// `want_tau` (the native path never asks) by delta tracking against the field's majorant blocks, which
 /// gives no optical depth (0) but skips the cells crossed; with it, cell by cell. The two sample the
 /// same distribution from different random numbers.
-fn field_hit(f: &ContinuousField, ray: &RaySegment, u: f64, want_tau: bool) -> (Option<FieldHit>, f64) {
+fn field_hit(
+    f: &ContinuousField,
+    ray: &RaySegment,
+    u: f64,
+    want_tau: bool,
+) -> (Option<FieldHit>, f64) {
     if want_tau {
         return f.free_flight(ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln());
     }
@@ -351,18 +362,12 @@ pub struct DiscreteMedium {
     grid: Option<ParticleGrid>,
     /// The size classes no pixel resolves, sampled as a continuous medium (None when there are none).
     field: Option<ContinuousField>,
-    /// Whether each particle (original index) lives in `field`.
-    in_field: Vec<bool>,
-    /// Grey optical depth of each particle's disk, −ln(1 − x_i) (original index; module docs).
-    tau: Vec<f32>,
-    /// Inclusion radius R_i = max(r_c + r_i, floor) of each particle (original index), scene units.
-    reach: Vec<f32>,
-    /// Grey extinction cross section C_t,i of each particle (original index), scene units².
-    c_ext: Vec<f32>,
+    /// Each particle's disk (R_i = max(r_c + r_i, floor), τ_i = −ln(1 − x_i); module docs), C_t,i,
+    /// optics bin and whether it lives in `field`, by original index, per particle or per class
+    /// (`crate::render::storage`).
+    optics: ParticleOptics,
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
     widened: usize,
-    /// Optics bin of each particle (original index into `bins`).
-    bin: Vec<u32>,
     bins: Vec<BinOptics>,
     /// Tabulated wavelengths, increasing (any unit; the caller's channel wavelengths use the same).
     lambda: Vec<f64>,
@@ -521,16 +526,24 @@ fn build_walk(
         );
         Some(g.with_indices(&discrete_ids))
     };
-    let field = (!field_ids.is_empty()).then(|| {
-        let pos: Vec<[f64; 3]> = field_ids.iter().map(|&i| positions[i as usize]).collect();
-        // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not
-        // by τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs).
-        ContinuousField::build(
-            &pos,
-            &pick(&field_ids, reach),
-            &pick(&field_ids, c_ext),
-            &field_ids,
-        )
+    let field = if discrete_ids.is_empty() {
+        // Every particle continuous: no subset to copy.
+        Some(ContinuousField::build(positions, reach, c_ext, &field_ids))
+    } else {
+        None
+    };
+    let field = field.or_else(|| {
+        (!field_ids.is_empty()).then(|| {
+            let pos: Vec<[f64; 3]> = field_ids.iter().map(|&i| positions[i as usize]).collect();
+            // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not
+            // by τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs).
+            ContinuousField::build(
+                &pos,
+                &pick(&field_ids, reach),
+                &pick(&field_ids, c_ext),
+                &field_ids,
+            )
+        })
     });
     (grid, field, keep)
 }
@@ -596,18 +609,6 @@ pub struct PhaseEvalLane {
     pub wo: [f32; 3],
 }
 
-/// The grid reaches r_c + radius and spreads c / (π reach²): the widened disks (R, τ) handed to it as
-/// radii and cross sections τ π R², so that it walks exactly these disks.
-fn grid_disks(disks: &[(f64, f64)], radius: &[f64], query_radius: f64) -> (Vec<f64>, Vec<f64>) {
-    let grid_radius = disks
-        .iter()
-        .zip(radius)
-        .map(|(d, &r)| (d.0 - query_radius).max(r))
-        .collect();
-    let grid_c = disks.iter().map(|&(r, t)| t * PI * r * r).collect();
-    (grid_radius, grid_c)
-}
-
 impl DiscreteMedium {
     /// `positions` and `radius` in scene units, `c_ext` the grey extinction cross section per particle
     /// (scene units²), `bin` each particle's index into `bins`, `lambda` the tabulated wavelengths
@@ -628,6 +629,7 @@ impl DiscreteMedium {
         cells_per_particle: f64,
         continuous_count: f64,
         seed: u64,
+        storage: Storage,
     ) -> Result<Self, OpticsError> {
         check_build_inputs(
             positions,
@@ -642,43 +644,99 @@ impl DiscreteMedium {
             continuous_count,
         )?;
         let n = positions.len();
-        let disks: Vec<(f64, f64)> = (0..n)
-            .map(|i| particle_disk(radius[i], c_ext[i], query_radius, tau_max))
+        // Compact storage: each particle becomes its class (a bin and a radius level), and everything
+        // below sees the class's radius and cross section (crate::render::storage).
+        let classes = match storage {
+            Storage::Compact => Some(classes(radius, c_ext, &bin, bins.len())?),
+            Storage::Full => None,
+        };
+        let (t_radius, t_c): (&[f64], &[f64]) = match &classes {
+            Some(c) => (&c.radius, &c.c_ext),
+            None => (radius, c_ext),
+        };
+        let table_disks: Vec<(f64, f64)> = t_radius
+            .par_iter()
+            .zip(t_c)
+            .map(|(&r, &c)| {
+                if r > 0.0 {
+                    particle_disk(r, c, query_radius, tau_max)
+                } else {
+                    (0.0, 0.0)
+                }
+            })
             .collect();
+        let code_of = |i: usize| classes.as_ref().map_or(i, |c| c.codes[i] as usize);
+        // Per-particle views of the table, each built in one parallel pass (no (R, τ) pairs or radii
+        // per particle: at 10^8 particles every f64 column is 800 MB).
+        let column = |f: &(dyn Fn(usize) -> f64 + Sync)| -> Vec<f64> {
+            (0..n).into_par_iter().map(|i| f(code_of(i))).collect()
+        };
+        let reach = column(&|k| table_disks[k].0);
+        let p_c: std::borrow::Cow<[f64]> = match &classes {
+            Some(_) => column(&|k| t_c[k]).into(),
+            None => c_ext.into(),
+        };
         let widened = (0..n)
-            .filter(|&i| disks[i].0 > query_radius + radius[i])
+            .into_par_iter()
+            .filter(|&i| {
+                let k = code_of(i);
+                table_disks[k].0 > query_radius + t_radius[k]
+            })
             .count();
-        let (grid_radius, grid_c) = grid_disks(&disks, radius, query_radius);
-        let reach: Vec<f64> = disks.iter().map(|d| d.0).collect();
+        // The grid reaches r_c + radius and spreads c / (π reach²): the widened disks (R, τ) are handed
+        // to it as radii R − r_c (at least r) and cross sections τ π R², so that it walks exactly them.
+        let grid_radius = column(&|k| (table_disks[k].0 - query_radius).max(t_radius[k]));
+        let grid_c = column(&|k| table_disks[k].1 * PI * table_disks[k].0 * table_disks[k].0);
         let (grid, field, keep) = build_walk(
             positions,
             &reach,
             &grid_radius,
             &grid_c,
-            c_ext,
+            &p_c,
             &GridSettings::new(query_radius, cells_per_particle),
             continuous_count,
         );
+        drop((grid_radius, grid_c));
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         // Every particle's continuous equivalent, for rays past the grain depth (weighted by C_t,i as
-        // the continuous classes are); none when the medium must stay exact.
-        let grains_field = continuous_count.is_finite().then(|| {
+        // the continuous classes are); none when the medium must stay exact. When every particle is
+        // already in the continuous field, the field is that equivalent (built once: see
+        // `grains_field_from`).
+        let all_continuous = grid.is_none();
+        let grains_field = (continuous_count.is_finite() && !all_continuous).then(|| {
             let ids: Vec<u32> = (0..n as u32).collect();
-            ContinuousField::build(positions, &reach, c_ext, &ids)
+            ContinuousField::build(positions, &reach, &p_c, &ids)
         });
-        let tau = disks.iter().map(|d| d.1 as f32).collect();
-        let reach = disks.iter().map(|d| d.0 as f32).collect();
-        let c_ext = c_ext.iter().map(|&c| c as f32).collect();
+        drop((reach, p_c));
+        let (table_c, table_bin, in_field) = match classes {
+            Some(c) => {
+                let mut in_field = vec![false; c.radius.len()];
+                for (i, &k) in c.codes.iter().enumerate() {
+                    in_field[k as usize] = !keep[i];
+                }
+                (c.c_ext, c.bin, Some((in_field, c.codes)))
+            }
+            None => (c_ext.to_vec(), bin, None),
+        };
+        let optics = match in_field {
+            Some((in_field, codes)) => {
+                ParticleOptics::new(&table_disks, &table_c, table_bin, in_field, Some(codes), n)
+            }
+            None => ParticleOptics::new(
+                &table_disks,
+                &table_c,
+                table_bin,
+                keep.iter().map(|k| !k).collect(),
+                None,
+                n,
+            ),
+        };
         let (coincide, event_box) = event_geometry(positions, reach_max);
         Ok(DiscreteMedium {
             grid,
             field,
-            in_field: keep.iter().map(|k| !k).collect(),
-            tau,
-            reach,
-            c_ext,
+            optics,
             widened,
-            bin,
             bins,
             lambda,
             coincide,
@@ -703,12 +761,12 @@ impl DiscreteMedium {
     }
     /// Largest optical depth of a particle's disk.
     pub fn tau_max(&self) -> f64 {
-        self.tau.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
+        self.optics.tau.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
     }
 
     /// Largest inclusion radius of a particle (scene units).
     pub fn reach_max(&self) -> f64 {
-        self.reach.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
+        self.optics.reach.iter().fold(0.0f32, |a, &b| a.max(b)) as f64
     }
     /// Particles sampled as a continuous medium ([`crate::render::continuous`]).
     pub fn continuous_len(&self) -> usize {
@@ -724,17 +782,16 @@ impl DiscreteMedium {
         v[0] + self.field.as_ref().map_or(0.0, |f| f.optical_depth(ray))
     }
     pub fn len(&self) -> usize {
-        self.tau.len()
+        self.optics.len()
     }
     pub fn is_empty(&self) -> bool {
-        self.tau.is_empty()
+        self.optics.len() == 0
     }
     pub fn bytes(&self) -> usize {
         self.grid.as_ref().map_or(0, ParticleGrid::bytes)
             + self.field.as_ref().map_or(0, ContinuousField::bytes)
             + self.grains_field.as_ref().map_or(0, ContinuousField::bytes)
-            + self.tau.len() * 13
-            + self.bin.len() * 4
+            + self.optics.bytes()
     }
     pub fn lambda(&self) -> &[f64] {
         &self.lambda
@@ -756,7 +813,7 @@ impl DiscreteMedium {
     }
 
     fn albedo_at(&self, particle: u32, l: (usize, usize, f64)) -> f64 {
-        let a = &self.bins[self.bin[particle as usize] as usize].albedo;
+        let a = &self.bins[self.optics.bin(particle)].albedo;
         ((1.0 - l.2) * a[l.0] + l.2 * a[l.1]) * self.albedo_scale()
     }
 
@@ -790,7 +847,7 @@ impl DiscreteMedium {
     }
 
     fn phase_at(&self, particle: u32, l: (usize, usize, f64), mu: f64) -> f64 {
-        let p = &self.bins[self.bin[particle as usize] as usize].phase;
+        let p = &self.bins[self.optics.bin(particle)].phase;
         let lo = p[l.0].eval(mu);
         if l.2 == 0.0 {
             lo
@@ -907,9 +964,15 @@ impl DiscreteMedium {
     /// the grains: `parent` is the `grain_depth`-th event of its path or a later one (module docs).
     fn grains_field_from(&self, parent: &Event) -> Option<&ContinuousField> {
         let depth = self.grain_depth.load(Ordering::Relaxed);
-        (parent.depth > 0 && parent.depth >= depth)
-            .then_some(self.grains_field.as_ref())
-            .flatten()
+        if !(parent.depth > 0 && parent.depth >= depth) {
+            return None;
+        }
+        // Every particle continuous: the field is their equivalent (an exact medium has none).
+        self.grains_field.as_ref().or(if self.grid.is_none() {
+            self.field.as_ref()
+        } else {
+            None
+        })
     }
 
     /// Rays leaving the `depth`-th scattering event of a path or a later one see the continuous
@@ -983,7 +1046,7 @@ impl DiscreteMedium {
     fn site_albedo(&self, s: &Site, l: (usize, usize, f64)) -> f64 {
         let (mut num, mut den) = (0.0, 0.0);
         for &j in s.members() {
-            let t = self.tau[j as usize] as f64;
+            let t = self.optics.tau(j);
             num += t * self.albedo_at(j, l);
             den += t;
         }
@@ -1088,7 +1151,7 @@ impl DiscreteMedium {
         }
         let j = members[pick];
         let table = if u < 1.0 - l.2 { l.0 } else { l.1 };
-        let mu = self.bins[self.bin[j as usize] as usize].phase[table].sample(u2[0]);
+        let mu = self.bins[self.optics.bin(j)].phase[table].sample(u2[0]);
         let phi = 2.0 * PI * u2[1];
         let st = (1.0 - mu * mu).max(0.0).sqrt();
         let (e1, e2) = frame(w_in);
@@ -1149,12 +1212,12 @@ impl DiscreteMedium {
     /// C_t,i / V_i of particle i (grey), the weight of a particle in the query sphere of Eq. 24 (a
     /// particle of the continuous field is spread over its cell: V_i is the cell's volume).
     fn local_weight(&self, j: u32) -> f64 {
-        let r = self.reach[j as usize] as f64;
-        let volume = match (&self.field, self.in_field[j as usize]) {
+        let r = self.optics.reach(j);
+        let volume = match (&self.field, self.optics.in_field(j)) {
             (Some(f), true) => f.cell_volume(),
             _ => 4.0 / 3.0 * PI * r * r * r,
         };
-        self.c_ext[j as usize] as f64 / volume
+        self.optics.c_ext(j) / volume
     }
 
     /// The particles local to `p` (Eq. 24's query sphere): those whose ball contains it, and the
@@ -1319,7 +1382,7 @@ impl DiscreteMedium {
     ) -> Mixture<'a, impl Fn(u32) -> f64 + 'a> {
         Mixture {
             members: e.site.members(),
-            scale: |j| self.tau[j as usize] as f64,
+            scale: |j| self.optics.tau(j),
             ls,
             pi,
         }
@@ -1342,7 +1405,7 @@ impl DiscreteMedium {
             require(
                 "particle",
                 i as f64,
-                (i as usize) < self.tau.len(),
+                (i as usize) < self.optics.len(),
                 "< number of particles",
             )?;
             s.push(i);
@@ -1699,6 +1762,7 @@ mod tests {
             1.0,
             continuous_count,
             7,
+            Storage::Full,
         )
         .unwrap()
     }
@@ -1760,7 +1824,7 @@ mod tests {
                 sigma.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (sigma.len() - 1) as f64;
             // bulk: Σ_i C_t,i a_i / V over the unit box (albedo 1.0 / 0.5 by bin at 500 nm)
             let bulk: f64 = (0..m.len())
-                .map(|i| m.c_ext[i] as f64 * m.bins[m.bin[i] as usize].albedo[0])
+                .map(|i| m.optics.c_ext(i as u32) * m.bins[m.optics.bin(i as u32)].albedo[0])
                 .sum::<f64>();
             let se = (var / sigma.len() as f64).sqrt();
             assert!(

@@ -3,8 +3,10 @@
 //! * [`discrete`]: exact free flights to particle sites, the site's albedo and phase function, the
 //!   per-particle optical depth (a documented deviation from Eq. 18) and the event memory that keeps a
 //!   scattered ray from meeting its own particle again.
+//! * [`storage`]: what each particle carries (disk, cross section, bin), per particle or per class.
 //! * [`continuous`]: size classes whose grains no pixel resolves, sampled as a continuous medium and
 //!   combined exactly with the discrete classes.
 
 pub mod continuous;
 pub mod discrete;
+pub mod storage;

@@ -1,11 +1,13 @@
 //! Particles in space: where the grains are and what a ray meets.
 //!
 //! * [`ray`]: the segment [t0, t1) of a ray that every query along a ray takes.
+//! * [`cloud`]: generated particle clouds (a density, species, size distributions), tile by tile.
 //! * [`dda`]: an axis-aligned box with one slab test and the 3D-DDA walk of a ray through a uniform
 //!   grid (Amanatides & Woo).
 //! * [`grid`]: a uniform grid over particle centres; optical depth along a query cylinder (Eq. 18),
 //!   the local density in a query sphere (Eq. 24) and exact free flights (Sec. 5.2–5.3).
 
+pub mod cloud;
 pub mod dda;
 pub mod grid;
 pub mod ray;

@@ -1,0 +1,650 @@
+//! Generated particle clouds (issue 24): centres in a box after a relative density (uniform, a linear
+//! gradient, fBm value noise), each particle's species by its share and its radius from the species'
+//! size distribution — reproducible from a seed whatever the thread count, and generated **tile by
+//! tile**, so that any tile can be generated alone, the same every time (what a procedural cloud that
+//! stores no particles needs, and what a distributed render needs: the same grains on every machine).
+//!
+//! ## The process
+//! The box is cut into tiles of about [`CANDIDATES_PER_TILE`] candidates. Tile t draws its candidate
+//! count K_t ~ Poisson(Λ |t| · bound) from its own stream (xoshiro256++ seeded from (seed, t)),
+//! places each candidate uniformly in the tile and keeps it with probability d(x) / bound (thinning):
+//! the kept centres are a Poisson process of intensity Λ d(x), exactly, with no integral of d per tile.
+//! Each candidate consumes the same seven numbers of its tile's stream whether it is kept or not, so a
+//! tile's particles depend on nothing but (seed, tile).
+//!
+//! A stored cloud of exactly N particles: a process of mean N' slightly above N (6 σ), then M − N of
+//! its M particles dropped uniformly at random (Floyd's sampling of their indices). Given M, a Poisson
+//! process's points are independent draws from d / ∫d, and a uniformly random subset of independent
+//! draws is again independent draws: the N particles are N independent draws from the density, exactly
+//! what a rejection sampler gives, but built in two parallel passes over the tiles (count, then write)
+//! straight into the output arrays, in tile order (spatially coherent, which the grid build likes).
+//!
+//! Infrastructure for paper Sec. 5 (particle sets "generated or loaded"); no equation of its own.
+
+use crate::ensemble::psd::Psd;
+use crate::error::{require, OpticsError};
+use crate::rng::{splitmix64, unit_f64};
+use rand_distr::{Distribution, Poisson};
+use rand_xoshiro::rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+
+/// Expected candidates per tile: enough that a tile's fixed cost (a stream, a Poisson draw) is small
+/// against its particles, few enough that a procedural cloud generates little it does not need.
+pub const CANDIDATES_PER_TILE: f64 = 64.0;
+/// Numbers of a tile's stream each candidate consumes: 3 position, 1 thinning, 1 species, 2 radius.
+const DRAWS_PER_CANDIDATE: usize = 7;
+/// Stream tags, so that the tiles', the drops' and the noise's numbers never coincide.
+const TILE_STREAM: u64 = 0x7469_6C65;
+const DROP_STREAM: u64 = 0x6472_6F70;
+const NOISE_STREAM: u64 = 0x006E_6F69_7365;
+/// Standard deviations of the oversampled process's count kept above N.
+const MARGIN_SIGMAS: f64 = 6.0;
+/// Midpoints per axis of the mean-density estimate of a noise density.
+const MEAN_POINTS_PER_AXIS: usize = 32;
+/// Most tiles of a stored cloud (a u32 count each).
+const MAX_TILES: f64 = 4.0e9;
+
+/// Smooth procedural fBm value noise, v(x) ∈ [0, 1]: the weight-normalised sum of `octaves` octaves of
+/// value noise (lattice values hashed from the integer cell and the seed, quintic smoothstep between
+/// them, so C²), octave o with lattice spacing `scale` / 2^o and weight 2^−o, each octave's lattice
+/// shifted by its own random offset. As a density: max(0, 1 + contrast (2v − 1)).
+#[derive(Clone, Debug)]
+pub struct ValueNoise {
+    scale: f64,
+    seed: u64,
+    contrast: f64,
+    offsets: Vec<[f64; 3]>,
+}
+
+impl ValueNoise {
+    pub fn new(scale: f64, octaves: u32, seed: u64, contrast: f64) -> Result<Self, OpticsError> {
+        require(
+            "scale",
+            scale,
+            scale.is_finite() && scale > 0.0,
+            "finite and > 0",
+        )?;
+        require(
+            "octaves",
+            octaves as f64,
+            (1..=16).contains(&octaves),
+            "in [1, 16]",
+        )?;
+        require(
+            "contrast",
+            contrast,
+            contrast.is_finite() && contrast >= 0.0,
+            "finite and >= 0",
+        )?;
+        let offsets = (0..octaves as u64)
+            .map(|o| {
+                [0u64, 1, 2]
+                    .map(|a| unit_f64(splitmix64(seed ^ splitmix64(NOISE_STREAM ^ (3 * o + a)))))
+            })
+            .collect();
+        Ok(ValueNoise {
+            scale,
+            seed,
+            contrast,
+            offsets,
+        })
+    }
+
+    /// v(x) ∈ [0, 1].
+    pub fn value(&self, p: [f64; 3]) -> f64 {
+        let (mut total, mut weights) = (0.0, 0.0);
+        for (o, off) in self.offsets.iter().enumerate() {
+            let f = (1u64 << o) as f64 / self.scale;
+            let q = [0, 1, 2].map(|a| p[a] * f + off[a]);
+            let i = q.map(f64::floor);
+            let w = [0, 1, 2].map(|a| quintic(q[a] - i[a]));
+            let cell = i.map(|x| x as i64 as u64);
+            let base = splitmix64(self.seed ^ (o as u64 + 1));
+            let mut acc = 0.0;
+            for corner in 0..8u64 {
+                let c = [0, 1, 2].map(|a| (corner >> a) & 1);
+                let h = splitmix64(
+                    splitmix64(
+                        splitmix64(base ^ cell[0].wrapping_add(c[0])) ^ cell[1].wrapping_add(c[1]),
+                    ) ^ cell[2].wrapping_add(c[2]),
+                );
+                let wt: f64 = (0..3)
+                    .map(|a| if c[a] == 1 { w[a] } else { 1.0 - w[a] })
+                    .product();
+                acc += wt * unit_f64(h);
+            }
+            let weight = 0.5f64.powi(o as i32);
+            total += weight * acc;
+            weights += weight;
+        }
+        (total / weights).clamp(0.0, 1.0)
+    }
+
+    /// The relative density 1 + contrast (2v − 1), clipped to [0, 1 + contrast].
+    pub fn density(&self, p: [f64; 3]) -> f64 {
+        (1.0 + self.contrast * (2.0 * self.value(p) - 1.0)).clamp(0.0, 1.0 + self.contrast)
+    }
+}
+
+/// 6t⁵ − 15t⁴ + 10t³: zero first and second derivatives at 0 and 1.
+fn quintic(t: f64) -> f64 {
+    t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+}
+
+/// A relative number density over the cloud's box (any positive scale).
+#[derive(Clone, Debug)]
+pub enum Density {
+    Uniform,
+    /// `start` on the box's low face along `axis`, linearly to `end` on its high face.
+    Gradient {
+        axis: usize,
+        start: f64,
+        end: f64,
+    },
+    Noise(ValueNoise),
+}
+
+impl Density {
+    pub fn gradient(axis: usize, start: f64, end: f64) -> Result<Self, OpticsError> {
+        require("axis", axis as f64, axis < 3, "0, 1 or 2")?;
+        for (name, v) in [("start", start), ("end", end)] {
+            require(name, v, v.is_finite() && v >= 0.0, "finite and >= 0")?;
+        }
+        require(
+            "end",
+            end,
+            start + end > 0.0,
+            "> 0 where start is 0 (a zero density)",
+        )?;
+        Ok(Density::Gradient { axis, start, end })
+    }
+
+    fn at(&self, p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+        match self {
+            Density::Uniform => 1.0,
+            Density::Gradient { axis, start, end } => {
+                let t = ((p[*axis] - lo[*axis]) / (hi[*axis] - lo[*axis])).clamp(0.0, 1.0);
+                start + (end - start) * t
+            }
+            Density::Noise(n) => n.density(p),
+        }
+    }
+
+    /// The density's largest value (the thinning bound).
+    fn bound(&self) -> f64 {
+        match self {
+            Density::Uniform => 1.0,
+            Density::Gradient { start, end, .. } => start.max(*end),
+            Density::Noise(n) => 1.0 + n.contrast,
+        }
+    }
+
+    /// The density's mean over the box: exact for the uniform and linear ones, a midpoint rule over
+    /// [`MEAN_POINTS_PER_AXIS`]³ points for noise (it sets only the expected count, see `Cloud`).
+    fn mean(&self, lo: [f64; 3], hi: [f64; 3]) -> f64 {
+        match self {
+            Density::Uniform => 1.0,
+            Density::Gradient { start, end, .. } => 0.5 * (start + end),
+            Density::Noise(_) => {
+                let m = MEAN_POINTS_PER_AXIS;
+                let sum: f64 = (0..m * m * m)
+                    .into_par_iter()
+                    .map(|k| {
+                        let idx = [k % m, (k / m) % m, k / (m * m)];
+                        let p = [0, 1, 2]
+                            .map(|a| lo[a] + (hi[a] - lo[a]) * (idx[a] as f64 + 0.5) / m as f64);
+                        self.at(p, lo, hi)
+                    })
+                    .sum();
+                sum / (m * m * m) as f64
+            }
+        }
+    }
+}
+
+/// What a cloud is made of: its box, density, species (share, size distribution) and seed.
+#[derive(Clone, Debug)]
+pub struct CloudSpec {
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+    pub density: Density,
+    pub species: Vec<(f64, Psd)>,
+    pub seed: u64,
+}
+
+/// One generated particle: centre (the spec's coordinates), radius (µm) and species index.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grain {
+    pub centre: [f64; 3],
+    pub radius_um: f64,
+    pub species: u32,
+}
+
+/// The tiles of a cloud of a given expected count: how the box is cut and each tile's mean number of
+/// candidates.
+#[derive(Clone, Debug)]
+pub struct Tiling {
+    pub dims: [usize; 3],
+    lo: [f64; 3],
+    size: [f64; 3],
+    /// Poisson mean of each tile's candidate count.
+    candidates: f64,
+}
+
+impl Tiling {
+    pub fn len(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    fn tile_lo(&self, t: usize) -> [f64; 3] {
+        let d = self.dims;
+        let idx = [t % d[0], (t / d[0]) % d[1], t / (d[0] * d[1])];
+        [0, 1, 2].map(|a| self.lo[a] + self.size[a] * idx[a] as f64)
+    }
+}
+
+impl CloudSpec {
+    fn check(&self) -> Result<(), OpticsError> {
+        for a in 0..3 {
+            require("lo", self.lo[a], self.lo[a].is_finite(), "finite")?;
+            require(
+                "hi",
+                self.hi[a],
+                self.hi[a].is_finite() && self.hi[a] > self.lo[a],
+                "finite and > lo",
+            )?;
+        }
+        require(
+            "species (count)",
+            self.species.len() as f64,
+            !self.species.is_empty(),
+            ">= 1",
+        )?;
+        for (share, _) in &self.species {
+            require(
+                "share",
+                *share,
+                share.is_finite() && *share >= 0.0,
+                "finite and >= 0",
+            )?;
+        }
+        let total: f64 = self.species.iter().map(|s| s.0).sum();
+        require("share (sum)", total, total > 0.0, "> 0")
+    }
+
+    /// The tiles of a Poisson cloud of `expected` particles (about [`CANDIDATES_PER_TILE`] candidates
+    /// each, cut in proportion to the box's sides).
+    pub fn tiling(&self, expected: f64) -> Tiling {
+        let ext = [0, 1, 2].map(|a| self.hi[a] - self.lo[a]);
+        let candidates = expected * self.density.bound() / self.density.mean(self.lo, self.hi);
+        let tiles = (candidates / CANDIDATES_PER_TILE).clamp(1.0, MAX_TILES);
+        let edge = (ext[0] * ext[1] * ext[2] / tiles).cbrt();
+        let dims = ext.map(|x| ((x / edge).round() as usize).max(1));
+        let n = (dims[0] * dims[1] * dims[2]) as f64;
+        Tiling {
+            dims,
+            lo: self.lo,
+            size: [0, 1, 2].map(|a| ext[a] / dims[a] as f64),
+            candidates: candidates / n,
+        }
+    }
+
+    /// The particles of tile `t`, in order, as `emit(grain)` (with `want` false only counted: the
+    /// species and radius are not computed). Returns how many there are.
+    pub fn visit_tile(
+        &self,
+        tiling: &Tiling,
+        t: usize,
+        want: bool,
+        mut emit: impl FnMut(Grain),
+    ) -> usize {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(splitmix64(
+            self.seed ^ splitmix64(TILE_STREAM ^ t as u64),
+        ));
+        let k = if tiling.candidates > 0.0 {
+            Poisson::new(tiling.candidates).map_or(0, |p| p.sample(&mut rng) as u64)
+        } else {
+            0
+        };
+        let (lo, size) = (tiling.tile_lo(t), tiling.size);
+        let bound = self.density.bound();
+        let uniform = matches!(self.density, Density::Uniform);
+        let total_share: f64 = self.species.iter().map(|s| s.0).sum();
+        let samplers: Vec<_> = if want {
+            self.species.iter().map(|s| s.1.sampler()).collect()
+        } else {
+            Vec::new()
+        };
+        let mut kept = 0;
+        for _ in 0..k {
+            let mut u = [0f64; DRAWS_PER_CANDIDATE];
+            for x in u.iter_mut() {
+                *x = (((rng.next_u64() >> 11) as f64) + 0.5) / (1u64 << 53) as f64;
+            }
+            let centre = [0, 1, 2].map(|a| lo[a] + size[a] * u[a]);
+            if !uniform && u[3] * bound >= self.density.at(centre, self.lo, self.hi) {
+                continue;
+            }
+            kept += 1;
+            if want {
+                let species = pick_species(&self.species, total_share, u[4]);
+                let radius_um = samplers[species].draw(u[5], u[6]);
+                emit(Grain {
+                    centre,
+                    radius_um,
+                    species: species as u32,
+                });
+            }
+        }
+        kept
+    }
+}
+
+/// The species whose share interval holds u·total.
+fn pick_species(species: &[(f64, Psd)], total: f64, u: f64) -> usize {
+    let mut acc = 0.0;
+    let target = u * total;
+    for (i, (share, _)) in species.iter().enumerate() {
+        acc += share;
+        if target < acc {
+            return i;
+        }
+    }
+    species.iter().rposition(|s| s.0 > 0.0).unwrap_or(0)
+}
+
+/// A stored cloud: N particles in tile order, centres mapped by `transform` (3×4, row-major: x' = A x + b).
+#[derive(Debug, Default)]
+pub struct Cloud {
+    pub centres: Vec<[f64; 3]>,
+    pub radius_um: Vec<f64>,
+    pub species: Vec<u32>,
+}
+
+/// The identity as a 3×4 transform.
+pub const IDENTITY: [[f64; 4]; 3] = [
+    [1.0, 0.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.0],
+];
+
+fn apply(m: &[[f64; 4]; 3], p: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+}
+
+/// Indices, sorted, of `d` distinct numbers of 0..m drawn uniformly (Floyd's algorithm: d draws).
+fn dropped(m: u64, d: u64, seed: u64) -> Vec<u64> {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(splitmix64(seed ^ DROP_STREAM));
+    let mut set = rustc_hash::FxHashSet::default();
+    for j in m - d..m {
+        let t = rng.next_u64() % (j + 1); // bias below 2^-40 for j < 2^24; irrelevant beyond
+        if !set.insert(t) {
+            set.insert(j);
+        }
+    }
+    let mut v: Vec<u64> = set.into_iter().collect();
+    v.sort_unstable();
+    v
+}
+
+/// Exactly `count` particles of `spec` (module docs), centres through `transform`.
+pub fn generate(
+    spec: &CloudSpec,
+    count: u64,
+    transform: &[[f64; 4]; 3],
+) -> Result<Cloud, OpticsError> {
+    spec.check()?;
+    require("count", count as f64, count >= 1, ">= 1")?;
+    for row in transform {
+        for &x in row {
+            require("transform", x, x.is_finite(), "finite")?;
+        }
+    }
+    let n = count as f64;
+    let mut sigmas = MARGIN_SIGMAS;
+    let (tiling, counts, m) = loop {
+        // A noise density's mean is estimated: 1 % more covers its error.
+        let slack = if matches!(spec.density, Density::Noise(_)) {
+            1.01
+        } else {
+            1.0
+        };
+        let tiling = spec.tiling((n + sigmas * n.sqrt() + 20.0) * slack);
+        require(
+            "count",
+            n,
+            (tiling.len() as f64) < MAX_TILES,
+            "small enough for 4e9 tiles",
+        )?;
+        let counts: Vec<u32> = (0..tiling.len())
+            .into_par_iter()
+            .map(|t| spec.visit_tile(&tiling, t, false, |_| {}) as u32)
+            .collect();
+        let m: u64 = counts.iter().map(|&c| c as u64).sum();
+        if m >= count {
+            break (tiling, counts, m);
+        }
+        sigmas *= 2.0; // a 6-sigma shortfall: again, deterministically, with a wider margin
+    };
+    let drop = dropped(m, m - count, spec.seed);
+    // Each tile's first global index, and its first output index (minus the drops before it).
+    let mut first = Vec::with_capacity(counts.len() + 1);
+    let mut acc = 0u64;
+    for &c in &counts {
+        first.push(acc);
+        acc += c as u64;
+    }
+    first.push(acc);
+    let out_first: Vec<usize> = first
+        .iter()
+        .map(|&g| (g - drop.partition_point(|&d| d < g) as u64) as usize)
+        .collect();
+    let mut cloud = Cloud {
+        centres: vec![[0.0; 3]; count as usize],
+        radius_um: vec![0.0; count as usize],
+        species: vec![0; count as usize],
+    };
+    // Tiles in groups, each group writing its own slice of the outputs.
+    const GROUP: usize = 256;
+    let groups = counts.len().div_ceil(GROUP);
+    let mut slices = Vec::with_capacity(groups);
+    let (mut c_rest, mut r_rest, mut s_rest) = (
+        &mut cloud.centres[..],
+        &mut cloud.radius_um[..],
+        &mut cloud.species[..],
+    );
+    for g in 0..groups {
+        let len = out_first[((g + 1) * GROUP).min(counts.len())] - out_first[g * GROUP];
+        let (c, cr) = std::mem::take(&mut c_rest).split_at_mut(len);
+        let (r, rr) = std::mem::take(&mut r_rest).split_at_mut(len);
+        let (s, sr) = std::mem::take(&mut s_rest).split_at_mut(len);
+        (c_rest, r_rest, s_rest) = (cr, rr, sr);
+        slices.push((g, c, r, s));
+    }
+    slices.into_par_iter().for_each(|(g, c, r, s)| {
+        let mut k = 0;
+        for t in g * GROUP..((g + 1) * GROUP).min(counts.len()) {
+            let mut global = first[t];
+            let mut next_drop = drop.partition_point(|&d| d < global);
+            spec.visit_tile(&tiling, t, true, |grain| {
+                let skip = next_drop < drop.len() && drop[next_drop] == global;
+                global += 1;
+                if skip {
+                    next_drop += 1;
+                    return;
+                }
+                c[k] = apply(transform, grain.centre);
+                r[k] = grain.radius_um;
+                s[k] = grain.species;
+                k += 1;
+            });
+        }
+    });
+    Ok(cloud)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(density: Density, seed: u64) -> CloudSpec {
+        CloudSpec {
+            lo: [-1.0; 3],
+            hi: [1.0; 3],
+            density,
+            species: vec![
+                (3.0, Psd::Monodisperse { radius_um: 10.0 }),
+                (
+                    1.0,
+                    Psd::Uniform {
+                        r_min_um: 100.0,
+                        r_max_um: 200.0,
+                    },
+                ),
+            ],
+            seed,
+        }
+    }
+
+    #[test]
+    fn exact_count_reproducible_and_independent_of_threads() {
+        let s = spec(Density::Uniform, 7);
+        let a = generate(&s, 10_007, &IDENTITY).unwrap();
+        assert_eq!(a.centres.len(), 10_007);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let b = pool.install(|| generate(&s, 10_007, &IDENTITY).unwrap());
+        assert_eq!(a.centres, b.centres);
+        assert_eq!(a.radius_um, b.radius_um);
+        let c = generate(&spec(Density::Uniform, 8), 10_007, &IDENTITY).unwrap();
+        assert_ne!(a.centres, c.centres);
+        assert!(a
+            .centres
+            .iter()
+            .all(|p| p.iter().all(|x| (-1.0..1.0).contains(x))));
+    }
+
+    /// Species shares and each species' radii: 3:1 within 4 sigma; radii from the right PSD.
+    #[test]
+    fn species_follow_their_shares_and_distributions() {
+        let a = generate(&spec(Density::Uniform, 1), 40_000, &IDENTITY).unwrap();
+        let first = a.species.iter().filter(|&&s| s == 0).count() as f64;
+        let sd = (40_000.0 * 0.75 * 0.25f64).sqrt();
+        assert!((first - 30_000.0).abs() < 4.0 * sd, "{first}");
+        for (s, r) in a.species.iter().zip(&a.radius_um) {
+            assert!(if *s == 0 {
+                *r == 10.0
+            } else {
+                (100.0..=200.0).contains(r)
+            });
+        }
+    }
+
+    /// Counts per slab along a gradient against its integral (chi-square, 10 slabs, generous bound).
+    #[test]
+    fn gradient_counts_follow_the_density() {
+        let n = 100_000u64;
+        let a = generate(
+            &spec(Density::gradient(2, 1.0, 0.0).unwrap(), 3),
+            n,
+            &IDENTITY,
+        )
+        .unwrap();
+        let mut slabs = [0f64; 10];
+        for p in &a.centres {
+            slabs[(((p[2] + 1.0) / 0.2) as usize).min(9)] += 1.0;
+        }
+        let chi2: f64 = (0..10)
+            .map(|k| {
+                // ∫ over the slab of (1 − t) dt, t = (z + 1) / 2, normalised by 1/2.
+                let (t0, t1) = (k as f64 / 10.0, (k + 1) as f64 / 10.0);
+                let e = n as f64 * 2.0 * ((t1 - t0) - 0.5 * (t1 * t1 - t0 * t0));
+                (slabs[k] - e).powi(2) / e
+            })
+            .sum();
+        assert!(chi2 < 30.0, "chi2 = {chi2}, slabs {slabs:?}");
+    }
+
+    /// A transform maps the centres.
+    #[test]
+    fn transform_applies() {
+        let s = spec(Density::Uniform, 2);
+        let m = [
+            [2.0, 0.0, 0.0, 10.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, -5.0],
+        ];
+        let (a, b) = (
+            generate(&s, 500, &IDENTITY).unwrap(),
+            generate(&s, 500, &m).unwrap(),
+        );
+        for (p, q) in a.centres.iter().zip(&b.centres) {
+            assert_eq!(*q, [2.0 * p[0] + 10.0, p[1], p[2] - 5.0]);
+        }
+    }
+
+    /// A tile is the same generated alone as within the whole cloud (what a procedural cloud relies on).
+    #[test]
+    fn a_tile_alone_is_the_tile_in_the_cloud() {
+        let s = spec(Density::Noise(ValueNoise::new(0.5, 3, 9, 0.8).unwrap()), 4);
+        let tiling = s.tiling(5000.0);
+        let mut all = Vec::new();
+        for t in 0..tiling.len() {
+            s.visit_tile(&tiling, t, true, |g| all.push((t, g)));
+        }
+        let t = tiling.len() / 2;
+        let mut alone = Vec::new();
+        s.visit_tile(&tiling, t, true, |g| alone.push((t, g)));
+        let inside: Vec<_> = all.iter().filter(|(u, _)| *u == t).cloned().collect();
+        assert_eq!(alone, inside);
+        let total = all.len() as f64;
+        assert!(
+            (total - 5000.0).abs() < 5.0 * 5000f64.sqrt() + 60.0,
+            "{total}"
+        );
+    }
+
+    /// The precomputed sampler draws what the distribution's own inverse CDF draws.
+    #[test]
+    fn radius_sampler_matches_draw() {
+        let p = Psd::LogNormal {
+            median_um: 50.0,
+            sigma_g: 1.5,
+            r_min_um: 5.0,
+            r_max_um: 300.0,
+        };
+        let s = p.sampler();
+        for k in 0..1000 {
+            let u = (k as f64 + 0.5) / 1000.0;
+            let (a, b) = (s.draw(0.3, u), p.draw(0.3, u));
+            assert!((a - b).abs() <= 1e-12 * b, "{a} {b}");
+        }
+    }
+
+    #[test]
+    fn errors_name_the_argument() {
+        let mut s = spec(Density::Uniform, 0);
+        s.hi = [1.0, -2.0, 1.0];
+        assert!(generate(&s, 10, &IDENTITY)
+            .unwrap_err()
+            .to_string()
+            .contains("hi"));
+        assert!(generate(&spec(Density::Uniform, 0), 0, &IDENTITY)
+            .unwrap_err()
+            .to_string()
+            .contains("count"));
+        assert!(ValueNoise::new(0.0, 2, 0, 1.0)
+            .unwrap_err()
+            .to_string()
+            .contains("scale"));
+        assert!(Density::gradient(3, 1.0, 0.0)
+            .unwrap_err()
+            .to_string()
+            .contains("axis"));
+    }
+}

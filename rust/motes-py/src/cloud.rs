@@ -1,0 +1,119 @@
+//! Generated particle clouds (`motes_core::space::cloud`) and the value noise behind `motes.Noise`.
+
+use crate::convert::*;
+use crate::psd::PyPsd;
+use motes_core::space::cloud::{generate, CloudSpec, Density, ValueNoise};
+use numpy::{IntoPyArray, PyArray1};
+use pyo3::prelude::*;
+
+/// The density named `kind` ("uniform", "gradient" with `params` = [axis, start, end], "noise" with
+/// `params` = [scale, octaves, contrast] and `noise_seed`).
+fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
+    let want = |n: usize| -> PyResult<()> {
+        if params.len() == n {
+            Ok(())
+        } else {
+            Err(invalid(
+                "params",
+                params.len(),
+                format!(
+                    "density {kind:?} takes {n} parameters, got {}",
+                    params.len()
+                ),
+            ))
+        }
+    };
+    match kind {
+        "uniform" => want(0).map(|_| Density::Uniform),
+        "gradient" => {
+            want(3)?;
+            Density::gradient(params[0] as usize, params[1], params[2]).map_err(to_py)
+        }
+        "noise" => {
+            want(3)?;
+            ValueNoise::new(params[0], params[1] as u32, noise_seed, params[2])
+                .map(Density::Noise)
+                .map_err(to_py)
+        }
+        _ => Err(invalid(
+            "density",
+            kind,
+            format!("unknown density {kind:?}: uniform, gradient or noise"),
+        )),
+    }
+}
+
+/// Exactly `count` particles in the box [lo, hi] after a density, species by `shares` with radii from
+/// `psds`, centres mapped by `transform` (3×4, row-major), reproducible from `seed` whatever the
+/// number of threads: (centres (count*3), radii (um), species index).
+#[pyfunction]
+#[pyo3(signature = (count, lo, hi, kind, params, noise_seed, psds, shares, seed, transform))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+pub(crate) fn generate_cloud<'py>(
+    py: Python<'py>,
+    count: u64,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    kind: &str,
+    params: Vec<f64>,
+    noise_seed: u64,
+    psds: Vec<PyRef<'py, PyPsd>>,
+    shares: Vec<f64>,
+    seed: u64,
+    transform: [[f64; 4]; 3],
+) -> PyResult<(F64Out<'py>, F64Out<'py>, Bound<'py, PyArray1<u32>>)> {
+    if psds.len() != shares.len() {
+        return Err(invalid(
+            "shares",
+            shares.len(),
+            format!("one share per size distribution ({})", psds.len()),
+        ));
+    }
+    let spec = CloudSpec {
+        lo,
+        hi,
+        density: density(kind, &params, noise_seed)?,
+        species: shares
+            .into_iter()
+            .zip(psds.iter().map(|p| p.inner().clone()))
+            .collect(),
+        seed,
+    };
+    let cloud = py
+        .detach(|| generate(&spec, count, &transform))
+        .map_err(to_py)?;
+    let centres: Vec<f64> = flatten(cloud.centres);
+    Ok((
+        centres.into_pyarray(py),
+        cloud.radius_um.into_pyarray(py),
+        cloud.species.into_pyarray(py),
+    ))
+}
+
+/// A `Vec<[f64; 3]>` as the flat `Vec<f64>` of its coordinates, without a copy.
+fn flatten(v: Vec<[f64; 3]>) -> Vec<f64> {
+    let mut v = std::mem::ManuallyDrop::new(v);
+    let (ptr, len, cap) = (v.as_mut_ptr(), v.len(), v.capacity());
+    // SAFETY: [f64; 3] is three f64 with f64's alignment and no padding; the allocation is handed
+    // over whole (its capacity in f64), so it is freed with the layout it was allocated with.
+    unsafe { Vec::from_raw_parts(ptr as *mut f64, len * 3, cap * 3) }
+}
+
+/// The value noise v(x) ∈ [0, 1] of `motes.Noise` at points (n*3).
+#[pyfunction]
+pub(crate) fn value_noise<'py>(
+    py: Python<'py>,
+    points: F64In<'py>,
+    scale: f64,
+    octaves: u32,
+    seed: u64,
+    contrast: f64,
+) -> PyResult<F64Out<'py>> {
+    let noise = ValueNoise::new(scale, octaves, seed, contrast).map_err(to_py)?;
+    let p = triples(points.as_slice()?);
+    let out: Vec<f64> = py.detach(|| {
+        use rayon::prelude::*;
+        p.par_iter().map(|&x| noise.value(x)).collect()
+    });
+    Ok(out.into_pyarray(py))
+}

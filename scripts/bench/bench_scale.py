@@ -1,0 +1,121 @@
+"""Issue 24: clouds at the paper's scale and past it. For each count, in a fresh subprocess (so that peak
+memory is the load's own): load time, peak resident memory of the whole process, bytes per particle the
+medium keeps at render time, and the render time.
+
+The scene is what a new user writes: a ``discrete`` medium in a 10 cm cube (``count`` generated grains,
+log-normal radii, median 50 um, sigma_g 1.5, ``material`` ice, scale 1 cm, ``query_radius`` 0.02) lit by a
+spot light in a grey room (``scripts/bench/bench_render.py``'s dust room), ``volpath`` max_depth 6,
+128 x 128 px, 8 spp, ``llvm_ad_rgb`` (``--variant``).
+
+* ``load``: ``mi.load_dict`` of the scene (particles generated, optics tables, grid), seconds;
+* ``peak``: the process's peak resident memory (VmHWM) after the load and the render, GB (the interpreter,
+  Mitsuba and Dr.Jit included: ~0.3 GB before any particle);
+* ``B/particle``: the medium's own bytes (``DiscreteMedium.bytes``) over the count;
+* ``render``: one render after the load (the first, JIT compilation included), then a second one.
+
+    .venv/bin/python scripts/bench/bench_scale.py [--counts 1e6,1e7] [--storage compact] [--variant scalar_rgb]
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import sys
+import time
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
+
+import _common as C  # noqa: E402
+
+HALF = 5.0  # cm: the cube's half-size
+
+
+def child(count: float, storage: str, variant: str, res: int, spp: int) -> dict:
+    """One row, measured in this (fresh) process."""
+    import numpy as np  # noqa: PLC0415
+
+    motes = C.import_motes()
+    motes.set_variant(variant)
+    import mitsuba as mi  # noqa: PLC0415
+
+    import bench_render as BR  # noqa: PLC0415
+
+    from motes import _memory  # noqa: PLC0415
+
+    before = _memory.peak_resident_mb()
+    medium = {"type": "discrete", "count": int(count), "radius_median": 50.0, "radius_sigma_g": 1.5,
+              "material": "ice", "scale_m": 0.01, "query_radius": 0.02, "phase": {"type": "particle"}}
+    if storage:
+        medium["storage"] = storage
+    scene = BR.room(mi, medium, res, spp, max_depth=6)
+    scene["cube"]["to_world"] = mi.ScalarTransform4f().scale(HALF)
+    t = time.perf_counter()
+    sc = mi.load_dict(scene)
+    load = time.perf_counter() - t
+    med = next(s.interior_medium() for s in sc.shapes() if s.interior_medium() is not None)
+    kept = med.data.bytes
+    times = []
+    for _ in range(2):
+        t = time.perf_counter()
+        img = np.asarray(mi.render(sc), dtype=np.float64)
+        times.append(time.perf_counter() - t)
+    return {"count": count, "storage": storage or "default", "variant": variant, "load_s": load,
+            "peak_gb": _memory.peak_resident_mb() * 2**20 / 1e9, "before_gb": before * 2**20 / 1e9,
+            "bytes_per_particle": kept / count, "render_first_s": times[0], "render_s": times[1],
+            "image_mean": float(img.mean()), "finite": bool(np.all(np.isfinite(img)))}
+
+
+def main() -> None:
+    ap = C.parser(__doc__)
+    ap.add_argument("--counts", default="1e6,3e6,1e7,3e7,1e8", help="comma-separated counts")
+    ap.add_argument("--storage", default="", help="the medium's storage parameter (default: not set)")
+    ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--spp", type=int, default=8)
+    ap.add_argument("--timeout", type=float, default=900.0, help="seconds per row")
+    ap.add_argument("--child", type=float, default=None, help=argparse_hidden())
+    args = ap.parse_args()
+    if args.child is not None:
+        print("RESULT " + json.dumps(child(args.child, args.storage, args.variant, args.res, args.spp)))
+        return
+    out, sw = C.out_dir(args.out), C.Stopwatch()
+    rows = []
+    for count in [float(c) for c in args.counts.split(",")]:
+        cmd = [sys.executable, __file__, "--child", repr(count), "--storage", args.storage, "--variant",
+               args.variant, "--res", str(args.res), "--spp", str(args.spp)]
+        t = time.perf_counter()
+        try:
+            run = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+            lines = [ln for ln in run.stdout.splitlines() if ln.startswith("RESULT ")]
+            if run.returncode == 0 and lines:
+                row = json.loads(lines[-1][7:])
+            else:
+                tail = (run.stderr.strip().splitlines() or ["(no output)"])[-1]
+                row = {"count": count, "error": tail[:200]}
+        except subprocess.TimeoutExpired:
+            row = {"count": count, "error": f"over {args.timeout:.0f} s"}
+        row["wall_s"] = time.perf_counter() - t
+        rows.append(row)
+        if "error" in row:
+            print(f"[{count:.0e}] {row['error']}", flush=True)
+        else:
+            print(f"[{count:.0e}] load {row['load_s']:.1f} s, peak {row['peak_gb']:.2f} GB, "
+                  f"{row['bytes_per_particle']:.1f} B/particle, render {row['render_first_s']:.2f} s "
+                  f"(again {row['render_s']:.2f} s)", flush=True)
+    C.print_table(f"**{args.variant}, storage {args.storage or 'default'}, {args.res}^2 px, {args.spp} spp**",
+                  ["count", "load (s)", "peak (GB)", "B/particle", "render (s)", "again (s)"],
+                  [[f"{r['count']:.0e}", r.get("load_s", r.get("error")), r.get("peak_gb", "-"),
+                    r.get("bytes_per_particle", "-"), r.get("render_first_s", "-"), r.get("render_s", "-")]
+                   for r in rows])
+    C.finish(args, sw, out / f"bench_scale_{args.variant}_{args.storage or 'default'}.json", rows=rows)
+
+
+def argparse_hidden() -> str:
+    import argparse  # noqa: PLC0415
+
+    return argparse.SUPPRESS
+
+
+if __name__ == "__main__":
+    main()
