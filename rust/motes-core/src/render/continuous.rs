@@ -94,18 +94,57 @@ pub struct FieldHit {
     pub cell: usize,
 }
 
+/// Marks a member of a field that is a class code (compact storage, `crate::render::storage`) and not
+/// a particle's index: the optics of a continuous particle are those of its class, and no ray needs
+/// to know which grain it was. Particle indices stay below 2^31.
+pub const CLASS_FLAG: u32 = 1 << 31;
+
+/// The particles of a field, in cell order.
+enum Members {
+    /// Original indices (full storage).
+    Ids(Vec<u32>),
+    /// Class codes of at most 16 bits (compact storage).
+    Classes(Vec<u16>),
+    /// Class codes with [`CLASS_FLAG`] (compact storage of more than 65536 classes).
+    WideClasses(Vec<u32>),
+}
+
+impl Members {
+    #[inline]
+    fn get(&self, j: usize) -> u32 {
+        match self {
+            Members::Ids(v) => v[j],
+            Members::Classes(v) => CLASS_FLAG | v[j] as u32,
+            Members::WideClasses(v) => v[j],
+        }
+    }
+    fn len(&self) -> usize {
+        match self {
+            Members::Ids(v) | Members::WideClasses(v) => v.len(),
+            Members::Classes(v) => v.len(),
+        }
+    }
+    fn bytes(&self) -> usize {
+        match self {
+            Members::Ids(v) | Members::WideClasses(v) => v.len() * 4,
+            Members::Classes(v) => v.len() * 2,
+        }
+    }
+}
+
 /// The continuous part of a discrete medium (module docs).
 pub struct ContinuousField {
     /// The cells: the centres' box, cell edges and cells per axis.
     frame: GridFrame,
     /// σ_t of each cell (grey, per scene unit).
     sigma: Vec<f32>,
-    /// Cell `c` holds `particle[start[c]..start[c + 1]]`.
+    /// Cell `c` holds members `start[c]..start[c + 1]`.
     start: Vec<u32>,
-    /// Original index of each particle, in cell order.
-    particle: Vec<u32>,
-    /// Running share of the cell's extinction up to and including each particle (for picking one).
-    cdf: Vec<f32>,
+    /// Each particle, in cell order: its original index, or its class (compact storage).
+    members: Members,
+    /// Running share of the cell's extinction up to and including each particle (for picking one),
+    /// in units of 1/65535 (the last of a cell is 65535).
+    cdf: Vec<u16>,
     /// Blocks of [`MAJORANT_BLOCK`]³ cells (the last ones along an axis may reach past the field's
     /// box, where σ_t = 0) and the largest σ_t of each.
     block_frame: GridFrame,
@@ -114,8 +153,16 @@ pub struct ContinuousField {
 
 impl ContinuousField {
     /// The field of the particles `ids` (original indices), with centres `positions`, inclusion radii
-    /// `reach` and extinction cross sections `weight` (scene units), all indexed like `ids`.
-    pub fn build(positions: &[[f64; 3]], reach: &[f64], weight: &[f64], ids: &[u32]) -> Self {
+    /// `reach` and extinction cross sections `weight` (scene units), all indexed like `ids`. With
+    /// `classes` (each particle's class code, by original index) the field keeps the classes instead of
+    /// the indices (compact storage).
+    pub fn build(
+        positions: &[[f64; 3]],
+        reach: &[f64],
+        weight: &[f64],
+        ids: &[u32],
+        classes: Option<&[u32]>,
+    ) -> Self {
         let n = ids.len();
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
         let (mut lo, mut hi) = bounding_box(positions);
@@ -160,7 +207,7 @@ impl ContinuousField {
         drop((which, fill));
         let cell_volume = cell[0] * cell[1] * cell[2];
         let mut sigma = vec![0f32; n_cells];
-        let mut cdf = vec![0f32; n];
+        let mut cdf = vec![0u16; n];
         for c in 0..n_cells {
             let (a, b) = (start[c] as usize, start[c + 1] as usize);
             let total: f64 = order[a..b].iter().map(|&i| weight[i as usize]).sum();
@@ -168,20 +215,39 @@ impl ContinuousField {
             let mut acc = 0.0;
             for j in a..b {
                 acc += weight[order[j] as usize];
-                cdf[j] = if total > 0.0 {
-                    (acc / total) as f32
+                let share = if total > 0.0 {
+                    acc / total
                 } else {
-                    (j + 1 - a) as f32 / (b - a) as f32
+                    (j + 1 - a) as f64 / (b - a) as f64
+                };
+                cdf[j] = if j + 1 == b {
+                    u16::MAX
+                } else {
+                    (share * u16::MAX as f64).round() as u16
                 };
             }
         }
-        let particle = order.iter().map(|&i| ids[i as usize]).collect();
+        let members = match classes {
+            None => Members::Ids(order.iter().map(|&i| ids[i as usize]).collect()),
+            Some(c) if c.iter().all(|&k| k <= u16::MAX as u32) => Members::Classes(
+                order
+                    .iter()
+                    .map(|&i| c[ids[i as usize] as usize] as u16)
+                    .collect(),
+            ),
+            Some(c) => Members::WideClasses(
+                order
+                    .iter()
+                    .map(|&i| CLASS_FLAG | c[ids[i as usize] as usize])
+                    .collect(),
+            ),
+        };
         let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
         ContinuousField {
             frame: GridFrame::new(lo, cell, dims),
             sigma,
             start,
-            particle,
+            members,
             cdf,
             block_frame,
             majorant,
@@ -189,10 +255,10 @@ impl ContinuousField {
     }
 
     pub fn len(&self) -> usize {
-        self.particle.len()
+        self.members.len()
     }
     pub fn is_empty(&self) -> bool {
-        self.particle.is_empty()
+        self.members.len() == 0
     }
     pub fn dims(&self) -> [usize; 3] {
         self.frame.dims
@@ -203,12 +269,9 @@ impl ContinuousField {
     }
     /// Heap bytes.
     pub fn bytes(&self) -> usize {
-        (self.sigma.len()
-            + self.start.len()
-            + self.particle.len()
-            + self.cdf.len()
-            + self.majorant.len())
-            * 4
+        (self.sigma.len() + self.start.len() + self.majorant.len()) * 4
+            + self.members.bytes()
+            + self.cdf.len() * 2
     }
 
     /// The same free flight as [`Self::free_flight`] in distribution, by delta tracking (Woodcock
@@ -277,8 +340,9 @@ impl ContinuousField {
         if a == b {
             return None;
         }
-        let k = self.cdf[a..b].partition_point(|&x| (x as f64) <= u);
-        Some(self.particle[a + k.min(b - a - 1)])
+        let target = u * u16::MAX as f64;
+        let k = self.cdf[a..b].partition_point(|&x| (x as f64) <= target);
+        Some(self.members.get(a + k.min(b - a - 1)))
     }
 
     /// The cell holding point `p`, if inside the field.
@@ -295,9 +359,9 @@ impl ContinuousField {
         Some((c[2] * dims[1] + c[1]) * dims[0] + c[0])
     }
 
-    /// The particles of a cell (original indices).
-    pub fn members(&self, cell: usize) -> &[u32] {
-        &self.particle[self.start[cell] as usize..self.start[cell + 1] as usize]
+    /// The particles of a cell (original indices, or class codes with [`CLASS_FLAG`]).
+    pub fn members(&self, cell: usize) -> impl Iterator<Item = u32> + '_ {
+        (self.start[cell] as usize..self.start[cell + 1] as usize).map(|j| self.members.get(j))
     }
 }
 
@@ -342,7 +406,7 @@ mod tests {
         let reach = vec![0.01; n];
         let w: Vec<f64> = (0..n).map(|_| 1e-5 * (0.5 + lcg(&mut s))).collect();
         let ids: Vec<u32> = (0..n as u32).collect();
-        let f = ContinuousField::build(&pos, &reach, &w, &ids);
+        let f = ContinuousField::build(&pos, &reach, &w, &ids, None);
         let sigma = w.iter().sum::<f64>(); // volume 1
         let ray = RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0);
         let tau = f.optical_depth(&ray);
@@ -365,7 +429,7 @@ mod tests {
             hit.is_none()
         });
         let c = f.cell_at([0.5, 0.5, 0.5]).unwrap();
-        let m = f.members(c).to_vec();
+        let m: Vec<u32> = f.members(c).collect();
         assert!(!m.is_empty());
         let total: f64 = m.iter().map(|&i| w[i as usize]).sum();
         let mut counts = vec![0usize; m.len()];
@@ -396,7 +460,7 @@ mod tests {
         let reach = vec![0.01; n];
         let w = vec![3e-5; n];
         let ids: Vec<u32> = (0..n as u32).collect();
-        let f = ContinuousField::build(&pos, &reach, &w, &ids);
+        let f = ContinuousField::build(&pos, &reach, &w, &ids, None);
         let rays = [
             RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0),
             RaySegment::new([0.3, 0.7, 0.2], [0.0, 0.0, 1.0], 0.0, 3.0),

@@ -71,7 +71,7 @@
 
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
-use crate::render::continuous::{resolvable, ContinuousField, FieldHit};
+use crate::render::continuous::{resolvable, ContinuousField, FieldHit, CLASS_FLAG};
 use crate::render::storage::{classes, ParticleOptics, Storage};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
@@ -443,6 +443,13 @@ fn check_build_inputs(
     continuous_count: f64,
 ) -> Result<(), OpticsError> {
     let n = positions.len();
+    // Indices of particles stay below CLASS_FLAG (the continuous fields' class members use that bit).
+    require(
+        "positions (count)",
+        n as f64,
+        (n as u64) < CLASS_FLAG as u64,
+        "< 2^31 particles",
+    )?;
     require_len("bin (length)", bin.len(), n, "one per particle")?;
     check_particles_and_settings(
         positions,
@@ -495,6 +502,7 @@ fn build_walk(
     c_ext: &[f64],
     settings: &GridSettings,
     continuous_count: f64,
+    classes: Option<&[u32]>,
 ) -> (Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>) {
     let n = positions.len();
     let keep = resolvable(positions, reach, c_ext, continuous_count);
@@ -528,7 +536,9 @@ fn build_walk(
     };
     let field = if discrete_ids.is_empty() {
         // Every particle continuous: no subset to copy.
-        Some(ContinuousField::build(positions, reach, c_ext, &field_ids))
+        Some(ContinuousField::build(
+            positions, reach, c_ext, &field_ids, classes,
+        ))
     } else {
         None
     };
@@ -542,6 +552,7 @@ fn build_walk(
                 &pick(&field_ids, reach),
                 &pick(&field_ids, c_ext),
                 &field_ids,
+                classes,
             )
         })
     });
@@ -695,6 +706,7 @@ impl DiscreteMedium {
             &p_c,
             &GridSettings::new(query_radius, cells_per_particle),
             continuous_count,
+            classes.as_ref().map(|c| &c.codes[..]),
         );
         drop((grid_radius, grid_c));
         let reach_max = reach.iter().cloned().fold(0.0, f64::max);
@@ -705,7 +717,13 @@ impl DiscreteMedium {
         let all_continuous = grid.is_none();
         let grains_field = (continuous_count.is_finite() && !all_continuous).then(|| {
             let ids: Vec<u32> = (0..n as u32).collect();
-            ContinuousField::build(positions, &reach, &p_c, &ids)
+            ContinuousField::build(
+                positions,
+                &reach,
+                &p_c,
+                &ids,
+                classes.as_ref().map(|c| &c.codes[..]),
+            )
         });
         drop((reach, p_c));
         let (table_c, table_bin, in_field) = match classes {
@@ -1076,7 +1094,7 @@ impl DiscreteMedium {
         // (up to the site's capacity) stand in for the one picked there.
         if let (0, Some(f)) = (site.len, &self.field) {
             if let Some(c) = f.cell_at(o) {
-                f.members(c).iter().for_each(|&i| site.push(i));
+                f.members(c).for_each(|i| site.push(i));
             }
         }
         (site.len > 0).then_some(site)
@@ -1229,7 +1247,7 @@ impl DiscreteMedium {
             .map_or_else(Vec::new, |g| g.containing(p));
         if let Some(f) = &self.field {
             if let Some(c) = f.cell_at(p) {
-                m.extend_from_slice(f.members(c));
+                m.extend(f.members(c));
             }
         }
         m

@@ -14,6 +14,7 @@
 //!   particles as stored. Four bytes per particle instead of seventeen.
 
 use crate::error::{require, OpticsError};
+use crate::render::continuous::CLASS_FLAG;
 use std::f64::consts::PI;
 
 /// How a discrete medium stores its particles (module docs).
@@ -174,9 +175,13 @@ impl ParticleOptics {
         }
     }
 
-    /// The code of particle `j`.
+    /// The code of particle `j`, or of a class member of a compact continuous field (`j` with
+    /// [`CLASS_FLAG`]: the code itself).
     #[inline(always)]
     pub(crate) fn code(&self, j: u32) -> usize {
+        if j & CLASS_FLAG != 0 {
+            return (j & !CLASS_FLAG) as usize;
+        }
         match &self.codes {
             Some(c) => c[j as usize] as usize,
             None => j as usize,
