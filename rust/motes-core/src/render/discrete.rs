@@ -534,6 +534,11 @@ fn build_walk(
         );
         Some(g.with_indices(&discrete_ids))
     };
+    // The medium keeps its grid for rendering: what the slots duplicate is dropped.
+    let grid = grid.map(|mut g| {
+        g.release_stored();
+        g
+    });
     let field = if discrete_ids.is_empty() {
         // Every particle continuous: no subset to copy.
         Some(ContinuousField::build(

@@ -346,6 +346,9 @@ pub struct SubGrid {
     k: i64,
     /// Are the slots too many to stay in cache (then a batch prefetches every block it will test)?
     prefetch_slots: bool,
+    /// Particles of the class (`particles`, `tau` and `index` are emptied by `release_stored` where the
+    /// slots hold copies of everything a walk reads).
+    count: usize,
 }
 
 /// One contributing particle of a ray.
@@ -561,14 +564,48 @@ impl SubGrid {
             reach_max,
             k,
             prefetch_slots,
+            count: n,
         }
     }
 
     pub fn len(&self) -> usize {
-        self.index.len()
+        self.count
     }
     pub fn is_empty(&self) -> bool {
-        self.index.is_empty()
+        self.count == 0
+    }
+
+    /// Drop the stored particles of a class whose cells hold their own copies (k = 0): a walk, a
+    /// point query and a hit read only the slots. The oracles then read the slots too.
+    fn release_stored(&mut self) {
+        if self.k == 0 {
+            self.particles = Spheres::default();
+            self.tau = Vec::new();
+            self.index = Vec::new();
+        }
+    }
+
+    /// Each particle once with its sphere, τ per channel and original index: the stored particles,
+    /// or (released) the first slot of each (the oracles' view).
+    #[cfg(any(test, feature = "oracles"))]
+    fn each_particle(&self, mut visit: impl FnMut([f32; 4], &[f32], u32)) {
+        if self.index.len() == self.count {
+            for j in 0..self.count {
+                visit(
+                    self.particles.get(j),
+                    &self.tau[j * self.channels..(j + 1) * self.channels],
+                    self.index[j],
+                );
+            }
+            return;
+        }
+        let mut seen = std::collections::HashSet::new();
+        for s in 0..self.slot_index.len() {
+            let i = self.slot_index[s];
+            if i != u32::MAX && seen.insert(i) {
+                visit(self.inline.get(s), self.hit_tau(s), i);
+            }
+        }
     }
     pub fn channels(&self) -> usize {
         self.channels
@@ -904,21 +941,25 @@ impl SubGrid {
         if ray.is_empty() {
             return;
         }
-        for j in 0..self.len() {
-            if let Some(t) = self.contribution(j, ray) {
+        self.each_particle(|sphere, tau, _| {
+            if let Some(t) = sphere_contribution(sphere, ray) {
                 if ray.contains(t) {
-                    for ch in 0..self.channels {
-                        out[ch] += self.tau[j * self.channels + ch] as f64;
-                    }
+                    out.iter_mut().zip(tau).for_each(|(v, &x)| *v += x as f64);
                 }
             }
-        }
+        });
     }
 
     /// Per-stored-particle optical depth (channel), for tests.
+    #[cfg(any(test, feature = "oracles"))]
     pub fn tau_of(&self, original: u32, channel: usize) -> f64 {
-        let j = self.index.iter().position(|&i| i == original).unwrap();
-        self.tau[j * self.channels + channel] as f64
+        let mut out = None;
+        self.each_particle(|_, tau, i| {
+            if i == original {
+                out = Some(tau[channel] as f64);
+            }
+        });
+        out.expect("a particle of this class")
     }
 
     pub fn reach_max(&self) -> f64 {
@@ -1151,6 +1192,19 @@ impl ParticleGrid {
         let members = merge_sparse_classes(members, reach_of, volume, cells_per_particle);
         let mut classes = Vec::new();
         for ids in members {
+            if ids.len() == n && ids.iter().enumerate().all(|(j, &i)| i as usize == j) {
+                // One class of every particle, in order: no copies of the columns.
+                classes.push(SubGrid::build_class(
+                    positions,
+                    radius,
+                    c_ext,
+                    &ids,
+                    channels,
+                    settings,
+                    Some(volume),
+                ));
+                continue;
+            }
             let pos: Vec<[f64; 3]> = ids.iter().map(|&i| positions[i as usize]).collect();
             let rad: Vec<f64> = ids.iter().map(|&i| radius[i as usize]).collect();
             let ce: Vec<f64> = ids
@@ -1412,13 +1466,12 @@ impl ParticleGrid {
     pub fn containing_brute(&self, p: [f64; 3]) -> Vec<u32> {
         let mut out = Vec::new();
         for c in &self.classes {
-            for j in 0..c.len() {
-                let q = c.particles.get(j);
+            c.each_particle(|q, _, i| {
                 let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
                 if dd < (q[3] as f64).powi(2) {
-                    out.push(c.index[j]);
+                    out.push(i);
                 }
-            }
+            });
         }
         out
     }
@@ -1441,26 +1494,38 @@ impl ParticleGrid {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         if !ray.is_empty() {
             for c in &self.classes {
-                for j in 0..c.len() {
-                    if let Some(t) = c.contribution(j, ray) {
+                c.each_particle(|sphere, _, _| {
+                    if let Some(t) = sphere_contribution(sphere, ray) {
                         if ray.contains(t) {
                             lo = lo.min(t);
                             hi = hi.max(t);
                         }
                     }
-                }
+                });
             }
         }
         (lo <= hi).then_some((lo, hi))
     }
 
+    #[cfg(any(test, feature = "oracles"))]
     pub fn tau_of(&self, original: u32, channel: usize) -> f64 {
+        let mut out = f64::NAN;
         for c in &self.classes {
-            if let Some(j) = c.index.iter().position(|&i| i == original) {
-                return c.tau[j * c.channels + channel] as f64;
-            }
+            c.each_particle(|_, tau, i| {
+                if i == original {
+                    out = tau[channel] as f64;
+                }
+            });
         }
-        f64::NAN
+        out
+    }
+
+    /// Drop the stored copies of particles that the slots of their cells duplicate (classes whose
+    /// cells reference every overlapping ball, k = 0): walks and point queries read only the slots,
+    /// and the oracles read them too. Saves the sphere, τ and index of each such particle (24 bytes at
+    /// one channel). For a medium that keeps its grid for rendering.
+    pub fn release_stored(&mut self) {
+        self.classes.iter_mut().for_each(SubGrid::release_stored);
     }
 
     pub fn reach_max(&self) -> f64 {
@@ -1577,6 +1642,57 @@ mod tests {
                 a[ch],
                 b[ch]
             );
+        }
+    }
+
+    /// A grid whose sparse classes released their stored copies (what a medium keeps) answers every
+    /// query as before, its oracles read the slots, and it keeps fewer bytes.
+    #[test]
+    fn released_grid_answers_the_same() {
+        let mut s = 5u64;
+        let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
+        let cext: Vec<f64> = rad
+            .iter()
+            .flat_map(|r| [2.0 * PI * r * r, 3.0 * r * r])
+            .collect();
+        for (rc, cpp) in [(0.01, 1.0), (0.0, 20.0)] {
+            let settings = GridSettings::new(rc, cpp);
+            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
+            let mut r = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
+            r.release_stored();
+            assert!(r.bytes() < g.bytes() && r.len() == g.len());
+            let frame = &g.classes[0].frame;
+            for ray in &test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]) {
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                g.walk(ray, |t, tau, i| {
+                    a.push((t, tau.to_vec(), i));
+                    true
+                });
+                r.walk(ray, |t, tau, i| {
+                    b.push((t, tau.to_vec(), i));
+                    true
+                });
+                assert_eq!(a, b);
+                let (mut x, mut y) = (vec![0.0; 2], vec![0.0; 2]);
+                g.optical_depth_brute(ray, &mut x);
+                r.optical_depth_brute(ray, &mut y);
+                assert!((0..2).all(|ch| (x[ch] - y[ch]).abs() <= 1e-12 * x[ch].abs().max(1e-300)));
+                assert_eq!(
+                    g.occupied_interval_brute(ray),
+                    r.occupied_interval_brute(ray)
+                );
+            }
+            for _ in 0..100 {
+                let p = [lcg(&mut s), lcg(&mut s), lcg(&mut s)];
+                let (mut a, mut b) = (g.containing_brute(p), r.containing_brute(p));
+                a.sort();
+                b.sort();
+                assert_eq!(a, b);
+                assert_eq!(g.containing(p), r.containing(p));
+            }
+            for i in [0u32, 17, 2999] {
+                assert_eq!(g.tau_of(i, 1), r.tau_of(i, 1));
+            }
         }
     }
 
