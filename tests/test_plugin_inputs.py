@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import motes
+from motes import _memory
 from conftest import cube_scene
 
 mi = pytest.importorskip("mitsuba")
@@ -144,8 +145,8 @@ for f in (lambda: motes.LogNormal(10.0, 1.5).sample(10**12),
 
 
 def test_memory_estimate_bounds_the_build():
-    """The per-particle estimate the memory check uses bounds what building a medium really takes (peak
-    resident memory in a fresh process, inputs included; Linux /proc)."""
+    """The per-particle estimates the memory check uses bound what building a medium really takes (peak
+    resident memory in a fresh process, inputs included; Linux /proc), sparse and dense."""
     if not pathlib.Path("/proc/self/clear_refs").exists():
         pytest.skip("needs Linux /proc to reset and read the peak resident size")
     import subprocess
@@ -165,12 +166,18 @@ with open("/proc/self/clear_refs", "w") as f:
 r = sp.psd.sample(n, seed=1)
 pos = np.random.default_rng(0).uniform(-10, 10, (n, 3))
 m = motes.DiscreteMedium(pos, r, np.zeros(n, int), sp, motes.RGB_WAVELENGTHS_UM, scale_m=0.01, query_radius=0.03)
-print((status("VmHWM:") - base) / n, _memory.BYTES_PER_PARTICLE)
+extent = float(np.max(pos.max(axis=0) - pos.min(axis=0)))
+print((status("VmHWM:") - base) / n, _memory.BYTES_PER_PARTICLE, _memory.bytes_per_particle(n, extent, 0.03 + r.max() * 1e-4))
 """
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
-    used, estimate = map(float, r.stdout.split())
-    assert 100 <= used <= estimate, (used, estimate)
+    for spread, dense in ((10, False), (1, True)):
+        # Sparse grains (balls narrower than the cells) and a dense cloud (the same grains in a box 1000x
+        # smaller): each within its own estimate, and the estimate picks the right one.
+        r = subprocess.run([sys.executable, "-c", code.replace("uniform(-10, 10", f"uniform(-{spread}, {spread}")],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        used, estimate, chosen = map(float, r.stdout.split())
+        assert chosen == (_memory.BYTES_PER_PARTICLE_DENSE if dense else _memory.BYTES_PER_PARTICLE)
+        assert 50 <= used <= chosen, (spread, used, chosen)
 
 
 def _cube_scene(integrator: str) -> dict:

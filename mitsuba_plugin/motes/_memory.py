@@ -5,13 +5,26 @@ from __future__ import annotations
 
 import os
 
-#: Peak bytes per particle of building a discrete medium: the caller's arrays (positions, radii: 32 B),
-#: the per-particle columns and sorts of the build, and what the medium keeps. Measured (issue 24, the
-#: test below, 1e6 log-normal 40 um grains, inputs included): sparse grains 274 B (compact storage) /
-#: 261 B (full), a dense cloud 166 / 170 B; the build's temporaries dominate, so one estimate serves both
-#: storages, with a 28 % margin over the larger. The test
-#: `tests/test_plugin_inputs.py::test_memory_estimate_bounds_the_build` keeps this bound honest.
+#: Peak bytes per particle of building a discrete medium whose grains the grid references from every
+#: cell their balls overlap (sparse grains: balls narrower than the grid's cells): the caller's arrays
+#: (positions, radii: 32 B), the cell references and slot copies of the build, and what the medium
+#: keeps. Measured (issue 24; the test below, 1e6 log-normal 40 um grains, inputs included): 274 B
+#: (compact storage), 261 B (full); a 28 % margin over the larger.
 BYTES_PER_PARTICLE = 350
+#: The same for grains wider than their spacing or continuous (a dense cloud, the paper-scale clouds):
+#: 74 B measured at 3e7 generated grains (scripts/bench/bench_scale.py), 75 B in the test below, 125 B
+#: for 1.5e8 grains of the default scene with 4.97 GB of grid (18.8 GB peak); the least any medium
+#: needs, so what the plugin checks before it generates a cloud.
+BYTES_PER_PARTICLE_DENSE = 150
+#: The tests `tests/test_plugin_inputs.py::test_memory_estimate_bounds_the_build` keep both honest.
+
+
+def bytes_per_particle(n: int, extent: float, reach_max: float) -> int:
+    """The estimate for ``n`` particles in a box of largest side ``extent`` whose largest inclusion radius
+    (query radius + particle radius) is ``reach_max`` (scene units): sparse when it is below the grid's
+    cells (about eight particles each), dense otherwise."""
+    cell = 2.0 * extent / max(n, 1) ** (1.0 / 3.0)
+    return BYTES_PER_PARTICLE if reach_max < cell else BYTES_PER_PARTICLE_DENSE
 
 
 def available_bytes() -> int | None:

@@ -96,9 +96,12 @@ def check_discrete_inputs(positions: F64, radius: F64, query_radius: float, tau_
 class DiscreteMedium:
     """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete.rs)."""
 
-    def __init__(self, positions: F64, radius: F64, c_ext: F64, bin: npt.NDArray[np.uint32], albedo: F64,
+    def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], albedo: F64,
                  theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64, query_radius: float,
-                 tau_max: float, cells_per_particle: float, continuous_count: float, seed: int) -> None: ...
+                 tau_max: float, cells_per_particle: float, continuous_count: float, seed: int,
+                 storage: str = "full") -> None:
+        """radius in scene units; q_ext: each bin's grey extinction efficiency (C_ext = pi r^2 q_ext);
+        storage "compact" or "full" (rust/motes-core/src/render/storage.rs)."""
     def sample_sites(self, origins: F32, directions: F32, t_max: F64,
                      remember: npt.NDArray[np.bool_]) -> tuple[F64, F64]: ...
     def commit_events(self, p: F32, active: npt.NDArray[np.bool_], lambda_: F64, channels: int) -> F64: ...

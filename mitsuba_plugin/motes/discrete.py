@@ -97,7 +97,8 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
         raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
     n = pos.shape[0]
-    _memory.require(_memory.BYTES_PER_PARTICLE * n, f"a discrete medium of {n} particles")
+    # The least any medium of n particles needs, before anything else is read (then the regime's own).
+    _memory.require(_memory.BYTES_PER_PARTICLE_DENSE * n, f"a discrete medium of {n} particles")
     r = np.asarray(radii_um, dtype=np.float64).ravel()
     idx = np.asarray(species_index).ravel()
     if idx.dtype.kind not in "iu":  # kept in its integer type: an int64 copy of 1e8 indices is 800 MB
@@ -120,6 +121,10 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
         raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
     if not (np.isfinite(scale_m) and scale_m > 0):
         raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
+    if r.size == n:
+        extent = float(np.max(pos.max(axis=0) - pos.min(axis=0)))
+        reach_max = float(query_radius) + float(r.max()) * 1e-6 / scale_m
+        _memory.require(_memory.bytes_per_particle(n, extent, reach_max) * n, f"a discrete medium of {n} particles")
     # The core's own rules, checked now rather than after minutes of optics tables.
     _motes.check_discrete_inputs(pos.ravel(), r, float(query_radius), float(tau_max), float(cells_per_particle),
                                  float(continuous_count))
@@ -160,9 +165,9 @@ class DiscreteMedium:
         if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
             raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
-        bin_of, q_ext, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
+        bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
                                                     truncate_below_rad, albedo)
-        self._build_core(pos, r, idx, lam_in, lam, bin_of, q_ext, tables, scale_m, query_radius, tau_max,
+        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
                          cells_per_particle, continuous_count, seed, warn_widened)
         self._core.set_grain_depth(int(grain_depth))
         #: See the module docs.
@@ -172,7 +177,7 @@ class DiscreteMedium:
         """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""
         n = r.size
         bin_of = np.zeros(n, dtype=np.uint32)
-        q_ext = np.zeros(n)  # grey extinction efficiency of each particle's bin
+        grey_q = []  # grey extinction efficiency of each bin (the mean over the wavelengths)
         albedos, theta, f, offsets = [], [], [], [0]
         self.bin_radius_um, self.bin_species, self.bin_q_ext, self.bin_albedo = [], [], [], []
         nb = 0
@@ -190,12 +195,11 @@ class DiscreteMedium:
             np.clip(which, 0, max(edges.size - 2, 0), out=which)
             del rs
             global_bin = np.zeros(max(edges.size - 1, 1), dtype=np.uint32)
-            bin_q = np.zeros(global_bin.size)
             for b in np.flatnonzero(np.bincount(which, minlength=global_bin.size)):
                 lo, hi = float(edges[b]), float(edges[b + 1])
                 q_t, bulk = _bin_optics(sp, lo, hi, lam, eta_medium, method, truncate_below_rad, goa_cache)
                 global_bin[b] = nb
-                bin_q[b] = float(np.mean(q_t))
+                grey_q.append(float(np.mean(q_t)))
                 albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if albedo is None else np.full(lam.size, float(albedo)))
                 for row in bulk["phase"]:
                     theta.append(bulk["theta"])
@@ -210,30 +214,28 @@ class DiscreteMedium:
                     t_said = time.perf_counter()
                     log.info("optics tables: %d bins so far (species %d), %.1f s", nb, k, t_said - t_tables)
             bin_of[sel] = global_bin[which]
-            q_ext[sel] = bin_q[which]
             del which
         log.info("optics tables: %d bins in %.1f s", nb, time.perf_counter() - t_tables)
         self.n_bins = nb
-        return bin_of, q_ext, (albedos, theta, f, offsets)
+        return bin_of, np.asarray(grey_q), (albedos, theta, f, offsets)
 
-    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, q_ext, tables, scale_m, query_radius, tau_max,
+    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
                     cells_per_particle, continuous_count, seed, warn_widened):
         """The Rust medium over the particles and their bins' tables, and the attributes that report it."""
         n = pos.shape[0]
         albedos, theta, f, offsets = tables
         t_grid = time.perf_counter()
         um = 1e-6 / scale_m
-        c_ext = r * r  # in place from here: each temporary of 1e8 particles is 800 MB
-        c_ext *= q_ext
-        c_ext *= np.pi * um * um
-        del q_ext
+        # Each particle's cross section is pi r^2 of its bin's grey Q_ext: the core computes it (a column of
+        # 1e8 particles is 800 MB); the Python layer forms it only to report it (full storage) or to warn.
+        c_ext_of = lambda: np.pi * (r * um) ** 2 * grey_q[bin_of]  # noqa: E731
         self.scale_m = float(scale_m)
         self.query_radius = float(query_radius)
         self.wavelength_um = lam
         #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         self._core = _motes.DiscreteMedium(
-            pos.ravel(), r * um, c_ext, bin_of,
+            pos.ravel(), r * um, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
@@ -245,7 +247,7 @@ class DiscreteMedium:
         #: Particles sampled as a continuous medium (``continuous_count``).
         self.continuous_particles = self._core.continuous_particles
         if warn_widened and self.widened > WIDENED_WARN_SHARE * n:
-            frac = float(np.max(c_ext / (np.pi * (query_radius + r * um) ** 2)))
+            frac = float(np.max(c_ext_of() / (np.pi * (query_radius + r * um) ** 2)))
             tau = -np.log1p(-frac) if frac < 1 else np.inf
             # stacklevel 3: the caller of DiscreteMedium(...), past this method and __init__.
             warnings.warn(f"query_radius = {query_radius:g} would give {self.widened} of {n} particles an optical "
@@ -259,7 +261,7 @@ class DiscreteMedium:
         #: Each particle's optics bin (index into bin_radius_um, bin_q_ext, bin_albedo); full storage only.
         self.particle_bin = bin_of if full else None
         self.radii_um = r if full else None
-        self.c_ext_scene = c_ext if full else None
+        self.c_ext_scene = c_ext_of() if full else None
         #: The box of the particles' centres (scene units).
         self.centre_box = (lo_, hi_)
         reach = float(self._core.reach_max)

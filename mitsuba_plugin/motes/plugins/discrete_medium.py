@@ -253,7 +253,8 @@ def _read_parameters(props) -> SimpleNamespace:
     p = SimpleNamespace()
     p.filename = _get(props, "filename", None, str)
     p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
-    _memory.require(_memory.BYTES_PER_PARTICLE * p.count, f"discrete medium: count = {p.count}")
+    # The least any medium of this count needs (a dense cloud); the build checks its own estimate again.
+    _memory.require(_memory.BYTES_PER_PARTICLE_DENSE * p.count, f"discrete medium: count = {p.count}")
     p.distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
                           "one of uniform, gradient, noise")
     lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um

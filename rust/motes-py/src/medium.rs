@@ -30,19 +30,20 @@ pub(crate) struct PyDiscreteMedium {
 
 #[pymethods]
 impl PyDiscreteMedium {
-    /// positions (n*3), radius (n), c_ext (n, grey) in scene units; bin (n) into the bins; albedo
+    /// positions (n*3), radius (n) in scene units; bin (n) into the bins and each bin's grey extinction
+    /// efficiency `q_ext` (a particle's cross section is π r² q_ext of its bin: no column); albedo
     /// (bins*K); phase tables as flat theta/f with offsets (bins*K + 1); lambda (K, increasing);
     /// tau_max caps each particle's optical depth by widening its disk (inf: no cap); size classes with
     /// at least continuous_count particles per query cylinder are sampled as a continuous medium;
     /// storage "compact" (per-class optics, quantised radii) or "full" (`motes_core::render::storage`).
     #[new]
-    #[pyo3(signature = (positions, radius, c_ext, bin, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, storage="full"))]
+    #[pyo3(signature = (positions, radius, q_ext, bin, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, storage="full"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         positions: F64In,
         radius: F64In,
-        c_ext: F64In,
+        q_ext: F64In,
         bin: PyReadonlyArray1<'_, u32>,
         albedo: F64In,
         theta: F64In,
@@ -61,17 +62,40 @@ impl PyDiscreteMedium {
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
         // Borrowed, not copied (10^8 particles: 4 GB): the build holds the GIL instead of releasing it,
         // so no Python thread can change the arrays under it (its rayon workers need no GIL).
-        let (pos, r, c) = (
+        let (pos, r, q, b) = (
             points_view(positions.as_slice()?)?,
             radius.as_slice()?,
-            c_ext.as_slice()?,
+            q_ext.as_slice()?,
+            bin.as_slice()?,
         );
+        if q.len() != bins.len() {
+            return Err(invalid(
+                "q_ext",
+                q.len(),
+                format!("one per bin ({})", bins.len()),
+            ));
+        }
+        if r.len() != b.len() {
+            return Err(invalid(
+                "bin",
+                b.len(),
+                format!("one per particle ({})", r.len()),
+            ));
+        }
+        if let Some(&bad) = b.iter().find(|&&x| x as usize >= q.len()) {
+            return Err(invalid(
+                "bin",
+                bad,
+                format!("bin {bad} of {} bins", q.len()),
+            ));
+        }
         let _ = py;
+        let c_ext = |i: usize| std::f64::consts::PI * r[i] * r[i] * q[b[i] as usize];
         let medium = motes_core::render::discrete::DiscreteMedium::build(
             pos,
             r,
-            c,
-            bin.as_slice()?.to_vec(),
+            &c_ext,
+            b.to_vec(),
             bins,
             lam,
             query_radius,

@@ -54,8 +54,8 @@ const MAX_CELLS: f64 = 1.0e8;
 /// particles of mean disk area A holds N_c = n_c A L / V of them.
 pub fn resolvable(
     positions: &[[f64; 3]],
-    reach: &[f64],
-    weight: &[f64],
+    reach: Column,
+    weight: Column,
     min_count: f64,
 ) -> Vec<bool> {
     let n = positions.len();
@@ -66,26 +66,30 @@ pub fn resolvable(
     let e = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12 * (hi[a].abs() + lo[a].abs()).max(1e-300)));
     let volume = e[0] * e[1] * e[2];
     let chord = 4.0 * volume / (2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]));
-    let sigma = weight.iter().sum::<f64>() / volume;
+    let sigma = (0..n).into_par_iter().map(weight).sum::<f64>() / volume;
     let length = if sigma > 0.0 {
         chord.min(1.0 / sigma)
     } else {
         chord
     };
-    let reach_max = reach.iter().cloned().fold(0.0, f64::max);
+    let reach_max = (0..n).into_par_iter().map(reach).reduce(|| 0.0, f64::max);
     let mut area = [0.0f64; crate::space::grid::SIZE_CLASSES];
-    for &r in reach {
+    for r in (0..n).map(reach) {
         area[size_class(reach_max, r)] += PI * r * r;
     }
     let keep: Vec<bool> = area
         .iter()
         .map(|a| a * length / volume < min_count)
         .collect();
-    reach
-        .iter()
-        .map(|&r| keep[size_class(reach_max, r)])
+    (0..n)
+        .into_par_iter()
+        .map(|i| keep[size_class(reach_max, reach(i))])
         .collect()
 }
+
+/// A per-particle value by original index: a slice's entry, or computed (a class table through each
+/// particle's code, so that 10^8 particles need no column of their own).
+pub type Column<'a> = &'a (dyn Fn(usize) -> f64 + Sync);
 
 /// Where a free flight through the field interacts: its t and the cell it lies in.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -152,20 +156,30 @@ pub struct ContinuousField {
 }
 
 impl ContinuousField {
-    /// The field of the particles `ids` (original indices), with centres `positions`, inclusion radii
-    /// `reach` and extinction cross sections `weight` (scene units), all indexed like `ids`. With
-    /// `classes` (each particle's class code, by original index) the field keeps the classes instead of
-    /// the indices (compact storage).
+    /// The field of the particles `ids` (original indices; None: all), with centres `positions`,
+    /// inclusion radii `reach` and extinction cross sections `weight` (scene units), all indexed by
+    /// original index (a subset is selected, not copied: 10^8 particles). With `classes` (each
+    /// particle's class code, by original index) the field keeps the classes instead of the indices
+    /// (compact storage).
     pub fn build(
         positions: &[[f64; 3]],
-        reach: &[f64],
-        weight: &[f64],
-        ids: &[u32],
+        reach: Column,
+        weight: Column,
+        ids: Option<&[u32]>,
         classes: Option<&[u32]>,
     ) -> Self {
-        let n = ids.len();
-        let reach_max = reach.iter().cloned().fold(0.0, f64::max);
-        let (mut lo, mut hi) = bounding_box(positions);
+        let n = ids.map_or(positions.len(), <[u32]>::len);
+        let id = |j: usize| ids.map_or(j, |v| v[j] as usize);
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let mut reach_max = 0.0f64;
+        for j in 0..n {
+            let (p, i) = (positions[id(j)], id(j));
+            reach_max = reach_max.max(reach(i));
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
         // The field fills the centres' box exactly, cells fitted to it per axis: a cell straddling the
         // box face would spread its particles' extinction over volume a bounded medium (a null-BSDF
         // cube around generated particles) never reaches, and darken the cloud's edges (measured:
@@ -190,7 +204,10 @@ impl ContinuousField {
             (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
         };
         // Counting sort by cell, in u32 (the field takes at most 2^32 particles, as the grid does).
-        let which: Vec<u32> = positions.par_iter().map(|p| cell_of(p) as u32).collect();
+        let which: Vec<u32> = (0..n)
+            .into_par_iter()
+            .map(|j| cell_of(&positions[id(j)]) as u32)
+            .collect();
         let mut start = vec![0u32; n_cells + 1];
         for &c in &which {
             start[c as usize + 1] += 1;
@@ -199,9 +216,10 @@ impl ContinuousField {
             start[c + 1] += start[c];
         }
         let mut fill = start.clone();
+        // The original indices in cell order.
         let mut order = vec![0u32; n];
-        for (i, &c) in which.iter().enumerate() {
-            order[fill[c as usize] as usize] = i as u32;
+        for (j, &c) in which.iter().enumerate() {
+            order[fill[c as usize] as usize] = id(j) as u32;
             fill[c as usize] += 1;
         }
         drop((which, fill));
@@ -210,11 +228,11 @@ impl ContinuousField {
         let mut cdf = vec![0u16; n];
         for c in 0..n_cells {
             let (a, b) = (start[c] as usize, start[c + 1] as usize);
-            let total: f64 = order[a..b].iter().map(|&i| weight[i as usize]).sum();
+            let total: f64 = order[a..b].iter().map(|&i| weight(i as usize)).sum();
             sigma[c] = (total / cell_volume) as f32;
             let mut acc = 0.0;
             for j in a..b {
-                acc += weight[order[j] as usize];
+                acc += weight(order[j] as usize);
                 let share = if total > 0.0 {
                     acc / total
                 } else {
@@ -228,19 +246,13 @@ impl ContinuousField {
             }
         }
         let members = match classes {
-            None => Members::Ids(order.iter().map(|&i| ids[i as usize]).collect()),
-            Some(c) if c.iter().all(|&k| k <= u16::MAX as u32) => Members::Classes(
-                order
-                    .iter()
-                    .map(|&i| c[ids[i as usize] as usize] as u16)
-                    .collect(),
-            ),
-            Some(c) => Members::WideClasses(
-                order
-                    .iter()
-                    .map(|&i| CLASS_FLAG | c[ids[i as usize] as usize])
-                    .collect(),
-            ),
+            None => Members::Ids(order),
+            Some(c) if c.iter().all(|&k| k <= u16::MAX as u32) => {
+                Members::Classes(order.iter().map(|&i| c[i as usize] as u16).collect())
+            }
+            Some(c) => {
+                Members::WideClasses(order.iter().map(|&i| CLASS_FLAG | c[i as usize]).collect())
+            }
         };
         let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
         ContinuousField {
@@ -406,7 +418,7 @@ mod tests {
         let reach = vec![0.01; n];
         let w: Vec<f64> = (0..n).map(|_| 1e-5 * (0.5 + lcg(&mut s))).collect();
         let ids: Vec<u32> = (0..n as u32).collect();
-        let f = ContinuousField::build(&pos, &reach, &w, &ids, None);
+        let f = ContinuousField::build(&pos, &|i| reach[i], &|i| w[i], Some(&ids), None);
         let sigma = w.iter().sum::<f64>(); // volume 1
         let ray = RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0);
         let tau = f.optical_depth(&ray);
@@ -460,7 +472,7 @@ mod tests {
         let reach = vec![0.01; n];
         let w = vec![3e-5; n];
         let ids: Vec<u32> = (0..n as u32).collect();
-        let f = ContinuousField::build(&pos, &reach, &w, &ids, None);
+        let f = ContinuousField::build(&pos, &|i| reach[i], &|i| w[i], Some(&ids), None);
         let rays = [
             RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0),
             RaySegment::new([0.3, 0.7, 0.2], [0.0, 0.0, 1.0], 0.0, 3.0),
@@ -504,14 +516,14 @@ mod tests {
             .map(|i| if i % 2 == 0 { 0.05 } else { 0.002 })
             .collect();
         let w: Vec<f64> = reach.iter().map(|r| PI * r * r * 1e-3).collect();
-        let keep = resolvable(&pos, &reach, &w, 16.0);
+        let keep = resolvable(&pos, &|i| reach[i], &|i| w[i], 16.0);
         assert!((0..n).all(|i| keep[i] == (i % 2 == 1)));
-        assert!(resolvable(&pos, &reach, &w, f64::INFINITY)
+        assert!(resolvable(&pos, &|i| reach[i], &|i| w[i], f64::INFINITY)
             .iter()
             .all(|&k| k));
         // Optically thick: the mean free path limits the cylinder (σ_t = 1e4·π·0.05²·0.5 ≈ 39 per unit).
         let w_thick: Vec<f64> = reach.iter().map(|r| PI * r * r * 0.5).collect();
-        let keep = resolvable(&pos, &reach, &w_thick, 16.0);
+        let keep = resolvable(&pos, &|i| reach[i], &|i| w_thick[i], 16.0);
         assert!(keep.iter().all(|&k| k));
     }
 }

@@ -71,13 +71,11 @@
 
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
-use crate::render::continuous::{resolvable, ContinuousField, FieldHit, CLASS_FLAG};
+use crate::render::continuous::{resolvable, Column, ContinuousField, FieldHit, CLASS_FLAG};
 use crate::render::storage::{classes, ParticleOptics, Storage};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
-use crate::space::grid::{
-    bounding_box, check_cross_sections, check_particles, GridSettings, ParticleGrid, Site,
-};
+use crate::space::grid::{bounding_box, check_particles, GridSettings, ParticleGrid, Site};
 use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -433,7 +431,7 @@ pub fn check_particles_and_settings(
 fn check_build_inputs(
     positions: &[[f64; 3]],
     radius: &[f64],
-    c_ext: &[f64],
+    c_ext: Column,
     bin: &[u32],
     bins: &[BinOptics],
     lambda: &[f64],
@@ -459,7 +457,13 @@ fn check_build_inputs(
         cells_per_particle,
         continuous_count,
     )?;
-    check_cross_sections(c_ext, n, 1)?;
+    if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
+        require("bin (index)", b as f64, false, "< number of bins")?;
+    }
+    for i in 0..n {
+        let c = c_ext(i);
+        require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
+    }
     require(
         "lambda (length)",
         lambda.len() as f64,
@@ -496,10 +500,10 @@ fn check_build_inputs(
 #[allow(clippy::type_complexity)]
 fn build_walk(
     positions: &[[f64; 3]],
-    reach: &[f64],
-    grid_radius: &[f64],
-    grid_c: &[f64],
-    c_ext: &[f64],
+    reach: Column,
+    grid_radius: Column,
+    grid_c: Column,
+    c_ext: Column,
     settings: &GridSettings,
     continuous_count: f64,
     classes: Option<&[u32]>,
@@ -508,14 +512,15 @@ fn build_walk(
     let keep = resolvable(positions, reach, c_ext, continuous_count);
     let (discrete_ids, field_ids): (Vec<u32>, Vec<u32>) =
         (0..n as u32).partition(|&i| keep[i as usize]);
-    let pick = |ids: &[u32], v: &[f64]| ids.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>();
+    let pick =
+        |ids: &[u32], v: Column| ids.par_iter().map(|&i| v(i as usize)).collect::<Vec<f64>>();
     let grid = if discrete_ids.is_empty() {
         None
     } else if field_ids.is_empty() {
         Some(ParticleGrid::from_checked(
             positions,
-            grid_radius,
-            grid_c,
+            &pick(&discrete_ids, grid_radius),
+            &pick(&discrete_ids, grid_c),
             1,
             settings,
         ))
@@ -539,27 +544,12 @@ fn build_walk(
         g.release_stored();
         g
     });
-    let field = if discrete_ids.is_empty() {
-        // Every particle continuous: no subset to copy.
-        Some(ContinuousField::build(
-            positions, reach, c_ext, &field_ids, classes,
-        ))
-    } else {
-        None
-    };
-    let field = field.or_else(|| {
-        (!field_ids.is_empty()).then(|| {
-            let pos: Vec<[f64; 3]> = field_ids.iter().map(|&i| positions[i as usize]).collect();
-            // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not
-            // by τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs).
-            ContinuousField::build(
-                &pos,
-                &pick(&field_ids, reach),
-                &pick(&field_ids, c_ext),
-                &field_ids,
-                classes,
-            )
-        })
+    // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not by
+    // τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs). The field
+    // selects its particles from the full columns (every particle continuous: all of them).
+    let field = (!field_ids.is_empty()).then(|| {
+        let ids = (!discrete_ids.is_empty()).then_some(&field_ids[..]);
+        ContinuousField::build(positions, reach, c_ext, ids, classes)
     });
     (grid, field, keep)
 }
@@ -636,7 +626,7 @@ impl DiscreteMedium {
     pub fn build(
         positions: &[[f64; 3]],
         radius: &[f64],
-        c_ext: &[f64],
+        c_ext: Column,
         bin: Vec<u32>,
         bins: Vec<BinOptics>,
         lambda: Vec<f64>,
@@ -662,13 +652,18 @@ impl DiscreteMedium {
         let n = positions.len();
         // Compact storage: each particle becomes its class (a bin and a radius level), and everything
         // below sees the class's radius and cross section (crate::render::storage).
+        // Full storage keeps every particle's cross section: its table is per particle.
+        let c_full: Vec<f64> = match storage {
+            Storage::Full => (0..n).into_par_iter().map(c_ext).collect(),
+            Storage::Compact => Vec::new(),
+        };
         let classes = match storage {
             Storage::Compact => Some(classes(radius, c_ext, &bin, bins.len())?),
             Storage::Full => None,
         };
         let (t_radius, t_c): (&[f64], &[f64]) = match &classes {
             Some(c) => (&c.radius, &c.c_ext),
-            None => (radius, c_ext),
+            None => (radius, &c_full[..]),
         };
         let table_disks: Vec<(f64, f64)> = t_radius
             .par_iter()
@@ -682,16 +677,10 @@ impl DiscreteMedium {
             })
             .collect();
         let code_of = |i: usize| classes.as_ref().map_or(i, |c| c.codes[i] as usize);
-        // Per-particle views of the table, each built in one parallel pass (no (R, τ) pairs or radii
-        // per particle: at 10^8 particles every f64 column is 800 MB).
-        let column = |f: &(dyn Fn(usize) -> f64 + Sync)| -> Vec<f64> {
-            (0..n).into_par_iter().map(|i| f(code_of(i))).collect()
-        };
-        let reach = column(&|k| table_disks[k].0);
-        let p_c: std::borrow::Cow<[f64]> = match &classes {
-            Some(_) => column(&|k| t_c[k]).into(),
-            None => c_ext.into(),
-        };
+        // Per-particle values as functions of the particle through the table, not columns (at 10^8
+        // particles every f64 column is 800 MB): the grid takes columns of its discrete particles only.
+        let reach = |i: usize| table_disks[code_of(i)].0;
+        let p_c = |i: usize| t_c[code_of(i)];
         let widened = (0..n)
             .into_par_iter()
             .filter(|&i| {
@@ -701,8 +690,14 @@ impl DiscreteMedium {
             .count();
         // The grid reaches r_c + radius and spreads c / (π reach²): the widened disks (R, τ) are handed
         // to it as radii R − r_c (at least r) and cross sections τ π R², so that it walks exactly them.
-        let grid_radius = column(&|k| (table_disks[k].0 - query_radius).max(t_radius[k]));
-        let grid_c = column(&|k| table_disks[k].1 * PI * table_disks[k].0 * table_disks[k].0);
+        let grid_radius = |i: usize| {
+            let k = code_of(i);
+            (table_disks[k].0 - query_radius).max(t_radius[k])
+        };
+        let grid_c = |i: usize| {
+            let (r, tau) = table_disks[code_of(i)];
+            tau * PI * r * r
+        };
         let (grid, field, keep) = build_walk(
             positions,
             &reach,
@@ -713,24 +708,21 @@ impl DiscreteMedium {
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),
         );
-        drop((grid_radius, grid_c));
-        let reach_max = reach.iter().cloned().fold(0.0, f64::max);
+        let reach_max = (0..n).into_par_iter().map(reach).reduce(|| 0.0, f64::max);
         // Every particle's continuous equivalent, for rays past the grain depth (weighted by C_t,i as
         // the continuous classes are); none when the medium must stay exact. When every particle is
         // already in the continuous field, the field is that equivalent (built once: see
         // `grains_field_from`).
         let all_continuous = grid.is_none();
         let grains_field = (continuous_count.is_finite() && !all_continuous).then(|| {
-            let ids: Vec<u32> = (0..n as u32).collect();
             ContinuousField::build(
                 positions,
                 &reach,
                 &p_c,
-                &ids,
+                None,
                 classes.as_ref().map(|c| &c.codes[..]),
             )
         });
-        drop((reach, p_c));
         let (table_c, table_bin, in_field) = match classes {
             Some(c) => {
                 let mut in_field = vec![false; c.radius.len()];
@@ -739,7 +731,7 @@ impl DiscreteMedium {
                 }
                 (c.c_ext, c.bin, Some((in_field, c.codes)))
             }
-            None => (c_ext.to_vec(), bin, None),
+            None => (c_full, bin, None),
         };
         let optics = match in_field {
             Some((in_field, codes)) => {
@@ -1776,7 +1768,7 @@ mod tests {
         DiscreteMedium::build(
             &pos,
             &rad,
-            &c,
+            &|i| c[i],
             bin,
             bins,
             vec![500.0, 600.0],

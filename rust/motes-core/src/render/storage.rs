@@ -14,7 +14,7 @@
 //!   particles as stored. Four bytes per particle instead of seventeen.
 
 use crate::error::{require, OpticsError};
-use crate::render::continuous::CLASS_FLAG;
+use crate::render::continuous::{Column, CLASS_FLAG};
 use std::f64::consts::PI;
 
 /// How a discrete medium stores its particles (module docs).
@@ -73,7 +73,7 @@ pub(crate) struct Classes {
 /// The classes of particles with radii `radius`, cross sections `c_ext` and bins `bin` (module docs).
 pub(crate) fn classes(
     radius: &[f64],
-    c_ext: &[f64],
+    c_ext: Column,
     bin: &[u32],
     bins: usize,
 ) -> Result<Classes, OpticsError> {
@@ -89,8 +89,8 @@ pub(crate) fn classes(
     let mut hi = vec![0.0f64; bins];
     let mut q = vec![0.0f64; bins];
     let mut count = vec![0usize; bins];
-    for ((&r, &c), &b) in radius.iter().zip(c_ext).zip(bin) {
-        let b = b as usize;
+    for (i, (&r, &b)) in radius.iter().zip(bin).enumerate() {
+        let (b, c) = (b as usize, c_ext(i));
         lo[b] = lo[b].min(r);
         hi[b] = hi[b].max(r);
         q[b] += c / (PI * r * r);
@@ -230,7 +230,7 @@ mod tests {
             .zip(&bin)
             .map(|(&r, &b)| PI * r * r * (2.0 + b as f64))
             .collect();
-        let c = classes(&radius, &c_ext, &bin, 2).unwrap();
+        let c = classes(&radius, &|i| c_ext[i], &bin, 2).unwrap();
         for (i, &k) in c.codes.iter().enumerate() {
             let k = k as usize;
             assert_eq!(c.bin[k], bin[i]);
@@ -258,7 +258,7 @@ mod tests {
     /// A bin whose particles share one radius keeps it exactly.
     #[test]
     fn a_monodisperse_bin_is_exact() {
-        let c = classes(&[3.0; 10], &[PI * 18.0; 10], &[0; 10], 1).unwrap();
+        let c = classes(&[3.0; 10], &|_| PI * 18.0, &[0; 10], 1).unwrap();
         assert!(c.codes.iter().all(|&k| k == 0) && c.radius.len() == 1);
         assert_eq!(c.radius[0], 3.0);
         assert!((c.c_ext[0] - PI * 18.0).abs() < 1e-12);

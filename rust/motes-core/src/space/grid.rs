@@ -628,7 +628,7 @@ impl SubGrid {
     /// Does stored particle j contribute to the ray (|d| = 1; the segment's t range aside), and where
     /// (t of its projection)?
     #[inline]
-    #[cfg(any(test, feature = "oracles"))]
+    #[cfg(test)]
     fn contribution(&self, j: usize, ray: &RaySegment) -> Option<f64> {
         sphere_contribution(self.particles.get(j), ray)
     }
