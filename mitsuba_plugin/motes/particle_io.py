@@ -28,7 +28,7 @@ import numpy as np
 class ParticleSet:
     positions: np.ndarray  # (n, 3) scene units
     radii_um: np.ndarray  # (n,)
-    species: np.ndarray  # (n,) int64
+    species: np.ndarray  # (n,) integers (their type as read; int64 for non-integer input)
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
@@ -36,6 +36,10 @@ class ParticleSet:
 
 class ParticleFileError(ValueError):
     """A particle file that cannot be used; the message names the file and the element or field."""
+
+
+#: Particles checked per step (bounds the validation's temporaries to a few MB).
+_CHUNK = 1 << 20
 
 
 def _fail(path, message: str):
@@ -52,24 +56,31 @@ def _validate(path, pos, radii, species, n_species) -> ParticleSet:
         _fail(path, "the particle set is empty")
     if radii.size != n:
         _fail(path, f"{radii.size} radii for {n} particles")
-    species = np.zeros(n, dtype=np.int64) if species is None else np.asarray(species)
+    # Checked in chunks, so that 1e8 particles cost no full-size temporaries (masks, float copies).
+    species = np.zeros(n, dtype=np.uint32) if species is None else np.asarray(species).ravel()
     if species.size != n:
         _fail(path, f"{species.size} species entries for {n} particles")
-    bad = ~np.isfinite(pos)
-    if bad.any():
-        i, a = map(int, np.argwhere(bad)[0])
-        _fail(path, f"particle {i}: field {'xyz'[a]} is {pos[i, a]} (must be finite)")
-    bad = ~(np.isfinite(radii) & (radii > 0))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        _fail(path, f"particle {i}: field radius is {radii[i]} (must be finite and > 0 micrometres)")
-    sp = np.asarray(species, dtype=np.float64).ravel()
-    bad = ~(np.isfinite(sp) & (sp == np.round(sp)) & (sp >= 0) & (sp < (n_species if n_species is not None else np.inf)))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        limit = f" (have {n_species} species)" if n_species is not None else ""
-        _fail(path, f"particle {i}: field species is {species.ravel()[i]}, not a known species index{limit}")
-    return ParticleSet(np.ascontiguousarray(pos), np.ascontiguousarray(radii), sp.astype(np.int64))
+    limit = n_species if n_species is not None else np.inf
+    for a in range(0, n, _CHUNK):
+        sl = slice(a, min(a + _CHUNK, n))
+        bad = ~np.isfinite(pos[sl])
+        if bad.any():
+            i, k = map(int, np.argwhere(bad)[0])
+            _fail(path, f"particle {a + i}: field {'xyz'[k]} is {pos[a + i, k]} (must be finite)")
+        bad = ~(np.isfinite(radii[sl]) & (radii[sl] > 0))
+        if bad.any():
+            i = a + int(np.flatnonzero(bad)[0])
+            _fail(path, f"particle {i}: field radius is {radii[i]} (must be finite and > 0 micrometres)")
+        sp = np.asarray(species[sl], dtype=np.float64)
+        bad = ~(np.isfinite(sp) & (sp == np.round(sp)) & (sp >= 0) & (sp < limit))
+        if bad.any():
+            i = a + int(np.flatnonzero(bad)[0])
+            suffix = f" (have {n_species} species)" if n_species is not None else ""
+            _fail(path, f"particle {i}: field species is {species[i]}, not a known species index{suffix}")
+    # Integer species keep their type (an int64 copy of 1e8 is 800 MB); others become integers.
+    if species.dtype.kind not in "iu":
+        species = species.astype(np.int64)
+    return ParticleSet(np.ascontiguousarray(pos), np.ascontiguousarray(radii), species)
 
 
 def _read_csv(path):

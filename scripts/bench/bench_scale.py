@@ -13,7 +13,11 @@ spot light in a grey room (``scripts/bench/bench_render.py``'s dust room), ``vol
 * ``B/particle``: the medium's own bytes (``DiscreteMedium.bytes``) over the count;
 * ``render``: one render after the load (the first, JIT compilation included), then a second one.
 
-    .venv/bin/python scripts/bench/bench_scale.py [--counts 1e6,1e7] [--storage compact] [--variant scalar_rgb]
+With ``--source file`` the grains come from a particle file instead (``filename``: an uncompressed .npz of
+float64 positions in [-1, 1]^3, float64 radii and uint32 species, written beforehand by another process
+from the same generator; its reading is part of the load).
+
+    .venv/bin/python scripts/bench/bench_scale.py [--counts 1e6,1e7] [--storage compact] [--variant scalar_rgb] [--source file]
 """
 
 from __future__ import annotations
@@ -31,7 +35,19 @@ import _common as C  # noqa: E402
 HALF = 5.0  # cm: the cube's half-size
 
 
-def child(count: float, storage: str, variant: str, res: int, spp: int) -> dict:
+def write_file(count: float, path: str) -> None:
+    """An .npz of ``count`` grains (the plugin's generator, in the local cube), written in this process."""
+    import numpy as np  # noqa: PLC0415
+
+    motes = C.import_motes()
+    psd = motes.LogNormal(50.0, 1.5)
+    ident = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0]]
+    c, r, s = motes._motes.generate_cloud(int(count), [-1.0] * 3, [1.0] * 3, "uniform", [], 0, [psd._core], [1.0], 0,
+                                          ident)
+    np.savez(path, positions=c.reshape(-1, 3), radii_um=r, species=s)
+
+
+def child(count: float, storage: str, variant: str, res: int, spp: int, filename: str | None = None) -> dict:
     """One row, measured in this (fresh) process."""
     import numpy as np  # noqa: PLC0415
 
@@ -45,7 +61,11 @@ def child(count: float, storage: str, variant: str, res: int, spp: int) -> dict:
 
     before = _memory.peak_resident_mb()
     medium = {"type": "discrete", "count": int(count), "radius_median": 50.0, "radius_sigma_g": 1.5,
-              "material": "ice", "scale_m": 0.01, "query_radius": 0.02, "phase": {"type": "particle"}}
+              "material": "ice", "scale_m": 0.01, "query_radius": 0.02, "phase": {"type": "particle"},
+              "to_world": mi.ScalarTransform4f().scale(HALF)}  # the cube's own (the medium does not inherit it)
+    if filename:
+        medium = {k: v for k, v in medium.items() if k not in ("count", "radius_median", "radius_sigma_g")}
+        medium["filename"] = filename
     if storage:
         medium["storage"] = storage
     scene = BR.room(mi, medium, res, spp, max_depth=6)
@@ -74,16 +94,27 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per row")
+    ap.add_argument("--source", default="generated", choices=["generated", "file"])
     ap.add_argument("--child", type=float, default=None, help=argparse_hidden())
+    ap.add_argument("--file", default=None, help=argparse_hidden())
+    ap.add_argument("--write", action="store_true", help=argparse_hidden())
     args = ap.parse_args()
+    if args.child is not None and args.write:
+        write_file(args.child, args.file)
+        return
     if args.child is not None:
-        print("RESULT " + json.dumps(child(args.child, args.storage, args.variant, args.res, args.spp)))
+        print("RESULT " + json.dumps(child(args.child, args.storage, args.variant, args.res, args.spp, args.file)))
         return
     out, sw = C.out_dir(args.out), C.Stopwatch()
     rows = []
     for count in [float(c) for c in args.counts.split(",")]:
         cmd = [sys.executable, __file__, "--child", repr(count), "--storage", args.storage, "--variant",
                args.variant, "--res", str(args.res), "--spp", str(args.spp)]
+        path = None
+        if args.source == "file":
+            path = str(out / f"bench_scale_{count:.0e}.npz")
+            subprocess.run(cmd + ["--write", "--file", path], check=True, timeout=args.timeout)
+            cmd += ["--file", path]
         t = time.perf_counter()
         try:
             run = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
@@ -96,6 +127,9 @@ def main() -> None:
         except subprocess.TimeoutExpired:
             row = {"count": count, "error": f"over {args.timeout:.0f} s"}
         row["wall_s"] = time.perf_counter() - t
+        row["source"] = args.source
+        if path:
+            pathlib.Path(path).unlink(missing_ok=True)
         rows.append(row)
         if "error" in row:
             print(f"[{count:.0e}] {row['error']}", flush=True)
@@ -103,12 +137,12 @@ def main() -> None:
             print(f"[{count:.0e}] load {row['load_s']:.1f} s, peak {row['peak_gb']:.2f} GB, "
                   f"{row['bytes_per_particle']:.1f} B/particle, render {row['render_first_s']:.2f} s "
                   f"(again {row['render_s']:.2f} s)", flush=True)
-    C.print_table(f"**{args.variant}, storage {args.storage or 'default'}, {args.res}^2 px, {args.spp} spp**",
+    C.print_table(f"**{args.variant}, {args.source} grains, storage {args.storage or 'default'}, {args.res}^2 px, {args.spp} spp**",
                   ["count", "load (s)", "peak (GB)", "B/particle", "render (s)", "again (s)"],
                   [[f"{r['count']:.0e}", r.get("load_s", r.get("error")), r.get("peak_gb", "-"),
                     r.get("bytes_per_particle", "-"), r.get("render_first_s", "-"), r.get("render_s", "-")]
                    for r in rows])
-    C.finish(args, sw, out / f"bench_scale_{args.variant}_{args.storage or 'default'}.json", rows=rows)
+    C.finish(args, sw, out / f"bench_scale_{args.variant}_{args.source}_{args.storage or 'default'}.json", rows=rows)
 
 
 def argparse_hidden() -> str:

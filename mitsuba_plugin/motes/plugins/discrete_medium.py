@@ -369,12 +369,22 @@ def _particles(p: SimpleNamespace, props, species: list):
         raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
     if p.filename is not None:
         pos, radii, sidx = _read_particles(p, props, species)
-        pos = pos @ m[:3, :3].T + m[:3, 3]
+        pos = _transformed_in_place(pos, m)
     else:
         pos, radii, sidx = _generated_particles(p, species, m)
     log.info("particles: %d %s in %.1f s", len(pos), "read" if p.filename is not None else "generated",
              time.perf_counter() - t_particles)
     return pos, radii, sidx
+
+
+def _transformed_in_place(pos: np.ndarray, m: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
+    """``pos`` (n, 3) mapped by the affine ``m`` (4x4) chunk by chunk, in place where it can be (a file's
+    1e8 positions are 2.4 GB: no full-size temporaries)."""
+    pos = np.require(pos, dtype=np.float64, requirements=["C", "W"])
+    a, b = m[:3, :3].T, m[:3, 3]
+    for i in range(0, pos.shape[0], chunk):
+        pos[i:i + chunk] = pos[i:i + chunk] @ a + b
+    return pos
 
 
 def _read_particles(p: SimpleNamespace, props, species: list):
