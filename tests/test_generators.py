@@ -324,3 +324,40 @@ def test_core_cloud_errors_name_the_argument(kwargs, argument):
     with pytest.raises(motes.MotesError) as e:
         _cloud(**kwargs)
     assert e.value.argument.startswith(argument)
+
+
+_SIDE = st.floats(min_value=1e-6, max_value=1e6, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 3000), seed=st.integers(0, 2**64 - 1), noise_seed=st.integers(0, 2**64 - 1),
+       lo=st.tuples(*[st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)] * 3),
+       size=st.tuples(_SIDE, _SIDE, _SIDE),
+       kind=st.sampled_from(["uniform", "gradient", "noise"]),
+       axis=st.integers(0, 2), start=st.floats(0, 10), end=st.floats(0, 10),
+       scale=st.floats(1e-3, 1e3), octaves=st.integers(1, 16), contrast=st.floats(0, 5),
+       shares=st.lists(st.floats(0, 1e6), min_size=1, max_size=3).filter(lambda v: sum(v) > 0))
+def test_core_cloud_property(n, seed, noise_seed, lo, size, kind, axis, start, end, scale, octaves, contrast, shares):
+    """Any valid input, endpoints included (one particle, seeds up to 2^64 - 1, boxes from 1e-6 to 1e6 wide,
+    a gradient from 0, 16 octaves, contrast 0 or carving): exactly n particles, inside the box, each with a
+    radius of its own species' support and a species of positive share; the same again from the same seed."""
+    if kind == "gradient" and start + end == 0:
+        end = 1.0
+    params = {"uniform": [], "gradient": [axis, start, end], "noise": [scale, octaves, contrast]}[kind]
+    lo = np.array(lo)
+    hi = lo + np.array(size)
+    psds = [motes.Uniform(1.0 + 10 * k, 2.0 + 10 * k) for k in range(len(shares))]
+    box = (tuple(lo), tuple(hi))
+    try:
+        pos, r, s = _cloud(n, kind, params, seed=seed, noise_seed=noise_seed, psds=psds, shares=shares, box=box)
+    except motes.MotesError as e:
+        # A noise of contrast > 1 is zero where v < (1 - 1/contrast) / 2: over a small box it can be zero
+        # (or almost) everywhere, which the generator refuses by name.
+        assert kind == "noise" and contrast > 1 and e.argument == "density", e
+        return
+    assert pos.shape == (n, 3) and np.all(np.isfinite(pos))
+    assert np.all(pos >= lo - 1e-9 * np.abs(lo)) and np.all(pos <= hi + 1e-9 * np.abs(hi))
+    assert np.all(np.asarray(shares)[s] > 0)
+    assert np.all((r >= 1.0 + 10 * s) & (r <= 2.0 + 10 * s))
+    again = _cloud(n, kind, params, seed=seed, noise_seed=noise_seed, psds=psds, shares=shares, box=box)
+    np.testing.assert_array_equal(pos, again[0])

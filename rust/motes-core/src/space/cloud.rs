@@ -42,6 +42,8 @@ const NOISE_STREAM: u64 = 0x006E_6F69_7365;
 const MARGIN_SIGMAS: f64 = 6.0;
 /// Midpoints per axis of the mean-density estimate of a noise density.
 const MEAN_POINTS_PER_AXIS: usize = 32;
+/// Largest ratio of a density's largest value to its mean over the box (candidates per particle).
+const MAX_CONCENTRATION: f64 = 1.0e4;
 /// Most tiles of a stored cloud (a u32 count each).
 const MAX_TILES: f64 = 4.0e9;
 
@@ -281,8 +283,22 @@ impl CloudSpec {
         let ext = [0, 1, 2].map(|a| self.hi[a] - self.lo[a]);
         let candidates = expected * self.density.bound() / self.density.mean(self.lo, self.hi);
         let tiles = (candidates / CANDIDATES_PER_TILE).clamp(1.0, MAX_TILES);
-        let edge = (ext[0] * ext[1] * ext[2] / tiles).cbrt();
-        let dims = ext.map(|x| ((x / edge).round() as usize).max(1));
+        // Cubes of equal volume where the box allows; an axis thinner than a cube's edge gets one tile
+        // and the others share the count (a 1e-6 x 1e6 x 1e6 box must not make 1e9 tiles of 47).
+        let mut dims = [1usize; 3];
+        let mut free: Vec<usize> = (0..3).collect();
+        loop {
+            let area: f64 = free.iter().map(|&a| ext[a]).product();
+            let edge = (area / tiles).powf(1.0 / free.len() as f64);
+            let thin: Vec<usize> = free.iter().copied().filter(|&a| ext[a] < edge).collect();
+            if thin.is_empty() || thin.len() == free.len() {
+                for &a in &free {
+                    dims[a] = ((ext[a] / edge).round() as usize).max(1);
+                }
+                break;
+            }
+            free.retain(|a| !thin.contains(a));
+        }
         let n = (dims[0] * dims[1] * dims[2]) as f64;
         Tiling {
             dims,
@@ -404,15 +420,26 @@ pub fn generate(
         }
     }
     let n = count as f64;
-    let mut sigmas = MARGIN_SIGMAS;
+    // The density must be positive somewhere, and not so concentrated that candidates outnumber the
+    // particles by more than MAX_CONCENTRATION (a noise carved to nothing over the box).
+    let (bound, mean) = (spec.density.bound(), spec.density.mean(spec.lo, spec.hi));
+    require(
+        "density",
+        mean,
+        mean > 0.0 && bound / mean <= MAX_CONCENTRATION,
+        "positive over enough of the box (its mean at least 1e-4 of its largest value)",
+    )?;
+    // A noise density's mean is estimated: 1 % more covers its error; a shortfall (a 6-sigma one, or
+    // the estimate's) is made up by asking again for proportionally more.
+    let slack = if matches!(spec.density, Density::Noise(_)) {
+        1.01
+    } else {
+        1.0
+    };
+    let mut expected = (n + MARGIN_SIGMAS * n.sqrt() + 20.0) * slack;
+    let mut attempt = 0;
     let (tiling, counts, m) = loop {
-        // A noise density's mean is estimated: 1 % more covers its error.
-        let slack = if matches!(spec.density, Density::Noise(_)) {
-            1.01
-        } else {
-            1.0
-        };
-        let tiling = spec.tiling((n + sigmas * n.sqrt() + 20.0) * slack);
+        let tiling = spec.tiling(expected);
         require(
             "count",
             n,
@@ -427,7 +454,15 @@ pub fn generate(
         if m >= count {
             break (tiling, counts, m);
         }
-        sigmas *= 2.0; // a 6-sigma shortfall: again, deterministically, with a wider margin
+        attempt += 1;
+        require(
+            "density",
+            attempt as f64,
+            attempt < 8,
+            "a density whose mean can be estimated",
+        )?;
+        expected *= 1.05 * n / (m.max(1) as f64);
+        expected += MARGIN_SIGMAS * n.sqrt() + 20.0;
     };
     let drop = dropped(m, m - count, spec.seed);
     // Each tile's first global index, and its first output index (minus the drops before it).
@@ -624,6 +659,21 @@ mod tests {
             let (a, b) = (s.draw(0.3, u), p.draw(0.3, u));
             assert!((a - b).abs() <= 1e-12 * b, "{a} {b}");
         }
+    }
+
+    /// A box much thinner along one axis than a tile is wide gets one tile across it, not billions.
+    #[test]
+    fn thin_boxes_get_few_tiles() {
+        let mut s = spec(Density::Uniform, 1);
+        (s.lo, s.hi) = ([0.0; 3], [1e-6, 1e6, 1e6]);
+        let t = s.tiling(3000.0);
+        assert!(
+            t.len() as f64 <= 3.0 * 3000.0 / CANDIDATES_PER_TILE + 8.0,
+            "{:?}",
+            t.dims
+        );
+        assert_eq!(t.dims[0], 1);
+        assert_eq!(generate(&s, 3000, &IDENTITY).unwrap().centres.len(), 3000);
     }
 
     #[test]
