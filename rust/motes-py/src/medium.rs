@@ -75,20 +75,7 @@ impl PyDiscreteMedium {
                 format!("one per bin ({})", bins.len()),
             ));
         }
-        if r.len() != b.len() {
-            return Err(invalid(
-                "bin",
-                b.len(),
-                format!("one per particle ({})", r.len()),
-            ));
-        }
-        if let Some(&bad) = b.iter().find(|&&x| x as usize >= q.len()) {
-            return Err(invalid(
-                "bin",
-                bad,
-                format!("bin {bad} of {} bins", q.len()),
-            ));
-        }
+        // The core checks the lengths and each bin index before it forms any cross section.
         let _ = py;
         let c_ext = |i: usize| std::f64::consts::PI * r[i] * r[i] * q[b[i] as usize];
         let medium = motes_core::render::discrete::DiscreteMedium::build(

@@ -489,9 +489,6 @@ fn check_build_inputs(
             )?;
         }
     }
-    if let Some(&b) = bin.iter().find(|&&b| b as usize >= bins.len()) {
-        require("bin (index)", b as f64, false, "< number of bins")?;
-    }
     Ok(())
 }
 

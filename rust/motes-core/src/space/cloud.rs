@@ -21,7 +21,7 @@
 //!
 //! Infrastructure for paper Sec. 5 (particle sets "generated or loaded"); no equation of its own.
 
-use crate::ensemble::psd::Psd;
+use crate::ensemble::psd::{Psd, RadiusSampler};
 use crate::error::{require, OpticsError};
 use crate::rng::{splitmix64, unit_f64};
 use rand_distr::{Distribution, Poisson};
@@ -54,9 +54,10 @@ const MAX_TILES: f64 = 4.0e9;
 #[derive(Clone, Debug)]
 pub struct ValueNoise {
     scale: f64,
-    seed: u64,
     contrast: f64,
     offsets: Vec<[f64; 3]>,
+    /// Each octave's lattice hash seed (computed once, not per evaluation).
+    bases: Vec<u64>,
 }
 
 impl ValueNoise {
@@ -85,24 +86,26 @@ impl ValueNoise {
                     .map(|a| unit_f64(splitmix64(seed ^ splitmix64(NOISE_STREAM ^ (3 * o + a)))))
             })
             .collect();
+        let bases = (0..octaves as u64)
+            .map(|o| splitmix64(seed ^ (o + 1)))
+            .collect();
         Ok(ValueNoise {
             scale,
-            seed,
             contrast,
             offsets,
+            bases,
         })
     }
 
     /// v(x) ∈ [0, 1].
     pub fn value(&self, p: [f64; 3]) -> f64 {
         let (mut total, mut weights) = (0.0, 0.0);
-        for (o, off) in self.offsets.iter().enumerate() {
+        for (o, (off, &base)) in self.offsets.iter().zip(&self.bases).enumerate() {
             let f = (1u64 << o) as f64 / self.scale;
             let q = [0, 1, 2].map(|a| p[a] * f + off[a]);
             let i = q.map(f64::floor);
             let w = [0, 1, 2].map(|a| quintic(q[a] - i[a]));
             let cell = i.map(|x| x as i64 as u64);
-            let base = splitmix64(self.seed ^ (o as u64 + 1));
             let mut acc = 0.0;
             for corner in 0..8u64 {
                 let c = [0, 1, 2].map(|a| (corner >> a) & 1);
@@ -308,13 +311,18 @@ impl CloudSpec {
         }
     }
 
-    /// The particles of tile `t`, in order, as `emit(grain)` (with `want` false only counted: the
-    /// species and radius are not computed). Returns how many there are.
-    pub fn visit_tile(
+    /// Each species' radius sampler, prepared once for every tile ([`Self::visit_tile`]).
+    pub(crate) fn samplers(&self) -> Vec<RadiusSampler<'_>> {
+        self.species.iter().map(|s| s.1.sampler()).collect()
+    }
+
+    /// The particles of tile `t`, in order, as `emit(grain)` with radii from `samplers` (None: only
+    /// counted, the species and radius are not computed). Returns how many there are.
+    pub(crate) fn visit_tile(
         &self,
         tiling: &Tiling,
         t: usize,
-        want: bool,
+        samplers: Option<&[RadiusSampler]>,
         mut emit: impl FnMut(Grain),
     ) -> usize {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(splitmix64(
@@ -329,11 +337,6 @@ impl CloudSpec {
         let bound = self.density.bound();
         let uniform = matches!(self.density, Density::Uniform);
         let total_share: f64 = self.species.iter().map(|s| s.0).sum();
-        let samplers: Vec<_> = if want {
-            self.species.iter().map(|s| s.1.sampler()).collect()
-        } else {
-            Vec::new()
-        };
         let mut kept = 0;
         for _ in 0..k {
             let mut u = [0f64; DRAWS_PER_CANDIDATE];
@@ -345,7 +348,7 @@ impl CloudSpec {
                 continue;
             }
             kept += 1;
-            if want {
+            if let Some(samplers) = samplers {
                 let species = pick_species(&self.species, total_share, u[4]);
                 let radius_um = samplers[species].draw(u[5], u[6]);
                 emit(Grain {
@@ -448,7 +451,7 @@ pub fn generate(
         )?;
         let counts: Vec<u32> = (0..tiling.len())
             .into_par_iter()
-            .map(|t| spec.visit_tile(&tiling, t, false, |_| {}) as u32)
+            .map(|t| spec.visit_tile(&tiling, t, None, |_| {}) as u32)
             .collect();
         let m: u64 = counts.iter().map(|&c| c as u64).sum();
         if m >= count {
@@ -499,12 +502,13 @@ pub fn generate(
         (c_rest, r_rest, s_rest) = (cr, rr, sr);
         slices.push((g, c, r, s));
     }
+    let samplers = spec.samplers();
     slices.into_par_iter().for_each(|(g, c, r, s)| {
         let mut k = 0;
         for t in g * GROUP..((g + 1) * GROUP).min(counts.len()) {
             let mut global = first[t];
             let mut next_drop = drop.partition_point(|&d| d < global);
-            spec.visit_tile(&tiling, t, true, |grain| {
+            spec.visit_tile(&tiling, t, Some(&samplers), |grain| {
                 let skip = next_drop < drop.len() && drop[next_drop] == global;
                 global += 1;
                 if skip {
@@ -630,11 +634,11 @@ mod tests {
         let tiling = s.tiling(5000.0);
         let mut all = Vec::new();
         for t in 0..tiling.len() {
-            s.visit_tile(&tiling, t, true, |g| all.push((t, g)));
+            s.visit_tile(&tiling, t, Some(&s.samplers()), |g| all.push((t, g)));
         }
         let t = tiling.len() / 2;
         let mut alone = Vec::new();
-        s.visit_tile(&tiling, t, true, |g| alone.push((t, g)));
+        s.visit_tile(&tiling, t, Some(&s.samplers()), |g| alone.push((t, g)));
         let inside: Vec<_> = all.iter().filter(|(u, _)| *u == t).cloned().collect();
         assert_eq!(alone, inside);
         let total = all.len() as f64;

@@ -1645,16 +1645,22 @@ mod tests {
         }
     }
 
+    /// 3000 random particles with two channels of cross sections (the brute-force tests' set).
+    fn two_channel_particles(s: &mut u64) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
+        let (pos, rad) = random_particles(s, 3000, 0.001, 0.02);
+        let cext = rad
+            .iter()
+            .flat_map(|r| [2.0 * PI * r * r, 3.0 * r * r])
+            .collect();
+        (pos, rad, cext)
+    }
+
     /// A grid whose sparse classes released their stored copies (what a medium keeps) answers every
     /// query as before, its oracles read the slots, and it keeps fewer bytes.
     #[test]
     fn released_grid_answers_the_same() {
         let mut s = 5u64;
-        let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
-        let cext: Vec<f64> = rad
-            .iter()
-            .flat_map(|r| [2.0 * PI * r * r, 3.0 * r * r])
-            .collect();
+        let (pos, rad, cext) = two_channel_particles(&mut s);
         for (rc, cpp) in [(0.01, 1.0), (0.0, 20.0)] {
             let settings = GridSettings::new(rc, cpp);
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
@@ -1749,11 +1755,7 @@ mod tests {
     #[test]
     fn grid_equals_brute_force() {
         let mut s = 7u64;
-        let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
-        let cext: Vec<f64> = rad
-            .iter()
-            .flat_map(|r| [2.0 * PI * r * r, 3.0 * r * r])
-            .collect();
+        let (pos, rad, cext) = two_channel_particles(&mut s);
         for (rc, cpp) in [
             (0.0, 1.0),
             (0.01, 1.0),
