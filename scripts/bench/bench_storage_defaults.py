@@ -1,7 +1,9 @@
-"""Issue 24.2, defaults: Compact vs full storage with everything else at the shipped scene's defaults (dust_box: spot + area light,
+"""Issue 24.2, defaults: compact against full storage with everything else at the shipped scene's defaults
+(dust_box: spot and area light, sparse visible grains), and a dense default cloud (count 400000, nothing else
+set) in the same room: image means in SE and per-pixel RMS over every pair of distinct seeds against noise.
 
     .venv/bin/python scripts/bench/bench_storage_defaults.py   (64 px, 32 spp x 6 seeds per storage)
-sparse visible grains), and a dense default cloud (count 400000, nothing else set) in the same room."""
+"""
 import sys, numpy as np, motes
 motes.set_variant("llvm_ad_rgb")
 import mitsuba as mi
