@@ -102,6 +102,19 @@ class DiscreteMedium:
                  storage: str = "full") -> None:
         """radius in scene units; q_ext: each bin's grey extinction efficiency (C_ext = pi r^2 q_ext);
         storage "compact" or "full" (rust/motes-core/src/render/storage.rs)."""
+    @staticmethod
+    def procedural(count: float, lo: list[float], hi: list[float], kind: str, params: list[float], noise_seed: int,
+                   psds: list[Psd], shares: list[float], cloud_seed: int, transform: list[list[float]],
+                   scene_per_um: float, bin_edges_um: list[list[float]], first_bin: list[int], q_ext: list[float],
+                   albedo: F64, theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64,
+                   query_radius: float, tau_max: float, cells_per_particle: float, continuous_count: float,
+                   seed: int, cache_bytes: int) -> DiscreteMedium:
+        """A procedural cloud: no particle stored, bricks generated on demand
+        (rust/motes-core/src/render/procedural.rs)."""
+    @property
+    def bricks_built(self) -> int: ...
+    @property
+    def procedural_cloud(self) -> bool: ...
     def sample_sites(self, origins: F32, directions: F32, t_max: F64,
                      remember: npt.NDArray[np.bool_]) -> tuple[F64, F64]: ...
     def commit_events(self, p: F32, active: npt.NDArray[np.bool_], lambda_: F64, channels: int) -> F64: ...
@@ -145,6 +158,8 @@ NATIVE_ABI: int
 
 #: Default cap on a particle's optical depth (rust/motes-core/src/render/discrete.rs).
 DEFAULT_TAU_MAX: float
+#: Default bytes of a procedural cloud's bricks kept (rust/motes-core/src/render/procedural.rs).
+DEFAULT_CACHE_BYTES: int
 #: Default particles per query cylinder from which a size class is sampled as a continuous medium
 #: (rust/motes-core/src/render/continuous.rs).
 DEFAULT_CELLS_PER_PARTICLE: float

@@ -79,6 +79,10 @@ DEFAULT_GRAIN_DEPTH: int = _motes.DEFAULT_GRAIN_DEPTH
 WIDENED_WARN_SHARE: float = 1e-3
 #: How a medium stores its particles (module docs): ``compact`` (default) or ``full``.
 STORAGES = ("compact", "full")
+#: Bytes of a procedural cloud's bricks kept between rays (the least recently used are dropped beyond it).
+DEFAULT_CACHE_BYTES: int = _motes.DEFAULT_CACHE_BYTES
+#: Most particles a procedural cloud takes (its count is a Poisson mean, not stored).
+MAX_PROCEDURAL_COUNT: float = 1e15
 DEFAULT_STORAGE = "compact"
 
 
@@ -142,6 +146,51 @@ def _bin_optics(sp: Species, lo: float, hi: float, lam, eta_medium, method, trun
     return bulk["sigma_t"] * 1e12 / area, bulk
 
 
+class _BinTables:
+    """The optics bins of a medium as they are added (one ``add`` per radius bin of a species): each bin's
+    grey Q_ext, albedo per wavelength and phase tables, and what the medium reports about them."""
+
+    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo):
+        self.lam, self.rank, self.eta_medium, self.method = lam, rank, eta_medium, method
+        self.truncate_below_rad, self.albedo = truncate_below_rad, albedo
+        self.grey_q, self.albedos, self.theta, self.f, self.offsets = [], [], [], [], [0]
+        self.radius_um, self.species, self.q_ext, self.bin_albedo = [], [], [], []
+        self.goa_cache = _motes.GoaCache()  # shared by this medium's bins, dropped after the build
+        self.t_start = self.t_said = time.perf_counter()
+
+    def add(self, k: int, sp: Species, lo: float, hi: float) -> int:
+        """The bin [lo, hi] um of species ``k``; returns its global index."""
+        q_t, bulk = _bin_optics(sp, lo, hi, self.lam, self.eta_medium, self.method, self.truncate_below_rad,
+                                self.goa_cache)
+        self.grey_q.append(float(np.mean(q_t)))
+        self.albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if self.albedo is None
+                            else np.full(self.lam.size, float(self.albedo)))
+        for row in bulk["phase"]:
+            self.theta.append(bulk["theta"])
+            self.f.append(row)
+            self.offsets.append(self.offsets[-1] + bulk["theta"].size)
+        self.radius_um.append((lo, hi))
+        self.species.append(k)
+        self.q_ext.append(q_t[self.rank])
+        self.bin_albedo.append(bulk["albedo"][self.rank])
+        if time.perf_counter() - self.t_said > 1.0:  # long builds say where they are, once a second
+            self.t_said = time.perf_counter()
+            log.info("optics tables: %d bins so far (species %d), %.1f s", len(self.grey_q), k,
+                     self.t_said - self.t_start)
+        return len(self.grey_q) - 1
+
+    def report(self, medium) -> None:
+        """The bins' figures as the medium's attributes."""
+        log.info("optics tables: %d bins in %.1f s", len(self.grey_q), time.perf_counter() - self.t_start)
+        medium.bin_radius_um, medium.bin_species = self.radius_um, self.species
+        medium.bin_q_ext, medium.bin_albedo = self.q_ext, self.bin_albedo
+        medium.n_bins = len(self.grey_q)
+
+    def core_tables(self):
+        """(albedos, theta, f, offsets) as the core's constructors take them."""
+        return self.albedos, self.theta, self.f, self.offsets
+
+
 class DiscreteMedium:
     """Particles with per-bin optics in the Rust medium (module docs)."""
 
@@ -177,12 +226,7 @@ class DiscreteMedium:
         """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""
         n = r.size
         bin_of = np.zeros(n, dtype=np.uint32)
-        grey_q = []  # grey extinction efficiency of each bin (the mean over the wavelengths)
-        albedos, theta, f, offsets = [], [], [], [0]
-        self.bin_radius_um, self.bin_species, self.bin_q_ext, self.bin_albedo = [], [], [], []
-        nb = 0
-        t_tables = t_said = time.perf_counter()
-        goa_cache = _motes.GoaCache()  # shared by this medium's bins, dropped after the build
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo)
         for k, sp in enumerate(species):
             # One species (the common case): every particle, without index arrays (1e8 particles).
             sel = slice(None) if len(species) == 1 else np.flatnonzero(idx == k)
@@ -196,28 +240,11 @@ class DiscreteMedium:
             del rs
             global_bin = np.zeros(max(edges.size - 1, 1), dtype=np.uint32)
             for b in np.flatnonzero(np.bincount(which, minlength=global_bin.size)):
-                lo, hi = float(edges[b]), float(edges[b + 1])
-                q_t, bulk = _bin_optics(sp, lo, hi, lam, eta_medium, method, truncate_below_rad, goa_cache)
-                global_bin[b] = nb
-                grey_q.append(float(np.mean(q_t)))
-                albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if albedo is None else np.full(lam.size, float(albedo)))
-                for row in bulk["phase"]:
-                    theta.append(bulk["theta"])
-                    f.append(row)
-                    offsets.append(offsets[-1] + bulk["theta"].size)
-                self.bin_radius_um.append((lo, hi))
-                self.bin_species.append(k)
-                self.bin_q_ext.append(q_t[rank])
-                self.bin_albedo.append(bulk["albedo"][rank])
-                nb += 1
-                if time.perf_counter() - t_said > 1.0:  # long builds say where they are, once a second
-                    t_said = time.perf_counter()
-                    log.info("optics tables: %d bins so far (species %d), %.1f s", nb, k, t_said - t_tables)
+                global_bin[b] = tables.add(k, sp, float(edges[b]), float(edges[b + 1]))
             bin_of[sel] = global_bin[which]
             del which
-        log.info("optics tables: %d bins in %.1f s", nb, time.perf_counter() - t_tables)
-        self.n_bins = nb
-        return bin_of, np.asarray(grey_q), (albedos, theta, f, offsets)
+        tables.report(self)
+        return bin_of, np.asarray(tables.grey_q), tables.core_tables()
 
     def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
                     cells_per_particle, continuous_count, seed, warn_widened):
@@ -266,6 +293,91 @@ class DiscreteMedium:
         self.centre_box = (lo_, hi_)
         reach = float(self._core.reach_max)
         self.bbox = (lo_ - reach, hi_ + reach)
+
+    @classmethod
+    def procedural(cls, count: float, species, shares, wavelength_um, *, box=((-1.0,) * 3, (1.0,) * 3),
+                   density: tuple = ("uniform", []), noise_seed: int = 0, cloud_seed: int = 0, to_world=None,
+                   scale_m: float = 1.0, query_radius: float = 0.0, size_bins: int = 16, eta_medium: float = 1.0,
+                   method: str = "auto", truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD,
+                   cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
+                   albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX,
+                   continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
+                   cache_bytes: int = DEFAULT_CACHE_BYTES) -> "DiscreteMedium":
+        """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural.rs``):
+        ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
+        ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
+        ``shares``; no particle is stored: each brick of the cloud is generated from ``cloud_seed`` when a
+        ray first needs it and kept in a cache of at most ``cache_bytes``. The other parameters as the
+        constructor's; each species' ``size_bins`` optics bins are log-spaced over its PSD's support."""
+        self = cls.__new__(cls)
+        self.storage = "procedural"
+        if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
+            raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
+        if not (np.isfinite(count) and 1 <= count <= MAX_PROCEDURAL_COUNT):
+            raise ValueError(f"invalid count = {count!r}: a procedural cloud takes 1 to {MAX_PROCEDURAL_COUNT:g} particles")
+        if isinstance(species, Species):
+            species = [species]
+        species = list(species)
+        if not species or not all(isinstance(sp, Species) for sp in species):
+            raise ValueError("species must be a Species or a non-empty list of Species")
+        shares = [float(v) for v in np.atleast_1d(shares)]
+        if len(shares) != len(species) or not all(np.isfinite(v) and v >= 0 for v in shares) or sum(shares) <= 0:
+            raise ValueError(f"invalid shares = {shares}: one per species, >= 0, with a positive sum")
+        lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+        lam = np.sort(lam_in)
+        if lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
+            raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
+        if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
+            raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
+        if not (np.isfinite(scale_m) and scale_m > 0):
+            raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
+        if isinstance(cache_bytes, bool) or not isinstance(cache_bytes, (int, np.integer)) or cache_bytes < 1:
+            raise ValueError(f"invalid cache_bytes = {cache_bytes!r}: must be a positive integer")
+        if truncate_below_rad is not None and truncate_below_rad <= 0:
+            truncate_below_rad = None
+        if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
+            raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
+        m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise ValueError(f"to_world must be a finite 4x4 matrix, got shape {m.shape}")
+        lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in box)
+        rank = np.searchsorted(lam, lam_in)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo)
+        edges_all, first = [], []
+        for k, sp in enumerate(species):
+            r_lo, r_hi = sp.psd.support()
+            edges = np.geomspace(r_lo, r_hi, size_bins + 1) if r_hi > r_lo * (1 + 1e-9) else np.array([r_lo, r_lo])
+            first.append(len(tables.grey_q))
+            for b in range(edges.size - 1):
+                tables.add(k, sp, float(edges[b]), float(edges[b + 1]))
+            edges_all.append([float(e) for e in edges])
+        tables.report(self)
+        albedos, theta, f, offsets = tables.core_tables()
+        kind, params = density
+        t_build = time.perf_counter()
+        self._core = _motes.DiscreteMedium.procedural(
+            float(count), lo.tolist(), hi.tolist(), kind, [float(x) for x in params], int(noise_seed) & (2**64 - 1),
+            [sp.psd._core for sp in species], shares, int(cloud_seed) & (2**64 - 1), m[:3, :4].tolist(),
+            1e-6 / float(scale_m), edges_all, first, [float(q) for q in tables.grey_q],
+            np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
+            np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
+            np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
+            float(continuous_count), int(seed) & (2**64 - 1), int(cache_bytes))
+        log.info("procedural cloud: %.3g particles, %.3g of them continuous, %.1f MB before any brick, %.1f s",
+                 count, self._core.continuous_particles, self._core.bytes / 1e6, time.perf_counter() - t_build)
+        self._core.set_grain_depth(int(grain_depth))
+        self.grain_depth = int(grain_depth)
+        self.scale_m, self.query_radius, self.wavelength_um = float(scale_m), float(query_radius), lam
+        self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
+        self.widened, self.tau_max = self._core.widened, float(tau_max)
+        self.continuous_particles = self._core.continuous_particles
+        self.positions = self.species_index = self.particle_bin = self.radii_um = self.c_ext_scene = None
+        corners = np.array([[hi[a] if (i >> a) & 1 else lo[a] for a in range(3)] for i in range(8)]) @ m[:3, :3].T + m[:3, 3]
+        lo_, hi_ = corners.min(axis=0), corners.max(axis=0)
+        self.centre_box = (lo_, hi_)
+        reach = float(self._core.reach_max)
+        self.bbox = (lo_ - reach, hi_ + reach)
+        return self
 
     def __len__(self) -> int:
         return len(self._core)

@@ -8,7 +8,8 @@ Parameter               Type       Meaning (default)
 ``filename``            string     Particle file (.npz, .npy, .csv, .ply; see ``motes.load_particles``),
                                    positions in the medium's local units. Without it particles are
                                    generated in the local cube [-1, 1]^3:
-``count``               integer    number of generated particles (10000)
+``count``               integer    number of generated particles (10000; at most 1e9 stored, 1e15
+                                   procedural)
 ``distribution``        string     ``uniform``, ``gradient`` (concentration falling linearly along
                                    local +z) or ``noise`` (fBm noise, scale 0.5) (``uniform``).
                                    Generated in the core tile by tile (``seed`` fixes every grain
@@ -42,8 +43,13 @@ Parameter               Type       Meaning (default)
                                    ``continuous_count`` is inf, which keeps every ray exact)
 ``storage``             string     ``compact``: each particle is a class (its optics bin and one of 1024
                                    radius levels per bin; radii move by at most half a level), 4 bytes
-                                   of optics per particle; ``full``: radii as given, 17 bytes
+                                   of optics per particle; ``full``: radii as given, 17 bytes;
+                                   ``procedural``: generated particles are never stored, each brick of
+                                   the cloud generated from ``seed`` when a ray first needs it (``count``
+                                   up to 1e15, a Poisson mean; memory follows what a render visits)
                                    (``compact``; see ``motes.DiscreteMedium``)
+``cache_mb``            float      ``storage = procedural``: megabytes of generated bricks kept between
+                                   rays (the least recently used are dropped beyond it) (1024)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
 ``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
@@ -123,12 +129,16 @@ import numpy as np
 
 from ..discrete import DiscreteMedium, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
-from ..discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH, DEFAULT_STORAGE, DEFAULT_TAU_MAX, STORAGES
+from ..discrete import (DEFAULT_CACHE_BYTES, DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
+                        DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, STORAGES)
 from ..particle_io import load_particles
 from ..particles import query_radius_from_camera
 from .. import _memory, _motes
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
+
+#: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
+PLUGIN_STORAGES = STORAGES + ("procedural",)
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -146,20 +156,21 @@ class DiscreteMediumPlugin:
         self.m_has_spectral_extinction = False
         p = _read_parameters(props)
         species = _species(p, props)
-        pos, radii, sidx = _particles(p, props, species)
-        query_radius, user_radius = _query_radius(p, pos)
         truncate = p.truncate
         if truncate is None:
             truncate = (pixel_footprint_rad(p.fov, p.film_width) if p.fov is not None and p.film_width is not None
                         else DEFAULT_TRUNCATE_RAD)
         lam = _wavelengths(p.wavelengths)
-
-        self.data = DiscreteMedium(pos, radii, sidx, species, lam, scale_m=p.scale_m, query_radius=query_radius,
-                                   size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
-                                   truncate_below_rad=truncate if truncate > 0 else None,
-                                   cells_per_particle=p.cells, seed=p.seed, albedo=p.albedo, tau_max=p.tau_max,
-                                   warn_widened=user_radius, continuous_count=p.continuous,
-                                   grain_depth=p.grain_depth, storage=p.storage)
+        common = dict(scale_m=p.scale_m, size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
+                      truncate_below_rad=truncate if truncate > 0 else None, cells_per_particle=p.cells, seed=p.seed,
+                      albedo=p.albedo, tau_max=p.tau_max, continuous_count=p.continuous, grain_depth=p.grain_depth)
+        if p.storage == "procedural":
+            self.data = _procedural(p, species, lam, common)
+        else:
+            pos, radii, sidx = _particles(p, props, species)
+            query_radius, user_radius = _query_radius(p, pos)
+            self.data = DiscreteMedium(pos, radii, sidx, species, lam, query_radius=query_radius,
+                                       warn_widened=user_radius, storage=p.storage, **common)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
@@ -252,9 +263,19 @@ def _read_parameters(props) -> SimpleNamespace:
     pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
     p = SimpleNamespace()
     p.filename = _get(props, "filename", None, str)
-    p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9, "an integer in [1, 1e9]")
-    # The least any medium of this count needs (a dense cloud); the build checks its own estimate again.
-    _memory.require(_memory.BYTES_PER_PARTICLE_DENSE * p.count, f"discrete medium: count = {p.count}")
+    p.storage = _get(props, "storage", DEFAULT_STORAGE, str, lambda v: v in PLUGIN_STORAGES,
+                     "one of " + ", ".join(PLUGIN_STORAGES))
+    if p.storage == "procedural":
+        if p.filename is not None:
+            raise ValueError("discrete medium: storage = procedural generates its particles (count, distribution); "
+                             "a particle file is stored: use storage = compact or full with filename")
+        p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= MAX_PROCEDURAL_COUNT,
+                       f"an integer in [1, {MAX_PROCEDURAL_COUNT:g}] (storage = procedural)")
+    else:
+        p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9,
+                       "an integer in [1, 1e9] (more with storage = procedural)")
+        # The least any medium of this count needs (a dense cloud); the build checks its own estimate again.
+        _memory.require(_memory.BYTES_PER_PARTICLE_DENSE * p.count, f"discrete medium: count = {p.count}")
     p.distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
                           "one of uniform, gradient, noise")
     lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um
@@ -283,7 +304,10 @@ def _read_parameters(props) -> SimpleNamespace:
     p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
-    p.storage = _get(props, "storage", DEFAULT_STORAGE, str, lambda v: v in STORAGES, "one of " + ", ".join(STORAGES))
+    p.cache_mb = _get(props, "cache_mb", DEFAULT_CACHE_BYTES / 2**20, float, lambda v: np.isfinite(v) and v > 0,
+                      "finite and > 0 (megabytes)")
+    if "cache_mb" in props and p.storage != "procedural":
+        raise ValueError("discrete medium: cache_mb bounds a procedural cloud's bricks: it needs storage = procedural")
     p.wavelengths = _get(props, "wavelengths", None, str)
     p.seed = _get(props, "seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
     p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
@@ -364,9 +388,7 @@ def _species_entry(e: dict, i: int) -> Species:
 def _particles(p: SimpleNamespace, props, species: list):
     """Positions (scene units, after ``to_world``), radii (um) and species indices: read from ``filename`` or generated."""
     t_particles = time.perf_counter()
-    m = np.array(p.to_world.matrix, dtype=np.float64)
-    if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
-        raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
+    m = _checked_to_world(p)
     if p.filename is not None:
         pos, radii, sidx = _read_particles(p, props, species)
         pos = _transformed_in_place(pos, m)
@@ -375,6 +397,14 @@ def _particles(p: SimpleNamespace, props, species: list):
     log.info("particles: %d %s in %.1f s", len(pos), "read" if p.filename is not None else "generated",
              time.perf_counter() - t_particles)
     return pos, radii, sidx
+
+
+def _checked_to_world(p: SimpleNamespace) -> np.ndarray:
+    """``to_world`` as a 4x4 array, checked to be finite and invertible."""
+    m = np.array(p.to_world.matrix, dtype=np.float64)
+    if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
+        raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
+    return m
 
 
 def _transformed_in_place(pos: np.ndarray, m: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
@@ -407,6 +437,23 @@ def _read_particles(p: SimpleNamespace, props, species: list):
 #: ``distribution`` -> the core's density (``motes_core::space::cloud``) and its parameters: a gradient from
 #: 1 on the local cube's z = -1 face to 0 on z = 1; fBm noise of scale 0.5 (4 octaves, contrast 1).
 _DENSITIES = {"uniform": ("uniform", []), "gradient": ("gradient", [2, 1.0, 0.0]), "noise": ("noise", [0.5, 4, 1.0])}
+
+
+def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> DiscreteMedium:
+    """A procedural cloud of ``count`` particles in the local cube [-1, 1]^3 (``storage = procedural``):
+    the distribution, species and seed as a generated cloud's, no particle stored."""
+    m = _checked_to_world(p)
+    shares = [float(s.share) for s in species]
+    if not all(v >= 0 for v in shares) or sum(shares) <= 0:
+        raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
+    corners = np.array([[(-1.0, 1.0)[(i >> a) & 1] for a in range(3)] for i in range(8)]) @ m[:3, :3].T + m[:3, 3]
+    query_radius, _ = _query_radius(p, corners)
+    t = time.perf_counter()
+    data = DiscreteMedium.procedural(p.count, species, shares, lam, box=((-1.0,) * 3, (1.0,) * 3),
+                                     density=_DENSITIES[p.distribution], noise_seed=p.seed, cloud_seed=p.seed,
+                                     to_world=m, query_radius=query_radius, cache_bytes=max(int(p.cache_mb * 2**20), 1), **common)
+    log.info("particles: %.3g procedural (none stored) in %.1f s", p.count, time.perf_counter() - t)
+    return data
 
 
 def _generated_particles(p: SimpleNamespace, species: list, to_world: np.ndarray):

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 
 /// The density named `kind` ("uniform", "gradient" with `params` = [axis, start, end], "noise" with
 /// `params` = [scale, octaves, contrast] and `noise_seed`).
-fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
+pub(crate) fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
     let want = |n: usize| -> PyResult<()> {
         if params.len() == n {
             Ok(())

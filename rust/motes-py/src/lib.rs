@@ -83,6 +83,10 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
         motes_core::render::continuous::DEFAULT_CONTINUOUS_COUNT,
     )?;
     m.add(
+        "DEFAULT_CACHE_BYTES",
+        motes_core::render::procedural::DEFAULT_CACHE_BYTES,
+    )?;
+    m.add(
         "DEFAULT_GRAIN_DEPTH",
         motes_core::render::discrete::DEFAULT_GRAIN_DEPTH,
     )?;

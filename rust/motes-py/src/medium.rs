@@ -28,6 +28,19 @@ pub(crate) struct PyDiscreteMedium {
     continuous_particles: usize,
 }
 
+impl PyDiscreteMedium {
+    /// The Python object over a built medium, with its figures fixed at the build.
+    fn wrap(medium: motes_core::render::discrete::DiscreteMedium) -> Self {
+        PyDiscreteMedium {
+            widened: medium.widened(),
+            tau_max: medium.tau_max(),
+            reach_max: medium.reach_max(),
+            continuous_particles: medium.continuous_len(),
+            medium: Arc::new(medium),
+        }
+    }
+}
+
 #[pymethods]
 impl PyDiscreteMedium {
     /// positions (n*3), radius (n) in scene units; bin (n) into the bins and each bin's grey extinction
@@ -93,13 +106,100 @@ impl PyDiscreteMedium {
             storage,
         )
         .map_err(to_py)?;
-        Ok(PyDiscreteMedium {
-            widened: medium.widened(),
-            tau_max: medium.tau_max(),
-            reach_max: medium.reach_max(),
-            continuous_particles: medium.continuous_len(),
-            medium: Arc::new(medium),
-        })
+        Ok(Self::wrap(medium))
+    }
+
+    /// A procedural cloud (`motes_core::render::procedural`): `count` expected particles in the box
+    /// [lo, hi] after the density `kind`/`params` (as `generate_cloud`), species `psds` by `shares`,
+    /// mapped by `transform` (3×4); radii in scene units are µm × `scene_per_um`; per species its optics
+    /// bins' edges (µm) and first global bin; `q_ext` per global bin and the bins' tables as for `new`;
+    /// `cache_bytes` bounds the bricks kept.
+    #[staticmethod]
+    #[pyo3(signature = (count, lo, hi, kind, params, noise_seed, psds, shares, cloud_seed, transform, scene_per_um, bin_edges_um, first_bin, q_ext, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, cache_bytes))]
+    #[allow(clippy::too_many_arguments)]
+    fn procedural(
+        py: Python<'_>,
+        count: f64,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        kind: &str,
+        params: Vec<f64>,
+        noise_seed: u64,
+        psds: Vec<PyRef<'_, crate::psd::PyPsd>>,
+        shares: Vec<f64>,
+        cloud_seed: u64,
+        transform: [[f64; 4]; 3],
+        scene_per_um: f64,
+        bin_edges_um: Vec<Vec<f64>>,
+        first_bin: Vec<u32>,
+        q_ext: Vec<f64>,
+        albedo: F64In,
+        theta: F64In,
+        f: F64In,
+        offsets: PyReadonlyArray1<'_, u64>,
+        lambda: F64In,
+        query_radius: f64,
+        tau_max: f64,
+        cells_per_particle: f64,
+        continuous_count: f64,
+        seed: u64,
+        cache_bytes: usize,
+    ) -> PyResult<Self> {
+        let lam = lambda.as_slice()?.to_vec();
+        let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
+        if psds.len() != shares.len() {
+            return Err(invalid(
+                "shares",
+                shares.len(),
+                format!("one share per size distribution ({})", psds.len()),
+            ));
+        }
+        let spec = motes_core::render::procedural::ProceduralSpec {
+            cloud: motes_core::space::cloud::CloudSpec {
+                lo,
+                hi,
+                density: crate::cloud::density(kind, &params, noise_seed)?,
+                species: shares
+                    .into_iter()
+                    .zip(psds.iter().map(|p| p.inner().clone()))
+                    .collect(),
+                seed: cloud_seed,
+            },
+            count,
+            transform,
+            scene_per_um,
+            bin_edges_um,
+            first_bin,
+            q_ext,
+        };
+        let medium = py
+            .detach(|| {
+                motes_core::render::discrete::DiscreteMedium::procedural(
+                    &spec,
+                    bins,
+                    lam,
+                    query_radius,
+                    tau_max,
+                    cells_per_particle,
+                    continuous_count,
+                    seed,
+                    cache_bytes,
+                )
+            })
+            .map_err(to_py)?;
+        Ok(Self::wrap(medium))
+    }
+
+    /// A procedural cloud's bricks built so far (0 for stored particles).
+    #[getter]
+    fn bricks_built(&self) -> u64 {
+        self.medium.bricks_built()
+    }
+
+    /// Whether the particles are procedural (generated on demand, none stored).
+    #[getter]
+    fn procedural_cloud(&self) -> bool {
+        self.medium.is_procedural()
     }
 
     /// A new handle on the core medium for a native plugin (an address; it releases it through the

@@ -111,6 +111,9 @@ enum Members {
     Classes(Vec<u16>),
     /// Class codes with [`CLASS_FLAG`] (compact storage of more than 65536 classes).
     WideClasses(Vec<u32>),
+    /// One list of class codes (with [`CLASS_FLAG`]) that every cell holds in the same shares, its
+    /// σ_t set by a density (a procedural cloud, `crate::render::procedural`): `start` is empty.
+    Shared(Vec<u32>),
 }
 
 impl Members {
@@ -119,18 +122,18 @@ impl Members {
         match self {
             Members::Ids(v) => v[j],
             Members::Classes(v) => CLASS_FLAG | v[j] as u32,
-            Members::WideClasses(v) => v[j],
+            Members::WideClasses(v) | Members::Shared(v) => v[j],
         }
     }
     fn len(&self) -> usize {
         match self {
-            Members::Ids(v) | Members::WideClasses(v) => v.len(),
+            Members::Ids(v) | Members::WideClasses(v) | Members::Shared(v) => v.len(),
             Members::Classes(v) => v.len(),
         }
     }
     fn bytes(&self) -> usize {
         match self {
-            Members::Ids(v) | Members::WideClasses(v) => v.len() * 4,
+            Members::Ids(v) | Members::WideClasses(v) | Members::Shared(v) => v.len() * 4,
             Members::Classes(v) => v.len() * 2,
         }
     }
@@ -266,6 +269,81 @@ impl ContinuousField {
         }
     }
 
+    /// A field over the box [lo, hi] cut into `dims` cells, whose cells all hold the classes
+    /// `members` (codes with [`CLASS_FLAG`]) in proportion to `weight` (extinction per unit volume at
+    /// unit density, scene units⁻¹), scaled by `density(cell_lo, cell_hi)`, the mean relative density
+    /// over the cell: σ_t of a cell = density × Σ weight. A procedural cloud's grains nobody can see,
+    /// as the expected extinction of its Poisson process (`crate::render::procedural`).
+    pub fn from_density(
+        lo: [f64; 3],
+        hi: [f64; 3],
+        dims: [usize; 3],
+        density: impl Fn([f64; 3], [f64; 3]) -> f64 + Sync,
+        members: Vec<u32>,
+        weight: &[f64],
+    ) -> Self {
+        let cell = [0, 1, 2].map(|a| (hi[a] - lo[a]) / dims[a] as f64);
+        let total: f64 = weight.iter().sum();
+        let sigma: Vec<f32> = (0..dims[0] * dims[1] * dims[2])
+            .into_par_iter()
+            .map(|c| {
+                let idx = [
+                    c % dims[0],
+                    (c / dims[0]) % dims[1],
+                    c / (dims[0] * dims[1]),
+                ];
+                let a = [0, 1, 2].map(|k| lo[k] + cell[k] * idx[k] as f64);
+                let b = [0, 1, 2].map(|k| a[k] + cell[k]);
+                (density(a, b) * total) as f32
+            })
+            .collect();
+        let mut acc = 0.0;
+        let cdf = weight
+            .iter()
+            .enumerate()
+            .map(|(j, w)| {
+                acc += w;
+                if j + 1 == weight.len() || total <= 0.0 {
+                    u16::MAX
+                } else {
+                    ((acc / total) * u16::MAX as f64).round() as u16
+                }
+            })
+            .collect();
+        let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
+        ContinuousField {
+            frame: GridFrame::new(lo, cell, dims),
+            sigma,
+            start: Vec::new(),
+            members: Members::Shared(members),
+            cdf,
+            block_frame,
+            majorant,
+        }
+    }
+
+    /// The members of cell `c`: `range.0..range.1` of the member list.
+    #[inline]
+    fn range(&self, c: usize) -> (usize, usize) {
+        match self.members {
+            Members::Shared(ref m) if self.sigma[c] > 0.0 => (0, m.len()),
+            Members::Shared(_) => (0, 0),
+            _ => (self.start[c] as usize, self.start[c + 1] as usize),
+        }
+    }
+
+    /// σ_t of the cell holding `p` carried by the class `member` of a shared field (None elsewhere).
+    pub fn shared_sigma(&self, p: [f64; 3], member: u32) -> Option<f64> {
+        let Members::Shared(m) = &self.members else {
+            return None;
+        };
+        let k = m.iter().position(|&x| x == member)?;
+        let c = self.cell_at(p)?;
+        let below = if k == 0 { 0.0 } else { self.cdf[k - 1] as f64 };
+        Some(self.sigma[c] as f64 * (self.cdf[k] as f64 - below) / u16::MAX as f64)
+    }
+
+    /// Particles of the field (the member list's length for a shared field).
     pub fn len(&self) -> usize {
         self.members.len()
     }
@@ -348,7 +426,7 @@ impl ContinuousField {
     /// The particle of cell `cell` that an interaction there scatters from: each with probability ∝
     /// its extinction, by `u` in [0, 1). None for an empty cell.
     pub fn pick(&self, cell: usize, u: f64) -> Option<u32> {
-        let (a, b) = (self.start[cell] as usize, self.start[cell + 1] as usize);
+        let (a, b) = self.range(cell);
         if a == b {
             return None;
         }
@@ -373,7 +451,8 @@ impl ContinuousField {
 
     /// The particles of a cell (original indices, or class codes with [`CLASS_FLAG`]).
     pub fn members(&self, cell: usize) -> impl Iterator<Item = u32> + '_ {
-        (self.start[cell] as usize..self.start[cell + 1] as usize).map(|j| self.members.get(j))
+        let (a, b) = self.range(cell);
+        (a..b).map(|j| self.members.get(j))
     }
 }
 

@@ -72,6 +72,7 @@
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, Column, ContinuousField, FieldHit, CLASS_FLAG};
+use crate::render::procedural::{build_parts, ProceduralGrains, ProceduralSpec};
 use crate::render::storage::{classes, ParticleOptics, Storage};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
@@ -354,10 +355,79 @@ fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
 /// and the channel throughput of the event its ray started at (zeros: none).
 type Pending = (Option<Site>, bool, Parent);
 
+/// What a medium's free flights walk and look up, as its builds make it ([`DiscreteMedium`]'s fields).
+struct Walkable {
+    grid: Option<Grains>,
+    expected: Option<(f64, f64)>,
+    field: Option<ContinuousField>,
+    grains_field: Option<ContinuousField>,
+    optics: ParticleOptics,
+    widened: usize,
+    coincide: f64,
+    event_box: Bounds3,
+}
+
+/// The particles walked one by one: stored in a grid, or a procedural cloud's bricks generated on
+/// demand (`crate::render::procedural`).
+enum Grains {
+    Stored(ParticleGrid),
+    Procedural(Box<ProceduralGrains>),
+}
+
+impl Grains {
+    /// Exact free flight to the next site, skipping the particles of `parent` (by index for stored
+    /// particles, by key for procedural ones).
+    fn sample_site(
+        &self,
+        ray: &RaySegment,
+        parent: &Site,
+        u: f64,
+        coincide: f64,
+    ) -> (Option<Site>, f64) {
+        match self {
+            Grains::Stored(g) => g.sample_site(ray, parent.members(), u, coincide),
+            Grains::Procedural(p) => {
+                p.sample_site(ray, &parent.keys[..parent.len as usize], u, coincide)
+            }
+        }
+    }
+    /// Every contributing particle in t order as `visit(t, member, key)`.
+    fn walk(&self, ray: &RaySegment, mut visit: impl FnMut(f64, u32, u64) -> bool) {
+        match self {
+            Grains::Stored(g) => g.walk(ray, |t, _, i| visit(t, i, 0)),
+            Grains::Procedural(p) => p.walk(ray, |t, _, m, k| visit(t, m, k)),
+        }
+    }
+    fn containing(&self, p: [f64; 3]) -> Vec<u32> {
+        match self {
+            Grains::Stored(g) => g.containing(p),
+            Grains::Procedural(g) => g.containing(p),
+        }
+    }
+    fn optical_depth(&self, ray: &RaySegment) -> f64 {
+        match self {
+            Grains::Stored(g) => {
+                let mut v = [0.0];
+                g.optical_depth(ray, &mut v);
+                v[0]
+            }
+            Grains::Procedural(p) => p.optical_depth(ray),
+        }
+    }
+    fn bytes(&self) -> usize {
+        match self {
+            Grains::Stored(g) => g.bytes(),
+            Grains::Procedural(p) => p.bytes(),
+        }
+    }
+}
+
 /// The discrete medium: particles in a grid with grey optical depths, and per-bin optics.
 pub struct DiscreteMedium {
     /// The particles sampled one by one (None when every class is continuous).
-    grid: Option<ParticleGrid>,
+    grid: Option<Grains>,
+    /// A procedural cloud's expected particles, all and in `field` (its counts are not stored).
+    expected: Option<(f64, f64)>,
     /// The size classes no pixel resolves, sampled as a continuous medium (None when there are none).
     field: Option<ContinuousField>,
     /// Each particle's disk (R_i = max(r_c + r_i, floor), τ_i = −ln(1 − x_i); module docs), C_t,i,
@@ -744,14 +814,36 @@ impl DiscreteMedium {
             ),
         };
         let (coincide, event_box) = event_geometry(positions, reach_max);
-        Ok(DiscreteMedium {
-            grid,
-            field,
-            optics,
-            widened,
+        Ok(Self::assemble(
+            Walkable {
+                grid: grid.map(Grains::Stored),
+                expected: None,
+                field,
+                grains_field,
+                optics,
+                widened,
+                coincide,
+                event_box,
+            },
             bins,
             lambda,
-            coincide,
+            seed,
+        ))
+    }
+
+    /// The medium over what its free flights walk, with fresh per-render state.
+    fn assemble(w: Walkable, bins: Vec<BinOptics>, lambda: Vec<f64>, seed: u64) -> Self {
+        DiscreteMedium {
+            grid: w.grid,
+            expected: w.expected,
+            field: w.field,
+            grains_field: w.grains_field,
+            optics: w.optics,
+            widened: w.widened,
+            coincide: w.coincide,
+            event_box: w.event_box,
+            bins,
+            lambda,
             events: RwLock::new(EventMap::new(EVENTS_PER_GENERATION)),
             pending: Mutex::new(FxHashMap::default()),
             seed,
@@ -759,12 +851,96 @@ impl DiscreteMedium {
             id: MEDIUM_IDS.fetch_add(1, Ordering::Relaxed),
             packet_counts: ShardedCounts::default(),
             albedo_scale: AtomicU64::new(1f64.to_bits()),
-            event_box,
             events_anywhere: std::sync::atomic::AtomicBool::new(false),
             optics_epoch: AtomicU64::new(0),
-            grains_field,
             grain_depth: std::sync::atomic::AtomicU32::new(DEFAULT_GRAIN_DEPTH),
-        })
+        }
+    }
+
+    /// A procedural cloud (`crate::render::procedural`): nothing stored but the class table, the
+    /// continuous classes' field and the bricks a render visits (at most `cache_bytes` of them kept).
+    /// `spec.q_ext` per bin of `bins`; the other settings as [`Self::build`]'s.
+    #[allow(clippy::too_many_arguments)]
+    pub fn procedural(
+        spec: &ProceduralSpec,
+        bins: Vec<BinOptics>,
+        lambda: Vec<f64>,
+        query_radius: f64,
+        tau_max: f64,
+        cells_per_particle: f64,
+        continuous_count: f64,
+        seed: u64,
+        cache_bytes: usize,
+    ) -> Result<Self, OpticsError> {
+        // The settings and optics checked as for stored particles (one stand-in particle).
+        check_build_inputs(
+            &[[0.0; 3]],
+            &[1.0],
+            &|_| 1.0,
+            &[0],
+            &bins,
+            &lambda,
+            query_radius,
+            tau_max,
+            cells_per_particle,
+            continuous_count,
+        )?;
+        require_len("q_ext", spec.q_ext.len(), bins.len(), "one per bin")?;
+        for &q in &spec.q_ext {
+            require("q_ext", q, q.is_finite() && q >= 0.0, "finite and >= 0")?;
+        }
+        let disk = |r: f64, c: f64| {
+            if r > 0.0 {
+                particle_disk(r, c, query_radius, tau_max)
+            } else {
+                (0.0, 0.0)
+            }
+        };
+        let parts = build_parts(
+            spec,
+            disk,
+            query_radius,
+            cells_per_particle,
+            continuous_count,
+            cache_bytes,
+        )?;
+        let disks: Vec<(f64, f64)> = parts
+            .classes
+            .iter()
+            .map(|c| disk(c.radius, c.c_ext))
+            .collect();
+        let c_ext: Vec<f64> = parts.classes.iter().map(|c| c.c_ext).collect();
+        let bin = parts.classes.iter().map(|c| c.bin).collect();
+        let in_field = parts.discrete.iter().map(|d| !d).collect();
+        let optics = ParticleOptics::new(&disks, &c_ext, bin, in_field, None, 0);
+        let reach_max = parts
+            .discrete
+            .iter()
+            .zip(&disks)
+            .filter(|(d, _)| **d)
+            .map(|(_, k)| k.0)
+            .fold(0.0, f64::max);
+        let widened = 0;
+        let (coincide, event_box) = event_geometry(&parts.corners, reach_max);
+        let grid = parts.grains.map(|g| Grains::Procedural(Box::new(g)));
+        let exact = !continuous_count.is_finite();
+        let all_continuous = grid.is_none();
+        Ok(Self::assemble(
+            Walkable {
+                expected: Some((spec.count, parts.field_count)),
+                field: parts.field,
+                // Every class continuous: the field is the grains' equivalent (as `build` does).
+                grains_field: (!exact && !all_continuous).then_some(parts.all_field),
+                grid,
+                optics,
+                widened,
+                coincide,
+                event_box,
+            },
+            bins,
+            lambda,
+            seed,
+        ))
     }
 
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
@@ -782,25 +958,40 @@ impl DiscreteMedium {
     }
     /// Particles sampled as a continuous medium ([`crate::render::continuous`]).
     pub fn continuous_len(&self) -> usize {
-        self.field.as_ref().map_or(0, ContinuousField::len)
+        match self.expected {
+            Some((_, c)) => c.round() as usize,
+            None => self.field.as_ref().map_or(0, ContinuousField::len),
+        }
     }
     /// Grey optical depth along a ray segment (|d| = 1) as the free flights see it: the discrete
     /// particles' staircase plus the continuous field's mean.
     pub fn optical_depth(&self, ray: &RaySegment) -> f64 {
-        let mut v = [0.0];
-        if let Some(g) = &self.grid {
-            g.optical_depth(ray, &mut v);
-        }
-        v[0] + self.field.as_ref().map_or(0.0, |f| f.optical_depth(ray))
+        self.grid.as_ref().map_or(0.0, |g| g.optical_depth(ray))
+            + self.field.as_ref().map_or(0.0, |f| f.optical_depth(ray))
     }
+    /// Particles (a procedural cloud's expected count).
     pub fn len(&self) -> usize {
-        self.optics.len()
+        match self.expected {
+            Some((n, _)) => n.round() as usize,
+            None => self.optics.len(),
+        }
     }
     pub fn is_empty(&self) -> bool {
-        self.optics.len() == 0
+        self.len() == 0
+    }
+    /// Is this a procedural cloud (`crate::render::procedural`)?
+    pub fn is_procedural(&self) -> bool {
+        matches!(self.grid, Some(Grains::Procedural(_))) || self.expected.is_some()
+    }
+    /// A procedural cloud's bricks built so far (0 for stored particles).
+    pub fn bricks_built(&self) -> u64 {
+        match &self.grid {
+            Some(Grains::Procedural(p)) => p.bricks_built(),
+            _ => 0,
+        }
     }
     pub fn bytes(&self) -> usize {
-        self.grid.as_ref().map_or(0, ParticleGrid::bytes)
+        self.grid.as_ref().map_or(0, Grains::bytes)
             + self.field.as_ref().map_or(0, ContinuousField::bytes)
             + self.grains_field.as_ref().map_or(0, ContinuousField::bytes)
             + self.optics.bytes()
@@ -954,10 +1145,7 @@ impl DiscreteMedium {
         };
         let t_end = hit.map_or(t_max, |h| h.t);
         let (site, tau) = match &self.grid {
-            Some(g) => {
-                let exclude = parent.site.members();
-                g.sample_site(&ray.between(0.0, t_end), exclude, u, self.coincide)
-            }
+            Some(g) => g.sample_site(&ray.between(0.0, t_end), &parent.site, u, self.coincide),
             None => (None, 0.0),
         };
         let site = site.or_else(|| field_site(self.field.as_ref()?, hit?, u));
@@ -1076,9 +1264,12 @@ impl DiscreteMedium {
         let tol = 4.0 * self.coincide + 1e-6 * o.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         let mut site = Site::default();
         if let Some(g) = &self.grid {
-            g.walk(&RaySegment::new(o, w_in, -tol, tol), |t, _, i| {
+            g.walk(&RaySegment::new(o, w_in, -tol, tol), |t, i, key| {
                 if site.len == 0 {
                     site.t = t;
+                }
+                if (site.len as usize) < Site::CAPACITY {
+                    site.keys[site.len as usize] = key;
                 }
                 site.push(i);
                 true
@@ -1195,7 +1386,7 @@ impl DiscreteMedium {
                 let members = self.local_members(p[i]);
                 let lam = lane_wavelengths(lambda, channels, i);
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
-                let scale = |j: u32| self.local_weight(j);
+                let scale = |j: u32| self.local_weight(j, p[i]);
                 let sigma: Vec<f64> = ls
                     .iter()
                     .map(|&l| {
@@ -1223,7 +1414,13 @@ impl DiscreteMedium {
 
     /// C_t,i / V_i of particle i (grey), the weight of a particle in the query sphere of Eq. 24 (a
     /// particle of the continuous field is spread over its cell: V_i is the cell's volume).
-    fn local_weight(&self, j: u32) -> f64 {
+    fn local_weight(&self, j: u32, p: [f64; 3]) -> f64 {
+        // A procedural cloud's field: the σ_t its class carries at p.
+        if let (Some(f), true) = (&self.field, self.optics.in_field(j)) {
+            if let Some(s) = f.shared_sigma(p, j) {
+                return s;
+            }
+        }
         let r = self.optics.reach(j);
         let volume = match (&self.field, self.optics.in_field(j)) {
             (Some(f), true) => f.cell_volume(),
@@ -1271,7 +1468,7 @@ impl DiscreteMedium {
                 let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
                 let mixture = Mixture {
                     members: &members,
-                    scale: |j| self.local_weight(j),
+                    scale: |j| self.local_weight(j, p[i]),
                     ls: &ls,
                     pi: &uniform_channels(channels),
                 };

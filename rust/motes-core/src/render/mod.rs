@@ -9,4 +9,5 @@
 
 pub mod continuous;
 pub mod discrete;
+pub mod procedural;
 pub mod storage;

@@ -33,7 +33,7 @@ use rayon::prelude::*;
 /// against its particles, few enough that a procedural cloud generates little it does not need.
 pub const CANDIDATES_PER_TILE: f64 = 64.0;
 /// Numbers of a tile's stream each candidate consumes: 3 position, 1 thinning, 1 species, 2 radius.
-const DRAWS_PER_CANDIDATE: usize = 7;
+pub(crate) const DRAWS_PER_CANDIDATE: usize = 7;
 /// Stream tags, so that the tiles', the drops' and the noise's numbers never coincide.
 const TILE_STREAM: u64 = 0x7469_6C65;
 const DROP_STREAM: u64 = 0x6472_6F70;
@@ -165,7 +165,7 @@ impl Density {
         Ok(Density::Gradient { axis, start, end })
     }
 
-    fn at(&self, p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    pub(crate) fn at(&self, p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
         match self {
             Density::Uniform => 1.0,
             Density::Gradient { axis, start, end } => {
@@ -177,7 +177,7 @@ impl Density {
     }
 
     /// The density's largest value (the thinning bound).
-    fn bound(&self) -> f64 {
+    pub(crate) fn bound(&self) -> f64 {
         match self {
             Density::Uniform => 1.0,
             Density::Gradient { start, end, .. } => start.max(*end),
@@ -187,7 +187,7 @@ impl Density {
 
     /// The density's mean over the box: exact for the uniform and linear ones, a midpoint rule over
     /// [`MEAN_POINTS_PER_AXIS`]³ points for noise (it sets only the expected count, see `Cloud`).
-    fn mean(&self, lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    pub(crate) fn mean(&self, lo: [f64; 3], hi: [f64; 3]) -> f64 {
         match self {
             Density::Uniform => 1.0,
             Density::Gradient { start, end, .. } => 0.5 * (start + end),
@@ -231,8 +231,8 @@ pub struct Grain {
 #[derive(Clone, Debug)]
 pub struct Tiling {
     pub dims: [usize; 3],
-    lo: [f64; 3],
-    size: [f64; 3],
+    pub(crate) lo: [f64; 3],
+    pub(crate) size: [f64; 3],
     /// Poisson mean of each tile's candidate count.
     candidates: f64,
 }
@@ -244,7 +244,7 @@ impl Tiling {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    fn tile_lo(&self, t: usize) -> [f64; 3] {
+    pub(crate) fn tile_lo(&self, t: usize) -> [f64; 3] {
         let d = self.dims;
         let idx = [t % d[0], (t / d[0]) % d[1], t / (d[0] * d[1])];
         [0, 1, 2].map(|a| self.lo[a] + self.size[a] * idx[a] as f64)
@@ -283,9 +283,16 @@ impl CloudSpec {
     /// The tiles of a Poisson cloud of `expected` particles (about [`CANDIDATES_PER_TILE`] candidates
     /// each, cut in proportion to the box's sides).
     pub fn tiling(&self, expected: f64) -> Tiling {
+        self.tiling_at_least(expected, 0.0, CANDIDATES_PER_TILE)
+    }
+
+    /// [`Self::tiling`] with tiles of about `per_tile` candidates and no edge shorter than `min_edge`
+    /// where the box is that wide (a procedural cloud's tiles must be at least as wide as a particle's
+    /// inclusion ball: `crate::render::procedural`).
+    pub(crate) fn tiling_at_least(&self, expected: f64, min_edge: f64, per_tile: f64) -> Tiling {
         let ext = [0, 1, 2].map(|a| self.hi[a] - self.lo[a]);
         let candidates = expected * self.density.bound() / self.density.mean(self.lo, self.hi);
-        let tiles = (candidates / CANDIDATES_PER_TILE).clamp(1.0, MAX_TILES);
+        let tiles = (candidates / per_tile).clamp(1.0, MAX_TILES);
         // Cubes of equal volume where the box allows; an axis thinner than a cube's edge gets one tile
         // and the others share the count (a 1e-6 x 1e6 x 1e6 box must not make 1e9 tiles of 47).
         let mut dims = [1usize; 3];
@@ -297,6 +304,9 @@ impl CloudSpec {
             if thin.is_empty() || thin.len() == free.len() {
                 for &a in &free {
                     dims[a] = ((ext[a] / edge).round() as usize).max(1);
+                    if min_edge > 0.0 {
+                        dims[a] = dims[a].min(((ext[a] / min_edge) as usize).max(1));
+                    }
                 }
                 break;
             }
@@ -325,6 +335,28 @@ impl CloudSpec {
         samplers: Option<&[RadiusSampler]>,
         mut emit: impl FnMut(Grain),
     ) -> usize {
+        let total_share: f64 = self.species.iter().map(|s| s.0).sum();
+        self.visit_candidates(tiling, t, |centre, u| {
+            if let Some(samplers) = samplers {
+                let species = pick_species(&self.species, total_share, u[4]);
+                let radius_um = samplers[species].draw(u[5], u[6]);
+                emit(Grain {
+                    centre,
+                    radius_um,
+                    species: species as u32,
+                });
+            }
+        })
+    }
+
+    /// The kept candidates of tile `t`, in order, as `emit(centre, u)` with `u` the candidate's numbers
+    /// (`u[4..7]` unused by the placement: the marks a caller draws from). Returns how many there are.
+    pub(crate) fn visit_candidates(
+        &self,
+        tiling: &Tiling,
+        t: usize,
+        mut emit: impl FnMut([f64; 3], &[f64; DRAWS_PER_CANDIDATE]),
+    ) -> usize {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(splitmix64(
             self.seed ^ splitmix64(TILE_STREAM ^ t as u64),
         ));
@@ -336,7 +368,6 @@ impl CloudSpec {
         let (lo, size) = (tiling.tile_lo(t), tiling.size);
         let bound = self.density.bound();
         let uniform = matches!(self.density, Density::Uniform);
-        let total_share: f64 = self.species.iter().map(|s| s.0).sum();
         let mut kept = 0;
         for _ in 0..k {
             let mut u = [0f64; DRAWS_PER_CANDIDATE];
@@ -348,15 +379,7 @@ impl CloudSpec {
                 continue;
             }
             kept += 1;
-            if let Some(samplers) = samplers {
-                let species = pick_species(&self.species, total_share, u[4]);
-                let radius_um = samplers[species].draw(u[5], u[6]);
-                emit(Grain {
-                    centre,
-                    radius_um,
-                    species: species as u32,
-                });
-            }
+            emit(centre, &u);
         }
         kept
     }

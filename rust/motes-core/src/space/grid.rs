@@ -366,6 +366,9 @@ pub struct Site {
     pub t: f64,
     pub particles: [u32; Site::CAPACITY],
     pub len: u8,
+    /// The particles' identities where members are classes (a procedural cloud's (tile, index) keys,
+    /// `crate::render::procedural`); zero for stored particles, whose members are their indices.
+    pub keys: [u64; Site::CAPACITY],
 }
 
 impl Site {

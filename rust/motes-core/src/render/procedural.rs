@@ -1,0 +1,1087 @@
+//! Procedural clouds (issue 24.3): a generated cloud whose particles are never stored. Each tile of the
+//! cloud's Poisson process (`crate::space::cloud`) is generated from (seed, tile) when a ray first
+//! needs it, so memory depends on the region a render visits and on the density field, not on the
+//! count: 10^12 grains over a valley cost what the bricks a camera sees cost.
+//!
+//! ## The process, split by what a pixel resolves
+//! A cloud of expected count N over a box with relative density d(x) is a Poisson process of intensity
+//! N d(x) / ∫d. Its particles are marked with a species (by share) and a radius (the species' PSD),
+//! quantised as compact storage quantises them (`crate::render::storage`: a bin and one of
+//! [`LEVELS_PER_BIN`] radius levels), so each particle *is* a class k of probability p_k (from the PSD's
+//! CDF over the level). Marking a Poisson process splits it into independent Poisson processes, one per
+//! class, of intensity N p_k d(x) / ∫d. So:
+//! * the classes that stay discrete ([`crate::render::continuous::resolvable`]'s criterion, with the
+//!   class's expected count in place of a count of stored particles) are one Poisson process of
+//!   intensity N P_disc d(x) / ∫d whose particles pick their class from the discrete classes in
+//!   proportion to p_k: the only particles ever generated;
+//! * the continuous classes are their expected extinction, σ_t(x) = Σ_k N p_k C_k d(x) / ∫d, a field of
+//!   the density's shape ([`ContinuousField::from_density`]), each bin's classes scattering as one
+//!   class of that bin.
+//!
+//! Both are what a stored cloud of the same distribution is in expectation (a stored cloud has exactly
+//! N particles, a procedural one a Poisson count of mean N; at any N worth generating procedurally
+//! the difference, 1/√N, is nothing a render shows).
+//!
+//! ## Bricks
+//! The discrete process is tiled (`CloudSpec::tiling_at_least`, tiles no narrower than the widest
+//! inclusion ball) and the tiles grouped into bricks of B³ tiles (about [`BRICK_PARTICLES`] particles),
+//! with a ring of bricks around the box for the balls that reach out of it. A brick's grid holds its
+//! own tiles' particles and those of the neighbouring tiles whose balls reach into it, built on first
+//! use into an ordinary [`ParticleGrid`] and kept in a cache of bounded size (least recently used
+//! bricks dropped). A ray walks the bricks it crosses in order (a 3D-DDA in the cloud's own
+//! coordinates, where the bricks are boxes) and each brick's grid over the part of the ray inside
+//! the brick: every particle projecting onto that part is in the brick's grid, so the walk visits
+//! each particle once and in t order, and the free flight is exact for the particles as generated.
+//! Each particle is known by (tile, index in tile), whichever brick found it: the key that keeps a
+//! scattered ray from meeting its own particle again.
+
+use crate::error::{require, OpticsError};
+use crate::render::continuous::{ContinuousField, CLASS_FLAG};
+use crate::render::storage::LEVELS_PER_BIN;
+use crate::space::cloud::{CloudSpec, Tiling};
+use crate::space::dda::{Bounds3, Dda, GridFrame};
+use crate::space::grid::{size_class, GridSettings, ParticleGrid, Site, SIZE_CLASSES};
+use crate::space::ray::RaySegment;
+use rustc_hash::FxHashMap;
+use std::f64::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, RwLock};
+
+/// Expected discrete particles per brick: a brick's grid costs a cache lookup and a walk set-up per
+/// ray that crosses it, and a build (its tiles and their neighbours generated) per cache miss.
+pub const BRICK_PARTICLES: f64 = 8192.0;
+/// Expected candidates per tile of the discrete process.
+const CANDIDATES_PER_TILE: f64 = 64.0;
+/// Default bytes of bricks kept (the cache drops the least recently used beyond this).
+pub const DEFAULT_CACHE_BYTES: usize = 1 << 30;
+/// Cache shards (independent locks for the render threads).
+const SHARDS: usize = 64;
+/// Cells of the continuous classes' field along the box's longest side.
+const FIELD_CELLS: usize = 64;
+/// Sub-samples per axis of the density in each field cell.
+const FIELD_SAMPLES: usize = 2;
+/// Largest number of particles one tile may hold (a tile's index in a particle key).
+const TILE_INDEX_BITS: u32 = 24;
+/// Most candidates one brick may generate (its tiles and their halo).
+const MAX_BRICK_CANDIDATES: f64 = 1e7;
+
+/// A procedural cloud's distribution and the optics bins its radii fall in.
+#[derive(Clone, Debug)]
+pub struct ProceduralSpec {
+    /// The box (the cloud's own coordinates), density, species (share, PSD in µm) and seed.
+    pub cloud: CloudSpec,
+    /// Expected number of particles in the box.
+    pub count: f64,
+    /// The cloud's coordinates to scene units (3×4, row-major: rotation/scale, then translation).
+    pub transform: [[f64; 4]; 3],
+    /// Scene units per micrometre (radii are not transformed: `scale_m`).
+    pub scene_per_um: f64,
+    /// Per species: the edges of its optics bins (µm, increasing, spanning the PSD's support).
+    pub bin_edges_um: Vec<Vec<f64>>,
+    /// Per species: the global optics bin of its first bin (its bins follow in order).
+    pub first_bin: Vec<u32>,
+    /// Grey extinction efficiency Q_ext of each global optics bin.
+    pub q_ext: Vec<f64>,
+}
+
+/// A class of a procedural cloud: bin, radius (scene units) and probability of a particle being it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ClassEntry {
+    pub bin: u32,
+    pub radius: f64,
+    pub c_ext: f64,
+    pub p: f64,
+}
+
+/// Every class of the distribution with a non-zero probability: per species, per bin, per radius
+/// level (module docs), then one representative per bin (codes from `classes.len()`: a bin's
+/// continuous classes as one, cross section their mean).
+pub(crate) fn class_table(spec: &ProceduralSpec) -> Result<Vec<ClassEntry>, OpticsError> {
+    let total: f64 = spec.cloud.species.iter().map(|s| s.0).sum();
+    require(
+        "bin_edges_um (species)",
+        spec.bin_edges_um.len() as f64,
+        spec.bin_edges_um.len() == spec.cloud.species.len()
+            && spec.first_bin.len() == spec.cloud.species.len(),
+        "one list of edges and one first bin per species",
+    )?;
+    let mut out = Vec::new();
+    for (s, (share, psd)) in spec.cloud.species.iter().enumerate() {
+        let edges = &spec.bin_edges_um[s];
+        require(
+            "bin_edges_um",
+            edges.len() as f64,
+            edges.len() >= 2 && edges.windows(2).all(|w| w[1] >= w[0]) && edges[0] > 0.0,
+            "at least 2 positive, non-decreasing edges",
+        )?;
+        let nb = edges.len() - 1;
+        let cdf = |r: f64| -> f64 { psd.cdf(r) };
+        for b in 0..nb {
+            let bin = spec.first_bin[s] + b as u32;
+            require(
+                "first_bin",
+                bin as f64,
+                (bin as usize) < spec.q_ext.len(),
+                "< the number of bins with a q_ext",
+            )?;
+            let (lo, hi) = (edges[b], edges[b + 1]);
+            let levels = if hi > lo { LEVELS_PER_BIN } else { 1 };
+            let step = if hi > lo {
+                (hi / lo).ln() / levels as f64
+            } else {
+                0.0
+            };
+            for l in 0..levels {
+                let a = if b == 0 && l == 0 {
+                    0.0
+                } else {
+                    cdf(lo * (l as f64 * step).exp())
+                };
+                let z = if b + 1 == nb && l + 1 == levels {
+                    1.0
+                } else {
+                    cdf(lo * ((l + 1) as f64 * step).exp())
+                };
+                let p = share / total * (z - a).max(0.0);
+                if p > 0.0 {
+                    let r = lo * ((l as f64 + 0.5) * step).exp() * spec.scene_per_um;
+                    out.push(ClassEntry {
+                        bin,
+                        radius: r,
+                        c_ext: PI * r * r * spec.q_ext[bin as usize],
+                        p,
+                    });
+                }
+            }
+        }
+    }
+    require(
+        "count",
+        out.len() as f64,
+        !out.is_empty() && out.len() < (CLASS_FLAG - 1) as usize,
+        "a distribution with radii inside its bins",
+    )?;
+    Ok(out)
+}
+
+/// A built brick: the particles of its tiles and of the neighbouring tiles whose balls reach into it.
+struct Brick {
+    grid: Option<ParticleGrid>,
+    /// Per particle of the grid (its original index): class code and key ((tile << 24 | index in
+    /// tile) + 1; never 0).
+    code: Vec<u32>,
+    key: Vec<u64>,
+    bytes: usize,
+}
+
+struct Shard {
+    /// Each brick and when it was last used (the shard's clock).
+    map: FxHashMap<u64, (Arc<Brick>, AtomicU64)>,
+    bytes: usize,
+}
+
+/// Bricks by index, the least recently used dropped beyond a byte budget. A hit takes a shard's read
+/// lock and stamps the brick with the shard's clock; a miss builds the brick outside any lock.
+struct BrickCache {
+    shards: Vec<(RwLock<Shard>, AtomicU64)>,
+    budget: usize,
+    built: AtomicU64,
+}
+
+impl BrickCache {
+    fn new(budget: usize) -> Self {
+        BrickCache {
+            shards: (0..SHARDS)
+                .map(|_| {
+                    let shard = Shard {
+                        map: FxHashMap::default(),
+                        bytes: 0,
+                    };
+                    (RwLock::new(shard), AtomicU64::new(0))
+                })
+                .collect(),
+            budget: (budget / SHARDS).max(1),
+            built: AtomicU64::new(0),
+        }
+    }
+
+    fn get(&self, index: u64, build: impl FnOnce() -> Brick) -> Arc<Brick> {
+        // Neighbouring bricks in different shards (consecutive indices), so threads rarely share one.
+        let (shard, clock) = &self.shards[(index % SHARDS as u64) as usize];
+        let now = clock.fetch_add(1, Ordering::Relaxed);
+        if let Some(e) = shard.read().unwrap().map.get(&index) {
+            e.1.store(now, Ordering::Relaxed);
+            return e.0.clone();
+        }
+        // Built outside the lock (two threads may build the same brick: the same particles).
+        let brick = Arc::new(build());
+        self.built.fetch_add(1, Ordering::Relaxed);
+        let mut s = shard.write().unwrap();
+        if let Some(e) = s.map.get(&index) {
+            return e.0.clone();
+        }
+        s.bytes += brick.bytes;
+        s.map.insert(index, (brick.clone(), AtomicU64::new(now)));
+        while s.bytes > self.budget && s.map.len() > 1 {
+            let oldest = s
+                .map
+                .iter()
+                .filter(|(&k, _)| k != index)
+                .min_by_key(|(_, v)| v.1.load(Ordering::Relaxed))
+                .map(|(&k, _)| k);
+            let Some(k) = oldest else { break };
+            let (b, _) = s.map.remove(&k).expect("present");
+            s.bytes -= b.bytes;
+        }
+        brick
+    }
+
+    fn bytes(&self) -> usize {
+        self.shards.iter().map(|s| s.0.read().unwrap().bytes).sum()
+    }
+}
+
+/// The discrete classes of a procedural cloud, generated brick by brick (module docs).
+pub struct ProceduralGrains {
+    cloud: CloudSpec,
+    tiling: Tiling,
+    /// Tiles per brick along each axis, and tiles a ball reaches across (at least 1).
+    per_brick: [usize; 3],
+    halo: [usize; 3],
+    /// Bricks over the tiles and a ring of one tile around them (the cloud's coordinates).
+    frame: GridFrame,
+    /// Scene ← cloud (3×4) and cloud ← scene linear part (3×3) with its translation.
+    to_scene: [[f64; 4]; 3],
+    to_cloud: [[f64; 4]; 3],
+    /// Discrete class codes and the running sum of their probabilities (normalised to 1).
+    codes: Vec<u32>,
+    cdf: Vec<f64>,
+    /// Per class code: the grid's radius and cross section (the disk as the grid walks it).
+    grid_radius: Vec<f64>,
+    grid_c: Vec<f64>,
+    /// The widest inclusion ball in the cloud's coordinates (a conservative bound).
+    reach_cloud: f64,
+    settings: GridSettings,
+    cache: BrickCache,
+    /// Expected number of discrete particles.
+    expected: f64,
+}
+
+/// The state of an exact free flight to the next site over a sequence of walks (one per brick): the
+/// same grouping as [`ParticleGrid::sample_site`], with particles known by key.
+pub(crate) struct SiteWalk<'a> {
+    target: f64,
+    pub acc: f64,
+    group: Site,
+    group_keys: [u64; Site::CAPACITY],
+    group_tau: f64,
+    last_t: f64,
+    exclude: &'a [u64],
+    coincide: f64,
+    pub found: Option<Site>,
+}
+
+impl<'a> SiteWalk<'a> {
+    pub(crate) fn new(u: f64, exclude: &'a [u64], coincide: f64) -> Self {
+        SiteWalk {
+            target: -(1.0 - u).ln(),
+            acc: 0.0,
+            group: Site::default(),
+            group_keys: [0; Site::CAPACITY],
+            group_tau: 0.0,
+            last_t: f64::NEG_INFINITY,
+            exclude,
+            coincide,
+            found: None,
+        }
+    }
+
+    /// A particle in t order; false once the site is found.
+    fn offer(&mut self, t: f64, tau: f64, member: u32, key: u64) -> bool {
+        if self.exclude.contains(&key) {
+            return true;
+        }
+        if self.group.len > 0 && t > self.last_t + self.coincide && !self.close() {
+            return false;
+        }
+        if self.group.len == 0 {
+            self.group.t = t;
+        }
+        let k = self.group.len as usize;
+        if k < Site::CAPACITY {
+            self.group_keys[k] = key;
+        }
+        self.group.push(member);
+        self.group_tau += tau;
+        self.last_t = t;
+        true
+    }
+
+    /// Complete the current group: does the path interact there? (false: it does; the site is found).
+    fn close(&mut self) -> bool {
+        if self.group.len == 0 {
+            return true;
+        }
+        if self.acc + self.group_tau > self.target {
+            let mut s = self.group;
+            s.keys = self.group_keys;
+            self.found = Some(s);
+            return false;
+        }
+        self.acc += self.group_tau;
+        self.group = Site::default();
+        self.group_tau = 0.0;
+        true
+    }
+}
+
+fn apply(m: &[[f64; 4]; 3], p: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+}
+
+fn apply_linear(m: &[[f64; 4]; 3], v: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
+}
+
+/// The inverse of an affine map (3×4), or None when singular.
+#[allow(clippy::needless_range_loop)] // cofactors index rows and columns together
+fn invert(m: &[[f64; 4]; 3]) -> Option<[[f64; 4]; 3]> {
+    let a = |r: usize, c: usize| m[r][c];
+    let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1))
+        - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
+        + a(0, 2) * (a(1, 0) * a(2, 1) - a(1, 1) * a(2, 0));
+    if !(det.abs() > 0.0 && det.is_finite()) {
+        return None;
+    }
+    let mut inv = [[0.0; 4]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            // Cofactor (c, r) / det.
+            let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
+            let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
+            inv[r][c] = (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det;
+        }
+    }
+    let t = [m[0][3], m[1][3], m[2][3]];
+    for r in 0..3 {
+        inv[r][3] = -(inv[r][0] * t[0] + inv[r][1] * t[1] + inv[r][2] * t[2]);
+    }
+    Some(inv)
+}
+
+/// The largest stretch of the map's linear part (its largest singular value, by power iteration on
+/// AᵀA, rounded up by 1e-6 of it: iteration converges from below).
+fn largest_stretch(m: &[[f64; 4]; 3]) -> f64 {
+    let ata = |v: [f64; 3]| {
+        let a = apply_linear(m, v);
+        [0, 1, 2].map(|c| m[0][c] * a[0] + m[1][c] * a[1] + m[2][c] * a[2])
+    };
+    let mut v = [1.0, 0.7548776662466927, 0.5698402909980532];
+    let mut lambda = 0.0;
+    for _ in 0..200 {
+        let w = ata(v);
+        let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+        if n.is_nan() || n <= 0.0 {
+            break;
+        }
+        lambda = n / (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v = w.map(|x| x / n);
+    }
+    lambda.sqrt() * (1.0 + 1e-6)
+}
+
+/// What the medium needs from a procedural cloud: the class table (fine classes, then one
+/// representative per bin), which classes stay discrete, their grains, and the fields.
+pub(crate) struct ProceduralParts {
+    pub classes: Vec<ClassEntry>,
+    /// Per class code: kept discrete (the representatives are continuous).
+    pub discrete: Vec<bool>,
+    pub grains: Option<ProceduralGrains>,
+    /// The continuous classes as a field (None when every class is discrete).
+    pub field: Option<ContinuousField>,
+    /// Every class as a field (the grains' equivalent for rays past the grain depth).
+    pub all_field: ContinuousField,
+    /// The box's corners in scene units.
+    pub corners: Vec<[f64; 3]>,
+    /// Expected particles in the field.
+    pub field_count: f64,
+}
+
+/// The parts of a procedural cloud (module docs), its disks `disk(radius, c_ext)` → (R, τ).
+pub(crate) fn build_parts(
+    spec: &ProceduralSpec,
+    disk: impl Fn(f64, f64) -> (f64, f64),
+    query_radius: f64,
+    cells_per_particle: f64,
+    continuous_count: f64,
+    cache_bytes: usize,
+) -> Result<ProceduralParts, OpticsError> {
+    let count = spec.count;
+    require(
+        "count",
+        count,
+        (1.0..=1e15).contains(&count),
+        "in [1, 1e15]",
+    )?;
+    let to_cloud = invert(&spec.transform).ok_or(OpticsError::InvalidArgument {
+        argument: "to_world",
+        value: 0.0,
+        requirement: "an invertible transform",
+    })?;
+    let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
+    let mut classes = class_table(spec)?;
+    let fine = classes.len();
+    // The box in scene units: its volume and surface (edge vectors of the parallelepiped).
+    let e = [0, 1, 2].map(|a| {
+        let mut v = [0.0; 3];
+        v[a] = hi[a] - lo[a];
+        apply_linear(&spec.transform, v)
+    });
+    let cross = |u: [f64; 3], v: [f64; 3]| {
+        [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ]
+    };
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let dot = |u: [f64; 3], v: [f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let volume = dot(e[0], cross(e[1], e[2])).abs();
+    let surface =
+        2.0 * (norm(cross(e[0], e[1])) + norm(cross(e[1], e[2])) + norm(cross(e[2], e[0])));
+    let chord = 4.0 * volume / surface;
+    let disks: Vec<(f64, f64)> = classes.iter().map(|c| disk(c.radius, c.c_ext)).collect();
+    // Which classes a query cylinder holds fewer than `continuous_count` of
+    // (crate::render::continuous::resolvable, with expected counts).
+    let sigma: f64 = classes.iter().map(|c| count * c.p * c.c_ext).sum::<f64>() / volume;
+    let length = if sigma > 0.0 {
+        chord.min(1.0 / sigma)
+    } else {
+        chord
+    };
+    let reach_max = disks.iter().map(|d| d.0).fold(0.0, f64::max);
+    let mut area = [0.0f64; SIZE_CLASSES];
+    for (c, d) in classes.iter().zip(&disks) {
+        area[size_class(reach_max, d.0)] += count * c.p * PI * d.0 * d.0;
+    }
+    let keep_class: Vec<bool> = area
+        .iter()
+        .map(|a| !continuous_count.is_finite() || a * length / volume < continuous_count)
+        .collect();
+    let mut discrete: Vec<bool> = disks
+        .iter()
+        .map(|d| keep_class[size_class(reach_max, d.0)])
+        .collect();
+    // One representative per bin for the fields: each bin's continuous classes (all of its classes
+    // for the grains' equivalent) scatter as that bin.
+    let bins = spec.q_ext.len();
+    let (mut w_cont, mut w_all, mut p_cont) = (vec![0.0; bins], vec![0.0; bins], vec![0.0; bins]);
+    for (k, c) in classes.iter().enumerate() {
+        let w = count * c.p * c.c_ext / volume;
+        w_all[c.bin as usize] += w;
+        if !discrete[k] {
+            w_cont[c.bin as usize] += w;
+            p_cont[c.bin as usize] += c.p;
+        }
+    }
+    let mut p_bin = vec![0.0; bins];
+    for c in &classes {
+        p_bin[c.bin as usize] += c.p;
+    }
+    for b in 0..bins {
+        let (p, w) = if p_cont[b] > 0.0 {
+            (p_cont[b], w_cont[b])
+        } else {
+            (p_bin[b], w_all[b])
+        };
+        let c_ext = if p > 0.0 {
+            w * volume / (count * p)
+        } else {
+            0.0
+        };
+        classes.push(ClassEntry {
+            bin: b as u32,
+            radius: (c_ext / (PI * spec.q_ext[b].max(1e-300))).sqrt(),
+            c_ext,
+            p: 0.0,
+        });
+        discrete.push(false);
+    }
+    // The fields over the box's bounding box in scene units; the density mapped back to the cloud's
+    // coordinates (zero outside the box), averaged over FIELD_SAMPLES³ points per cell.
+    let corners: Vec<[f64; 3]> = (0..8)
+        .map(|i| {
+            let p = [0, 1, 2].map(|a| if i >> a & 1 == 1 { hi[a] } else { lo[a] });
+            apply(&spec.transform, p)
+        })
+        .collect();
+    let (mut flo, mut fhi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for c in &corners {
+        for a in 0..3 {
+            flo[a] = flo[a].min(c[a]);
+            fhi[a] = fhi[a].max(c[a]);
+        }
+    }
+    let fext = [0, 1, 2].map(|a| (fhi[a] - flo[a]).max(1e-12));
+    let longest = fext.iter().fold(0.0f64, |a, &b| a.max(b));
+    let dims = fext.map(|x| ((x / longest * FIELD_CELLS as f64).round() as usize).max(1));
+    let density = &spec.cloud.density;
+    let mean = density.mean(lo, hi);
+    let rel = |a: [f64; 3], b: [f64; 3]| -> f64 {
+        let m = FIELD_SAMPLES;
+        let mut sum = 0.0;
+        for k in 0..m * m * m {
+            let idx = [k % m, (k / m) % m, k / (m * m)];
+            let p = [0, 1, 2].map(|x| a[x] + (b[x] - a[x]) * (idx[x] as f64 + 0.5) / m as f64);
+            let q = apply(&to_cloud, p);
+            if (0..3).all(|x| q[x] >= lo[x] && q[x] <= hi[x]) {
+                sum += density.at(q, lo, hi);
+            }
+        }
+        sum / (m * m * m) as f64 / mean
+    };
+    let reps: Vec<u32> = (0..bins).map(|b| CLASS_FLAG | (fine + b) as u32).collect();
+    let field_count: f64 = count * p_cont.iter().sum::<f64>();
+    let field = (field_count > 0.0)
+        .then(|| ContinuousField::from_density(flo, fhi, dims, rel, reps.clone(), &w_cont));
+    let all_field = ContinuousField::from_density(flo, fhi, dims, rel, reps, &w_all);
+    // The discrete process.
+    let codes: Vec<u32> = (0..fine)
+        .filter(|&k| discrete[k])
+        .map(|k| k as u32)
+        .collect();
+    let p_disc: f64 = codes.iter().map(|&k| classes[k as usize].p).sum();
+    let grains = if codes.is_empty() || p_disc.is_nan() || p_disc <= 0.0 {
+        None
+    } else {
+        let mut acc = 0.0;
+        let cdf = codes
+            .iter()
+            .map(|&k| {
+                acc += classes[k as usize].p / p_disc;
+                acc
+            })
+            .collect();
+        let reach_disc = codes
+            .iter()
+            .map(|&k| disks[k as usize].0)
+            .fold(0.0, f64::max);
+        let grid_radius = disks
+            .iter()
+            .zip(&classes)
+            .map(|(d, c)| (d.0 - query_radius).max(c.radius))
+            .collect();
+        let grid_c = disks.iter().map(|d| d.1 * PI * d.0 * d.0).collect();
+        Some(ProceduralGrains::new(
+            spec,
+            to_cloud,
+            codes,
+            cdf,
+            grid_radius,
+            grid_c,
+            reach_disc,
+            GridSettings::new(query_radius, cells_per_particle),
+            count * p_disc,
+            cache_bytes,
+        )?)
+    };
+    Ok(ProceduralParts {
+        classes,
+        discrete,
+        grains,
+        field,
+        all_field,
+        corners,
+        field_count,
+    })
+}
+
+impl ProceduralGrains {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        spec: &ProceduralSpec,
+        to_cloud: [[f64; 4]; 3],
+        codes: Vec<u32>,
+        cdf: Vec<f64>,
+        grid_radius: Vec<f64>,
+        grid_c: Vec<f64>,
+        reach_scene: f64,
+        settings: GridSettings,
+        expected: f64,
+        cache_bytes: usize,
+    ) -> Result<Self, OpticsError> {
+        let reach_cloud = reach_scene * largest_stretch(&to_cloud) * (1.0 + 1e-9);
+        let density = &spec.cloud.density;
+        let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
+        let candidates = expected * density.bound() / density.mean(lo, hi);
+        let tiling = spec
+            .cloud
+            .tiling_at_least(expected, 0.0, CANDIDATES_PER_TILE);
+        let per_tile = candidates / tiling.len() as f64;
+        // Tiles a ball reaches across (the halo), and bricks at least twice that wide so that a brick
+        // generates at most (1 + 2 halo / brick)³ ≤ 8 times its own particles.
+        let halo = tiling
+            .size
+            .map(|s| ((reach_cloud / s).ceil() as usize).max(1));
+        let natural = ((BRICK_PARTICLES / per_tile.max(1e-9)).cbrt().round() as usize).clamp(1, 16);
+        let per_brick = halo.map(|h| natural.max(2 * h));
+        let generated: f64 = (0..3)
+            .map(|a| (per_brick[a] + 2 * halo[a]).min(tiling.dims[a]) as f64)
+            .product::<f64>()
+            * per_tile;
+        require(
+            "count",
+            spec.count,
+            generated <= MAX_BRICK_CANDIDATES,
+            "low enough that the discrete grains' inclusion balls do not each hold ~10^5 others \
+             (a brick would generate more than 10^7 candidates): lower count or query_radius, or \
+             continuous_count so that such grains are continuous",
+        )?;
+        // Bricks over tile indices −halo .. dims + halo (a ring of tiles whose own particles are none).
+        let dims = [0, 1, 2].map(|a| (tiling.dims[a] + 2 * halo[a]).div_ceil(per_brick[a]));
+        let brick_edge = [0, 1, 2].map(|a| tiling.size[a] * per_brick[a] as f64);
+        let frame_lo = [0, 1, 2].map(|a| tiling.lo[a] - tiling.size[a] * halo[a] as f64);
+        Ok(ProceduralGrains {
+            cloud: spec.cloud.clone(),
+            per_brick,
+            halo,
+            frame: GridFrame::new(frame_lo, brick_edge, dims),
+            to_scene: spec.transform,
+            to_cloud,
+            codes,
+            cdf,
+            grid_radius,
+            grid_c,
+            reach_cloud,
+            settings,
+            cache: BrickCache::new(cache_bytes),
+            expected,
+            tiling,
+        })
+    }
+
+    /// Expected number of particles (all generated on demand).
+    pub fn expected(&self) -> f64 {
+        self.expected
+    }
+
+    /// Bytes of the bricks cached now.
+    pub fn bytes(&self) -> usize {
+        self.cache.bytes()
+    }
+
+    /// Bricks built so far (cache misses).
+    pub fn bricks_built(&self) -> u64 {
+        self.cache.built.load(Ordering::Relaxed)
+    }
+
+    /// The discrete class of a candidate from its mark number.
+    fn class_of(&self, u: f64) -> u32 {
+        let k = self
+            .cdf
+            .partition_point(|&c| c <= u)
+            .min(self.codes.len() - 1);
+        self.codes[k]
+    }
+
+    /// The particles of tile `t` (linear index, inside the tiling): (cloud-coordinate centre, code, key).
+    pub(crate) fn tile_particles(&self, t: usize, mut emit: impl FnMut([f64; 3], u32, u64)) {
+        let mut i = 0u64;
+        self.cloud.visit_candidates(&self.tiling, t, |centre, u| {
+            // Plus one: key 0 is no particle (a site of the continuous field has keys 0).
+            let key = (((t as u64) << TILE_INDEX_BITS) | i.min((1 << TILE_INDEX_BITS) - 1)) + 1;
+            i += 1;
+            emit(centre, self.class_of(u[4]), key);
+        });
+    }
+
+    fn build_brick(&self, b: [usize; 3]) -> Brick {
+        let (pb, h) = (
+            self.per_brick.map(|x| x as i64),
+            self.halo.map(|x| x as i64),
+        );
+        let dims = self.tiling.dims.map(|n| n as i64);
+        // Tile index range of the brick (shifted by the ring), and its box in cloud coordinates.
+        let t0 = [0, 1, 2].map(|a| b[a] as i64 * pb[a] - h[a]);
+        let blo = [0, 1, 2].map(|a| self.frame.bounds.lo[a] + self.frame.cell[a] * b[a] as f64);
+        let bhi = [0, 1, 2].map(|a| blo[a] + self.frame.cell[a]);
+        let m = self.reach_cloud;
+        let range = |a: usize| (t0[a] - h[a]).max(0)..(t0[a] + pb[a] + h[a]).min(dims[a]);
+        let (mut pos, mut code, mut key) = (Vec::new(), Vec::new(), Vec::new());
+        for z in range(2) {
+            for y in range(1) {
+                for x in range(0) {
+                    let t = ((z * dims[1] + y) * dims[0] + x) as usize;
+                    self.tile_particles(t, |c, k, id| {
+                        if (0..3).all(|a| c[a] >= blo[a] - m && c[a] <= bhi[a] + m) {
+                            pos.push(apply(&self.to_scene, c));
+                            code.push(k);
+                            key.push(id);
+                        }
+                    });
+                }
+            }
+        }
+        if pos.is_empty() {
+            return Brick {
+                grid: None,
+                code,
+                key,
+                bytes: 64,
+            };
+        }
+        let radius: Vec<f64> = code.iter().map(|&k| self.grid_radius[k as usize]).collect();
+        let c_ext: Vec<f64> = code.iter().map(|&k| self.grid_c[k as usize]).collect();
+        let mut grid = ParticleGrid::from_checked(&pos, &radius, &c_ext, 1, &self.settings);
+        grid.release_stored();
+        let bytes = grid.bytes() + code.len() * 12 + 64;
+        Brick {
+            grid: Some(grid),
+            code,
+            key,
+            bytes,
+        }
+    }
+
+    fn brick(&self, cell: [usize; 3], index: usize) -> Arc<Brick> {
+        self.cache.get(index as u64, || self.build_brick(cell))
+    }
+
+    /// The ray in cloud coordinates (the same t: the direction is mapped, not normalised).
+    fn cloud_ray(&self, ray: &RaySegment) -> RaySegment {
+        RaySegment::new(
+            apply(&self.to_cloud, ray.o),
+            apply_linear(&self.to_cloud, ray.d),
+            ray.t0,
+            ray.t1,
+        )
+    }
+
+    /// Each brick the ray crosses, in order, with the part of the ray inside it; `visit` returns false
+    /// to stop.
+    fn bricks_along(&self, ray: &RaySegment, mut visit: impl FnMut(&Brick, RaySegment) -> bool) {
+        if ray.is_empty() {
+            return;
+        }
+        for c in Dda::new(&self.frame, &self.cloud_ray(ray)) {
+            let brick = self.brick(c.cell, c.index);
+            if brick.grid.is_some() && !visit(&brick, ray.between(c.t_enter, c.t_exit)) {
+                return;
+            }
+        }
+    }
+
+    /// Exact free flight to the next site (as [`ParticleGrid::sample_site`]), skipping the particles
+    /// whose keys are in `exclude`. Members are class codes with [`CLASS_FLAG`], keys in `Site::keys`.
+    pub fn sample_site(
+        &self,
+        ray: &RaySegment,
+        exclude: &[u64],
+        u: f64,
+        coincide: f64,
+    ) -> (Option<Site>, f64) {
+        let mut w = SiteWalk::new(u, exclude, coincide);
+        self.bricks_along(ray, |b, seg| {
+            let g = b.grid.as_ref().expect("non-empty brick");
+            g.walk(&seg, |t, tau, i| {
+                w.offer(
+                    t,
+                    tau[0] as f64,
+                    CLASS_FLAG | b.code[i as usize],
+                    b.key[i as usize],
+                )
+            });
+            w.found.is_none() && w.close()
+        });
+        (w.found, w.acc)
+    }
+
+    /// Grey optical depth of a segment.
+    pub fn optical_depth(&self, ray: &RaySegment) -> f64 {
+        let mut total = 0.0;
+        self.bricks_along(ray, |b, seg| {
+            let mut v = [0.0];
+            b.grid
+                .as_ref()
+                .expect("non-empty brick")
+                .optical_depth(&seg, &mut v);
+            total += v[0];
+            true
+        });
+        total
+    }
+
+    /// Every contributing particle with t in the segment, in t order: `visit(t, τ, member, key)`.
+    pub fn walk(&self, ray: &RaySegment, mut visit: impl FnMut(f64, f64, u32, u64) -> bool) {
+        let mut go = true;
+        self.bricks_along(ray, |b, seg| {
+            b.grid
+                .as_ref()
+                .expect("non-empty brick")
+                .walk(&seg, |t, tau, i| {
+                    go = visit(
+                        t,
+                        tau[0] as f64,
+                        CLASS_FLAG | b.code[i as usize],
+                        b.key[i as usize],
+                    );
+                    go
+                });
+            go
+        });
+    }
+
+    /// Members (class codes with [`CLASS_FLAG`]) of the particles whose inclusion ball holds `p`.
+    pub fn containing(&self, p: [f64; 3]) -> Vec<u32> {
+        let q = apply(&self.to_cloud, p);
+        let GridFrame { bounds, cell, dims } = &self.frame;
+        let mut c = [0usize; 3];
+        for a in 0..3 {
+            let x = (q[a] - bounds.lo[a]) / cell[a];
+            if !(x >= 0.0 && x < dims[a] as f64) {
+                return Vec::new();
+            }
+            c[a] = x as usize;
+        }
+        let index = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
+        let b = self.brick(c, index);
+        b.grid.as_ref().map_or_else(Vec::new, |g| {
+            g.containing(p)
+                .into_iter()
+                .map(|i| CLASS_FLAG | b.code[i as usize])
+                .collect()
+        })
+    }
+
+    /// The box of the bricks in cloud coordinates (for tests).
+    pub fn frame_bounds(&self) -> Bounds3 {
+        self.frame.bounds
+    }
+
+    /// Linear indices of the tiles of the discrete process.
+    pub fn tiles(&self) -> usize {
+        self.tiling.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ensemble::psd::Psd;
+    use crate::render::discrete::particle_disk;
+    use crate::space::cloud::Density;
+    use crate::test_rng::lcg;
+
+    /// A cloud of `count` grains (log-normal, median `median_um`) over [0, 1]³ mapped by a rotation
+    /// about z, a scale of 2 and a shift; one species, four bins.
+    fn spec(count: f64, median_um: f64, density: Density) -> ProceduralSpec {
+        let psd = Psd::LogNormal {
+            median_um,
+            sigma_g: 1.5,
+            r_min_um: median_um / 8.0,
+            r_max_um: median_um * 8.0,
+        };
+        let (lo, hi) = psd.support();
+        let edges = (0..=4)
+            .map(|i| lo * (hi / lo).powf(i as f64 / 4.0))
+            .collect();
+        let (c, s) = (0.6f64, 0.8f64);
+        ProceduralSpec {
+            cloud: CloudSpec {
+                lo: [0.0; 3],
+                hi: [1.0; 3],
+                density,
+                species: vec![(1.0, psd)],
+                seed: 7,
+            },
+            count,
+            transform: [
+                [2.0 * c, -2.0 * s, 0.0, 0.3],
+                [2.0 * s, 2.0 * c, 0.0, -0.1],
+                [0.0, 0.0, 2.0, 0.5],
+            ],
+            scene_per_um: 1e-6,
+            bin_edges_um: vec![edges],
+            first_bin: vec![0],
+            q_ext: vec![2.0; 4],
+        }
+    }
+
+    fn parts(spec: &ProceduralSpec, qr: f64, cc: f64, cache: usize) -> ProceduralParts {
+        build_parts(
+            spec,
+            |r, c| particle_disk(r, c, qr, 1.0),
+            qr,
+            0.125,
+            cc,
+            cache,
+        )
+        .unwrap()
+    }
+
+    /// Random rays through the cloud's scene box (unit directions).
+    fn rays(s: &mut u64, n: usize) -> Vec<RaySegment> {
+        (0..n)
+            .map(|_| {
+                let o = [lcg(s) * 3.0 - 1.5, lcg(s) * 3.0 - 0.5, -1.0];
+                let d = [lcg(s) - 0.5, lcg(s) - 0.5, 1.0];
+                let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                RaySegment::new(o, d.map(|x| x / l), lcg(s) * 0.5, 4.0 + lcg(s))
+            })
+            .collect()
+    }
+
+    /// The brick walk visits exactly the particles a loop over every tile finds on the ray (once each,
+    /// in t order, with their disks' τ), whatever the cache keeps: a budget of one brick gives the
+    /// same walk.
+    #[test]
+    fn bricks_walk_every_particle_once_in_order() {
+        // Balls narrower than a tile (halo 1), and balls wider than a tile (halo 2).
+        for (count, qr, halo) in [(3000.0, 0.01, 1), (30_000.0, 0.3, 2)] {
+            let sp = spec(count, 20_000.0, Density::Uniform);
+            for cache in [DEFAULT_CACHE_BYTES, 1] {
+                let p = parts(&sp, qr, f64::INFINITY, cache);
+                let g = p.grains.as_ref().unwrap();
+                assert!(g.per_brick.iter().all(|&b| b >= 2) && g.tiles() > 1);
+                assert_eq!(g.halo.iter().max(), Some(&halo));
+                let mut all = Vec::new();
+                for t in 0..g.tiles() {
+                    g.tile_particles(t, |c, k, key| all.push((apply(&g.to_scene, c), k, key)));
+                }
+                assert!((all.len() as f64 - count).abs() < 5.0 * count.sqrt());
+                assert!(all.iter().all(|p| p.2 > 0), "key 0 is no particle");
+                let mut s = 3u64;
+                for ray in rays(&mut s, 60) {
+                    let mut want: Vec<(f64, u64)> = all
+                        .iter()
+                        .filter_map(|&(c, k, key)| {
+                            let v = [0, 1, 2].map(|a| c[a] - ray.o[a]);
+                            let t = v[0] * ray.d[0] + v[1] * ray.d[1] + v[2] * ray.d[2];
+                            let dd = v.iter().map(|x| x * x).sum::<f64>() - t * t;
+                            let r = g.grid_radius[k as usize] + qr;
+                            (dd < r * r && ray.contains(t)).then_some((t, key))
+                        })
+                        .collect();
+                    want.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    let mut got = Vec::new();
+                    g.walk(&ray, |t, tau, _, key| {
+                        assert!(tau > 0.0);
+                        got.push((t, key));
+                        true
+                    });
+                    assert_eq!(got.len(), want.len());
+                    for (a, b) in got.iter().zip(&want) {
+                        assert_eq!(a.1, b.1);
+                        assert!((a.0 - b.0).abs() < 1e-5);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The same cloud built twice gives the same particles on every ray (nothing depends on the
+    /// order bricks are built in), and a site found excludes by key.
+    #[test]
+    fn reproducible_and_sites_exclude_their_particles() {
+        let sp = spec(3000.0, 20_000.0, Density::Uniform);
+        let a = parts(&sp, 0.01, f64::INFINITY, DEFAULT_CACHE_BYTES);
+        let b = parts(&sp, 0.01, f64::INFINITY, 1);
+        let (ga, gb) = (a.grains.unwrap(), b.grains.unwrap());
+        let mut s = 5u64;
+        let rs = rays(&mut s, 40);
+        for ray in rs.iter().rev() {
+            assert_eq!(ga.optical_depth(ray), gb.optical_depth(ray));
+        }
+        for ray in &rs {
+            let u = lcg(&mut s);
+            let (site, acc) = ga.sample_site(ray, &[], u, 1e-9);
+            assert_eq!((site, acc), gb.sample_site(ray, &[], u, 1e-9));
+            if let Some(site) = site {
+                let keys = &site.keys[..site.len as usize];
+                let (next, _) = ga.sample_site(ray, keys, u, 1e-9);
+                if let Some(n) = next {
+                    assert!(n.keys[..n.len as usize].iter().all(|k| !keys.contains(k)));
+                    assert!(n.t >= site.t);
+                }
+            }
+        }
+    }
+
+    /// Over random rays the mean transmittance is Beer–Lambert with the distribution's σ_t (each disk
+    /// removes C_t: the procedural process has the right density of the right classes), for a
+    /// uniform and a gradient density; the continuous classes' field carries the same σ_t.
+    #[test]
+    fn mean_transmittance_is_beer_lambert() {
+        for density in [Density::Uniform, Density::gradient(2, 0.0, 2.0).unwrap()] {
+            let sp = spec(20_000.0, 10_000.0, density.clone());
+            let p = parts(&sp, 0.005, f64::INFINITY, DEFAULT_CACHE_BYTES);
+            let g = p.grains.as_ref().unwrap();
+            let volume = 8.0;
+            let n_c: f64 = p
+                .classes
+                .iter()
+                .map(|c| sp.count * c.p * c.c_ext)
+                .sum::<f64>()
+                / volume;
+            // Rays along z through the box at random (x, y): length 2 in scene units; the gradient's
+            // density is 2 z over the box's height, mean 1, so the same σ_t on average along z.
+            let mut s = 17u64;
+            let trials = 4000;
+            let mut sum = 0.0;
+            let mut sq = 0.0;
+            for _ in 0..trials {
+                let q = [0.05 + 0.9 * lcg(&mut s), 0.05 + 0.9 * lcg(&mut s), -0.5];
+                let o = apply(&sp.transform, q);
+                let ray = RaySegment::new(o, [0.0, 0.0, 1.0], 0.0, 3.0);
+                let tr = (-g.optical_depth(&ray)).exp();
+                sum += tr;
+                sq += tr * tr;
+            }
+            let mean = sum / trials as f64;
+            let se = ((sq / trials as f64 - mean * mean) / trials as f64).sqrt();
+            let want = (-n_c * 2.0).exp();
+            assert!((mean - want).abs() < 4.0 * se, "{mean} vs {want} (se {se})");
+            // The all-classes field: σ_t L along the same rays.
+            let ray = RaySegment::new(
+                apply(&sp.transform, [0.5, 0.5, -0.5]),
+                [0.0, 0.0, 1.0],
+                0.0,
+                3.0,
+            );
+            let tau = p.all_field.optical_depth(&ray);
+            assert!(
+                (tau / (n_c * 2.0) - 1.0).abs() < 0.02,
+                "{tau} vs {}",
+                n_c * 2.0
+            );
+        }
+    }
+
+    /// A dense cloud of small grains is all continuous; with an infinite threshold all discrete; the
+    /// class probabilities sum to 1.
+    #[test]
+    fn continuous_split_and_class_table() {
+        let sp = spec(1e9, 5.0, Density::Uniform);
+        let p = parts(&sp, 0.001, 16.0, DEFAULT_CACHE_BYTES);
+        assert!(p.grains.is_none() && p.field.is_some());
+        assert!((p.field_count / 1e9 - 1.0).abs() < 1e-9);
+        let total: f64 = p.classes.iter().map(|c| c.p).sum();
+        assert!((total - 1.0).abs() < 1e-9, "{total}");
+        let sp = spec(2000.0, 5.0, Density::Uniform);
+        let p = parts(&sp, 0.001, f64::INFINITY, DEFAULT_CACHE_BYTES);
+        assert!(p.grains.is_some() && p.field.is_none());
+        let mut bad = spec(10.0, 5.0, Density::Uniform);
+        bad.count = 0.0;
+        let e = build_parts(
+            &bad,
+            |r, c| particle_disk(r, c, 0.0, 1.0),
+            0.0,
+            0.125,
+            16.0,
+            1,
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("count"));
+    }
+}
