@@ -20,7 +20,7 @@ SPECIES = motes.Species(motes.LogNormal(80.0, 1.3), 1.5)
 BOX = np.diag([0.06, 0.06, 0.06, 1.0])  # the local cube [-1, 1]^3 as a 12 cm cube (scene units: m)
 
 
-def _procedural(count, cache_bytes=motes.discrete.DEFAULT_CACHE_BYTES, continuous_count=np.inf, query_radius=2e-4, **kw):
+def _procedural(count, cache_bytes=2**30, continuous_count=np.inf, query_radius=2e-4, **kw):
     return DiscreteMedium.procedural(count, [SPECIES], [1.0], RGB, to_world=BOX, query_radius=query_radius,
                                      continuous_count=continuous_count, cache_bytes=cache_bytes, **kw)
 
@@ -77,7 +77,7 @@ def test_memory_does_not_follow_the_count():
     for m in (small, hazy, grains):
         tau = m.optical_depth(o, d, 0.0, 3.0)
         assert np.all(np.isfinite(tau)) and tau.min() > 0
-    assert grains.core.bricks_built > 0 and grains.bytes < motes.discrete.DEFAULT_CACHE_BYTES * 1.1
+    assert grains.core.bricks_built > 0 and grains.bytes < 2**30 * 1.1
     with pytest.raises(ValueError, match="count"):
         _procedural(1e12, continuous_count=16.0)
 
@@ -106,8 +106,11 @@ def test_errors_name_the_parameter(tmp_path):
         mi.load_dict({"type": "discrete", "filename": str(f), "storage": "procedural", "phase": {"type": "particle"}})
     with pytest.raises(Exception, match="count"):
         mi.load_dict({"type": "discrete", "count": 10**16, "storage": "procedural", "phase": {"type": "particle"}})
+    with pytest.raises(Exception, match="cache_mb"):
+        mi.load_dict({"type": "discrete", "count": 10, "cache_mb": 10.0, "phase": {"type": "particle"}})
     with pytest.raises(ValueError, match="count"):
         _procedural(0.5)
+    assert 256 * 2**20 <= motes._memory.default_cache_bytes()
     with pytest.raises(ValueError, match="cache_bytes"):
         _procedural(10.0, cache_bytes=0)
     with pytest.raises(ValueError, match="to_world"):

@@ -42,6 +42,15 @@ def available_bytes() -> int | None:
         return None
 
 
+def default_cache_bytes() -> int:
+    """A procedural cloud's default brick cache: a quarter of the memory available at load (at least
+    256 MiB; 1 GiB where it cannot be read). Enough to keep every brick of 10^8 visible discrete grains
+    (40 B each: scripts/bench/bench_scale.py --scene nave) on a 24 GB machine, so that only a render's
+    first pass generates them."""
+    avail = available_bytes()
+    return max(256 * 2**20, avail // 4) if avail else 2**30
+
+
 def peak_resident_mb() -> float:
     """This process's peak resident memory in MiB: VmHWM on Linux (``ru_maxrss`` would include the
     parent's resident set at fork, which Linux carries over exec), else ``ru_maxrss``."""

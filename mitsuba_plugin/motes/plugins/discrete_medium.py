@@ -49,7 +49,8 @@ Parameter               Type       Meaning (default)
                                    up to 1e15, a Poisson mean; memory follows what a render visits)
                                    (``compact``; see ``motes.DiscreteMedium``)
 ``cache_mb``            float      ``storage = procedural``: megabytes of generated bricks kept between
-                                   rays (the least recently used are dropped beyond it) (1024)
+                                   rays (the least recently used are dropped beyond it and generated
+                                   again when needed) (a quarter of the memory available at load)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
 ``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
@@ -129,7 +130,7 @@ import numpy as np
 
 from ..discrete import DiscreteMedium, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
-from ..discrete import (DEFAULT_CACHE_BYTES, DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
+from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
                         DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, STORAGES)
 from ..particle_io import load_particles
 from ..particles import query_radius_from_camera
@@ -304,8 +305,7 @@ def _read_parameters(props) -> SimpleNamespace:
     p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
-    p.cache_mb = _get(props, "cache_mb", DEFAULT_CACHE_BYTES / 2**20, float, lambda v: np.isfinite(v) and v > 0,
-                      "finite and > 0 (megabytes)")
+    p.cache_mb = _get(props, "cache_mb", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (megabytes)")
     if "cache_mb" in props and p.storage != "procedural":
         raise ValueError("discrete medium: cache_mb bounds a procedural cloud's bricks: it needs storage = procedural")
     p.wavelengths = _get(props, "wavelengths", None, str)
@@ -451,7 +451,8 @@ def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> Discret
     t = time.perf_counter()
     data = DiscreteMedium.procedural(p.count, species, shares, lam, box=((-1.0,) * 3, (1.0,) * 3),
                                      density=_DENSITIES[p.distribution], noise_seed=p.seed, cloud_seed=p.seed,
-                                     to_world=m, query_radius=query_radius, cache_bytes=max(int(p.cache_mb * 2**20), 1), **common)
+                                     to_world=m, query_radius=query_radius,
+                                     cache_bytes=None if p.cache_mb is None else max(int(p.cache_mb * 2**20), 1), **common)
     log.info("particles: %.3g procedural (none stored) in %.1f s", p.count, time.perf_counter() - t)
     return data
 
