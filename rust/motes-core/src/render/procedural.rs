@@ -64,6 +64,9 @@ const FIELD_SAMPLES: usize = 2;
 const TILE_INDEX_BITS: u32 = 24;
 /// Most candidates one brick may generate (its tiles and their halo).
 const MAX_BRICK_CANDIDATES: f64 = 1e7;
+/// Most centres of discrete grains (at the density's peak) one inclusion ball may hold: 10^10 grains
+/// of 80 µm in a 12 cm cube with r_c 0.2 mm hold 530 and render (bricks of ~10 MB); 10^12 hold 53 000.
+const MAX_BALL_NEIGHBOURS: f64 = 2000.0;
 
 /// A procedural cloud's distribution and the optics bins its radii fall in.
 #[derive(Clone, Debug)]
@@ -343,13 +346,18 @@ fn apply_linear(m: &[[f64; 4]; 3], v: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
 }
 
+/// Determinant of an affine map's linear part.
+fn det3(m: &[[f64; 4]; 3]) -> f64 {
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+}
+
 /// The inverse of an affine map (3×4), or None when singular.
 #[allow(clippy::needless_range_loop)] // cofactors index rows and columns together
 fn invert(m: &[[f64; 4]; 3]) -> Option<[[f64; 4]; 3]> {
     let a = |r: usize, c: usize| m[r][c];
-    let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1))
-        - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
-        + a(0, 2) * (a(1, 0) * a(2, 1) - a(1, 1) * a(2, 0));
+    let det = det3(m);
     if !(det.abs() > 0.0 && det.is_finite()) {
         return None;
     }
@@ -629,12 +637,16 @@ impl ProceduralGrains {
             .map(|a| (per_brick[a] + 2 * halo[a]).min(tiling.dims[a]) as f64)
             .product::<f64>()
             * per_tile;
+        // Discrete grains whose inclusion balls each hold thousands of others (a powder, not a cloud)
+        // would make every brick's grid reference each grain from thousands of cells.
+        let volume_scene = (0..3).map(|a| hi[a] - lo[a]).product::<f64>() / det3(&to_cloud).abs();
+        let neighbours = candidates / volume_scene * 4.0 / 3.0 * PI * reach_scene.powi(3);
         require(
             "count",
             spec.count,
-            generated <= MAX_BRICK_CANDIDATES,
-            "low enough that the discrete grains' inclusion balls do not each hold ~10^5 others \
-             (a brick would generate more than 10^7 candidates): lower count or query_radius, or \
+            generated <= MAX_BRICK_CANDIDATES && neighbours <= MAX_BALL_NEIGHBOURS,
+            "low enough that a discrete grain's inclusion ball holds at most 2000 others' centres \
+             (and a brick generates at most 10^7 candidates): lower count or query_radius, or \
              continuous_count so that such grains are continuous",
         )?;
         // Bricks over tile indices −halo .. dims + halo (a ring of tiles whose own particles are none).
