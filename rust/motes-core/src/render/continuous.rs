@@ -29,15 +29,22 @@ use std::f64::consts::PI;
 /// Monte Carlo noise of a render at tens of spp (measured: `scripts/figures/continuous_switch.py`).
 pub const DEFAULT_CONTINUOUS_COUNT: f64 = 16.0;
 
-/// Particles per cell of the field: larger cells are cheaper to walk and blur only structure that
-/// a class this dense does not resolve anyway.
-const PARTICLES_PER_CELL: f64 = 8.0;
+/// Particles per cell of the field. A cell spreads its particles' extinction over its whole cross
+/// section, so a ray meets a cell's particles all together or not at all, and the cells' shot noise
+/// (±1/√n each) lets light through: E[e^{−τ}] > e^{−E[τ]} (Jensen), whereas each grain's own disk
+/// (−ln(1 − x), `discrete.rs`) keeps the grains' mean transmittance exact. Larger cells: less of that
+/// bias, but less of the cloud's own density texture at the pixel scale. Measured on a 10 cm cloud of
+/// 10^7 ice grains of 50 µm (transmittance of the field over that of the same grains walked one by one,
+/// at optical depth 0.57 / 2.3 / 4.5): 8 per cell +0.66 / +2.6 / +5.8 %; 64: +0.09 / +0.52 / +1.7 %;
+/// 256: about a fifth of that again, but the 4·10^6 × 20 µm row of `scripts/bench/bench_dense.py`
+/// (default against exact) went from per-pixel RMS/noise 0.98 (64) to 1.93 (256; 8: 1.08).
+const PARTICLES_PER_CELL: f64 = 64.0;
 
 /// Cells per axis of a majorant block: [`ContinuousField::sample_free_flight`] walks blocks of this
 /// many cells cubed, each with the largest σ_t of its cells, and looks up σ_t only at tentative
-/// collisions (delta tracking) instead of crossing every cell (one exponential per cell). Each cell
-/// holds ~8 particles, so σ_t varies ±35 % from cell to cell and a block's majorant is its largest
-/// fluctuation: wider blocks mean fewer steps but more null collisions. Measured side by side
+/// collisions (delta tracking) instead of crossing every cell (one exponential per cell). A block's
+/// majorant is its largest cell's fluctuation: wider blocks mean fewer steps but more null collisions.
+/// Measured side by side with cells of 8 particles (±35 %; 64 since issue 24.3, ±12 %)
 /// (`scripts/bench/bench_dense.py --rows 1.6e6x80,4e6x20 --reps 3`, llvm_ad_rgb, default render,
 /// seconds): cell by cell 1.10 / 0.67, blocks of 4 1.28 / 0.50, blocks of 2 1.08 / 0.54.
 const MAJORANT_BLOCK: usize = 2;
@@ -583,6 +590,33 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The cells' shot noise lets little light through: over rays through a uniform random cloud
+    /// (optical depth ~3 across), the mean transmittance is e^{−mean τ} within 1 % (cells of eight
+    /// particles, before issue 24.3: 2 % more here, Jensen's inequality; 5.8 % in a 10 cm cloud of 10^7
+    /// grains at τ 4.5, BENCHMARKS.md).
+    #[test]
+    fn cells_add_no_transmittance() {
+        let mut s = 21u64;
+        let n = 200_000;
+        let pos = random_points(&mut s, n);
+        let w = vec![3.0 / n as f64; n]; // σ_t = 3 per unit length in the unit cube
+        let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, None);
+        let (mut tau, mut tr) = (0.0, 0.0);
+        let rays = 4000;
+        for _ in 0..rays {
+            let o = [0.02 + 0.96 * lcg(&mut s), 0.02 + 0.96 * lcg(&mut s), -1.0];
+            let t = f.optical_depth(&RaySegment::new(o, [0.0, 0.0, 1.0], 0.0, 3.0));
+            tau += t / rays as f64;
+            tr += (-t).exp() / rays as f64;
+        }
+        assert!((tau - 3.0).abs() < 0.1, "{tau}");
+        assert!(
+            (tr / (-tau).exp() - 1.0).abs() < 0.01,
+            "{tr} vs {}",
+            (-tau).exp()
+        );
     }
 
     /// Sparse grains stay discrete, dense small-τ ones become continuous; an infinite threshold keeps all.
