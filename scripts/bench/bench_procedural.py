@@ -12,6 +12,7 @@ import numpy as np
 import motes
 
 ap = argparse.ArgumentParser()
+ap.add_argument("--out", default="out", help="unused (run_benchmarks.sh passes it); results are printed")
 ap.add_argument("--variant", default="llvm_ad_rgb")
 ap.add_argument("--seeds", type=int, default=8)
 ap.add_argument("--res", type=int, default=64)
