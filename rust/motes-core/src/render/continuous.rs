@@ -459,7 +459,11 @@ impl ContinuousField {
     /// The particles of a cell (original indices, or class codes with [`CLASS_FLAG`]).
     pub fn members(&self, cell: usize) -> impl Iterator<Item = u32> + '_ {
         let (a, b) = self.range(cell);
-        (a..b).map(|j| self.members.get(j))
+        // A shared list's classes that carry none of the cell's extinction are not in it.
+        let shared = matches!(self.members, Members::Shared(_));
+        (a..b)
+            .filter(move |&j| !shared || self.cdf[j] > if j == 0 { 0 } else { self.cdf[j - 1] })
+            .map(|j| self.members.get(j))
     }
 }
 

@@ -23,12 +23,14 @@
 //! the difference, 1/√N, is nothing a render shows).
 //!
 //! ## Bricks
-//! The discrete process is tiled (`CloudSpec::tiling_at_least`, tiles no narrower than the widest
-//! inclusion ball) and the tiles grouped into bricks of B³ tiles (about [`BRICK_PARTICLES`] particles),
-//! with a ring of bricks around the box for the balls that reach out of it. A brick's grid holds its
-//! own tiles' particles and those of the neighbouring tiles whose balls reach into it, built on first
-//! use into an ordinary [`ParticleGrid`] and kept in a cache of bounded size (least recently used
-//! bricks dropped). A ray walks the bricks it crosses in order (a 3D-DDA in the cloud's own
+//! The discrete process is tiled (`CloudSpec::tiling_at_least`, about 64 candidates a tile) and the
+//! tiles grouped into bricks of B³ tiles (about [`BRICK_PARTICLES`] particles, and at least twice as
+//! wide as the halo: the tiles a ball reaches across), with a ring of bricks around the box for the
+//! balls that reach out of it. A brick's grid holds its own tiles' particles and those of the halo
+//! tiles whose balls reach into it (bounds per axis, widened by the float32 rounding of the grids'
+//! centres), built on first use into an ordinary [`ParticleGrid`] and kept in a cache of bounded size
+//! (least recently used bricks dropped; each of its 64 shards keeps at least its newest brick, and
+//! render threads missing the same brick at once may each build it: the same particles). A ray walks the bricks it crosses in order (a 3D-DDA in the cloud's own
 //! coordinates, where the bricks are boxes) and each brick's grid over the part of the ray inside
 //! the brick: every particle projecting onto that part is in the brick's grid, so the walk visits
 //! each particle once and in t order, and the free flight is exact for the particles as generated.
@@ -159,10 +161,10 @@ pub(crate) fn class_table(spec: &ProceduralSpec) -> Result<Vec<ClassEntry>, Opti
         }
     }
     require(
-        "count",
+        "bin_edges_um",
         out.len() as f64,
         !out.is_empty() && out.len() < (CLASS_FLAG - 1) as usize,
-        "a distribution with radii inside its bins",
+        "bins that hold some of the size distribution's radii",
     )?;
     Ok(out)
 }
@@ -262,8 +264,8 @@ pub struct ProceduralGrains {
     /// Per class code: the grid's radius and cross section (the disk as the grid walks it).
     grid_radius: Vec<f64>,
     grid_c: Vec<f64>,
-    /// The widest inclusion ball in the cloud's coordinates (a conservative bound).
-    reach_cloud: f64,
+    /// How far the widest inclusion ball reaches along each axis of the cloud's coordinates.
+    reach_cloud: [f64; 3],
     settings: GridSettings,
     cache: BrickCache,
     /// Expected number of discrete particles.
@@ -377,25 +379,20 @@ fn invert(m: &[[f64; 4]; 3]) -> Option<[[f64; 4]; 3]> {
     Some(inv)
 }
 
-/// The largest stretch of the map's linear part (its largest singular value, by power iteration on
-/// AᵀA, rounded up by 1e-6 of it: iteration converges from below).
-fn largest_stretch(m: &[[f64; 4]; 3]) -> f64 {
-    let ata = |v: [f64; 3]| {
-        let a = apply_linear(m, v);
-        [0, 1, 2].map(|c| m[0][c] * a[0] + m[1][c] * a[1] + m[2][c] * a[2])
-    };
-    let mut v = [1.0, 0.7548776662466927, 0.5698402909980532];
-    let mut lambda = 0.0;
-    for _ in 0..200 {
-        let w = ata(v);
-        let n = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
-        if n.is_nan() || n <= 0.0 {
-            break;
-        }
-        lambda = n / (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        v = w.map(|x| x / n);
-    }
-    lambda.sqrt() * (1.0 + 1e-6)
+/// Per axis of the cloud's coordinates, how far a scene displacement of length `reach` can move a point
+/// along it: `reach` times the norm of that row of the inverse map (exact: the row's direction attains
+/// it), widened by the float32 rounding of the grids' centres (~6e-8 of the largest scene coordinate
+/// `extent`, four times over), so that no ball a ray can meet is left out of the brick its projection
+/// falls in.
+fn cloud_reach(to_cloud: &[[f64; 4]; 3], reach: f64, extent: f64) -> [f64; 3] {
+    let slack = 4.0 * f32::EPSILON as f64 * extent;
+    [0, 1, 2].map(|a| {
+        let row = (0..3)
+            .map(|c| to_cloud[a][c] * to_cloud[a][c])
+            .sum::<f64>()
+            .sqrt();
+        (reach + slack) * row * (1.0 + 1e-9)
+    })
 }
 
 /// What the medium needs from a procedural cloud: the class table (fine classes, then one
@@ -431,12 +428,27 @@ pub(crate) fn build_parts(
         (1.0..=1e15).contains(&count),
         "in [1, 1e15]",
     )?;
+    spec.cloud.check()?;
+    let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
+    let density = &spec.cloud.density;
+    let mean = density.mean(lo, hi);
+    require(
+        "density",
+        mean,
+        mean > 0.0 && density.bound() / mean <= 1e4,
+        "a density whose mean over the box is > 0 and at least 1e-4 of its largest value",
+    )?;
+    require(
+        "to_world",
+        0.0,
+        spec.transform.iter().flatten().all(|x| x.is_finite()),
+        "a finite transform",
+    )?;
     let to_cloud = invert(&spec.transform).ok_or(OpticsError::InvalidArgument {
         argument: "to_world",
         value: 0.0,
         requirement: "an invertible transform",
     })?;
-    let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
     let mut classes = class_table(spec)?;
     let fine = classes.len();
     // The box in scene units: its volume and surface (edge vectors of the parallelepiped).
@@ -533,8 +545,6 @@ pub(crate) fn build_parts(
     let fext = [0, 1, 2].map(|a| (fhi[a] - flo[a]).max(1e-12));
     let longest = fext.iter().fold(0.0f64, |a, &b| a.max(b));
     let dims = fext.map(|x| ((x / longest * FIELD_CELLS as f64).round() as usize).max(1));
-    let density = &spec.cloud.density;
-    let mean = density.mean(lo, hi);
     let rel = |a: [f64; 3], b: [f64; 3]| -> f64 {
         let m = FIELD_SAMPLES;
         let mut sum = 0.0;
@@ -618,7 +628,21 @@ impl ProceduralGrains {
         expected: f64,
         cache_bytes: usize,
     ) -> Result<Self, OpticsError> {
-        let reach_cloud = reach_scene * largest_stretch(&to_cloud) * (1.0 + 1e-9);
+        let corners = (0..8).map(|i| {
+            let p = [0, 1, 2].map(|a| {
+                if i >> a & 1 == 1 {
+                    spec.cloud.hi[a]
+                } else {
+                    spec.cloud.lo[a]
+                }
+            });
+            apply(&spec.transform, p)
+        });
+        let extent = corners
+            .flat_map(|c| c.into_iter())
+            .fold(0.0f64, |m, x| m.max(x.abs()))
+            + reach_scene;
+        let reach_cloud = cloud_reach(&to_cloud, reach_scene, extent);
         let density = &spec.cloud.density;
         let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
         let candidates = expected * density.bound() / density.mean(lo, hi);
@@ -628,9 +652,7 @@ impl ProceduralGrains {
         let per_tile = candidates / tiling.len() as f64;
         // Tiles a ball reaches across (the halo), and bricks at least twice that wide so that a brick
         // generates at most (1 + 2 halo / brick)³ ≤ 8 times its own particles.
-        let halo = tiling
-            .size
-            .map(|s| ((reach_cloud / s).ceil() as usize).max(1));
+        let halo = [0, 1, 2].map(|a| ((reach_cloud[a] / tiling.size[a]).ceil() as usize).max(1));
         let natural = ((BRICK_PARTICLES / per_tile.max(1e-9)).cbrt().round() as usize).clamp(1, 16);
         let per_brick = halo.map(|h| natural.max(2 * h));
         let generated: f64 = (0..3)
@@ -725,7 +747,7 @@ impl ProceduralGrains {
                 for x in range(0) {
                     let t = ((z * dims[1] + y) * dims[0] + x) as usize;
                     self.tile_particles(t, |c, k, id| {
-                        if (0..3).all(|a| c[a] >= blo[a] - m && c[a] <= bhi[a] + m) {
+                        if (0..3).all(|a| c[a] >= blo[a] - m[a] && c[a] <= bhi[a] + m[a]) {
                             pos.push(apply(&self.to_scene, c));
                             code.push(k);
                             key.push(id);
@@ -803,8 +825,13 @@ impl ProceduralGrains {
                     b.key[i as usize],
                 )
             });
-            w.found.is_none() && w.close()
+            // A group still open at the brick's end may continue in the next brick (particles within
+            // `coincide` of each other across a brick face are one site, as in one grid).
+            w.found.is_none()
         });
+        if w.found.is_none() {
+            w.close();
+        }
         (w.found, w.acc)
     }
 
@@ -949,13 +976,27 @@ mod tests {
     #[test]
     fn bricks_walk_every_particle_once_in_order() {
         // Balls narrower than a tile (halo 1), and balls wider than a tile (halo 2).
-        for (count, qr, halo) in [(3000.0, 0.01, 1), (30_000.0, 0.3, 2)] {
-            let sp = spec(count, 20_000.0, Density::Uniform);
+        // The third: a sheared, non-uniformly scaled box (per-axis reach in the cloud's coordinates).
+        for (count, qr, halo, shear) in [
+            (3000.0, 0.01, 1, false),
+            (30_000.0, 0.3, 2, false),
+            (3000.0, 0.01, 1, true),
+        ] {
+            let mut sp = spec(count, 20_000.0, Density::Uniform);
+            if shear {
+                sp.transform = [
+                    [3.0, 0.8, 0.0, 0.1],
+                    [0.0, 0.7, 0.4, 0.0],
+                    [0.2, 0.0, 1.5, 0.3],
+                ];
+            }
             for cache in [DEFAULT_CACHE_BYTES, 1] {
                 let p = parts(&sp, qr, f64::INFINITY, cache);
                 let g = p.grains.as_ref().unwrap();
                 assert!(g.per_brick.iter().all(|&b| b >= 2) && g.tiles() > 1);
-                assert_eq!(g.halo.iter().max(), Some(&halo));
+                if !shear {
+                    assert_eq!(*g.halo.iter().max().unwrap(), halo);
+                }
                 let mut all = Vec::new();
                 for t in 0..g.tiles() {
                     g.tile_particles(t, |c, k, key| all.push((apply(&g.to_scene, c), k, key)));
@@ -1082,18 +1123,24 @@ mod tests {
         let sp = spec(2000.0, 5.0, Density::Uniform);
         let p = parts(&sp, 0.001, f64::INFINITY, DEFAULT_CACHE_BYTES);
         assert!(p.grains.is_some() && p.field.is_none());
+        let refused = |sp: &ProceduralSpec| {
+            build_parts(
+                sp,
+                |r, c| particle_disk(r, c, 0.0, 1.0),
+                0.0,
+                0.125,
+                16.0,
+                1,
+            )
+            .err()
+            .unwrap()
+            .to_string()
+        };
+        let mut flat = spec(10.0, 5.0, Density::Uniform);
+        flat.cloud.hi[1] = flat.cloud.lo[1];
+        assert!(refused(&flat).contains("hi"));
         let mut bad = spec(10.0, 5.0, Density::Uniform);
         bad.count = 0.0;
-        let e = build_parts(
-            &bad,
-            |r, c| particle_disk(r, c, 0.0, 1.0),
-            0.0,
-            0.125,
-            16.0,
-            1,
-        )
-        .err()
-        .unwrap();
-        assert!(e.to_string().contains("count"));
+        assert!(refused(&bad).contains("count"));
     }
 }

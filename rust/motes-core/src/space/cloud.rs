@@ -252,7 +252,7 @@ impl Tiling {
 }
 
 impl CloudSpec {
-    fn check(&self) -> Result<(), OpticsError> {
+    pub(crate) fn check(&self) -> Result<(), OpticsError> {
         for a in 0..3 {
             require("lo", self.lo[a], self.lo[a].is_finite(), "finite")?;
             require(
