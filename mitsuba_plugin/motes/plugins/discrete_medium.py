@@ -84,6 +84,16 @@ continuous medium with the same extinction per cell and the cell's phase mixture
 with the discrete classes (the nearer of the two sampled interactions). What it drops is the grain
 texture of relative size 1/sqrt(N) (BENCHMARKS.md, issue 10.3).
 
+``storage = procedural`` stores no particle (``rust/motes-core/src/render/procedural.rs``): the continuous
+classes are the density field's expected extinction, and the grains that stay discrete are generated
+brick by brick, from ``seed`` and the brick's tiles, when a ray first reaches a brick; the same grains in
+every render and pass. Loading costs nothing whatever ``count``; a render costs the bricks it visits.
+Where few of the cloud's discrete grains are in view (occluded, outside the frame, behind an optically
+thick front) or most of its grains are continuous, that is little; where every discrete grain of the
+cloud is in view, a pass generates what a stored build would, and only a cache that holds all their
+bricks (``cache_mb``; about 40 bytes per visible grain) keeps later passes from generating them again
+(BENCHMARKS.md, issue 24). ``count`` is the mean of a Poisson count, not an exact one.
+
 The phase function must be ``<phase type="particle"/>``. Unknown or misspelt parameters fail loading
 (Mitsuba's unreferenced-property check); invalid values raise ``ValueError`` naming the parameter and
 its allowed range.
