@@ -41,7 +41,7 @@ use crate::error::{require, OpticsError};
 use crate::render::continuous::{ContinuousField, CLASS_FLAG};
 use crate::render::storage::LEVELS_PER_BIN;
 use crate::space::cloud::{CloudSpec, Tiling};
-use crate::space::dda::{Bounds3, Dda, GridFrame};
+use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{size_class, GridSettings, ParticleGrid, Site, SIZE_CLASSES};
 use crate::space::ray::RaySegment;
 use rustc_hash::FxHashMap;
@@ -892,12 +892,7 @@ impl ProceduralGrains {
         })
     }
 
-    /// The box of the bricks in cloud coordinates (for tests).
-    pub fn frame_bounds(&self) -> Bounds3 {
-        self.frame.bounds
-    }
-
-    /// Linear indices of the tiles of the discrete process.
+    /// Tiles of the discrete process.
     pub fn tiles(&self) -> usize {
         self.tiling.len()
     }
