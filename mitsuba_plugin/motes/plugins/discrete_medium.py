@@ -138,7 +138,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..discrete import DiscreteMedium, log
+from ..discrete import DiscreteMedium, box_of, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
                         DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, STORAGES)
@@ -492,7 +492,7 @@ def _query_radius(p: SimpleNamespace, pos: np.ndarray):
         query_radius = query_radius_from_camera(p.k, p.fov, p.film_width, p.z_med)
     user_radius = query_radius is not None
     query_radius = 0.0 if query_radius is None else query_radius
-    extent = float(np.min(pos.max(axis=0) - pos.min(axis=0))) if len(pos) > 1 else 0.0
+    extent = float(np.min(np.subtract(*box_of(pos)[::-1]))) if len(pos) > 1 else 0.0
     if extent > 0 and query_radius > 0.25 * extent:
         # stacklevel 3: the caller of the plugin's constructor, past this function and __init__.
         warnings.warn(f"discrete medium: query_radius = {query_radius:g} is comparable to the particles' extent "

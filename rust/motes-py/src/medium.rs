@@ -531,6 +531,14 @@ pub(crate) fn check_discrete_inputs(
     .map_err(to_py)
 }
 
+/// The box of points (n*3): ((lo x, y, z), (hi x, y, z)); numpy's `min(axis=0)` over an (n, 3) array
+/// reads it strided, ~0.25 s per call at 10^7 points.
+#[pyfunction]
+pub(crate) fn bounding_box(py: Python<'_>, points: F64In) -> PyResult<([f64; 3], [f64; 3])> {
+    let p = points_view(points.as_slice()?)?;
+    Ok(py.detach(|| motes_core::space::grid::bounding_box(p)))
+}
+
 /// The owner given with a native handle that is still held by a native plugin, or None (an unknown or
 /// released handle: nothing is dereferenced then).
 #[pyfunction]

@@ -30,17 +30,27 @@ use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
 use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 
-/// Axis-aligned bounding box of the centres.
-pub(crate) fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in positions {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    (lo, hi)
+/// Axis-aligned bounding box of the centres (in parallel: 10^8 centres are 2.4 GB to read).
+pub fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let empty = || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    positions
+        .par_chunks(1 << 16)
+        .map(|chunk| {
+            let (mut lo, mut hi) = empty();
+            for p in chunk {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+            }
+            (lo, hi)
+        })
+        .reduce(empty, |x, y| {
+            (
+                [0, 1, 2].map(|a| x.0[a].min(y.0[a])),
+                [0, 1, 2].map(|a| x.1[a].max(y.1[a])),
+            )
+        })
 }
 
 /// DDA steps a traversal batch covers before its loads (see `SubGrid::advance`): more steps keep more
