@@ -101,6 +101,25 @@ def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
     return np.geomspace(lo, hi, size_bins + 1)
 
 
+def _checked_optics_inputs(species, wavelength_um, size_bins, scale_m):
+    """The species as a list, the wavelengths as given and sorted, checked with size_bins and scale_m (what
+    stored and procedural media both take)."""
+    if isinstance(species, Species):
+        species = [species]
+    species = list(species)
+    if not species or not all(isinstance(s, Species) for s in species):
+        raise ValueError("species must be a Species or a non-empty list of Species")
+    lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
+    lam = np.sort(lam_in)
+    if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
+        raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
+    if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
+        raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
+    if not (np.isfinite(scale_m) and scale_m > 0):
+        raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
+    return species, lam_in, lam
+
+
 def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius,
                     tau_max, cells_per_particle, continuous_count):
     """The inputs as arrays (positions, radii, species index, species list, wavelengths as given and sorted), checked."""
@@ -116,22 +135,10 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
         idx = idx.astype(np.int64)
     if r.size != n or idx.size != n:
         raise ValueError(f"radii_um and species_index must have one entry per particle ({n})")
-    if isinstance(species, Species):
-        species = [species]
-    species = list(species)
-    if not species or not all(isinstance(s, Species) for s in species):
-        raise ValueError("species must be a Species or a non-empty list of Species")
+    species, lam_in, lam = _checked_optics_inputs(species, wavelength_um, size_bins, scale_m)
     if idx.size and (int(idx.min()) < 0 or int(idx.max()) >= len(species)):
         bad = int(np.flatnonzero((idx < 0) | (idx >= len(species)))[0])
         raise ValueError(f"species_index[{bad}] = {idx[bad]}: unknown species (have {len(species)})")
-    lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
-    lam = np.sort(lam_in)
-    if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
-        raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
-    if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
-        raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
-    if not (np.isfinite(scale_m) and scale_m > 0):
-        raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
     if r.size == n:
         lo_box, hi_box = box_of(pos)
         extent = float(np.max(hi_box - lo_box))
@@ -325,22 +332,10 @@ class DiscreteMedium:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
         if not (np.isfinite(count) and 1 <= count <= MAX_PROCEDURAL_COUNT):
             raise ValueError(f"invalid count = {count!r}: a procedural cloud takes 1 to {MAX_PROCEDURAL_COUNT:g} particles")
-        if isinstance(species, Species):
-            species = [species]
-        species = list(species)
-        if not species or not all(isinstance(sp, Species) for sp in species):
-            raise ValueError("species must be a Species or a non-empty list of Species")
+        species, lam_in, lam = _checked_optics_inputs(species, wavelength_um, size_bins, scale_m)
         shares = [float(v) for v in np.atleast_1d(shares)]
         if len(shares) != len(species) or not all(np.isfinite(v) and v >= 0 for v in shares) or sum(shares) <= 0:
             raise ValueError(f"invalid shares = {shares}: one per species, >= 0, with a positive sum")
-        lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
-        lam = np.sort(lam_in)
-        if lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
-            raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
-        if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
-            raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
-        if not (np.isfinite(scale_m) and scale_m > 0):
-            raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
         if cache_bytes is None:
             cache_bytes = _memory.default_cache_bytes()
         if isinstance(cache_bytes, bool) or not isinstance(cache_bytes, (int, np.integer)) or cache_bytes < 1:

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 
 /// The density named `kind` ("uniform", "gradient" with `params` = [axis, start, end], "noise" with
 /// `params` = [scale, octaves, contrast] and `noise_seed`).
-pub(crate) fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
+fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
     let want = |n: usize| -> PyResult<()> {
         if params.len() == n {
             Ok(())
@@ -43,6 +43,38 @@ pub(crate) fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<D
     }
 }
 
+/// A cloud's spec from the binding's arguments (as `generate_cloud` and the procedural medium take them):
+/// one share per size distribution, the density by name.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn cloud_spec(
+    lo: [f64; 3],
+    hi: [f64; 3],
+    kind: &str,
+    params: &[f64],
+    noise_seed: u64,
+    psds: &[PyRef<'_, PyPsd>],
+    shares: Vec<f64>,
+    seed: u64,
+) -> PyResult<CloudSpec> {
+    if psds.len() != shares.len() {
+        return Err(invalid(
+            "shares",
+            shares.len(),
+            format!("one share per size distribution ({})", psds.len()),
+        ));
+    }
+    Ok(CloudSpec {
+        lo,
+        hi,
+        density: density(kind, params, noise_seed)?,
+        species: shares
+            .into_iter()
+            .zip(psds.iter().map(|p| p.inner().clone()))
+            .collect(),
+        seed,
+    })
+}
+
 /// Exactly `count` particles in the box [lo, hi] after a density, species by `shares` with radii from
 /// `psds`, centres mapped by `transform` (3×4, row-major), reproducible from `seed` whatever the
 /// number of threads: (centres (count*3), radii (um), species index).
@@ -62,23 +94,7 @@ pub(crate) fn generate_cloud<'py>(
     seed: u64,
     transform: [[f64; 4]; 3],
 ) -> PyResult<(F64Out<'py>, F64Out<'py>, Bound<'py, PyArray1<u32>>)> {
-    if psds.len() != shares.len() {
-        return Err(invalid(
-            "shares",
-            shares.len(),
-            format!("one share per size distribution ({})", psds.len()),
-        ));
-    }
-    let spec = CloudSpec {
-        lo,
-        hi,
-        density: density(kind, &params, noise_seed)?,
-        species: shares
-            .into_iter()
-            .zip(psds.iter().map(|p| p.inner().clone()))
-            .collect(),
-        seed,
-    };
+    let spec = cloud_spec(lo, hi, kind, &params, noise_seed, &psds, shares, seed)?;
     let cloud = py
         .detach(|| generate(&spec, count, &transform))
         .map_err(to_py)?;

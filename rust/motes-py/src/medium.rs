@@ -147,24 +147,10 @@ impl PyDiscreteMedium {
     ) -> PyResult<Self> {
         let lam = lambda.as_slice()?.to_vec();
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
-        if psds.len() != shares.len() {
-            return Err(invalid(
-                "shares",
-                shares.len(),
-                format!("one share per size distribution ({})", psds.len()),
-            ));
-        }
         let spec = motes_core::render::procedural::ProceduralSpec {
-            cloud: motes_core::space::cloud::CloudSpec {
-                lo,
-                hi,
-                density: crate::cloud::density(kind, &params, noise_seed)?,
-                species: shares
-                    .into_iter()
-                    .zip(psds.iter().map(|p| p.inner().clone()))
-                    .collect(),
-                seed: cloud_seed,
-            },
+            cloud: crate::cloud::cloud_spec(
+                lo, hi, kind, &params, noise_seed, &psds, shares, cloud_seed,
+            )?,
             count,
             transform,
             scene_per_um,

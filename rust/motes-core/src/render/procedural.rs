@@ -598,6 +598,8 @@ pub(crate) fn build_parts(
             grid_radius,
             grid_c,
             reach_disc,
+            // The largest scene coordinate a grain's centre can have: the f32 rounding it carries.
+            corners.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs())) + reach_disc,
             GridSettings::new(query_radius, cells_per_particle),
             count * p_disc,
             cache_bytes,
@@ -624,24 +626,11 @@ impl ProceduralGrains {
         grid_radius: Vec<f64>,
         grid_c: Vec<f64>,
         reach_scene: f64,
+        extent: f64,
         settings: GridSettings,
         expected: f64,
         cache_bytes: usize,
     ) -> Result<Self, OpticsError> {
-        let corners = (0..8).map(|i| {
-            let p = [0, 1, 2].map(|a| {
-                if i >> a & 1 == 1 {
-                    spec.cloud.hi[a]
-                } else {
-                    spec.cloud.lo[a]
-                }
-            });
-            apply(&spec.transform, p)
-        });
-        let extent = corners
-            .flat_map(|c| c.into_iter())
-            .fold(0.0f64, |m, x| m.max(x.abs()))
-            + reach_scene;
         let reach_cloud = cloud_reach(&to_cloud, reach_scene, extent);
         let density = &spec.cloud.density;
         let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
