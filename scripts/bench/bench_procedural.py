@@ -6,6 +6,7 @@ the SE holds the cloud-to-cloud variance too); image means compared in SE, and t
 second pass (warm cache) side by side.
 
     .venv/bin/python scripts/bench/bench_procedural.py [--variant llvm_ad_rgb] [--seeds 8] [--res 64] [--spp 32]
+    .venv/bin/python scripts/bench/bench_procedural.py --median 1500 --counts 400000 --seeds 6   (grains as wide as their spacing)
 """
 import argparse, time
 import numpy as np
@@ -18,6 +19,7 @@ ap.add_argument("--seeds", type=int, default=8)
 ap.add_argument("--res", type=int, default=64)
 ap.add_argument("--spp", type=int, default=32)
 ap.add_argument("--counts", default="20000,400000")
+ap.add_argument("--median", type=float, default=None, help="radius_median in um (default: the scene's 60)")
 a = ap.parse_args()
 motes.set_variant(a.variant)
 import mitsuba as mi  # noqa: E402
@@ -30,6 +32,8 @@ def scene(storage, seed, count):
                     f'<medium type="discrete" name="interior">\n<string name="storage" value="{storage}"/>'
                     f'<integer name="seed" value="{seed}"/>')
     t = t.replace('<default name="count" value="20000"/>', f'<default name="count" value="{count}"/>')
+    if a.median:
+        t = t.replace('<float name="radius_median" value="60"/>', f'<float name="radius_median" value="{a.median}"/>')
     return mi.load_string(t, res=a.res, spp=a.spp)
 
 
