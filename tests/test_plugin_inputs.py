@@ -31,6 +31,9 @@ def load(**kw):
     ({"species": json.dumps([{"psd": {"type": "monodisperse", "radius_um": 5}, "eta": 1.5, "share": "lots"}])}, ["share"]),
     ({"species": json.dumps([{"psd": {"type": "monodisperse", "radius_um": 5}, "eta": 1.5, "material": "ice"}])}, ["material", "eta"]),
     ({"to_world": "flat"}, ["to_world", "singular"]),
+    ({"phase_model": "rayleigh"}, ["phase_model", "tabulated", "hg"]),
+    ({"truncate_below": float("nan")}, ["truncate_below"]),
+    ({"truncate_below": 4.0}, ["truncate_below"]),
 ])
 def test_bad_parameters_name_themselves(kw, words):
     motes.set_variant("scalar_rgb")
@@ -196,3 +199,46 @@ def test_prbvolpath_warns_that_it_is_unsupported():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         mi.render(mi.load_dict(_cube_scene("volpath")), spp=1)
+
+
+def test_negative_truncate_below_is_the_default():
+    """A scene parameter can ask for the default truncation (the gallery's cornell scene does)."""
+    a, b, none = load(truncate_below=-1.0), load(), load(truncate_below=0.0)
+    assert np.array_equal(a.data.bin_q_ext, b.data.bin_q_ext)
+    assert not np.array_equal(a.data.bin_q_ext, none.data.bin_q_ext)  # truncation changes what the grains remove
+
+
+def test_phase_model_hg_keeps_g_and_is_henyey_greenstein():
+    """phase_model = hg: each bin's table is Henyey-Greenstein (formula written here) with the g of the
+    tabulated phase function it replaces; extinction and albedo unchanged."""
+    from motes.discrete import _BinTables
+    from motes.ensemble import Species
+    from motes.psd import LogNormal
+
+    lam = np.array([0.467, 0.532, 0.630])
+    sp = Species(LogNormal(300.0, 1.3), complex(1.31, 0.0))
+    tab, hg = (_BinTables(lam, np.arange(3), 1.0, "auto", 0.003, None, m) for m in ("tabulated", "hg"))
+    for t in (tab, hg):
+        t.add(0, sp, 250.0, 350.0)
+    assert tab.grey_q == hg.grey_q and np.array_equal(tab.albedos[0], hg.albedos[0])
+    for theta, f_tab, f_hg in zip(tab.theta, tab.f, hg.f):
+        w = motes._motes.PhaseTable(theta, f_tab)
+        g = w.mean_cosine()
+        assert 0.5 < g < 1.0
+        mu = np.cos(theta)
+        expect = (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * mu) ** 1.5)
+        np.testing.assert_allclose(f_hg, expect, rtol=1e-12)
+        assert abs(motes._motes.PhaseTable(theta, f_hg).mean_cosine() - g) < 2e-3
+    with pytest.raises(ValueError, match="phase_model"):
+        _BinTables(lam, np.arange(3), 1.0, "auto", 0.003, None, "HG")
+
+
+@pytest.mark.parametrize("g", [-0.99, -0.3, 0.0, 0.5, 0.9, 0.99])
+def test_henyey_greenstein_is_normalised(g):
+    theta = np.linspace(0.0, np.pi, 200001)
+    f = motes._motes.henyey_greenstein(g, theta)
+    integrand = 2 * np.pi * f * np.sin(theta)
+    assert abs(np.trapezoid(integrand, theta) - 1.0) < 1e-3
+    for bad in (1.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="g"):
+            motes._motes.henyey_greenstein(bad, theta)

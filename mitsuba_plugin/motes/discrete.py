@@ -44,6 +44,9 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
 ``seed``                    seed of the free-flight random numbers
 ``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
                             default: the physical one)
+``phase_model``             ``tabulated`` (default: each bin's ensemble phase function, Eq. 17) or
+                            ``hg``: Henyey-Greenstein with the same asymmetry g per bin and wavelength
+                            (the model graphics often uses instead; the paper's Fig. 13 comparison)
 ==========================  ==========================================================================
 
 Each particle's extinction cross section is ``pi r^2 Q_ext`` with its bin's mean efficiency over the
@@ -79,6 +82,8 @@ DEFAULT_GRAIN_DEPTH: int = _motes.DEFAULT_GRAIN_DEPTH
 WIDENED_WARN_SHARE: float = 1e-3
 #: How a medium stores its particles (module docs): ``compact`` (default) or ``full``.
 STORAGES = ("compact", "full")
+#: What ``phase_model`` takes: the tabulated ensemble phase function, or Henyey-Greenstein of the same g.
+PHASE_MODELS = ("tabulated", "hg")
 #: A procedural cloud's optics bins span its PSD's quantiles q and 1 - q (``DiscreteMedium.procedural``).
 PROCEDURAL_RADIUS_QUANTILE = 1e-7
 #: Most particles a procedural cloud takes (its count is a Poisson mean, not stored).
@@ -165,8 +170,11 @@ class _BinTables:
     """The optics bins of a medium as they are added (one ``add`` per radius bin of a species): each bin's
     grey Q_ext, albedo per wavelength and phase tables, and what the medium reports about them."""
 
-    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo):
+    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model="tabulated"):
+        if phase_model not in PHASE_MODELS:
+            raise ValueError(f"invalid phase_model = {phase_model!r}: must be one of {', '.join(PHASE_MODELS)}")
         self.lam, self.rank, self.eta_medium, self.method = lam, rank, eta_medium, method
+        self.phase_model = phase_model
         self.truncate_below_rad, self.albedo = truncate_below_rad, albedo
         self.grey_q, self.albedos, self.theta, self.f, self.offsets = [], [], [], [], [0]
         self.radius_um, self.species, self.q_ext, self.bin_albedo = [], [], [], []
@@ -181,6 +189,8 @@ class _BinTables:
         self.albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if self.albedo is None
                             else np.full(self.lam.size, float(self.albedo)))
         for row in bulk["phase"]:
+            if self.phase_model == "hg":  # the same g (of the truncated table the render would use)
+                row = _motes.henyey_greenstein(_motes.PhaseTable(bulk["theta"], row).mean_cosine(), bulk["theta"])
             self.theta.append(bulk["theta"])
             self.f.append(row)
             self.offsets.append(self.offsets[-1] + bulk["theta"].size)
@@ -214,7 +224,7 @@ class DiscreteMedium:
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
-                 storage: str = DEFAULT_STORAGE):
+                 storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated"):
         if storage not in STORAGES:
             raise ValueError(f"invalid storage = {storage!r}: must be one of {', '.join(STORAGES)}")
         self.storage = storage
@@ -230,18 +240,19 @@ class DiscreteMedium:
             raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
-                                                    truncate_below_rad, albedo)
+                                                    truncate_below_rad, albedo, phase_model)
         self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
                          cells_per_particle, continuous_count, seed, warn_widened)
         self._core.set_grain_depth(int(grain_depth))
         #: See the module docs.
         self.grain_depth = int(grain_depth)
 
-    def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo):
+    def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo,
+                       phase_model):
         """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""
         n = r.size
         bin_of = np.zeros(n, dtype=np.uint32)
-        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model)
         for k, sp in enumerate(species):
             # One species (the common case): every particle, without index arrays (1e8 particles).
             sel = slice(None) if len(species) == 1 else np.flatnonzero(idx == k)
@@ -317,7 +328,7 @@ class DiscreteMedium:
                    cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                    albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX,
                    continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
-                   cache_bytes: int | None = None) -> "DiscreteMedium":
+                   cache_bytes: int | None = None, phase_model: str = "tabulated") -> "DiscreteMedium":
         """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural.rs``):
         ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
         ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
@@ -349,7 +360,7 @@ class DiscreteMedium:
             raise ValueError(f"to_world must be a finite 4x4 matrix, got shape {m.shape}")
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in box)
         rank = np.searchsorted(lam, lam_in)
-        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model)
         edges_all, first = [], []
         for k, sp in enumerate(species):
             # Over the radii a cloud of this size holds (as a stored cloud's bins span its particles'

@@ -53,7 +53,8 @@ Parameter               Type       Meaning (default)
                                    again when needed) (a quarter of the memory available at load)
 ``size_bins``           integer    radius bins of the optics tables per species (16)
 ``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
-``truncate_below``      float      forward-peak truncation angle in radians; default: the pixel
+``truncate_below``      float      forward-peak truncation angle in radians; default (or any negative
+                                   value, so that a scene parameter can ask for it): the pixel
                                    footprint fov / film_width when ``fov`` and ``film_width`` are
                                    given, else 0.0313 (one bin of a 4096-value tabphase, as
                                    ``homogeneous_equivalent``); 0: none
@@ -61,6 +62,9 @@ Parameter               Type       Meaning (default)
                                    8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
 ``seed``                integer    seed of generated positions and free flights (0)
 ``albedo``              float      replaces every particle's albedo, in [0, 1] (tests, stylisation)
+``phase_model``         string     ``tabulated``: the grains' own phase functions (Eq. 17 per size bin);
+                                   ``hg``: Henyey-Greenstein with the same g per bin and channel, the
+                                   model graphics often uses instead (paper Fig. 13) (``tabulated``)
 ``to_world``            transform  places the particle positions in the scene (radii stay physical)
 ``sample_emitters``     boolean    next-event estimation at scattering events (true)
 ======================  =========  ======================================================================
@@ -141,7 +145,7 @@ import numpy as np
 from ..discrete import DiscreteMedium, box_of, log
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
-                        DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, STORAGES)
+                        DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, PHASE_MODELS, STORAGES)
 from ..particle_io import load_particles
 from ..particles import query_radius_from_camera
 from .. import _memory, _motes
@@ -174,7 +178,8 @@ class DiscreteMediumPlugin:
         lam = _wavelengths(p.wavelengths)
         common = dict(scale_m=p.scale_m, size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
                       truncate_below_rad=truncate if truncate > 0 else None, cells_per_particle=p.cells, seed=p.seed,
-                      albedo=p.albedo, tau_max=p.tau_max, continuous_count=p.continuous, grain_depth=p.grain_depth)
+                      albedo=p.albedo, tau_max=p.tau_max, continuous_count=p.continuous, grain_depth=p.grain_depth,
+                      phase_model=p.phase_model)
         if p.storage == "procedural":
             self.data = _procedural(p, species, lam, common)
         else:
@@ -311,7 +316,9 @@ def _read_parameters(props) -> SimpleNamespace:
     p.size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
     p.method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
                     "one of auto, mie, goa, hybrid")
-    p.truncate = _get(props, "truncate_below", None, float, lambda v: 0 <= v < np.pi, "in [0, pi) radians")
+    p.truncate = _get(props, "truncate_below", None, float, lambda v: v < np.pi, "below pi radians (negative: the default)")
+    if p.truncate is not None and p.truncate < 0:
+        p.truncate = None
     p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
@@ -321,6 +328,8 @@ def _read_parameters(props) -> SimpleNamespace:
     p.wavelengths = _get(props, "wavelengths", None, str)
     p.seed = _get(props, "seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
     p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+    p.phase_model = _get(props, "phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
+                         "one of " + ", ".join(PHASE_MODELS))
     p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
     return p
 

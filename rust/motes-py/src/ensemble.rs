@@ -199,19 +199,15 @@ impl PyPhaseTable {
         Ok(PyPhaseTable { table, theta, f })
     }
 
+    /// Asymmetry parameter g = ∫ f cos θ dΩ of the table.
+    fn mean_cosine(&self) -> f64 {
+        self.table.mean_cosine()
+    }
+
     /// f (1/sr) at angles `query` (radians).
     fn eval<'py>(&self, py: Python<'py>, query: F64In) -> PyResult<F64Out<'py>> {
         let q = query.as_slice()?;
-        if let Some(&v) = q
-            .iter()
-            .find(|v| !(v.is_finite() && (0.0..=std::f64::consts::PI).contains(*v)))
-        {
-            return Err(invalid(
-                "theta",
-                v,
-                format!("invalid theta = {v}: must be finite and in [0, π]"),
-            ));
-        }
+        check_angles(q)?;
         let t = &self.table;
         let out: Vec<f64> = py.detach(|| q.iter().map(|th| t.eval(th.cos())).collect());
         Ok(out.into_pyarray(py))
@@ -266,5 +262,43 @@ impl PyPhaseTable {
                 me.f.clone().into_pyarray(py),
             ),
         )
+    }
+}
+
+/// Henyey–Greenstein phase function (1/sr) with asymmetry `g` in (−1, 1) at angles `theta` (radians).
+#[pyfunction]
+pub(crate) fn henyey_greenstein<'py>(
+    py: Python<'py>,
+    g: f64,
+    theta: F64In,
+) -> PyResult<F64Out<'py>> {
+    if !(g.is_finite() && g > -1.0 && g < 1.0) {
+        return Err(invalid(
+            "g",
+            g,
+            format!("invalid g = {g}: must be in (-1, 1)"),
+        ));
+    }
+    let q = theta.as_slice()?;
+    check_angles(q)?;
+    let out: Vec<f64> = q
+        .iter()
+        .map(|t| motes_core::ensemble::phase_table::henyey_greenstein(g, t.cos()))
+        .collect();
+    Ok(out.into_pyarray(py))
+}
+
+/// Scattering angles must be finite and in [0, π] (the error names `theta` and the first bad value).
+fn check_angles(q: &[f64]) -> PyResult<()> {
+    match q
+        .iter()
+        .find(|v| !(v.is_finite() && (0.0..=std::f64::consts::PI).contains(*v)))
+    {
+        Some(&v) => Err(invalid(
+            "theta",
+            v,
+            format!("invalid theta = {v}: must be finite and in [0, π]"),
+        )),
+        None => Ok(()),
     }
 }

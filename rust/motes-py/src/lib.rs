@@ -54,6 +54,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(optics::policy_constants, m)?)?;
     m.add_function(wrap_pyfunction!(optics::resolve_method, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble::bulk_properties, m)?)?;
+    m.add_function(wrap_pyfunction!(ensemble::henyey_greenstein, m)?)?;
     m.add_function(wrap_pyfunction!(optics::material_index, m)?)?;
     m.add_function(wrap_pyfunction!(core_hash, m)?)?;
     m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;

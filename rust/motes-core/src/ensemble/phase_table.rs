@@ -126,6 +126,18 @@ impl PhaseTable {
         (self.cdf_at(hi) - self.cdf_at(lo)) / (2.0 * PI * (hi - lo))
     }
 
+    /// Asymmetry parameter g = ∫ f μ dΩ of the interpolant (exact: f is linear in μ on each segment).
+    pub fn mean_cosine(&self) -> f64 {
+        let mut g = 0.0;
+        for i in 0..self.mu.len() - 1 {
+            let (m0, m1, f0, f1) = (self.mu[i], self.mu[i + 1], self.f[i], self.f[i + 1]);
+            // ∫ (f0 + (f1 - f0) t) μ dμ over the segment, μ = m0 + t (m1 - m0).
+            let dm = m1 - m0;
+            g += dm * (f0 * (m0 / 3.0 + m1 / 6.0) + f1 * (m0 / 6.0 + m1 / 3.0));
+        }
+        (2.0 * PI * g).clamp(-1.0, 1.0)
+    }
+
     pub fn len(&self) -> usize {
         self.mu.len()
     }
@@ -134,9 +146,35 @@ impl PhaseTable {
     }
 }
 
+/// Henyey–Greenstein phase function with asymmetry `g` at μ = cos θ, sr⁻¹: the one-parameter model
+/// graphics uses in place of a tabulated phase function (the paper's Fig. 13 compares the two at equal g).
+pub fn henyey_greenstein(g: f64, mu: f64) -> f64 {
+    let g = g.clamp(-0.999_999, 0.999_999);
+    let denom = 1.0 + g * g - 2.0 * g * mu.clamp(-1.0, 1.0);
+    (1.0 - g * g) / (4.0 * PI * denom * denom.sqrt())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mean_cosine_of_tabulated_henyey_greenstein() {
+        // A fine table of HG(g) has mean cosine g; isotropic has 0.
+        for &g in &[-0.5, 0.0, 0.3, 0.85] {
+            let theta: Vec<f64> = (0..=4000).map(|i| PI * i as f64 / 4000.0).collect();
+            let f: Vec<f64> = theta
+                .iter()
+                .map(|t| henyey_greenstein(g, t.cos()))
+                .collect();
+            let t = PhaseTable::new(&theta, &f).unwrap();
+            assert!(
+                (t.mean_cosine() - g).abs() < 2e-4,
+                "g = {g}: {}",
+                t.mean_cosine()
+            );
+        }
+    }
 
     /// Bin averages on a regular μ grid conserve the integral exactly.
     #[test]
