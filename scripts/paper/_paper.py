@@ -107,10 +107,12 @@ def graininess(a: np.ndarray, b: np.ndarray, region=np.s_[...]) -> float:
     return float(np.sqrt(max(texture_variance(a, b, region), 0.0)) / max(m, 1e-300))
 
 
-def pixel_optical_depth(mi, scene, rows=None) -> np.ndarray:
+def pixel_optical_depth(mi, scene, box, rows=None) -> tuple[np.ndarray, np.ndarray]:
     """Optical depth of the scene's discrete medium along the camera ray of each pixel centre (rows
     ``rows``, a slice, of the image), as the renderer's free flights see it: each pixel's query cylinder
-    (Eq. 18) through the grains, plus the continuous classes' expected extinction. No Monte Carlo noise."""
+    (Eq. 18) through the grains, plus the continuous classes' expected extinction; no Monte Carlo noise.
+    Also each ray's length inside ``box`` = (lo, hi), the medium's axis-aligned box in scene units.
+    Returns (tau, length), each (rows, width)."""
     sensor = scene.sensors()[0]
     w, h = (int(v) for v in sensor.film().crop_size())
     ys = np.arange(h)[rows if rows is not None else slice(None)]
@@ -120,13 +122,24 @@ def pixel_optical_depth(mi, scene, rows=None) -> np.ndarray:
                                mi.Point2f(px.ravel(), py.ravel()), mi.Point2f(np.full(n, 0.5), np.full(n, 0.5)))
     o = np.stack([np.asarray(ray.o[i], dtype=np.float64) * np.ones(n) for i in range(3)], axis=1)
     d = np.stack([np.asarray(ray.d[i], dtype=np.float64) * np.ones(n) for i in range(3)], axis=1)
-    tau = discrete_medium_of(scene).data.optical_depth(o, d, 0.0, 1e7)
-    return np.asarray(tau).reshape(px.shape)
+    tau = np.asarray(discrete_medium_of(scene).data.optical_depth(o, d, 0.0, 1e7))
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in box)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (lo - o) / d, (hi - o) / d
+    near = np.nanmax(np.minimum(t0, t1), axis=1).clip(0.0, None)
+    far = np.nanmin(np.maximum(t0, t1), axis=1)
+    length = np.clip(far - near, 0.0, None)
+    return tau.reshape(px.shape), length.reshape(px.shape)
 
 
-def medium_graininess(tau: np.ndarray) -> float:
-    """The medium's graininess at equal mean: std / mean of the per-pixel optical depth."""
-    return float(np.std(tau) / max(np.mean(tau), 1e-300))
+def medium_graininess(tau_and_length, min_share: float = 0.25) -> float:
+    """The medium's graininess at equal mean: std / mean over pixels of the optical depth per unit length
+    (tau / L: the box's geometry divided out), over the pixels whose ray crosses at least ``min_share``
+    of the longest path through the box (grazing rays hold too few grains to mean anything)."""
+    tau, length = (np.asarray(v) for v in tau_and_length)
+    keep = length > min_share * length.max()
+    k = tau[keep] / length[keep]
+    return float(np.std(k) / max(np.mean(k), 1e-300))
 
 
 def peak_memory_mb() -> float:

@@ -7,7 +7,7 @@ haziness from massive small particles and graininess from a handful of large par
 Numbers, over the sky above the house seen through the snow (rows 3 %..22 % of the image, above the
 roof, where the background is uniform): (1) mean luminance +- SE per r_g, checked to grow beyond 2 SE at every step;
 (2) graininess of the medium at equal mean: std / mean over the band's pixels of the optical depth
-along each pixel's query cylinder (Eq. 18, as the renderer's free flights see it, continuous classes
+per unit length along each pixel's query cylinder (Eq. 18, as the renderer's free flights see it, continuous classes
 included; exact, no Monte Carlo noise -- the images' own texture is below their noise at preview
 quality), checked to grow with sigma_g;
 (3) the bimodal rows' means and graininess beside the unimodal ones.
@@ -32,6 +32,7 @@ import _paper as P  # noqa: E402
 R_G = (50, 100, 200, 400)
 SIGMA_G = (1.2, 1.6, 2.4, 3.2)
 BIMODAL_R1 = (100, 200)
+BOX = ((-5.0, 0.05, -5.0), (5.0, 5.05, 3.0))  # the snow, scene units (m)
 BIMODAL = dict(count=20_000_000, sigma_g=1, radius2=1000, sigma_g2=1.2, share2=0.005)
 
 
@@ -43,13 +44,13 @@ def run_row(mi, spp, res, configs, label):
     panels, rows = [], []
     for params in configs:
         (a, b), t_load, times, tau = P.render(mi, "house", spp, res, seeds=(0, 1),
-                                              measure=lambda sc: P.pixel_optical_depth(mi, sc, sky_rows(res)), **params)
+                                              measure=lambda sc: P.pixel_optical_depth(mi, sc, BOX, sky_rows(res)), **params)
         m, se = P.mean_and_se(a, b, sky_rows(res))
         g = P.medium_graininess(tau)
-        rows.append(dict(params, mean=m, se=se, graininess=g, tau=float(tau.mean()), load_s=t_load,
+        rows.append(dict(params, mean=m, se=se, graininess=g, tau=float(tau[0].mean()), load_s=t_load,
                          render_s=min(times)))
         panels.append((f"{label(params)}\nsky {m:.4g} +- {se:.2g}, grain. {g:.2f}", 0.5 * (a + b)))
-        print(f"{label(params):34s} sky mean {m:.5g} +- {se:.2g}  tau {tau.mean():.3g}  graininess {g:.3f}  "
+        print(f"{label(params):34s} sky mean {m:.5g} +- {se:.2g}  tau {tau[0].mean():.3g}  graininess {g:.3f}  "
               f"(load {t_load:.1f} s, render {min(times):.1f} s)", flush=True)
     return panels, rows
 
