@@ -9,3 +9,6 @@ for s in figures/mie_accuracy figures/fig3_extinction figures/fig4_amplitudes fi
   echo "== scripts/$s.py"
   .venv/bin/python "scripts/$s.py" --out out "$@" | tee "out/$(basename "$s").log"
 done
+# The gallery (docs/gallery, docs/gallery.md) and Table 1, at full quality.
+bash scripts/paper/run_all.sh --full
+.venv/bin/python scripts/paper/table1.py | tee out/table1.log

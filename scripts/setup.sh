@@ -31,6 +31,6 @@ fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 # Editable install: maturin builds the extension in release mode into mitsuba_plugin/motes/.
-.venv/bin/python -m pip install -q -e '.[dev]'
+.venv/bin/python -m pip install -q -e '.[dev,cluster]'
 # Compile the native render path now (cached per Mitsuba/Dr.Jit version) rather than at the first render.
 .venv/bin/python -c "import motes, motes.native as n; print('motes', motes.__version__, 'ready; native plugins in', n.build())"

@@ -71,6 +71,11 @@ def generate_cloud(count: int, lo: Sequence[float], hi: Sequence[float], kind: s
     (um), species indices (rust/motes-core/src/space/cloud.rs)."""
 def value_noise(points: F64, scale: float, octaves: int, seed: int, contrast: float) -> F64:
     """fBm value noise v(x) in [0, 1] at points (n*3) (rust/motes-core/src/space/cloud.rs)."""
+def move_grains(centres: F64, velocity: Sequence[float], turbulence: float, turbulence_scale: float, seed: int,
+                time: float, wrap_to_world: Sequence[Sequence[float]] | None = None) -> F64:
+    """Rest positions (n*3) moved to ``time`` by a velocity and a divergence-free turbulent drift, wrapped
+    around the box [-1, 1]^3 that ``wrap_to_world`` (3x4) maps into the scene when given
+    (rust/motes-core/src/space/motion.rs); a new array."""
 def default_wavelengths() -> tuple[list[float], list[float]]: ...
 def simd_walk() -> str: ...
 

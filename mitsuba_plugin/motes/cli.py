@@ -2,7 +2,9 @@
 
 =====================================  ===================================================================
 ``motes render SCENE.xml``             render with Mitsuba (flags as ``mitsuba``'s: ``-o``, ``-m``, ``-D``,
-                                       ``-s``) in passes with a progress bar; writes EXR (and ``--png``)
+                                       ``-s``) in passes with a progress bar; writes EXR (and ``--png``);
+                                       ``--frames A:B`` a sequence ($frame, $time), ``--workers N`` /
+                                       ``--scheduler ADDR`` on a Dask cluster (``motes.cluster``)
 ``motes optics``                       cross sections, efficiencies and g of one particle
 ``motes particles FILE``               summary of a particle file (count, bounds, radii, species, memory)
 ``motes equivalent``                   the homogeneous + tabphase XML of a particle cloud (A/B reference)
@@ -27,6 +29,9 @@ import time
 import warnings
 
 import numpy as np
+
+#: Frames per second of ``motes render --frames`` ($time = frame / fps).
+DEFAULT_FPS = 24.0
 
 
 def _progress(done: int, total: int, elapsed: float) -> None:
@@ -145,55 +150,119 @@ def _scene_path(name: str) -> pathlib.Path:
     raise FileNotFoundError(f"no such scene file: {path} (shipped scenes, usable by name: {known})")
 
 
+def _defines(pairs) -> dict:
+    defines = {}
+    for d in pairs:
+        key, sep, value = d.partition("=")
+        if not sep or not key:
+            raise ValueError(f"-D expects key=value, got {d!r}")
+        defines[key] = value
+    return defines
+
+
 def cmd_render(args) -> int:
     import motes  # noqa: PLC0415
 
     variant = motes.set_variant(args.variant)
     import mitsuba as mi  # noqa: PLC0415
 
-    defines = {}
-    for d in args.define:
-        key, sep, value = d.partition("=")
-        if not sep or not key:
-            raise ValueError(f"-D expects key=value, got {d!r}")
-        defines[key] = value
+    defines = _defines(args.define)
     scene_path = _scene_path(args.scene)
+    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be > 0, got {args.fps}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers is not None and args.scheduler:
+        raise ValueError("give --workers (a local cluster) or --scheduler (an existing one), not both")
+    if args.ship_files and not (args.workers or args.scheduler):
+        raise ValueError("--ship-files sends files to cluster workers: it needs --workers or --scheduler")
+    if args.workers or args.scheduler:
+        from . import _distributed  # noqa: PLC0415
+
+        return _distributed.render(args, mi, variant, scene_path, defines)
+    if args.frames:
+        return _render_frames(args, mi, variant, scene_path, defines)
     out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
     _show_load_stages()
     with _CtrlC("motes: interrupted (Ctrl-C) before the first pass finished; nothing written") as ctrl_c:
-        t0 = time.perf_counter()
+        _render_one(args, mi, variant, scene_path, defines, out, ctrl_c)
+    return 0
+
+
+def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool = False) -> None:
+    """One image in this process, pass by pass (``cluster.pass_plan``), each pass's average written at once."""
+    from .cluster import pass_plan  # noqa: PLC0415
+
+    t0 = time.perf_counter()
+    if not quiet:
         print(f"motes: loading {scene_path} ({variant}): particles, optics tables, grid ...", file=sys.stderr)
-        scene = mi.load_file(str(scene_path), **defines)
-        t_load = time.perf_counter() - t0
+    scene = mi.load_file(str(scene_path), **defines)
+    t_load = time.perf_counter() - t0
+    if not quiet:
         print(f"motes: loaded in {t_load:.1f} s", file=sys.stderr)
-        spp = args.spp or scene.sensors()[0].sampler().sample_count()
-        per_pass = max(1, min(args.pass_spp, spp))
-        passes = (spp + per_pass - 1) // per_pass
-        acc, done_spp, t1 = None, 0, time.perf_counter()
-        for i in range(passes):
-            k = min(per_pass, spp - done_spp)
-            img = np.asarray(mi.render(scene, spp=k, seed=args.seed * 100003 + i), dtype=np.float64)
-            acc = img * k if acc is None else acc + img * k
-            done_spp += k
-            # Each pass's average is written at once, so that Ctrl-C keeps what is done.
-            written = _write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
-            if done_spp < spp:
-                ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done_spp} of {spp} spp; wrote {', '.join(written)}")
-            _progress(i + 1, passes, time.perf_counter() - t1)
-        sys.stderr.write("\n")
+    spp = args.spp or scene.sensors()[0].sampler().sample_count()
+    plan = pass_plan(spp, args.pass_spp, args.seed)
+    acc, done_spp, t1 = None, 0, time.perf_counter()
+    for i, (k, seed) in enumerate(plan):
+        img = np.asarray(mi.render(scene, spp=k, seed=seed), dtype=np.float64)
+        acc = img * k if acc is None else acc + img * k
+        done_spp += k
+        # Each pass's average is written at once, so that Ctrl-C keeps what is done.
+        written = _write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
+        if done_spp < spp:
+            ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done_spp} of {spp} spp; wrote {', '.join(written)}")
+        if not quiet:
+            _progress(i + 1, len(plan), time.perf_counter() - t1)
     from ._memory import peak_resident_mb  # noqa: PLC0415
 
-    peak_mb = peak_resident_mb()
-    print(f"motes: {spp} spp in {time.perf_counter() - t1:.1f} s (load {t_load:.1f} s), peak memory {peak_mb:.0f} MB; "
-          f"wrote {', '.join(written)}", file=sys.stderr)
+    if not quiet:
+        sys.stderr.write("\n")
+        print(f"motes: {spp} spp in {time.perf_counter() - t1:.1f} s (load {t_load:.1f} s), peak memory "
+              f"{peak_resident_mb():.0f} MB; wrote {', '.join(written)}", file=sys.stderr)
+
+
+def _render_frames(args, mi, variant, scene_path, defines) -> int:
+    """A frame sequence in this process: ``$frame`` and ``$time`` per frame; frames on disk are skipped."""
+    from .cluster import frame_defines, frame_output, parse_frames  # noqa: PLC0415
+
+    frames = parse_frames(args.frames)
+    outs = {f: frame_output(args.output, scene_path.stem, f) for f in frames}
+    todo = [f for f in frames if args.overwrite or not outs[f].exists()]
+    if len(todo) < len(frames):
+        print(f"motes: {len(frames) - len(todo)} of {len(frames)} frames already on disk, skipped "
+              "(--overwrite renders them again)", file=sys.stderr)
+    text = scene_path.read_text()
+    t0 = time.perf_counter()
+    with _CtrlC("motes: interrupted (Ctrl-C) before the first frame finished") as ctrl_c:
+        for i, f in enumerate(todo):
+            _render_one(args, mi, variant, scene_path, frame_defines(defines, f, args.fps or DEFAULT_FPS, text),
+                        outs[f], ctrl_c, quiet=True)
+            ctrl_c.say(f"motes: interrupted (Ctrl-C) after {i + 1} of {len(todo)} frames (the frame in flight "
+                       "is partly written)")
+            _progress(i + 1, len(todo), time.perf_counter() - t0)
+    if todo:
+        sys.stderr.write("\n")
+    print(f"motes: {len(todo)} frames in {time.perf_counter() - t0:.1f} s "
+          f"({', '.join(str(outs[f]) for f in todo[:3])}{' ...' if len(todo) > 3 else ''})", file=sys.stderr)
     return 0
+
+
+def _scene_title(path: pathlib.Path) -> str:
+    """The first line of a scene's header comment (what it shows), without the comment marker."""
+    text = path.read_text(errors="replace")
+    start = text.find("<!--")
+    if start < 0:
+        return ""
+    return text[start + 4:].strip().splitlines()[0].strip() if text[start + 4:].strip() else ""
 
 
 def cmd_scenes(args) -> int:
     shipped = shipped_scenes()
     if args.output is None:
         for stem, path in shipped.items():
-            print(f"{stem:16s} {path}")
+            print(f"{stem:12s} {_scene_title(path)}")
+        print(f"\n(in {next(iter(shipped.values())).parent}; 'motes render NAME' renders one, "
+              "'motes scenes -o DIR' copies them out)" if shipped else "no scenes shipped")
         return 0
     folder = pathlib.Path(args.output)
     folder.mkdir(parents=True, exist_ok=True)
@@ -278,6 +347,15 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--pass-spp", type=int, default=8, help="samples per pass (bounds memory; default 8)")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--png", action="store_true", help="also write a tone-mapped sRGB PNG beside the EXR")
+    r.add_argument("--frames", metavar="A:B[:STEP]", help="render frames A..B (inclusive) with the scene parameters "
+                   "$frame and $time = frame / fps; -o may hold {frame} (default out/NAME_0001.exr); frames on disk "
+                   "are skipped")
+    r.add_argument("--fps", type=float, help=f"frames per second for $time (default {DEFAULT_FPS:g})")
+    r.add_argument("--overwrite", action="store_true", help="render frames again even if their file exists")
+    r.add_argument("--workers", type=int, help="render on a local Dask cluster of this many worker processes")
+    r.add_argument("--scheduler", metavar="ADDRESS", help="render on an existing Dask cluster (tcp://host:8786)")
+    r.add_argument("--ship-files", action="store_true", help="send the scene and the files it names to the "
+                   "workers (default: workers read them by path, from a shared file system)")
     r.set_defaults(run=cmd_render)
     sc = sub.add_parser("scenes", help="list the example scenes shipped with motes, or copy them out")
     sc.add_argument("-o", "--output", help="folder to copy the scenes to")

@@ -6,12 +6,15 @@ the shipped scene at its default resolution and parameters is loaded, rendered o
 caches), then rendered at ``--spp`` and the time scaled linearly to the paper's spp. EPT: the same
 grains (read once from the scene loaded with ``storage = full``) written as one Mitsuba ``sphere`` per
 grain with a ``dielectric`` BSDF (index 1.31) into an XML file, loaded and rendered by a separate
-process. The paper's machine: 16-core i7-6900K, spectral (8 wavelengths), image size not stated; ours:
+process. Each is rendered twice (sampler seeds 0 and 1): the faster time is reported, and the relative
+Monte Carlo noise per pixel (RMS of the two images' difference / sqrt 2, over the mean) gives the time
+to equal noise, time x noise^2 (EPT's heavy-tailed noise makes its two-seed estimate optimistic). The
+paper's machine: 16-core i7-6900K, spectral (8 wavelengths), image size not stated; ours:
 2 cores, RGB. Prints a markdown table (BENCHMARKS.md) and writes docs/gallery/table1.json.
 
     .venv/bin/python scripts/paper/table1.py [--spp N] [--variants scalar_rgb,llvm_ad_rgb] [--no-ept]
 
-About 10 minutes on 2 cores (--spp 16). Timing: run it alone.
+About 15 minutes on 2 cores (--spp 16). Timing: run it alone.
 """
 
 from __future__ import annotations
@@ -48,12 +51,18 @@ def child(argv) -> int:
         scene = mi.load_file(what)
     t_load = time.perf_counter() - t0
     np.asarray(mi.render(scene, spp=2, seed=99))
-    t1 = time.perf_counter()
-    img = np.asarray(mi.render(scene, spp=spp, seed=0))
-    t_render = time.perf_counter() - t1
-    res = img.shape[:2]
-    print(json.dumps({"load_s": t_load, "render_s": t_render, "peak_mb": P.peak_memory_mb(), "res": list(res),
-                      "mean": float(img[..., :3].mean())}))
+    imgs, times = [], []
+    for seed in (0, 1):
+        t1 = time.perf_counter()
+        imgs.append(np.asarray(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)[..., :3])
+        times.append(time.perf_counter() - t1)
+    a, b = (P.luminance(i) for i in imgs)
+    mean = float(0.5 * (a.mean() + b.mean()))
+    # Relative Monte Carlo noise per pixel at this spp (from the two seeds): time x noise^2 is the cost
+    # of a given noise level, whatever the spp.
+    noise = float(np.sqrt(np.mean((a - b) ** 2) / 2) / mean)
+    print(json.dumps({"load_s": t_load, "render_s": min(times), "peak_mb": P.peak_memory_mb(),
+                      "res": list(imgs[0].shape[:2]), "mean": mean, "noise": noise}))
     return 0
 
 
@@ -94,6 +103,7 @@ def main() -> int:
                 m["minutes_at_paper_spp"] = m["render_s"] * spp_paper / args.spp / 60
                 row[v] = m
                 print(f"{label:12s} {v:12s} load {m['load_s']:.1f} s, {args.spp} spp {m['render_s']:.1f} s "
+                      f"(noise {m['noise']:.3f}) "
                       f"-> {m['minutes_at_paper_spp']:.1f} min at {spp_paper} spp; peak {m['peak_mb']:.0f} MB", flush=True)
             if name in EPT_SCENES and not args.no_ept:
                 path, count = ept_file(name, pathlib.Path(tmp))
@@ -102,6 +112,7 @@ def main() -> int:
                 e["spheres"] = count
                 row["ept_scalar_rgb"] = e
                 print(f"{label:12s} EPT scalar   load {e['load_s']:.1f} s, {args.spp} spp {e['render_s']:.1f} s "
+                      f"(noise {e['noise']:.3f}) "
                       f"-> {e['minutes_at_paper_spp']:.1f} min; peak {e['peak_mb']:.0f} MB ({count} spheres)", flush=True)
             results.append(row)
     out = pathlib.Path(args.out)
@@ -110,7 +121,7 @@ def main() -> int:
     head = "| scene | N | res | paper spp | paper: memory, EPT, ours (min) |"
     for v in variants:
         head += f" ours {v}: memory, min at paper spp |"
-    head += " EPT scalar_rgb: memory, min | ours/EPT (scalar) | paper ours/EPT |"
+    head += " EPT scalar_rgb: memory, min | ours/EPT time, equal spp (scalar) | ours/EPT time, equal noise | paper ours/EPT |"
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     for r in results:
@@ -123,8 +134,9 @@ def main() -> int:
         if "ept_scalar_rgb" in r:
             e = r["ept_scalar_rgb"]
             ours = r.get("scalar_rgb", r[variants[0]])
+            at_noise = (ours["render_s"] * ours["noise"] ** 2) / (e["render_s"] * e["noise"] ** 2)
             line += (f" {e['peak_mb']:.0f} MB, {e['minutes_at_paper_spp']:.1f} | "
-                     f"{ours['minutes_at_paper_spp'] / e['minutes_at_paper_spp']:.2f} | "
+                     f"{ours['minutes_at_paper_spp'] / e['minutes_at_paper_spp']:.2f} | {at_noise:.2f} | "
                      f"{r['paper_ours_min'] / r['paper_ept_min']:.2f} |")
         else:
             line += " - | - | - |"

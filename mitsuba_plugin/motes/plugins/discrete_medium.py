@@ -61,6 +61,16 @@ Parameter               Type       Meaning (default)
 ``wavelengths``         string     tabulated wavelengths in um, comma-separated (spectral variants:
                                    8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
 ``seed``                integer    seed of generated positions and free flights (0)
+``time``                float      seconds since the cloud was at rest; generated grains move with (0):
+``velocity``            vector     uniform velocity, scene units per second ("0, 0, 0")
+``turbulence``          float      amplitude (scene units) of a smooth, seeded, divergence-free drift
+                                   around the mean path (0: none; stored storage only)
+``turbulence_scale``    float      spatial scale of the drift, scene units (a quarter of the cloud's
+                                   largest extent); ``rust/motes-core/src/space/motion.rs``. Each grain
+                                   keeps its radius and species; the medium's shape must hold the
+                                   grains where they move to, or:
+``wrap``                boolean    grains that leave the cloud's box come back through the opposite
+                                   face (periodic: a snowfall that never runs out) (false; stored only)
 ``albedo``              float      replaces every particle's albedo, in [0, 1] (tests, stylisation)
 ``phase_model``         string     ``tabulated``: the grains' own phase functions (Eq. 17 per size bin);
                                    ``hg``: Henyey-Greenstein with the same g per bin and channel, the
@@ -328,10 +338,37 @@ def _read_parameters(props) -> SimpleNamespace:
     p.wavelengths = _get(props, "wavelengths", None, str)
     p.seed = _get(props, "seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
     p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+    p.time = _get(props, "time", 0.0, float, np.isfinite, "finite (seconds)")
+    p.velocity = _vector(props, "velocity")
+    p.turbulence = _get(props, "turbulence", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0 (scene units)")
+    p.turbulence_scale = _get(props, "turbulence_scale", None, float, lambda v: np.isfinite(v) and v > 0,
+                              "finite and > 0 (scene units)")
+    p.wrap = _get(props, "wrap", False, bool)
+    p.moving = bool(np.any(p.velocity != 0) or p.turbulence > 0)
+    if p.filename is not None and (p.moving or "time" in props):
+        raise ValueError("discrete medium: time, velocity and turbulence move generated grains; a particle file "
+                         "is read as it is (one file per frame: filename=\"grains_$frame.npz\")")
+    if p.storage == "procedural" and (p.turbulence > 0 or p.wrap):
+        raise ValueError("discrete medium: turbulence and wrap need stored grains (storage = compact or full); a "
+                         "procedural cloud moves with velocity only")
     p.phase_model = _get(props, "phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
                          "one of " + ", ".join(PHASE_MODELS))
     p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
     return p
+
+
+def _vector(props, name: str) -> np.ndarray:
+    """A 3-vector parameter (``<vector name=... value="x, y, z"/>``), finite; zeros when absent."""
+    if name not in props:
+        return np.zeros(3)
+    value = props.get(name)
+    try:
+        v = np.array([float(value[i]) for i in range(3)])
+    except (TypeError, IndexError, ValueError):
+        raise ValueError(f"discrete medium: parameter '{name}' must be a vector (x, y, z), got {value!r}") from None
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"discrete medium: invalid {name} = {v.tolist()}: must be finite")
+    return v
 
 
 def _get(props, name, default, kind, check=None, allowed=""):
@@ -460,8 +497,10 @@ _DENSITIES = {"uniform": ("uniform", []), "gradient": ("gradient", [2, 1.0, 0.0]
 
 def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> DiscreteMedium:
     """A procedural cloud of ``count`` particles in the local cube [-1, 1]^3 (``storage = procedural``):
-    the distribution, species and seed as a generated cloud's, no particle stored."""
-    m = _checked_to_world(p)
+    the distribution, species and seed as a generated cloud's, no particle stored. A velocity moves the
+    whole cloud (its to_world translated by velocity x time), grain by grain as a stored cloud's."""
+    m = _checked_to_world(p).copy()
+    m[:3, 3] += p.velocity * p.time
     shares = [float(s.share) for s in species]
     if not all(v >= 0 for v in shares) or sum(shares) <= 0:
         raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
@@ -486,7 +525,17 @@ def _generated_particles(p: SimpleNamespace, species: list, to_world: np.ndarray
     pos, radii, sidx = _motes.generate_cloud(p.count, [-1.0] * 3, [1.0] * 3, kind, params, p.seed,
                                              [s.psd._core for s in species], shares, p.seed,
                                              to_world[:3, :4].tolist())
+    if p.moving and p.time != 0:
+        pos = _motes.move_grains(pos, p.velocity.tolist(), p.turbulence, _turbulence_scale(p, to_world), p.seed, p.time,
+                                 to_world[:3, :4].tolist() if p.wrap else None)
     return pos.reshape(-1, 3), radii, sidx
+
+
+def _turbulence_scale(p: SimpleNamespace, to_world: np.ndarray) -> float:
+    """``turbulence_scale``, or a quarter of the cloud's largest extent (its local cube through to_world)."""
+    if p.turbulence_scale is not None:
+        return p.turbulence_scale
+    return 0.25 * 2.0 * float(np.abs(to_world[:3, :3]).sum(axis=1).max())
 
 
 def _query_radius(p: SimpleNamespace, pos: np.ndarray):

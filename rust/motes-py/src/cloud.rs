@@ -3,6 +3,7 @@
 use crate::convert::*;
 use crate::psd::PyPsd;
 use motes_core::space::cloud::{generate, CloudSpec, Density, ValueNoise};
+use motes_core::space::motion::Motion;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::prelude::*;
 
@@ -132,4 +133,30 @@ pub(crate) fn value_noise<'py>(
         p.par_iter().map(|&x| noise.value(x)).collect()
     });
     Ok(out.into_pyarray(py))
+}
+
+/// Rest positions (n*3, scene units) moved to time `time` (seconds) by a uniform `velocity` plus a
+/// divergence-free turbulent drift of amplitude `turbulence` and scale `turbulence_scale` seeded by
+/// `seed` (`motes_core::space::motion`), wrapped around the box [-1, 1]³ that `wrap_to_world` (3×4)
+/// maps into the scene when given; a new array.
+#[pyfunction]
+#[pyo3(signature = (centres, velocity, turbulence, turbulence_scale, seed, time, wrap_to_world=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn move_grains<'py>(
+    py: Python<'py>,
+    centres: F64In<'py>,
+    velocity: [f64; 3],
+    turbulence: f64,
+    turbulence_scale: f64,
+    seed: u64,
+    time: f64,
+    wrap_to_world: Option<[[f64; 4]; 3]>,
+) -> PyResult<F64Out<'py>> {
+    let mut motion = Motion::new(velocity, turbulence, turbulence_scale, seed).map_err(to_py)?;
+    if let Some(m) = wrap_to_world {
+        motion = motion.wrapped(m).map_err(to_py)?;
+    }
+    let mut p = triples(centres.as_slice()?);
+    py.detach(|| motion.apply(&mut p, time)).map_err(to_py)?;
+    Ok(flatten(p).into_pyarray(py))
 }

@@ -40,7 +40,7 @@
 use crate::error::{require, OpticsError};
 use crate::render::continuous::{ContinuousField, CLASS_FLAG};
 use crate::render::storage::LEVELS_PER_BIN;
-use crate::space::cloud::{CloudSpec, Tiling};
+use crate::space::cloud::{det3, invert_affine, CloudSpec, Tiling};
 use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{size_class, GridSettings, ParticleGrid, Site, SIZE_CLASSES};
 use crate::space::ray::RaySegment;
@@ -348,37 +348,6 @@ fn apply_linear(m: &[[f64; 4]; 3], v: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
 }
 
-/// Determinant of an affine map's linear part.
-fn det3(m: &[[f64; 4]; 3]) -> f64 {
-    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-}
-
-/// The inverse of an affine map (3×4), or None when singular.
-#[allow(clippy::needless_range_loop)] // cofactors index rows and columns together
-fn invert(m: &[[f64; 4]; 3]) -> Option<[[f64; 4]; 3]> {
-    let a = |r: usize, c: usize| m[r][c];
-    let det = det3(m);
-    if !(det.abs() > 0.0 && det.is_finite()) {
-        return None;
-    }
-    let mut inv = [[0.0; 4]; 3];
-    for r in 0..3 {
-        for c in 0..3 {
-            // Cofactor (c, r) / det.
-            let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
-            let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
-            inv[r][c] = (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det;
-        }
-    }
-    let t = [m[0][3], m[1][3], m[2][3]];
-    for r in 0..3 {
-        inv[r][3] = -(inv[r][0] * t[0] + inv[r][1] * t[1] + inv[r][2] * t[2]);
-    }
-    Some(inv)
-}
-
 /// Per axis of the cloud's coordinates, how far a scene displacement of length `reach` can move a point
 /// along it: `reach` times the norm of that row of the inverse map (exact: the row's direction attains
 /// it), widened by the float32 rounding of the grids' centres (~6e-8 of the largest scene coordinate
@@ -444,7 +413,7 @@ pub(crate) fn build_parts(
         spec.transform.iter().flatten().all(|x| x.is_finite()),
         "a finite transform",
     )?;
-    let to_cloud = invert(&spec.transform).ok_or(OpticsError::InvalidArgument {
+    let to_cloud = invert_affine(&spec.transform).ok_or(OpticsError::InvalidArgument {
         argument: "to_world",
         value: 0.0,
         requirement: "an invertible transform",

@@ -413,9 +413,42 @@ pub const IDENTITY: [[f64; 4]; 3] = [
     [0.0, 0.0, 1.0, 0.0],
 ];
 
-fn apply(m: &[[f64; 4]; 3], p: [f64; 3]) -> [f64; 3] {
+/// x' = A x + b for a 3×4 affine map.
+pub fn apply(m: &[[f64; 4]; 3], p: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
 }
+
+/// Determinant of an affine map's linear part.
+pub fn det3(m: &[[f64; 4]; 3]) -> f64 {
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+}
+
+/// The inverse of an affine map (3×4), or None when singular.
+#[allow(clippy::needless_range_loop)] // cofactors index rows and columns together
+pub fn invert_affine(m: &[[f64; 4]; 3]) -> Option<[[f64; 4]; 3]> {
+    let a = |r: usize, c: usize| m[r][c];
+    let det = det3(m);
+    if !(det.abs() > 0.0 && det.is_finite()) {
+        return None;
+    }
+    let mut inv = [[0.0; 4]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            // Cofactor (c, r) / det.
+            let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
+            let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
+            inv[r][c] = (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det;
+        }
+    }
+    let t = [m[0][3], m[1][3], m[2][3]];
+    for r in 0..3 {
+        inv[r][3] = -(inv[r][0] * t[0] + inv[r][1] * t[1] + inv[r][2] * t[2]);
+    }
+    Some(inv)
+}
+
 
 /// Indices, sorted, of `d` distinct numbers of 0..m drawn uniformly (Floyd's algorithm: d draws).
 fn dropped(m: u64, d: u64, seed: u64) -> Vec<u64> {

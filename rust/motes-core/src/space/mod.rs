@@ -6,8 +6,10 @@
 //!   grid (Amanatides & Woo).
 //! * [`grid`]: a uniform grid over particle centres; optical depth along a query cylinder (Eq. 18),
 //!   the local density in a query sphere (Eq. 24) and exact free flights (Sec. 5.2–5.3).
+//! * [`motion`]: moving generated grains: a uniform velocity plus a divergence-free turbulent drift.
 
 pub mod cloud;
 pub mod dda;
 pub mod grid;
+pub mod motion;
 pub mod ray;
