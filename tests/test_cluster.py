@@ -165,6 +165,12 @@ def test_a_worker_killed_mid_task_loses_nothing(tmp_path, local_cluster):
     np.testing.assert_allclose(merged, reference, rtol=1e-6, atol=1e-7)
 
 
+def _sigint_default():
+    """The child hears SIGINT whatever this test process inherited or set (a disposition or a mask)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_cancels_the_cluster_and_keeps_the_finished_passes(tmp_path):
     import re
     import subprocess
@@ -173,7 +179,8 @@ def test_ctrl_c_cancels_the_cluster_and_keeps_the_finished_passes(tmp_path):
 
     scene, out = scene_file(tmp_path), tmp_path / "partial.exr"
     p = subprocess.Popen([sys.executable, "-m", "motes", "render", str(scene), "-s", "2000", "--pass-spp", "4",
-                          "--workers", "2", "-D", "count=3000", "-o", str(out)], stderr=subprocess.PIPE)
+                          "--workers", "2", "-D", "count=3000", "-o", str(out)], stderr=subprocess.PIPE,
+                         preexec_fn=_sigint_default)
     err = bytearray()
     reader = threading.Thread(target=lambda: [err.extend(chunk) for chunk in iter(lambda: p.stderr.read(64), b"")])
     reader.start()

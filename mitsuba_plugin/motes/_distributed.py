@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import signal
 import sys
 import time
 
@@ -38,6 +39,8 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
     spp = args.spp or _scene_spp(mi, scene_path, defines)
     plan = C.pass_plan(spp, args.pass_spp, args.seed)
     client, cluster = _client(args)
+    # Ctrl-C raises KeyboardInterrupt here, whatever handler the cluster's start-up left behind.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     futures, results, t0 = [], {}, time.perf_counter()
     try:
         n_workers = len(client.scheduler_info()["workers"])

@@ -328,15 +328,18 @@ class DiscreteMedium:
                    cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                    albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX,
                    continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
-                   cache_bytes: int | None = None, phase_model: str = "tabulated") -> "DiscreteMedium":
+                   cache_bytes: int | None = None, phase_model: str = "tabulated", turbulence: float = 0.0,
+                   turbulence_scale: float = 1.0, time_s: float = 0.0) -> "DiscreteMedium":
         """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural.rs``):
         ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
         ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
         ``shares``; no particle is stored: each brick of the cloud is generated from ``cloud_seed`` when a
         ray first needs it and kept in a cache of at most ``cache_bytes`` (default: a quarter of the memory
         available, ``motes._memory.default_cache_bytes``; the least recently used bricks are dropped beyond
-        it and generated again when a ray needs them). The other parameters as the
-        constructor's; each species' ``size_bins`` optics bins are log-spaced over its PSD's support."""
+        it and generated again when a ray needs them). ``turbulence`` (scene units), ``turbulence_scale``
+        and ``time_s`` (seconds) move the discrete grains by the divergence-free drift of
+        ``rust/motes-core/src/space/motion.rs`` (a velocity is a shift of ``to_world``). The other parameters
+        as the constructor's; each species' ``size_bins`` optics bins are log-spaced over its PSD's support."""
         self = cls.__new__(cls)
         self.storage = "procedural"
         if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
@@ -385,7 +388,8 @@ class DiscreteMedium:
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
-            float(continuous_count), int(seed) & (2**64 - 1), int(cache_bytes))
+            float(continuous_count), int(seed) & (2**64 - 1), int(cache_bytes), turbulence=float(turbulence),
+            turbulence_scale=float(turbulence_scale), time=float(time_s))
         log.info("procedural cloud: %.3g particles, %.3g of them continuous, %.1f MB before any brick, %.1f s",
                  count, self._core.continuous_particles, self._core.bytes / 1e6, time.perf_counter() - t_build)
         self._core.set_grain_depth(int(grain_depth))

@@ -64,7 +64,7 @@ Parameter               Type       Meaning (default)
 ``time``                float      seconds since the cloud was at rest; generated grains move with (0):
 ``velocity``            vector     uniform velocity, scene units per second ("0, 0, 0")
 ``turbulence``          float      amplitude (scene units) of a smooth, seeded, divergence-free drift
-                                   around the mean path (0: none; stored storage only)
+                                   around the mean path (0: none)
 ``turbulence_scale``    float      spatial scale of the drift, scene units (a quarter of the cloud's
                                    largest extent); ``rust/motes-core/src/space/motion.rs``. Each grain
                                    keeps its radius and species; the medium's shape must hold the
@@ -348,9 +348,9 @@ def _read_parameters(props) -> SimpleNamespace:
     if p.filename is not None and (p.moving or "time" in props):
         raise ValueError("discrete medium: time, velocity and turbulence move generated grains; a particle file "
                          "is read as it is (one file per frame: filename=\"grains_$frame.npz\")")
-    if p.storage == "procedural" and (p.turbulence > 0 or p.wrap):
-        raise ValueError("discrete medium: turbulence and wrap need stored grains (storage = compact or full); a "
-                         "procedural cloud moves with velocity only")
+    if p.storage == "procedural" and p.wrap:
+        raise ValueError("discrete medium: wrap needs stored grains (storage = compact or full); a procedural "
+                         "cloud moves with velocity and turbulence")
     p.phase_model = _get(props, "phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
                          "one of " + ", ".join(PHASE_MODELS))
     p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
@@ -510,7 +510,9 @@ def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> Discret
     data = DiscreteMedium.procedural(p.count, species, shares, lam, box=((-1.0,) * 3, (1.0,) * 3),
                                      density=_DENSITIES[p.distribution], noise_seed=p.seed, cloud_seed=p.seed,
                                      to_world=m, query_radius=query_radius,
-                                     cache_bytes=None if p.cache_mb is None else max(int(p.cache_mb * 2**20), 1), **common)
+                                     cache_bytes=None if p.cache_mb is None else max(int(p.cache_mb * 2**20), 1),
+                                     turbulence=p.turbulence, turbulence_scale=_turbulence_scale(p, m), time_s=p.time,
+                                     **common)
     log.info("particles: %.3g procedural (none stored) in %.1f s", p.count, time.perf_counter() - t)
     return data
 

@@ -113,9 +113,10 @@ impl PyDiscreteMedium {
     /// [lo, hi] after the density `kind`/`params` (as `generate_cloud`), species `psds` by `shares`,
     /// mapped by `transform` (3×4); radii in scene units are µm × `scene_per_um`; per species its optics
     /// bins' edges (µm) and first global bin; `q_ext` per global bin and the bins' tables as for `new`;
-    /// `cache_bytes` bounds the bricks kept.
+    /// `cache_bytes` bounds the bricks kept; grains drift by `turbulence` (scale `turbulence_scale`, both
+    /// scene units) to `time` seconds (`motes_core::space::motion`; a velocity is in `transform`).
     #[staticmethod]
-    #[pyo3(signature = (count, lo, hi, kind, params, noise_seed, psds, shares, cloud_seed, transform, scene_per_um, bin_edges_um, first_bin, q_ext, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, cache_bytes))]
+    #[pyo3(signature = (count, lo, hi, kind, params, noise_seed, psds, shares, cloud_seed, transform, scene_per_um, bin_edges_um, first_bin, q_ext, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, cache_bytes, turbulence=0.0, turbulence_scale=1.0, time=0.0))]
     #[allow(clippy::too_many_arguments)]
     fn procedural(
         py: Python<'_>,
@@ -144,8 +145,30 @@ impl PyDiscreteMedium {
         continuous_count: f64,
         seed: u64,
         cache_bytes: usize,
+        turbulence: f64,
+        turbulence_scale: f64,
+        time: f64,
     ) -> PyResult<Self> {
         let lam = lambda.as_slice()?.to_vec();
+        if !time.is_finite() {
+            return Err(invalid(
+                "time",
+                time,
+                format!("invalid time = {time}: must be finite (seconds)"),
+            ));
+        }
+        let motion = if turbulence != 0.0 && time != 0.0 {
+            let m = motes_core::space::motion::Motion::new(
+                [0.0; 3],
+                turbulence,
+                turbulence_scale,
+                cloud_seed,
+            )
+            .map_err(to_py)?;
+            Some((m, time))
+        } else {
+            None
+        };
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
         let spec = motes_core::render::procedural::ProceduralSpec {
             cloud: crate::cloud::cloud_spec(
@@ -157,6 +180,7 @@ impl PyDiscreteMedium {
             bin_edges_um,
             first_bin,
             q_ext,
+            motion,
         };
         let medium = py
             .detach(|| {

@@ -43,6 +43,7 @@ use crate::render::storage::LEVELS_PER_BIN;
 use crate::space::cloud::{det3, invert_affine, CloudSpec, Tiling};
 use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{size_class, GridSettings, ParticleGrid, Site, SIZE_CLASSES};
+use crate::space::motion::Motion;
 use crate::space::ray::RaySegment;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
@@ -87,6 +88,10 @@ pub struct ProceduralSpec {
     pub first_bin: Vec<u32>,
     /// Grey extinction efficiency Q_ext of each global optics bin.
     pub q_ext: Vec<f64>,
+    /// Grains moved by a turbulent drift to a time (seconds): `crate::space::motion` (a velocity is
+    /// the caller's `transform`). The continuous classes keep the density field at rest (a
+    /// divergence-free drift leaves a uniform density uniform).
+    pub motion: Option<(Motion, f64)>,
 }
 
 /// A class of a procedural cloud: bin, radius (scene units) and probability of a particle being it.
@@ -248,6 +253,8 @@ impl BrickCache {
 
 /// The discrete classes of a procedural cloud, generated brick by brick (module docs).
 pub struct ProceduralGrains {
+    /// The turbulent drift and time the grains are moved to (their tiles generate them at rest).
+    motion: Option<(Motion, f64)>,
     cloud: CloudSpec,
     tiling: Tiling,
     /// Tiles per brick along each axis, and tiles a ball reaches across (at least 1).
@@ -601,6 +608,9 @@ impl ProceduralGrains {
         cache_bytes: usize,
     ) -> Result<Self, OpticsError> {
         let reach_cloud = cloud_reach(&to_cloud, reach_scene, extent);
+        // Tiles are generated as far out as a ball plus the drift can carry a grain into a brick.
+        let drift = spec.motion.as_ref().map_or(0.0, |(m, _)| m.drift_bound());
+        let gen_reach = cloud_reach(&to_cloud, reach_scene + drift, extent + drift);
         let density = &spec.cloud.density;
         let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
         let candidates = expected * density.bound() / density.mean(lo, hi);
@@ -610,7 +620,7 @@ impl ProceduralGrains {
         let per_tile = candidates / tiling.len() as f64;
         // Tiles a ball reaches across (the halo), and bricks at least twice that wide so that a brick
         // generates at most (1 + 2 halo / brick)³ ≤ 8 times its own particles.
-        let halo = [0, 1, 2].map(|a| ((reach_cloud[a] / tiling.size[a]).ceil() as usize).max(1));
+        let halo = [0, 1, 2].map(|a| ((gen_reach[a] / tiling.size[a]).ceil() as usize).max(1));
         let natural = ((BRICK_PARTICLES / per_tile.max(1e-9)).cbrt().round() as usize).clamp(1, 16);
         let per_brick = halo.map(|h| natural.max(2 * h));
         let generated: f64 = (0..3)
@@ -634,6 +644,7 @@ impl ProceduralGrains {
         let brick_edge = [0, 1, 2].map(|a| tiling.size[a] * per_brick[a] as f64);
         let frame_lo = [0, 1, 2].map(|a| tiling.lo[a] - tiling.size[a] * halo[a] as f64);
         Ok(ProceduralGrains {
+            motion: spec.motion.clone(),
             cloud: spec.cloud.clone(),
             per_brick,
             halo,
@@ -705,8 +716,15 @@ impl ProceduralGrains {
                 for x in range(0) {
                     let t = ((z * dims[1] + y) * dims[0] + x) as usize;
                     self.tile_particles(t, |c, k, id| {
+                        let (c, p) = match &self.motion {
+                            Some((mo, time)) => {
+                                let p = mo.position(apply(&self.to_scene, c), *time);
+                                (apply(&self.to_cloud, p), p)
+                            }
+                            None => (c, apply(&self.to_scene, c)),
+                        };
                         if (0..3).all(|a| c[a] >= blo[a] - m[a] && c[a] <= bhi[a] + m[a]) {
-                            pos.push(apply(&self.to_scene, c));
+                            pos.push(p);
                             code.push(k);
                             key.push(id);
                         }
@@ -896,6 +914,7 @@ mod tests {
             bin_edges_um: vec![edges],
             first_bin: vec![0],
             q_ext: vec![2.0; 4],
+            motion: None,
         }
     }
 
@@ -930,12 +949,17 @@ mod tests {
     fn bricks_walk_every_particle_once_in_order() {
         // Balls narrower than a tile (halo 1), and balls wider than a tile (halo 2).
         // The third: a sheared, non-uniformly scaled box (per-axis reach in the cloud's coordinates).
-        for (count, qr, halo, shear) in [
-            (3000.0, 0.01, 1, false),
-            (30_000.0, 0.3, 2, false),
-            (3000.0, 0.01, 1, true),
+        // The fourth: grains moved by a turbulent drift (wider halos; the brute force moves them too).
+        for (count, qr, halo, shear, drift) in [
+            (3000.0, 0.01, 1, false, 0.0),
+            (30_000.0, 0.3, 2, false, 0.0),
+            (3000.0, 0.01, 1, true, 0.0),
+            (3000.0, 0.01, 0, false, 0.02),
         ] {
             let mut sp = spec(count, 20_000.0, Density::Uniform);
+            if drift > 0.0 {
+                sp.motion = Some((Motion::new([0.0; 3], drift, 0.5, 9).unwrap(), 1.7));
+            }
             if shear {
                 sp.transform = [
                     [3.0, 0.8, 0.0, 0.1],
@@ -947,12 +971,19 @@ mod tests {
                 let p = parts(&sp, qr, f64::INFINITY, cache);
                 let g = p.grains.as_ref().unwrap();
                 assert!(g.per_brick.iter().all(|&b| b >= 2) && g.tiles() > 1);
-                if !shear {
+                if !shear && drift == 0.0 {
                     assert_eq!(*g.halo.iter().max().unwrap(), halo);
                 }
                 let mut all = Vec::new();
                 for t in 0..g.tiles() {
-                    g.tile_particles(t, |c, k, key| all.push((apply(&g.to_scene, c), k, key)));
+                    g.tile_particles(t, |c, k, key| {
+                        let p = apply(&g.to_scene, c);
+                        let p = sp
+                            .motion
+                            .as_ref()
+                            .map_or(p, |(m, time)| m.position(p, *time));
+                        all.push((p, k, key))
+                    });
                 }
                 assert!((all.len() as f64 - count).abs() < 5.0 * count.sqrt());
                 assert!(all.iter().all(|p| p.2 > 0), "key 0 is no particle");

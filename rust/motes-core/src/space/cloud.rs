@@ -449,7 +449,6 @@ pub fn invert_affine(m: &[[f64; 4]; 3]) -> Option<[[f64; 4]; 3]> {
     Some(inv)
 }
 
-
 /// Indices, sorted, of `d` distinct numbers of 0..m drawn uniformly (Floyd's algorithm: d draws).
 fn dropped(m: u64, d: u64, seed: u64) -> Vec<u64> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(splitmix64(seed ^ DROP_STREAM));

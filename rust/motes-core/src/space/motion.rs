@@ -101,6 +101,19 @@ impl Motion {
         Ok(self)
     }
 
+    /// A bound on how far the turbulent drift can move a grain from x₀ + v t (scene units): each
+    /// octave o of a potential component changes by at most 15/8 · 2^o per noise cell along an axis
+    /// (the quintic's steepest slope times the octave's frequency; lattice values in [0, 1]), so with
+    /// the two octaves' weights |∂Ψ_i/∂q_j| ≤ 2.5, each curl component ≤ 5, |W| ≤ 5√3, and
+    /// |W(t) − W(0)| ≤ 10√3; one per cent more covers the central differences.
+    pub fn drift_bound(&self) -> f64 {
+        if self.potential.is_some() {
+            self.turbulence * 10.0 * 3f64.sqrt() * 1.01
+        } else {
+            0.0
+        }
+    }
+
     /// W(x, t): the curl of the potential at noise coordinates q = x / L + t ω (module docs).
     fn curl(&self, psi: &[ValueNoise; 3], x: [f64; 3], t: f64) -> [f64; 3] {
         let q = [0, 1, 2].map(|a| x[a] / self.scale + t * PATTERN_SPEED * PATTERN_DIR[a]);
