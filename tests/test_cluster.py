@@ -85,6 +85,21 @@ def test_pass_plan_and_frames_parse():
     assert C.frame_defines({}, 12, 24.0, "$framerate") == {}
 
 
+def test_shipped_files_fill_in_parameters_and_stay_in_the_scene_folder(tmp_path):
+    text = '<scene version="3.0.0"><default name="frame" value="1"/><default name="set" value="a"/>' \
+           '<medium type="discrete"><string name="filename" value="g_$set_$frame.npz"/></medium></scene>'
+    (tmp_path / "s.xml").write_text(text)
+    (tmp_path / "g_a_1.npz").write_bytes(b"one")
+    (tmp_path / "g_a_2.npz").write_bytes(b"two")
+    assert C.referenced_files(tmp_path / "s.xml", {})["g_a_1.npz"] == b"one"  # the scene's defaults
+    assert C.referenced_files(tmp_path / "s.xml", {"frame": "2"})["g_a_2.npz"] == b"two"
+    with pytest.raises(FileNotFoundError, match="g_a_3.npz"):
+        C.referenced_files(tmp_path / "s.xml", {"frame": "3"})
+    (tmp_path / "o.xml").write_text(text.replace("g_$set_$frame.npz", "../elsewhere.npz"))
+    with pytest.raises(ValueError, match="outside"):
+        C.referenced_files(tmp_path / "o.xml", {})
+
+
 def test_frames_are_written_then_skipped_and_a_static_scene_does_not_flicker(tmp_path, capsys):
     scene = scene_file(tmp_path)
     pattern = str(tmp_path / "f_{frame:03d}.exr")

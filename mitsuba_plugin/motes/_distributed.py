@@ -35,7 +35,7 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
     from .cli import DEFAULT_FPS, _progress, _write_images  # noqa: PLC0415
 
     scene_arg = str(scene_path.resolve())
-    files = C.referenced_files(scene_path, defines) if args.ship_files else None
+    files = C.referenced_files(scene_path, defines) if args.ship_files and not args.frames else None
     spp = args.spp or _scene_spp(mi, scene_path, defines)
     plan = C.pass_plan(spp, args.pass_spp, args.seed)
     client, cluster = _client(args)
@@ -53,8 +53,13 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
                 print(f"motes: {len(frames) - len(todo)} of {len(frames)} frames already on disk, skipped "
                       "(--overwrite renders them again)", file=sys.stderr)
             fps, text = args.fps or DEFAULT_FPS, scene_path.read_text()
-            futures = [client.submit(C.render_image, scene_arg, C.frame_defines(defines, f, fps, text), variant, plan, files,
-                                     key=f"motes-frame-{f}-{os.getpid()}-{time.time_ns()}", pure=False) for f in todo]
+            futures = []
+            for f in todo:
+                d = C.frame_defines(defines, f, fps, text)
+                # Each frame's own files by value (filename="grains_$frame.npz").
+                frame_files = C.referenced_files(scene_path, d) if args.ship_files else None
+                futures.append(client.submit(C.render_image, scene_arg, d, variant, plan, frame_files,
+                                             key=f"motes-frame-{f}-{os.getpid()}-{time.time_ns()}", pure=False))
             owner = {fut.key: f for fut, f in zip(futures, todo)}
             done = 0
             from dask.distributed import as_completed  # noqa: PLC0415
@@ -83,6 +88,13 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
         client.cancel(pending)
         print(f"\nmotes: interrupted (Ctrl-C): cancelled {len(pending)} tasks on the cluster", file=sys.stderr)
         if not args.frames:
+            # Passes that finished but had not been collected yet: fetched if their worker still lives.
+            for i, f in enumerate(futures):
+                if i not in results and f.status == "finished":
+                    try:
+                        results[i] = f.result(timeout=5)
+                    except Exception:  # noqa: BLE001 - a worker gone with the interrupt: that pass is lost
+                        pass
             _keep_finished(mi, args, scene_path, results, plan)
         return 130
     finally:

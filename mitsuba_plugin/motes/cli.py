@@ -190,7 +190,9 @@ def cmd_render(args) -> int:
 
 
 def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool = False) -> None:
-    """One image in this process, pass by pass (``cluster.pass_plan``), each pass's average written at once."""
+    """One image in this process, pass by pass (``cluster.pass_plan``), each pass's average written at once
+    (``quiet``, a frame of a sequence: written once, after its last pass, so that a frame on disk is a
+    finished frame and a sequence resumed after Ctrl-C renders the interrupted one again)."""
     from .cluster import pass_plan  # noqa: PLC0415
 
     t0 = time.perf_counter()
@@ -208,8 +210,9 @@ def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool
         acc = img * k if acc is None else acc + img * k
         done_spp += k
         # Each pass's average is written at once, so that Ctrl-C keeps what is done.
-        written = _write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
-        if done_spp < spp:
+        if not quiet or done_spp == spp:
+            written = _write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
+        if done_spp < spp and not quiet:
             ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done_spp} of {spp} spp; wrote {', '.join(written)}")
         if not quiet:
             _progress(i + 1, len(plan), time.perf_counter() - t1)
@@ -238,7 +241,7 @@ def _render_frames(args, mi, variant, scene_path, defines) -> int:
             _render_one(args, mi, variant, scene_path, frame_defines(defines, f, args.fps or DEFAULT_FPS, text),
                         outs[f], ctrl_c, quiet=True)
             ctrl_c.say(f"motes: interrupted (Ctrl-C) after {i + 1} of {len(todo)} frames (the frame in flight "
-                       "is partly written)")
+                       "is not written: a second run renders it)")
             _progress(i + 1, len(todo), time.perf_counter() - t0)
     if todo:
         sys.stderr.write("\n")

@@ -103,20 +103,36 @@ def frame_defines(defines: dict, frame: int, fps: float, scene_text: str) -> dic
 _FILENAME = re.compile(r'name\s*=\s*"filename"\s+value\s*=\s*"([^"]+)"|value\s*=\s*"([^"]+)"\s+name\s*=\s*"filename"')
 
 
+def _xml_defaults(text: str) -> dict:
+    """The scene's ``<default name=... value=.../>`` parameters."""
+    out = {}
+    for m in re.finditer(r"<default\s+([^>]*)/>", text):
+        attrs = dict(re.findall(r'(\w+)\s*=\s*"([^"]*)"', m.group(1)))
+        if "name" in attrs and "value" in attrs:
+            out[attrs["name"]] = attrs["value"]
+    return out
+
+
 def referenced_files(scene_path: pathlib.Path, defines: dict) -> dict[str, bytes]:
-    """The scene XML and every file it names in a ``filename`` parameter (after ``$name`` substitution,
-    relative to the scene's folder), as {path relative to the scene's folder: bytes}. Files outside the
-    scene's folder keep their name only."""
+    """The scene XML and every file it names in a ``filename`` parameter (``$name`` filled in from
+    ``defines`` over the scene's defaults; relative to the scene's folder), as {path relative to the
+    scene's folder: bytes}. Files are sent under the scene's folder only: an absolute path, one with
+    ``..`` or a missing file is an error naming it."""
     text = scene_path.read_text()
+    params = {**_xml_defaults(text), **{k: str(v) for k, v in defines.items()}}
     files = {scene_path.name: text.encode()}
     for m in _FILENAME.finditer(text):
         value = m.group(1) or m.group(2)
-        for k, v in sorted(defines.items(), key=lambda kv: -len(kv[0])):
-            value = value.replace(f"${k}", str(v))
+        for k, v in sorted(params.items(), key=lambda kv: -len(kv[0])):
+            value = value.replace(f"${k}", v)
         p = pathlib.Path(value)
-        full = p if p.is_absolute() else scene_path.parent / p
-        if full.is_file():
-            files[str(p) if not p.is_absolute() else p.name] = full.read_bytes()
+        if p.is_absolute() or ".." in p.parts:
+            raise ValueError(f"--ship-files sends files from the scene's folder; {value!r} is outside it: move it "
+                             "there, or let the workers read it from a shared file system (no --ship-files)")
+        full = scene_path.parent / p
+        if not full.is_file():
+            raise FileNotFoundError(f"--ship-files: the scene names {value!r}, which is not a file in {scene_path.parent}")
+        files[str(p)] = full.read_bytes()
     return files
 
 

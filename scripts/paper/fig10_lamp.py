@@ -57,7 +57,7 @@ def main() -> int:
         if not args.no_ept:
             xml, n = P.ept_xml(mi, "lamp", ICE_REAL_INDEX, spp, res, **params)
             t0 = time.perf_counter()
-            scene = mi.load_string(xml, spp=str(spp), res=str(res))
+            scene = mi.load_string(xml, spp=str(spp), res=str(res), max_depth=str(MAX_DEPTH))
             t_ept_load = time.perf_counter() - t0
             pair, t_ept = [], []
             for s in (0, 1):

@@ -63,8 +63,9 @@ Parameter               Type       Meaning (default)
 ``seed``                integer    seed of generated positions and free flights (0)
 ``time``                float      seconds since the cloud was at rest; generated grains move with (0):
 ``velocity``            vector     uniform velocity, scene units per second ("0, 0, 0")
-``turbulence``          float      amplitude (scene units) of a smooth, seeded, divergence-free drift
-                                   around the mean path (0: none)
+``turbulence``          float      amplitude A (scene units) of a smooth, seeded drift around the mean
+                                   path whose displacement field is divergence-free (a uniform cloud
+                                   stays uniform to O((A / L)^2); keep A well below L) (0: none)
 ``turbulence_scale``    float      spatial scale of the drift, scene units (a quarter of the cloud's
                                    largest extent); ``rust/motes-core/src/space/motion.rs``. Each grain
                                    keeps its radius and species; the medium's shape must hold the

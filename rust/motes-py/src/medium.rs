@@ -157,18 +157,15 @@ impl PyDiscreteMedium {
                 format!("invalid time = {time}: must be finite (seconds)"),
             ));
         }
-        let motion = if turbulence != 0.0 && time != 0.0 {
-            let m = motes_core::space::motion::Motion::new(
-                [0.0; 3],
-                turbulence,
-                turbulence_scale,
-                cloud_seed,
-            )
-            .map_err(to_py)?;
-            Some((m, time))
-        } else {
-            None
-        };
+        // Checked whether or not it moves anything now (a NaN turbulence is an error at time 0 too).
+        let m = motes_core::space::motion::Motion::new(
+            [0.0; 3],
+            turbulence,
+            turbulence_scale,
+            cloud_seed,
+        )
+        .map_err(to_py)?;
+        let motion = (turbulence > 0.0 && time != 0.0).then_some((m, time));
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lam.len())?;
         let spec = motes_core::render::procedural::ProceduralSpec {
             cloud: crate::cloud::cloud_spec(

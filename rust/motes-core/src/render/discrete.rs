@@ -921,7 +921,9 @@ impl DiscreteMedium {
             .map(|(_, k)| k.0)
             .fold(0.0, f64::max);
         let widened = 0;
-        let (coincide, event_box) = event_geometry(&parts.corners, reach_max);
+        // Grains drifted by turbulence may sit outside the box at rest by up to the drift's bound.
+        let drift = spec.motion.as_ref().map_or(0.0, |(m, _)| m.drift_bound());
+        let (coincide, event_box) = event_geometry(&parts.corners, reach_max + drift);
         let grid = parts.grains.map(|g| Grains::Procedural(Box::new(g)));
         let exact = !continuous_count.is_finite();
         let all_continuous = grid.is_none();

@@ -89,8 +89,9 @@ pub struct ProceduralSpec {
     /// Grey extinction efficiency Q_ext of each global optics bin.
     pub q_ext: Vec<f64>,
     /// Grains moved by a turbulent drift to a time (seconds): `crate::space::motion` (a velocity is
-    /// the caller's `transform`). The continuous classes keep the density field at rest (a
-    /// divergence-free drift leaves a uniform density uniform).
+    /// the caller's `transform`, so the drift is evaluated at the moved rest position x₀ + v t where a
+    /// stored cloud evaluates it at x₀). The continuous classes keep the density field at rest (the
+    /// drift keeps a uniform density uniform to O((A / L)²)).
     pub motion: Option<(Motion, f64)>,
 }
 

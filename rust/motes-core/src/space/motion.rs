@@ -8,9 +8,11 @@
 //!   velocity (scene units per second).
 //! * Ψ is a vector potential of three independent seeded value-noise fields
 //!   ([`crate::space::cloud::ValueNoise`], C², two octaves); W, its curl in noise coordinates, is a
-//!   divergence-free field (∇·∇×Ψ = 0), so the drift neither bunches grains up nor thins them out:
-//!   the displacement field x₀ ↦ A (W(x₀, t) − W(x₀, 0)) is solenoidal at every t. The curl is taken by
-//!   central differences (step [`CURL_STEP`] noise cells), whose divergence is zero to O(h²).
+//!   divergence-free field (∇·∇×Ψ = 0): the displacement field d(x₀) = A (W(x₀, t) − W(x₀, 0)) is
+//!   solenoidal at every t, so the map x₀ ↦ x₀ + d preserves volume to first order in |∇d| ~ A / L
+//!   (its Jacobian is 1 + O(|∇d|²)): a uniform cloud stays uniform to O((A / L)²). Keep A well below
+//!   L (the drift would fold space where |∇d| > 1). The curl is taken by central differences (step
+//!   [`CURL_STEP`] noise cells), whose divergence is zero to O(h²).
 //! * The pattern Ψ slides through itself along ω (unit speed: [`PATTERN_SPEED`] noise cells per second),
 //!   so a grain's drift decorrelates over about a second: a gust, not a fixed offset. The drift starts
 //!   at zero at t = 0 and stays bounded (|W| is O(1)): grains wander around their mean path x₀ + v t,
@@ -34,7 +36,7 @@ const PATTERN_DIR: [f64; 3] = [0.381_966, 0.618_034, 0.688_191];
 /// Stream tag of the potential's seeds.
 const MOTION_STREAM: u64 = 0x6D6F_7469_6F6E;
 
-/// A uniform velocity plus a turbulent, divergence-free drift (module docs).
+/// A uniform velocity plus a turbulent drift whose displacement field is divergence-free (module docs).
 #[derive(Clone, Debug)]
 pub struct Motion {
     pub velocity: [f64; 3],
@@ -153,7 +155,16 @@ impl Motion {
             .par_iter_mut()
             .with_min_len(4096)
             .for_each(|c| *c = self.position(*c, t));
-        Ok(())
+        // velocity × time can overflow (1e300 m/s for 1e10 s): no grain may end up nowhere.
+        match centres.iter().flatten().find(|x| !x.is_finite()) {
+            Some(&x) => require(
+                "velocity",
+                x,
+                false,
+                "small enough that velocity x time stays finite",
+            ),
+            None => Ok(()),
+        }
     }
 }
 
