@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: Sampler seed of pass ``i`` of an image rendered with ``--seed s``: ``s * PASS_SEED_STRIDE + i``.
+#: Sampler seed of pass ``i`` of an image rendered with ``--seed s``: ``s * PASS_SEED_STRIDE + i`` (mod 2^32).
 PASS_SEED_STRIDE = 100003
 
 
@@ -42,7 +42,8 @@ def pass_plan(spp: int, pass_spp: int, seed: int) -> list[tuple[int, int]]:
     plan, done = [], 0
     for i in range((spp + per - 1) // per):
         k = min(per, spp - done)
-        plan.append((k, seed * PASS_SEED_STRIDE + i))
+        # Mitsuba's sampler seed is 32-bit: wrapped, so that any --seed works (distinct below 42 950).
+        plan.append((k, (seed * PASS_SEED_STRIDE + i) % 2**32))
         done += k
     return plan
 
