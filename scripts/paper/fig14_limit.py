@@ -9,6 +9,8 @@ Fig. 15: 1e8 grains match the continuous counterpart. Numbers per N, each config
 * the relative difference of the image means, discrete - homogeneous, with its standard error;
 * RMS over pixels of (discrete - homogeneous) divided by its Monte Carlo noise floor (from the two
   seeds): 1 when the images agree to their noise, > 1 by the grains' texture;
+* the mean transmittance along the pixels' query cylinders over the homogeneous medium's (exact, no Monte
+  Carlo noise; the grains' disks each remove exactly their C_ext, so this is 1 up to the grains' layout);
 * the medium's graininess: std / mean over the cube's pixels of the optical depth per unit length along
   each pixel's query cylinder (exact, no Monte Carlo noise), expected ~1/sqrt(grains per cylinder).
 Checks: the RMS ratio falls with N until it reaches the noise floor (within 10 % of 1) and stays there
@@ -41,6 +43,21 @@ def radius_um(n: int) -> float:
     return 800.0 * math.sqrt(1e4 / n)
 
 
+def transmittance_ratio(tau_and_length, n: int, res: int) -> tuple[float, float]:
+    """Mean transmittance exp(-tau) along the camera's pixel cylinders through the grains (rays crossing at
+    least a quarter of the longest path) over the homogeneous medium's exp(-sigma_t L) on the same rays,
+    with its standard error over rays: the extinction half of the comparison, free of Monte Carlo noise."""
+    import motes  # noqa: PLC0415
+
+    tau, length = tau_and_length
+    keep = length > 0.25 * length.max()
+    sp = motes.Species(motes.Monodisperse(radius_um(n)), motes.Material("ice"))
+    d = motes.homogeneous_equivalent([sp], n / SIDE_M**3, scale_m=0.01, fov=FOV, film_width=res)
+    sigma = float(np.mean(np.asarray(d["sigma_t"]["value"]) * d["scale"]))
+    t_d, t_h = np.exp(-tau[keep]), np.exp(-sigma * length[keep]).mean()
+    return float(t_d.mean() / t_h), float(t_d.std() / np.sqrt(t_d.size) / t_h)
+
+
 def reaches_noise_floor(ratios, floor_tol: float = 0.1, stay_tol: float = 0.15) -> bool:
     """RMS(D - H) / noise falls while above the floor (1: the images agree to their noise) and, once
     within ``floor_tol`` of it, stays within ``stay_tol`` (the estimate's own scatter at preview spp)."""
@@ -67,7 +84,8 @@ def main() -> int:
         params = dict(count=n, radius=f"{radius_um(n):.6g}", storage="procedural" if n > 10**7 else "compact")
         (d1, d2), t_load, times, tau = P.render(mi, "limit", spp, res, seeds=(0, 1),
                                                 measure=lambda sc: P.pixel_optical_depth(mi, sc, BOX), **params)
-        scene = P.load_with_medium(mi, "limit", homogeneous_xml(n, res), spp, res)
+        hom = homogeneous_xml(n, res)
+        scene = P.load_with_medium(mi, "limit", hom, spp, res)
         h1, h2 = (np.asarray(mi.render(scene, spp=spp, seed=s), dtype=np.float64)[..., :3] for s in (0, 1))
         md, sd = P.mean_and_se(d1, d2)
         mh, sh = P.mean_and_se(h1, h2)
@@ -76,11 +94,13 @@ def main() -> int:
         noise = np.mean(0.25 * (P.luminance(d1) - P.luminance(d2)) ** 2 + 0.25 * (P.luminance(h1) - P.luminance(h2)) ** 2)
         ratio = float(np.sqrt(np.mean(diff**2) / noise))
         g = P.medium_graininess(tau)
+        t_ratio, t_se = transmittance_ratio(tau, n, res)
         rows.append(dict(count=n, radius_um=radius_um(n), storage=params["storage"], mean_discrete=md,
                          mean_homogeneous=mh, rel_diff=rel, rel_diff_se=rel_se, rms_over_noise=ratio,
-                         graininess=g, load_s=t_load, render_s=min(times)))
+                         graininess=g, transmittance_ratio=t_ratio, transmittance_ratio_se=t_se, load_s=t_load,
+                         render_s=min(times)))
         print(f"N {n:>9.0e}  r {radius_um(n):6.1f} um  mean D/H - 1 = {rel:+.4f} +- {rel_se:.4f}  "
-              f"RMS(D-H)/noise {ratio:.2f}  graininess {g:.3f}  (load {t_load:.1f} s, render {min(times):.1f} s)",
+              f"RMS(D-H)/noise {ratio:.2f}  graininess {g:.3f}  T_D/T_H {t_ratio:.4f} +- {t_se:.4f}  (load {t_load:.1f} s, render {min(times):.1f} s)",
               flush=True)
         top.append((f"N = {n:.0e}, r = {radius_um(n):.0f} um\nRMS/noise {ratio:.2f}, grain. {g:.2f}", 0.5 * (d1 + d2)))
         bottom.append((f"homogeneous\nmean D/H-1 = {rel:+.3f} +- {rel_se:.3f}", 0.5 * (h1 + h2)))

@@ -45,7 +45,7 @@ def main() -> int:
             noise = float(np.sqrt(np.mean((P.luminance(a) - P.luminance(b)) ** 2) / 2) / m)
             g = P.medium_graininess(tl)
             rows.append(dict(count=n, k=k, mean=m, se=se, mc_noise=noise, graininess=g, render_s=min(times)))
-            panels.append((f"N {n:.0e}, k = {k:g}\nmean {m:.3g} +- {se:.1g}, noise {noise:.1f}, grain. {g:.2f}",
+            panels.append((f"N {n:.0e}, k = {k:g}\nmean {m:.3g} +- {se:.1g}\nnoise {noise:.2f}, graininess {g:.2f}",
                            0.5 * (a + b)))
             print(f"N {n:.0e}  k {k:<4g} mean {m:.5g} +- {se:.2g}  MC noise/pixel {noise:.2f}  graininess {g:.3f}  "
                   f"render {min(times):.1f} s", flush=True)
