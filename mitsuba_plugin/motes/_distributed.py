@@ -68,7 +68,7 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
                 f = owner[fut.key]
                 _write_images(mi, outs[f], fut.result(), args.png)
                 done += 1
-                _progress(done, len(todo), time.perf_counter() - t0)
+                _progress(done, len(todo), time.perf_counter() - t0, "frames")
             sys.stderr.write("\n")
             print(f"motes: {len(todo)} frames in {time.perf_counter() - t0:.1f} s on {n_workers} workers",
                   file=sys.stderr)

@@ -34,11 +34,11 @@ import numpy as np
 DEFAULT_FPS = 24.0
 
 
-def _progress(done: int, total: int, elapsed: float) -> None:
+def _progress(done: int, total: int, elapsed: float, unit: str = "passes") -> None:
     width = 30
     filled = int(width * done / max(total, 1))
     eta = elapsed / done * (total - done) if done else float("nan")
-    sys.stderr.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] {done}/{total} passes  {elapsed:6.1f} s  ETA {eta:6.1f} s")
+    sys.stderr.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] {done}/{total} {unit}  {elapsed:6.1f} s  ETA {eta:6.1f} s")
     sys.stderr.flush()
 
 
@@ -242,7 +242,7 @@ def _render_frames(args, mi, variant, scene_path, defines) -> int:
                         outs[f], ctrl_c, quiet=True)
             ctrl_c.say(f"motes: interrupted (Ctrl-C) after {i + 1} of {len(todo)} frames (the frame in flight "
                        "is not written: a second run renders it)")
-            _progress(i + 1, len(todo), time.perf_counter() - t0)
+            _progress(i + 1, len(todo), time.perf_counter() - t0, "frames")
     if todo:
         sys.stderr.write("\n")
     print(f"motes: {len(todo)} frames in {time.perf_counter() - t0:.1f} s "
