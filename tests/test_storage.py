@@ -126,3 +126,32 @@ def test_storage_errors_name_the_parameter(value):
     with pytest.raises(ValueError, match="storage"):
         motes.DiscreteMedium(np.zeros((1, 3)), [10.0], [0], motes.Species(motes.Monodisperse(10.0), 1.5),
                              motes.RGB_WAVELENGTHS_UM, storage=value)
+
+
+def test_more_than_65536_classes_store_wide_codes_and_walk_like_full_storage():
+    """More than 64 occupied optics bins (340 here, every grain continuous) give class codes beyond 16 bits
+    (bins x 1024 levels): the continuous field keeps
+    32-bit codes (``Members::WideClasses``). Its optical depths along rays equal full storage's (radii
+    within half a level), and its furnace is 1 with roulette off."""
+    motes.set_variant("scalar_rgb")
+    meds = {}
+    for storage in ("full", "compact"):
+        # A wide PSD over many occupied bins: small grains continuous, the largest discrete.
+        meds[storage] = {"type": "discrete", "count": 60000, "radius_median": 8.0, "radius_sigma_g": 1.5,
+                         "eta": 1.31, "scale_m": 1e-3, "size_bins": 400, "seed": 3, "query_radius": 0.1,
+                         "albedo": 1.0, "storage": storage, "phase": {"type": "particle"}}
+    full = _medium(mi.load_dict(_env_scene(meds["full"], 4, 1))).data
+    compact_scene = mi.load_dict(_env_scene(meds["compact"], 16, 16))
+    compact = _medium(compact_scene).data
+    assert compact.continuous_particles > 0 and full.n_bins > 64
+    rng = np.random.default_rng(2)
+    n = 2000
+    o = np.column_stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.9, 0.9, n), np.full(n, -2.0)])
+    d = np.column_stack([rng.uniform(-0.2, 0.2, n), rng.uniform(-0.2, 0.2, n), np.ones(n)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a, b = full.optical_depth(o, d, 0.0, 5.0), compact.optical_depth(o, d, 0.0, 5.0)
+    assert a.max() > 0
+    np.testing.assert_allclose(b, a, rtol=2e-3, atol=1e-6)
+    img = np.asarray(mi.render(compact_scene), dtype=np.float64).mean(axis=-1)
+    m, se = img.mean(), img.std(ddof=1) / np.sqrt(img.size)
+    assert abs(m - 1.0) < 3 * se + 1e-3, (m, se)
