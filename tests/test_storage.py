@@ -130,9 +130,9 @@ def test_storage_errors_name_the_parameter(value):
 
 def test_more_than_65536_classes_store_wide_codes_and_walk_like_full_storage():
     """More than 64 occupied optics bins (340 here, every grain continuous) give class codes beyond 16 bits
-    (bins x 1024 levels): the continuous field keeps
-    32-bit codes (``Members::WideClasses``). Its optical depths along rays equal full storage's (radii
-    within half a level), and its furnace is 1 with roulette off."""
+    (bins x 1024 levels): the continuous field keeps 32-bit codes (``Members::WideClasses``). Its optical
+    depths along rays equal full storage's (radii within half a level), and its furnace is 1 with
+    roulette off."""
     motes.set_variant("scalar_rgb")
     meds = {}
     for storage in ("full", "compact"):
