@@ -23,9 +23,10 @@ bricks in its cache) over the count.
 
 With ``--source file`` the grains come from a particle file instead (``filename``: an uncompressed .npz of
 float64 positions in [-1, 1]^3, float64 radii and uint32 species, written beforehand by another process
-from the same generator; its reading is part of the load).
+from the same generator; its reading is part of the load); with ``--source ply`` a binary PLY (float64
+x y z radius, int32 species; read with meshio) instead.
 
-    .venv/bin/python scripts/bench/bench_scale.py [--counts 1e6,1e7] [--storage compact] [--variant scalar_rgb] [--source file]
+    .venv/bin/python scripts/bench/bench_scale.py [--counts 1e6,1e7] [--storage compact] [--variant scalar_rgb] [--source file|ply]
     .venv/bin/python scripts/bench/bench_scale.py --storage procedural [--counts 1e6,1e8]
     .venv/bin/python scripts/bench/bench_scale.py --storage procedural --scene nave --counts 1e10,1e11,1e12
     .venv/bin/python scripts/bench/bench_scale.py --storage procedural --scene nave --counts 1e8 --res 32 --spp 1 [--cache-mb 16000]
@@ -47,7 +48,8 @@ HALF = 5.0  # cm: the cube's half-size
 
 
 def write_file(count: float, path: str) -> None:
-    """An .npz of ``count`` grains (the plugin's generator, in the local cube), written in this process."""
+    """An .npz (or, for a path ending in .ply, a binary PLY) of ``count`` grains (the plugin's generator, in
+    the local cube), written in this process."""
     import numpy as np  # noqa: PLC0415
 
     motes = C.import_motes()
@@ -55,7 +57,10 @@ def write_file(count: float, path: str) -> None:
     ident = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0]]
     c, r, s = motes._motes.generate_cloud(int(count), [-1.0] * 3, [1.0] * 3, "uniform", [], 0, [psd._core], [1.0], 0,
                                           ident)
-    np.savez(path, positions=c.reshape(-1, 3), radii_um=r, species=s)
+    if path.endswith(".ply"):  # binary PLY: float64 x y z radius, int32 species (motes.save_particles)
+        motes.save_particles(path, motes.ParticleSet(c.reshape(-1, 3), r, s.astype(np.int64)))
+    else:
+        np.savez(path, positions=c.reshape(-1, 3), radii_um=r, species=s)
 
 
 def nave(mi, count: float, res: int, spp: int, cache_mb: float | None = None) -> dict:
@@ -141,7 +146,8 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--spp", type=int, default=8)
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per row")
-    ap.add_argument("--source", default="generated", choices=["generated", "file"])
+    ap.add_argument("--source", default="generated", choices=["generated", "file", "ply"],
+                    help="generated grains, or grains read from an .npz (file) or a binary PLY (ply) file")
     ap.add_argument("--scene", default="room", choices=["room", "nave"])
     ap.add_argument("--cache-mb", type=float, default=None, help="the nave's cache_mb (default: the plugin's)")
     ap.add_argument("--child", type=float, default=None, help=argparse_hidden())
@@ -163,8 +169,8 @@ def main() -> None:
         if args.cache_mb:
             cmd += ["--cache-mb", str(args.cache_mb)]
         path = None
-        if args.source == "file":
-            path = str(out / f"bench_scale_{count:.0e}.npz")
+        if args.source in ("file", "ply"):
+            path = str(out / f"bench_scale_{count:.0e}.{'npz' if args.source == 'file' else 'ply'}")
             subprocess.run(cmd + ["--write", "--file", path], check=True, timeout=args.timeout)
             cmd += ["--file", path]
         t = time.perf_counter()
