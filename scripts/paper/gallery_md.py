@@ -132,7 +132,8 @@ NOTES = {
     "fig16_footprint": "",
     "fig17_bench": "motes's optimum lies at several grains per cell rather than one: its cells hold blocks of "
                    "eight spheres tested together (SIMD), so a cell of a few grains costs about what a cell of one "
-                   "does, and fewer cells mean fewer DDA steps; the curve is flat within timing noise from 1 to 16.",
+                   "does, and fewer cells mean fewer DDA steps: the curve is nearly flat over several grains per cell and "
+                   "rises as cells get finer than two grains each.",
     "fig18_staircase": "Beyond eta_i ~ 1e-3 (absorption length 44 um against 0.8 mm grains) the grains are opaque "
                        "and more absorption changes only their surface reflection, so the sweep stops there.",
     "fig19_house": "Beyond sigma_g ~ 2.4 the extinction-weighted radii reach the paper's cap r_max = 2 mm, which "
