@@ -46,20 +46,32 @@ def _progress(done: int, total: int, elapsed: float, unit: str = "passes") -> No
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
+def exposure(img: np.ndarray, key: float = 0.18, white_percentile: float = 99.5) -> tuple[float, float]:
+    """(log-average luminance, white point) of ``tonemap``'s operator for ``img``: applied to other images
+    with ``reinhard``, one exposure for several pictures (a contact sheet)."""
+    rgb = np.clip(np.nan_to_num(np.asarray(img, dtype=np.float64), nan=0.0, posinf=0.0), 0.0, None)
+    lum = rgb[..., :3] @ _LUMINANCE if rgb.shape[-1] >= 3 else rgb[..., 0]
+    log_avg = float(np.exp(np.mean(np.log(1e-6 + lum))))
+    white = max(float(np.percentile(lum * (key / max(log_avg, 1e-12)), white_percentile)), 1e-6)
+    return log_avg, white
+
+
+def reinhard(img: np.ndarray, log_avg: float, white: float, key: float = 0.18) -> np.ndarray:
+    """Reinhard's global operator with a given exposure: linear RGB to display values in [0, 1]."""
+    rgb = np.clip(np.nan_to_num(np.asarray(img, dtype=np.float64), nan=0.0, posinf=0.0), 0.0, None)
+    lum = rgb[..., :3] @ _LUMINANCE if rgb.shape[-1] >= 3 else rgb[..., 0]
+    scaled = lum * (key / max(log_avg, 1e-12))
+    display = scaled * (1.0 + scaled / white**2) / (1.0 + scaled)
+    gain = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
+    return np.clip(rgb * gain[..., None], 0.0, 1.0)
+
+
 def tonemap(img: np.ndarray, key: float = 0.18, white_percentile: float = 99.5) -> np.ndarray:
     """Linear RGB (H, W, C) to display values in [0, 1]: Reinhard et al.'s global photographic operator.
     The log-average luminance maps to ``key`` (mid grey) and the ``white_percentile``-th luminance to
     white; brighter pixels (a floor patch lit by a spot) saturate smoothly instead of setting the
     exposure of the whole picture, so a dim room stays readable beside a bright beam."""
-    rgb = np.nan_to_num(np.asarray(img, dtype=np.float64), nan=0.0, posinf=0.0)
-    rgb = np.clip(rgb, 0.0, None)
-    lum = rgb[..., :3] @ _LUMINANCE if rgb.shape[-1] >= 3 else rgb[..., 0]
-    log_avg = float(np.exp(np.mean(np.log(1e-6 + lum))))
-    scaled = lum * (key / max(log_avg, 1e-12))
-    white = max(float(np.percentile(scaled, white_percentile)), 1e-6)
-    display = scaled * (1.0 + scaled / white**2) / (1.0 + scaled)
-    gain = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
-    return np.clip(rgb * gain[..., None], 0.0, 1.0)
+    return reinhard(img, *exposure(img, key, white_percentile), key=key)
 
 
 def _write_atomically(path: pathlib.Path, write) -> None:

@@ -64,7 +64,7 @@ import time
 import warnings
 
 from . import _memory, _motes
-from .ensemble import DEFAULT_TRUNCATE_RAD, Species, bulk_properties
+from .ensemble import DEFAULT_TRUNCATE_RAD, Species, bulk_properties, species_list
 from .psd import Monodisperse, Uniform
 
 #: Load stages (optics tables, grid) and their times, at INFO (the `motes` command shows them).
@@ -109,11 +109,7 @@ def _bins(r: np.ndarray, size_bins: int) -> np.ndarray:
 def _checked_optics_inputs(species, wavelength_um, size_bins, scale_m):
     """The species as a list, the wavelengths as given and sorted, checked with size_bins and scale_m (what
     stored and procedural media both take)."""
-    if isinstance(species, Species):
-        species = [species]
-    species = list(species)
-    if not species or not all(isinstance(s, Species) for s in species):
-        raise ValueError("species must be a Species or a non-empty list of Species")
+    species = species_list(species)
     lam_in = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
     lam = np.sort(lam_in)
     if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):

@@ -162,6 +162,16 @@ def _cache_store(path: pathlib.Path, result: dict) -> None:
         pass  # a read-only or full disk only costs the rebuild next time
 
 
+def species_list(species) -> list:
+    """``species`` (one Species or several) as a non-empty list of Species, or ValueError."""
+    if isinstance(species, Species):
+        species = [species]
+    species = list(species)
+    if not species or not all(isinstance(s, Species) for s in species):
+        raise ValueError("species must be a Species or a non-empty list of Species")
+    return species
+
+
 def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium: float = 1.0, method="auto", *,
                     theta=None, phase: bool = True, max_log_step: float = 0.05, mie_dx: float | None = None, p_max: int = 3,
                     hybrid_radius_um: float = HYBRID_RADIUS_UM, truncate_below_rad: float | None = None,
@@ -182,11 +192,7 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
     (2 < x <= 600; the step grows in proportion to x above 300): ``None`` is the core's default (0.02,
     fine enough to average Mie's ripple and keep the tables within 1 % at every angle, backscatter
     included); 0 uses the panels in ln r alone."""
-    if isinstance(species, Species):
-        species = [species]
-    species = list(species)
-    if not species or not all(isinstance(s, Species) for s in species):
-        raise ValueError("species must be a Species or a non-empty list of Species")
+    species = species_list(species)
     lam = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
     if lam.ndim != 1 or lam.size == 0:
         raise ValueError("wavelength_um must be a number or a 1-D array")

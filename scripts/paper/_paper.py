@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import re
 import resource
 import sys
 import time
@@ -67,6 +68,16 @@ def scene_file(name: str) -> pathlib.Path:
     return shipped_scenes()[name]
 
 
+def render_seeds(mi, scene, spp: int, seeds) -> tuple[list, list]:
+    """Render ``scene`` once per sampler seed: (RGB images as float64 arrays, seconds per render)."""
+    imgs, times = [], []
+    for s in seeds:
+        t1 = time.perf_counter()
+        imgs.append(np.asarray(mi.render(scene, spp=spp, seed=int(s)), dtype=np.float64)[..., :3])
+        times.append(time.perf_counter() - t1)
+    return imgs, times
+
+
 def render(mi, name: str, spp: int, res: int, seeds=(0,), measure=None, **params):
     """Render shipped scene ``name`` with scene parameters ``params`` once per sampler seed in ``seeds``.
     Returns (images as float64 arrays, load seconds, render seconds per image), and ``measure(scene)``
@@ -74,11 +85,7 @@ def render(mi, name: str, spp: int, res: int, seeds=(0,), measure=None, **params
     t0 = time.perf_counter()
     scene = mi.load_file(str(scene_file(name)), spp=str(spp), res=str(res), **{k: str(v) for k, v in params.items()})
     t_load = time.perf_counter() - t0
-    imgs, times = [], []
-    for s in seeds:
-        t1 = time.perf_counter()
-        imgs.append(np.asarray(mi.render(scene, spp=spp, seed=int(s)), dtype=np.float64)[..., :3])
-        times.append(time.perf_counter() - t1)
+    imgs, times = render_seeds(mi, scene, spp, seeds)
     if measure is not None:
         return imgs, t_load, times, measure(scene)
     del scene
@@ -161,22 +168,19 @@ def peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _display(img: np.ndarray, log_avg: float, white: float, key: float = 0.18) -> np.ndarray:
-    rgb = np.clip(np.nan_to_num(np.asarray(img, dtype=np.float64)[..., :3], nan=0.0, posinf=0.0), 0.0, None)
-    lum = rgb @ _LUMINANCE
-    scaled = lum * (key / max(log_avg, 1e-12))
-    display = scaled * (1.0 + scaled / white**2) / (1.0 + scaled)
-    gain = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
-    srgb = np.clip(rgb * gain[..., None], 0.0, 1.0)
+def _display(img: np.ndarray, log_avg: float, white: float) -> np.ndarray:
+    """``motes.cli.reinhard`` with a given exposure, then the sRGB transfer curve (for matplotlib)."""
+    from motes.cli import reinhard  # noqa: PLC0415
+
+    srgb = reinhard(np.asarray(img)[..., :3], log_avg, white)
     return np.where(srgb <= 0.0031308, 12.92 * srgb, 1.055 * srgb ** (1 / 2.4) - 0.055)
 
 
-def exposure_of(img: np.ndarray, key: float = 0.18, white_percentile: float = 99.5) -> tuple[float, float]:
-    """(log-average luminance, white point) of a reference image (Reinhard's global operator)."""
-    lum = np.clip(luminance(np.nan_to_num(img)), 0.0, None)
-    log_avg = float(np.exp(np.mean(np.log(1e-6 + lum))))
-    white = max(float(np.percentile(lum * key / max(log_avg, 1e-12), white_percentile)), 1e-6)
-    return log_avg, white
+def exposure_of(img: np.ndarray) -> tuple[float, float]:
+    """(log-average luminance, white point) of a reference image (``motes.cli.exposure``)."""
+    from motes.cli import exposure  # noqa: PLC0415
+
+    return exposure(np.asarray(img)[..., :3])
 
 
 def sheet(rows, path: pathlib.Path, title: str, row_titles=None, reference=(0, 0), exposures=None) -> pathlib.Path:
@@ -279,3 +283,16 @@ def ept_xml(mi, name: str, ior: float, spp: int, res: int, **params) -> tuple[st
     b = xml.index("</shape>", medium_block(xml)[1]) + len("</shape>")
     grain = f'<bsdf type="dielectric" id="ept_grain"><float name="int_ior" value="{ior}"/></bsdf>\n'
     return xml[:a] + grain + spheres + xml[b:], int(r.size)
+
+
+def render_ept(mi, name: str, ior: float, spp: int, res: int, seeds=(0, 1), **params):
+    """EPT of the shipped scene ``name``'s grains (``ept_xml``) with the scene parameters ``params``,
+    rendered once per sampler seed. Returns (images, load seconds, render seconds per image, spheres)."""
+    xml, n = ept_xml(mi, name, ior, spp, res, **params)
+    t0 = time.perf_counter()
+    # Only the parameters the spheres' scene still uses (the medium's, e.g. radius_median, went with it).
+    kept = {k: str(v) for k, v in params.items() if re.search(rf"\${re.escape(k)}\b", xml)}
+    scene = mi.load_string(xml, spp=str(spp), res=str(res), **kept)
+    t_load = time.perf_counter() - t0
+    imgs, times = render_seeds(mi, scene, spp, seeds)
+    return imgs, t_load, times, n

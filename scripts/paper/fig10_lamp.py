@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import pathlib
 import sys
-import time
 
 import numpy as np
 
@@ -55,16 +54,7 @@ def main() -> int:
         motes_row.append((f"motes: r_g {r_g} um, sigma_g {s_g:g}\nbeam {m:.3g} +- {se:.1g}", 0.5 * (a + b)))
         line = f"r_g {r_g:4d} sigma_g {s_g:<4g} motes beam {m:.4g} +- {se:.2g} ({min(times):.1f} s)"
         if not args.no_ept:
-            xml, n = P.ept_xml(mi, "lamp", ICE_REAL_INDEX, spp, res, **params)
-            t0 = time.perf_counter()
-            scene = mi.load_string(xml, spp=str(spp), res=str(res), max_depth=str(MAX_DEPTH))
-            t_ept_load = time.perf_counter() - t0
-            pair, t_ept = [], []
-            for s in (0, 1):
-                t1 = time.perf_counter()
-                pair.append(np.asarray(mi.render(scene, spp=spp, seed=s), dtype=np.float64)[..., :3])
-                t_ept.append(time.perf_counter() - t1)
-            del scene
+            pair, t_ept_load, t_ept, n = P.render_ept(mi, "lamp", ICE_REAL_INDEX, spp, res, **params)
             me, see = P.mean_and_se(*pair, beam(res))
             row.update(ept_mean=me, ept_se=see, ept_render_s=min(t_ept), ept_load_s=t_ept_load, spheres=n)
             ept_row.append((f"EPT: {n} spheres\nbeam {me:.3g} +- {see:.1g}", 0.5 * (pair[0] + pair[1])))

@@ -85,17 +85,7 @@ def main() -> int:
         numbers["images"][name] = dict(params, mean=m, se=se, load_s=t_load, render_s=min(times))
         print(f"{name:8s} mean {m:.5g} +- {se:.2g}  (load {t_load:.1f} s, render {min(times):.1f} s)", flush=True)
     if not args.no_ept:
-        xml, n = P.ept_xml(mi, "cornell", ICE_REAL_INDEX, spp, res)
-        import time  # noqa: PLC0415
-
-        t0 = time.perf_counter()
-        scene = mi.load_string(xml, spp=str(spp), res=str(res))
-        t_load = time.perf_counter() - t0
-        pair, times = [], []
-        for s in (0, 1):
-            t1 = time.perf_counter()
-            pair.append(np.asarray(mi.render(scene, spp=spp, seed=s), dtype=np.float64)[..., :3])
-            times.append(time.perf_counter() - t1)
+        pair, t_load, times, n = P.render_ept(mi, "cornell", ICE_REAL_INDEX, spp, res)
         imgs["EPT"] = pair
         m, se = P.mean_and_se(*pair)
         numbers["images"]["EPT"] = dict(spheres=n, mean=m, se=se, load_s=t_load, render_s=min(times))

@@ -43,16 +43,12 @@ def radius_um(n: int) -> float:
     return 800.0 * math.sqrt(1e4 / n)
 
 
-def transmittance_ratio(tau_and_length, n: int, res: int) -> tuple[float, float]:
+def transmittance_ratio(tau_and_length, d: dict) -> tuple[float, float]:
     """Mean transmittance exp(-tau) along the camera's pixel cylinders through the grains (rays crossing at
     least a quarter of the longest path) over the homogeneous medium's exp(-sigma_t L) on the same rays,
-    with its standard error over rays: the extinction half of the comparison, free of Monte Carlo noise."""
-    import motes  # noqa: PLC0415
-
+    with its standard error over rays (``d``: the homogeneous equivalent): the extinction half of the comparison, free of Monte Carlo noise."""
     tau, length = tau_and_length
     keep = length > 0.25 * length.max()
-    sp = motes.Species(motes.Monodisperse(radius_um(n)), motes.Material("ice"))
-    d = motes.homogeneous_equivalent([sp], n / SIDE_M**3, scale_m=0.01, fov=FOV, film_width=res)
     sigma = float(np.mean(np.asarray(d["sigma_t"]["value"]) * d["scale"]))
     t_d, t_h = np.exp(-tau[keep]), np.exp(-sigma * length[keep]).mean()
     return float(t_d.mean() / t_h), float(t_d.std() / np.sqrt(t_d.size) / t_h)
@@ -67,12 +63,12 @@ def reaches_noise_floor(ratios, floor_tol: float = 0.1, stay_tol: float = 0.15) 
     return P.monotone(ratios[:k + 1], decreasing=True) and all(abs(r - 1.0) < stay_tol for r in ratios[k:])
 
 
-def homogeneous_xml(n: int, res: int) -> str:
+def homogeneous(n: int, res: int) -> dict:
+    """The homogeneous equivalent of the cube of N grains (``motes.homogeneous_equivalent``)."""
     import motes  # noqa: PLC0415
 
     sp = motes.Species(motes.Monodisperse(radius_um(n)), motes.Material("ice"))
-    d = motes.homogeneous_equivalent([sp], n / SIDE_M**3, scale_m=0.01, fov=FOV, film_width=res)
-    return motes.equivalent.equivalent_xml(d)
+    return motes.homogeneous_equivalent([sp], n / SIDE_M**3, scale_m=0.01, fov=FOV, film_width=res)
 
 
 def main() -> int:
@@ -84,8 +80,10 @@ def main() -> int:
         params = dict(count=n, radius=f"{radius_um(n):.6g}", storage="procedural" if n > 10**7 else "compact")
         (d1, d2), t_load, times, tau = P.render(mi, "limit", spp, res, seeds=(0, 1),
                                                 measure=lambda sc: P.pixel_optical_depth(mi, sc, BOX), **params)
-        hom = homogeneous_xml(n, res)
-        scene = P.load_with_medium(mi, "limit", hom, spp, res)
+        import motes  # noqa: PLC0415
+
+        hom = homogeneous(n, res)
+        scene = P.load_with_medium(mi, "limit", motes.equivalent.equivalent_xml(hom), spp, res)
         h1, h2 = (np.asarray(mi.render(scene, spp=spp, seed=s), dtype=np.float64)[..., :3] for s in (0, 1))
         md, sd = P.mean_and_se(d1, d2)
         mh, sh = P.mean_and_se(h1, h2)
@@ -94,7 +92,7 @@ def main() -> int:
         noise = np.mean(0.25 * (P.luminance(d1) - P.luminance(d2)) ** 2 + 0.25 * (P.luminance(h1) - P.luminance(h2)) ** 2)
         ratio = float(np.sqrt(np.mean(diff**2) / noise))
         g = P.medium_graininess(tau)
-        t_ratio, t_se = transmittance_ratio(tau, n, res)
+        t_ratio, t_se = transmittance_ratio(tau, hom)
         rows.append(dict(count=n, radius_um=radius_um(n), storage=params["storage"], mean_discrete=md,
                          mean_homogeneous=mh, rel_diff=rel, rel_diff_se=rel_se, rms_over_noise=ratio,
                          graininess=g, transmittance_ratio=t_ratio, transmittance_ratio_se=t_se, load_s=t_load,
