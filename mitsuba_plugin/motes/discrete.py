@@ -34,6 +34,12 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
                             see the grains' continuous equivalent (same extinction per cell and local
                             phase mixture; Müller et al. 2016, Sec. 4.3). Ignored when
                             ``continuous_count`` is inf, which makes the medium exact
+``surface_footprint``       rays that start at no event (a surface, a boundary) see the grains'
+                            continuous equivalent where the narrowest pixel footprint they can carry
+                            (from the cameras given to ``set_cameras``; the Mitsuba plugin reads them
+                            from the scene) holds ``continuous_count`` grains of every discrete class;
+                            camera rays always walk them (``rust/motes-core/src/render/footprint.rs``;
+                            True; without cameras nothing changes)
 ``storage``                 ``compact`` (default): each particle is a class of its optics bin and one of
                             1024 radius levels per bin (radii move by at most half a level, 2e-4 for a
                             bin 1.5 wide), 4 bytes per particle for its optics instead of 17, and the
@@ -220,7 +226,7 @@ class DiscreteMedium:
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
-                 storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated"):
+                 storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True):
         if storage not in STORAGES:
             raise ValueError(f"invalid storage = {storage!r}: must be one of {', '.join(STORAGES)}")
         self.storage = storage
@@ -239,9 +245,45 @@ class DiscreteMedium:
                                                     truncate_below_rad, albedo, phase_model)
         self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
                          cells_per_particle, continuous_count, seed, warn_widened)
+        self._set_path_rules(grain_depth, surface_footprint)
+
+    def _set_path_rules(self, grain_depth: int, surface_footprint: bool) -> None:
+        """Which rays see the grains' continuous equivalent (module docs: ``grain_depth``, ``surface_footprint``)."""
+        if not isinstance(surface_footprint, (bool, np.bool_)):
+            raise ValueError(f"invalid surface_footprint = {surface_footprint!r}: must be True or False")
         self._core.set_grain_depth(int(grain_depth))
+        self._core.set_surface_footprint(bool(surface_footprint))
         #: See the module docs.
         self.grain_depth = int(grain_depth)
+        self.surface_footprint = bool(surface_footprint)
+
+    def set_cameras(self, cameras, lights=None) -> None:
+        """The cameras whose pixel footprints rays from surfaces carry (``surface_footprint``): a list of
+        (position (x, y, z) in scene units, narrowest angular pixel width in radians, lens aperture radius);
+        empty: rays from surfaces walk the grains. ``lights``: the lights at finite distance that shadow
+        rays converge to, a list of (centre (x, y, z), radius) (0 for a point or spot light); None: unknown,
+        every ray taken to end at a light (safe, and the rule then rarely applies).
+        ``motes.plugins.cameras`` sets both from a Mitsuba scene."""
+        try:
+            cams = [((float(p[0]), float(p[1]), float(p[2])), float(a), float(r)) for p, a, r in cameras]
+        except (TypeError, ValueError, IndexError):
+            raise ValueError("cameras must be a list of ((x, y, z), pixel_angle, aperture) tuples") from None
+        if lights is not None:
+            try:
+                lights = [((float(c[0]), float(c[1]), float(c[2])), float(r)) for c, r in lights]
+            except (TypeError, ValueError, IndexError):
+                raise ValueError("lights must be None or a list of ((x, y, z), radius) tuples") from None
+        self._core.set_cameras(cams, lights)
+
+    @property
+    def cameras(self) -> list:
+        """The cameras set by ``set_cameras``."""
+        return self._core.cameras
+
+    @property
+    def lights(self) -> list | None:
+        """The lights set by ``set_cameras`` (None: unknown)."""
+        return self._core.lights
 
     def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo,
                        phase_model):
@@ -325,7 +367,8 @@ class DiscreteMedium:
                    albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX,
                    continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                    cache_bytes: int | None = None, phase_model: str = "tabulated", turbulence: float = 0.0,
-                   turbulence_scale: float = 1.0, time_s: float = 0.0) -> "DiscreteMedium":
+                   turbulence_scale: float = 1.0, time_s: float = 0.0,
+                   surface_footprint: bool = True) -> "DiscreteMedium":
         """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural.rs``):
         ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
         ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
@@ -388,8 +431,7 @@ class DiscreteMedium:
             turbulence_scale=float(turbulence_scale), time=float(time_s))
         log.info("procedural cloud: %.3g particles, %.3g of them continuous, %.1f MB before any brick, %.1f s",
                  count, self._core.continuous_particles, self._core.bytes / 1e6, time.perf_counter() - t_build)
-        self._core.set_grain_depth(int(grain_depth))
-        self.grain_depth = int(grain_depth)
+        self._set_path_rules(grain_depth, surface_footprint)
         self.scale_m, self.query_radius, self.wavelength_um = float(scale_m), float(query_radius), lam
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         self.widened, self.tau_max = self._core.widened, float(tau_max)

@@ -12,7 +12,10 @@ For each row it renders, interleaved, best of ``--reps`` after a warm-up render:
 * ``homogeneous``: the equivalent ``homogeneous`` + ``tabphase`` (``motes.homogeneous_equivalent``);
 * ``exact``: the discrete medium with ``continuous_count`` = inf (every grain walked, every bounce);
 * ``default``: the discrete medium as a user gets it (``grain_depth`` 1: a path's rays see grains until
-  its first scattering event, its continuous equivalent after);
+  its first scattering event, its continuous equivalent after; ``surface_footprint``: rays from the walls
+  see that equivalent where their narrowest pixel footprint holds many grains);
+* ``no surface rule`` (with ``--surface``): ``default`` with ``surface_footprint`` off (rays from
+  surfaces walk the grains);
 * ``depth 2`` (with ``--depths 2``, and so on): rays see grains until the path's 2nd event.
 
 Accuracy of each against ``exact`` (two sampler seeds each, same particles): the image means' difference in
@@ -36,7 +39,11 @@ import _common as C  # noqa: E402
 import bench_render as BR  # noqa: E402
 
 ROWS = {"1e5x80": (100_000, 80.0), "4e5x80": (400_000, 80.0), "1.6e6x80": (1_600_000, 80.0),
-        "4e6x20": (4_000_000, 20.0)}
+        "4e6x20": (4_000_000, 20.0),
+        # Stress rows for the surface-ray rule: grains large against their spacing, whose shadows on the
+        # walls and floor a pixel can resolve (not in the default set).
+        "2e4x500": (20_000, 500.0), "2e5x300": (200_000, 300.0)}
+DEFAULT_ROWS = "1e5x80,4e5x80,1.6e6x80,4e6x20"
 HALF = 6.0  # cm: the cube's half-size (12 cm across)
 SIGMA_G, ETA, QUERY_RADIUS = 1.3, 1.5, 0.02
 
@@ -94,11 +101,14 @@ def accuracy(a0, a1, e0, e1) -> dict:
             "rms_over_noise_lit": float(rms(lit) / noise(lit)) if lit.any() else float("nan")}
 
 
-def run_row(motes, mi, name: str, res: int, spp: int, reps: int, depths, max_depth: int) -> dict:
+def run_row(motes, mi, name: str, res: int, spp: int, reps: int, depths, max_depth: int, surface: bool = False,
+            seeds: int = 2) -> dict:
     count, median = ROWS[name]
     media = {"homogeneous": homogeneous(motes, count, median),
              "exact": discrete(mi, count, median, continuous_count=float("inf")),
              "default": discrete(mi, count, median)}
+    if surface:
+        media["no surface rule"] = discrete(mi, count, median, surface_footprint=False)
     for d in depths:
         media[f"depth {d}"] = discrete(mi, count, median, grain_depth=d)
     scenes = {k: mi.load_dict(scene(mi, m, res, spp, max_depth)) for k, m in media.items()}
@@ -109,8 +119,9 @@ def run_row(motes, mi, name: str, res: int, spp: int, reps: int, depths, max_dep
             t, img = render(mi, sc, spp, seed=rep)
             if rep > 0:
                 best[k] = min(best[k], t)
-    for k, sc in scenes.items():  # two fixed seeds for the accuracy columns
-        imgs[k] = [render(mi, sc, spp, seed=100 + s)[1] for s in (0, 1)]
+    for k, sc in scenes.items():  # fixed seeds for the accuracy columns, averaged into two halves
+        halves = [[render(mi, sc, spp, seed=100 + s)[1] for s in range(h, seeds, 2)] for h in (0, 1)]
+        imgs[k] = [np.mean(h, axis=0) for h in halves]
     row = {"row": name, "count": count, "median_um": median, "res": res, "spp": spp}
     for k in scenes:
         row[k] = {"seconds": best[k], "ratio": best[k] / best["homogeneous"]}
@@ -126,7 +137,9 @@ def run_row(motes, mi, name: str, res: int, spp: int, reps: int, depths, max_dep
 
 def main() -> None:
     ap = C.parser(__doc__)
-    ap.add_argument("--rows", default=",".join(ROWS), help=f"rows, of {list(ROWS)}")
+    ap.add_argument("--rows", default=DEFAULT_ROWS, help=f"rows, of {list(ROWS)}")
+    ap.add_argument("--surface", action="store_true", help="add the default without the surface-ray rule")
+    ap.add_argument("--seeds", type=int, default=2, help="sampler seeds per image for the accuracy columns")
     ap.add_argument("--variant", default="llvm_ad_rgb", help="llvm_ad_rgb or scalar_rgb")
     ap.add_argument("--depths", default="", help="comma-separated grain depths to add (e.g. 2,3)")
     ap.add_argument("--res", type=int, default=96)
@@ -141,7 +154,8 @@ def main() -> None:
     import mitsuba as mi  # noqa: PLC0415
 
     reps = 1 if args.quick else args.reps
-    rows = [run_row(motes, mi, n, args.res, args.spp, reps, depths, args.max_depth) for n in names]
+    rows = [run_row(motes, mi, n, args.res, args.spp, reps, depths, args.max_depth, args.surface, max(2, args.seeds))
+            for n in names]
     keys = [k for k in rows[0] if isinstance(rows[0][k], dict)]
     C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp: seconds per render / homogeneous",
                   ["row"] + keys, [[r["row"]] + [f"{r[k]['ratio']:.2f}x" for k in keys] for r in rows])

@@ -75,9 +75,11 @@ def register() -> None:
         set_evaluated_mode(True)
     # Mitsuba may re-import its Python integrators on a variant change: guard the class in use each time.
     _warn_under_prbvolpath()
+    from .cameras import wrap_render
     from .scene_checks import wrap_loaders
 
-    wrap_loaders()  # a medium outside its shape warns at load
+    wrap_loaders()  # a medium outside its shape warns at load; cameras set (cameras.py)
+    wrap_render()  # mi.render sets the cameras again (a camera moved through mi.traverse)
     if variant in _registered:
         return
     from . import discrete_medium, particle_phase

@@ -41,6 +41,13 @@ Parameter               Type       Meaning (default)
                                    scattering event, and see their continuous equivalent after (1:
                                    grains are seen where a path meets them first; ignored when
                                    ``continuous_count`` is inf, which keeps every ray exact)
+``surface_footprint``   boolean    rays from surfaces (a wall's shadow ray, a bounce off the floor) see
+                                   the grains' continuous equivalent where the narrowest pixel
+                                   footprint they can carry holds ``continuous_count`` grains of every
+                                   discrete class; camera rays always walk them. The cameras are read
+                                   from the scene at every load and ``mi.render``
+                                   (``rust/motes-core/src/render/footprint.rs``; true; false: rays
+                                   from surfaces walk the grains)
 ``storage``             string     ``compact``: each particle is a class (its optics bin and one of 1024
                                    radius levels per bin; radii move by at most half a level), 4 bytes
                                    of optics per particle; ``full``: radii as given, 17 bytes;
@@ -162,6 +169,7 @@ from ..particles import query_radius_from_camera
 from .. import _memory, _motes
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
+from . import cameras
 
 #: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
 PLUGIN_STORAGES = STORAGES + ("procedural",)
@@ -190,7 +198,7 @@ class DiscreteMediumPlugin:
         common = dict(scale_m=p.scale_m, size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
                       truncate_below_rad=truncate if truncate > 0 else None, cells_per_particle=p.cells, seed=p.seed,
                       albedo=p.albedo, tau_max=p.tau_max, continuous_count=p.continuous, grain_depth=p.grain_depth,
-                      phase_model=p.phase_model)
+                      phase_model=p.phase_model, surface_footprint=p.surface_footprint)
         if p.storage == "procedural":
             self.data = _procedural(p, species, lam, common)
         else:
@@ -198,6 +206,7 @@ class DiscreteMediumPlugin:
             query_radius, user_radius = _query_radius(p, pos)
             self.data = DiscreteMedium(pos, radii, sidx, species, lam, query_radius=query_radius,
                                        warn_widened=user_radius, storage=p.storage, **common)
+        cameras.note_medium()  # the loaders and mi.render set the scene's cameras on it (cameras.attach)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
             raise ValueError('discrete medium: its phase function must be <phase type="particle"/> '
@@ -333,6 +342,7 @@ def _read_parameters(props) -> SimpleNamespace:
     p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
+    p.surface_footprint = _get(props, "surface_footprint", True, bool)
     p.cache_mb = _get(props, "cache_mb", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (megabytes)")
     if "cache_mb" in props and p.storage != "procedural":
         raise ValueError("discrete medium: cache_mb bounds a procedural cloud's bricks: it needs storage = procedural")

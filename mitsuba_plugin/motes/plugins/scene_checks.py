@@ -82,6 +82,9 @@ def _wrapped(load):
         obj = load(*args, **kwargs)
         if hasattr(obj, "shapes") and hasattr(obj, "sensors"):  # a scene (load_dict also makes plugins)
             check_scene(obj, stacklevel=3)
+            from .cameras import attach
+
+            attach(obj)  # the surface-ray rule's cameras (cameras.py)
         return obj
 
     load_and_check._motes_checked = True
@@ -89,8 +92,8 @@ def _wrapped(load):
 
 
 def wrap_loaders() -> None:
-    """Make Mitsuba's scene loaders run ``check_scene`` (once per process; the loaders are shared by all
-    variants)."""
+    """Make Mitsuba's scene loaders run ``check_scene`` and set the scene's cameras on its discrete media
+    (``cameras.attach``; once per process: the loaders are shared by all variants)."""
     import mitsuba as mi
 
     for name in ("load_file", "load_dict", "load_string"):

@@ -4,10 +4,16 @@
 use crate::convert::*;
 use crate::native;
 use motes_core::render::discrete::{PhaseEvalLane, PhaseSampleLane};
+use motes_core::render::footprint::{Camera, Light, View};
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use std::sync::Arc;
+
+/// A camera as Python passes it: (position, pixel angle in radians, aperture radius).
+type CameraTuple = ((f64, f64, f64), f64, f64);
+/// A light as Python passes it: (centre, radius).
+type LightTuple = ((f64, f64, f64), f64);
 
 /// The discrete medium as the renderer queries it (see `motes_core::render::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
@@ -424,6 +430,72 @@ impl PyDiscreteMedium {
     /// equivalent instead of walking them (ignored when `continuous_count` is infinite: exact).
     fn set_grain_depth(&self, depth: u32) -> PyResult<()> {
         self.medium.set_grain_depth(depth).map_err(to_py)
+    }
+
+    /// The cameras whose pixel footprints rays from surfaces carry, as (position, pixel angle in
+    /// radians, aperture radius) tuples (`rust/motes-core/src/render/footprint.rs`).
+    #[getter]
+    fn cameras(&self) -> Vec<CameraTuple> {
+        let t = |p: [f64; 3]| (p[0], p[1], p[2]);
+        let view = self.medium.view();
+        view.cameras
+            .iter()
+            .map(|c| (t(c.position), c.pixel_angle, c.aperture))
+            .collect()
+    }
+
+    /// The lights that shadow rays converge to, as (centre, radius) tuples (None: unknown).
+    #[getter]
+    fn lights(&self) -> Option<Vec<LightTuple>> {
+        let t = |p: [f64; 3]| (p[0], p[1], p[2]);
+        let view = self.medium.view();
+        view.lights
+            .map(|ls| ls.iter().map(|l| (t(l.centre), l.radius)).collect())
+    }
+
+    /// Set the cameras (a list of (position, pixel angle, aperture) tuples; empty: rays from surfaces
+    /// walk the grains) and the lights at finite distance (a list of (centre, radius) tuples; None:
+    /// unknown, every ray's end taken for a light). The renderer calls it with its scene's sensors.
+    #[pyo3(signature = (cameras, lights = None))]
+    fn set_cameras(
+        &self,
+        cameras: Vec<CameraTuple>,
+        lights: Option<Vec<LightTuple>>,
+    ) -> PyResult<()> {
+        let cameras = cameras
+            .into_iter()
+            .map(|(p, angle, aperture)| Camera::new([p.0, p.1, p.2], angle, aperture))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(to_py)?;
+        let lights = lights
+            .map(|ls| {
+                ls.into_iter()
+                    .map(|(c, r)| Light::new([c.0, c.1, c.2], r))
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .transpose()
+            .map_err(to_py)?;
+        self.medium.set_view(View { cameras, lights });
+        Ok(())
+    }
+
+    /// Whether rays from surfaces may see the grains' continuous equivalent where their pixel
+    /// footprint holds many grains of every discrete class (on as built).
+    #[getter]
+    fn surface_footprint(&self) -> bool {
+        self.medium.surface_footprint()
+    }
+
+    /// Rays that started at no event and were checked against the surface-ray rule, and those of them
+    /// that saw the grains' continuous equivalent (statistics).
+    #[getter]
+    fn surface_counts(&self) -> (u64, u64) {
+        self.medium.surface_counts()
+    }
+
+    /// See the `surface_footprint` property.
+    fn set_surface_footprint(&self, on: bool) {
+        self.medium.set_surface_footprint(on)
     }
 
     /// Remember an event of the given particles at `p` (tests and tools).

@@ -17,7 +17,8 @@
 //! its cell with probability ∝ w_i: the site's albedo and phase function are that particle's, so the
 //! expected phase function is the cell's mixture weighted by extinction (Eq. 24's Q(θ) of the cell).
 
-use crate::space::dda::{Dda, GridFrame};
+use crate::render::footprint::{ClassMoments, SurfaceFootprint};
+use crate::space::dda::{Bounds3, Dda, GridFrame};
 use crate::space::grid::{bounding_box, size_class};
 use crate::space::ray::RaySegment;
 use rayon::prelude::*;
@@ -58,16 +59,17 @@ const MAX_CELLS: f64 = 1.0e8;
 /// fewer than `min_count` of, i.e. one that must stay discrete? The cylinder's length is the mean
 /// chord of the particles' box (4V/S) or one mean free path 1/σ_t of the whole medium, whichever is
 /// shorter (light seen by a pixel comes from about one mean free path deep): a class with n_c
-/// particles of mean disk area A holds N_c = n_c A L / V of them.
+/// particles of mean disk area A holds N_c = n_c A L / V of them. With it, the rule by which rays from
+/// surfaces may see the continuous equivalent (`crate::render::footprint`), from the same classes.
 pub fn resolvable(
     positions: &[[f64; 3]],
     reach: Column,
     weight: Column,
     min_count: f64,
-) -> Vec<bool> {
+) -> (Vec<bool>, Option<SurfaceFootprint>) {
     let n = positions.len();
     if n == 0 || !(min_count.is_finite()) {
-        return vec![true; n];
+        return (vec![true; n], None);
     }
     let (lo, hi) = bounding_box(positions);
     let e = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12 * (hi[a].abs() + lo[a].abs()).max(1e-300)));
@@ -80,18 +82,33 @@ pub fn resolvable(
         chord
     };
     let reach_max = (0..n).into_par_iter().map(reach).reduce(|| 0.0, f64::max);
-    let mut area = [0.0f64; crate::space::grid::SIZE_CLASSES];
-    for r in (0..n).map(reach) {
-        area[size_class(reach_max, r)] += PI * r * r;
+    // Per class: Σ1, Σ R, Σ R², Σ C (the mean disk area is π Σ R² / Σ1).
+    let mut sums = [[0.0f64; 4]; crate::space::grid::SIZE_CLASSES];
+    for i in 0..n {
+        let r = reach(i);
+        let s = &mut sums[size_class(reach_max, r)];
+        s[0] += 1.0;
+        s[1] += r;
+        s[2] += r * r;
+        s[3] += weight(i);
     }
-    let keep: Vec<bool> = area
+    let keep: Vec<bool> = sums
         .iter()
-        .map(|a| a * length / volume < min_count)
+        .map(|s| PI * s[2] * length / volume < min_count)
         .collect();
-    (0..n)
+    let moments = sums
+        .iter()
+        .zip(&keep)
+        .filter(|(_, &k)| k)
+        .map(|(s, _)| ClassMoments::from_sums(*s, volume))
+        .collect();
+    let bounds = Bounds3 { lo, hi };
+    let footprint = SurfaceFootprint::new(moments, bounds, sigma, min_count);
+    let keep = (0..n)
         .into_par_iter()
         .map(|i| keep[size_class(reach_max, reach(i))])
-        .collect()
+        .collect();
+    (keep, footprint)
 }
 
 /// A per-particle value by original index: a slice's entry, or computed (a class table through each
@@ -633,14 +650,16 @@ mod tests {
             .map(|i| if i % 2 == 0 { 0.05 } else { 0.002 })
             .collect();
         let w: Vec<f64> = reach.iter().map(|r| PI * r * r * 1e-3).collect();
-        let keep = resolvable(&pos, &|i| reach[i], &|i| w[i], 16.0);
+        let (keep, footprint) = resolvable(&pos, &|i| reach[i], &|i| w[i], 16.0);
         assert!((0..n).all(|i| keep[i] == (i % 2 == 1)));
+        assert!(footprint.is_some());
         assert!(resolvable(&pos, &|i| reach[i], &|i| w[i], f64::INFINITY)
+            .0
             .iter()
             .all(|&k| k));
         // Optically thick: the mean free path limits the cylinder (σ_t = 1e4·π·0.05²·0.5 ≈ 39 per unit).
         let w_thick: Vec<f64> = reach.iter().map(|r| PI * r * r * 0.5).collect();
-        let keep = resolvable(&pos, &|i| reach[i], &|i| w_thick[i], 16.0);
+        let keep = resolvable(&pos, &|i| reach[i], &|i| w_thick[i], 16.0).0;
         assert!(keep.iter().all(|&k| k));
     }
 }

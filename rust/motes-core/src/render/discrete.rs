@@ -34,11 +34,13 @@
 //! cell's phase mixture, `crate::render::continuous`) carries the same expected transport. So rays that
 //! leave a path's `grain_depth`-th event or a later one (events remember their depth in the chain;
 //! default [`DEFAULT_GRAIN_DEPTH`] = 1: every ray after the first scattering) sample that field instead
-//! of walking grains; camera rays, and rays from surfaces, still walk them. What changes is the grain
-//! texture of multiply scattered light, which no pixel resolves (measured against the fully discrete
-//! render by `scripts/bench/bench_dense.py`: image means within noise and per-pixel differences at
-//! noise level). An infinite `continuous_count` keeps the medium exact: no field is built and every ray
-//! walks the grains.
+//! of walking grains; camera rays still walk them. What changes is the grain texture of multiply
+//! scattered light, which no pixel resolves (measured against the fully discrete render by
+//! `scripts/bench/bench_dense.py`: image means within noise and per-pixel differences at noise
+//! level). Rays that start at no event (a wall's shadow ray, a bounce off the floor, a camera ray
+//! re-spawned at the medium's boundary) see the same field where the narrowest pixel footprint they
+//! can carry holds many grains (`crate::render::footprint`; camera rays never do). An infinite
+//! `continuous_count` keeps the medium exact: no field is built and every ray walks the grains.
 //!
 //! ## Colour weights along a path (throughput-proportional channel choice)
 //! The phase function is sampled from a mixture over channels, q(ω) = Σ_c π_c f_c(ω), and returns the
@@ -72,6 +74,7 @@
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, Column, ContinuousField, FieldHit, CLASS_FLAG};
+use crate::render::footprint::{ClassMoments, SurfaceFootprint, View};
 use crate::render::procedural::{build_parts, ProceduralGrains, ProceduralSpec};
 use crate::render::storage::{classes, ParticleOptics, Storage};
 use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
@@ -361,6 +364,7 @@ struct Walkable {
     expected: Option<(f64, f64)>,
     field: Option<ContinuousField>,
     grains_field: Option<ContinuousField>,
+    footprint: Option<SurfaceFootprint>,
     optics: ParticleOptics,
     widened: usize,
     coincide: f64,
@@ -464,6 +468,16 @@ pub struct DiscreteMedium {
     /// Rays leaving the `grain_depth`-th event of a path or a later one sample `grains_field` instead
     /// of walking grains (module docs, "Grains along a path"); `u32::MAX`: never.
     grain_depth: std::sync::atomic::AtomicU32,
+    /// When a ray that starts at no event (a surface, a boundary) may see `grains_field`
+    /// (`crate::render::footprint`; None when the medium is exact or has no discrete class).
+    footprint: Option<SurfaceFootprint>,
+    /// The scene's cameras and lights, as the renderer set them (`set_view`; no camera: rays from
+    /// surfaces walk the grains).
+    view: RwLock<View>,
+    /// Whether the footprint rule applies (`set_surface_footprint`).
+    surface_footprint: std::sync::atomic::AtomicBool,
+    /// Rays checked against the rule, and those that saw the field (statistics).
+    surface_counts: ShardedCounts,
     /// Set once `insert_event` placed an event anywhere: then every free flight looks events up.
     events_anywhere: std::sync::atomic::AtomicBool,
     /// Counts changes of the optics (`set_albedo_scale`): per-thread events of an older epoch are
@@ -574,9 +588,14 @@ fn build_walk(
     settings: &GridSettings,
     continuous_count: f64,
     classes: Option<&[u32]>,
-) -> (Option<ParticleGrid>, Option<ContinuousField>, Vec<bool>) {
+) -> (
+    Option<ParticleGrid>,
+    Option<ContinuousField>,
+    Vec<bool>,
+    Option<SurfaceFootprint>,
+) {
     let n = positions.len();
-    let keep = resolvable(positions, reach, c_ext, continuous_count);
+    let (keep, footprint) = resolvable(positions, reach, c_ext, continuous_count);
     let (discrete_ids, field_ids): (Vec<u32>, Vec<u32>) =
         (0..n as u32).partition(|&i| keep[i as usize]);
     let pick =
@@ -618,7 +637,38 @@ fn build_walk(
         let ids = (!discrete_ids.is_empty()).then_some(&field_ids[..]);
         ContinuousField::build(positions, reach, c_ext, ids, classes)
     });
-    (grid, field, keep)
+    (grid, field, keep, footprint)
+}
+
+/// The surface-ray rule (`crate::render::footprint`) of a procedural cloud: its discrete classes'
+/// expected counts over the box's bounding box, grouped into the size classes that chose them.
+fn procedural_footprint(
+    count: f64,
+    parts: &crate::render::procedural::ProceduralParts,
+    disks: &[(f64, f64)],
+    min_count: f64,
+) -> Option<SurfaceFootprint> {
+    let (lo, hi) = bounding_box(&parts.corners);
+    let volume: f64 = (0..3).map(|a| (hi[a] - lo[a]).max(0.0)).product();
+    let reach_max = disks.iter().map(|d| d.0).fold(0.0, f64::max);
+    let mut sums = [[0.0f64; 4]; crate::space::grid::SIZE_CLASSES];
+    let mut sigma = 0.0;
+    for ((c, d), &discrete) in parts.classes.iter().zip(disks).zip(&parts.discrete) {
+        let w = count * c.p;
+        sigma += w * c.c_ext;
+        if discrete && w > 0.0 {
+            let s = &mut sums[crate::space::grid::size_class(reach_max, d.0)];
+            s[0] += w;
+            s[1] += w * d.0;
+            s[2] += w * d.0 * d.0;
+            s[3] += w * c.c_ext;
+        }
+    }
+    let classes = sums
+        .iter()
+        .map(|s| ClassMoments::from_sums(*s, volume))
+        .collect();
+    SurfaceFootprint::new(classes, Bounds3 { lo, hi }, sigma / volume, min_count)
 }
 
 /// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
@@ -765,7 +815,7 @@ impl DiscreteMedium {
             let (r, tau) = table_disks[code_of(i)];
             tau * PI * r * r
         };
-        let (grid, field, keep) = build_walk(
+        let (grid, field, keep, footprint) = build_walk(
             positions,
             &reach,
             &grid_radius,
@@ -819,6 +869,8 @@ impl DiscreteMedium {
                 grid: grid.map(Grains::Stored),
                 expected: None,
                 field,
+                // The surface rule chooses between the grains and their equivalent: both must exist.
+                footprint: footprint.filter(|_| grains_field.is_some()),
                 grains_field,
                 optics,
                 widened,
@@ -838,6 +890,10 @@ impl DiscreteMedium {
             expected: w.expected,
             field: w.field,
             grains_field: w.grains_field,
+            footprint: w.footprint,
+            view: RwLock::new(View::default()),
+            surface_footprint: std::sync::atomic::AtomicBool::new(true),
+            surface_counts: ShardedCounts::default(),
             optics: w.optics,
             widened: w.widened,
             coincide: w.coincide,
@@ -924,6 +980,9 @@ impl DiscreteMedium {
         // Grains drifted by turbulence may sit outside the box at rest by up to the drift's bound.
         let drift = spec.motion.as_ref().map_or(0.0, |(m, _)| m.drift_bound());
         let (coincide, event_box) = event_geometry(&parts.corners, reach_max + drift);
+        let footprint = (continuous_count.is_finite() && parts.grains.is_some())
+            .then(|| procedural_footprint(spec.count, &parts, &disks, continuous_count))
+            .flatten();
         let grid = parts.grains.map(|g| Grains::Procedural(Box::new(g)));
         let exact = !continuous_count.is_finite();
         let all_continuous = grid.is_none();
@@ -931,6 +990,7 @@ impl DiscreteMedium {
             Walkable {
                 expected: Some((spec.count, parts.field_count)),
                 field: parts.field,
+                footprint,
                 // Every class continuous: the field is the grains' equivalent (as `build` does).
                 grains_field: (!exact && !all_continuous).then_some(parts.all_field),
                 grid,
@@ -1074,6 +1134,7 @@ impl DiscreteMedium {
     ) -> Vec<SiteSample> {
         let call = self.calls.fetch_add(1, Ordering::Relaxed);
         let events = self.events.read().unwrap();
+        let view = self.view.read().unwrap().clone();
         let res: Vec<(Option<Site>, f64, Parent)> = o
             .par_iter()
             .zip(d.par_iter().zip(t_max.par_iter()))
@@ -1081,7 +1142,12 @@ impl DiscreteMedium {
             .map(|(lane, (oo, (dd, &tm)))| {
                 // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
                 let u = uniform(self.seed ^ ray_bits(oo, dd), call, lane as u64);
-                self.lane_free_flight(&events, *oo, *dd, tm, u, true)
+                let mut surface = SurfaceTally::default();
+                let r = self.lane_free_flight(&events, &view, &mut surface, *oo, *dd, tm, u, true);
+                if surface.checked > 0 {
+                    self.surface_counts.add(surface.checked, surface.saw_field);
+                }
+                r
             })
             .collect();
         drop(events);
@@ -1106,9 +1172,12 @@ impl DiscreteMedium {
 
     /// One ray's free flight to its next site (skipping the particles of the event it starts at), the
     /// optical depth walked before it and what it takes from that parent event; `u` uniform in [0, 1).
+    #[allow(clippy::too_many_arguments)]
     fn lane_free_flight(
         &self,
         events: &EventMap,
+        view: &View,
+        surface: &mut SurfaceTally,
         o: [f32; 3],
         d: [f32; 3],
         t_max: f64,
@@ -1135,7 +1204,10 @@ impl DiscreteMedium {
             depth: parent.depth,
         };
         let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
-        if let Some(all) = self.grains_field_from(&parent) {
+        let all = self
+            .grains_field_from(&parent)
+            .or_else(|| self.surface_field(&parent, &ray, view, surface));
+        if let Some(all) = all {
             let (site, tau) = field_free_flight(all, &ray, u, want_tau);
             return (site, tau, from);
         }
@@ -1175,6 +1247,56 @@ impl DiscreteMedium {
         } else {
             None
         })
+    }
+
+    /// The continuous equivalent of all particles when a ray that starts at no event (a surface, a
+    /// boundary, a camera) carries a pixel footprint that holds many grains of every discrete class
+    /// (`crate::render::footprint`): None for camera rays, without cameras, or with the rule off.
+    fn surface_field(
+        &self,
+        parent: &Event,
+        ray: &RaySegment,
+        view: &View,
+        tally: &mut SurfaceTally,
+    ) -> Option<&ContinuousField> {
+        if parent.depth != 0 || !self.surface_footprint.load(Ordering::Relaxed) {
+            return None;
+        }
+        let (rule, all) = (self.footprint.as_ref()?, self.grains_field.as_ref()?);
+        let sees = rule.sees_field(view, ray.o, ray.d, ray.t1);
+        tally.checked += 1;
+        tally.saw_field += sees as u64;
+        sees.then_some(all)
+    }
+
+    /// Rays that started at no event and were checked against the surface-ray rule, and those of them
+    /// that saw the grains' continuous equivalent (statistics; `crate::render::footprint`).
+    pub fn surface_counts(&self) -> (u64, u64) {
+        self.surface_counts.totals()
+    }
+
+    /// The cameras whose pixel footprints rays from surfaces carry, and the lights their shadow rays
+    /// converge to (`crate::render::footprint`); no camera makes every ray from a surface walk the
+    /// grains. Set by the renderer from its scene.
+    pub fn set_view(&self, view: View) {
+        *self.view.write().unwrap() = view;
+    }
+
+    /// What [`Self::set_view`] set.
+    pub fn view(&self) -> View {
+        self.view.read().unwrap().clone()
+    }
+
+    /// Whether rays from surfaces may see the grains' continuous equivalent where their pixel footprint
+    /// holds many grains (`crate::render::footprint`; on by default, and moot when the medium is
+    /// exact: infinite `continuous_count`).
+    pub fn set_surface_footprint(&self, on: bool) {
+        self.surface_footprint.store(on, Ordering::Relaxed);
+    }
+
+    /// See [`Self::set_surface_footprint`].
+    pub fn surface_footprint(&self) -> bool {
+        self.surface_footprint.load(Ordering::Relaxed)
     }
 
     /// Rays leaving the `depth`-th scattering event of a path or a later one see the continuous
@@ -1712,6 +1834,14 @@ impl ShardedCounts {
     }
 }
 
+/// Rays checked against the surface-ray rule and those that saw the field, counted per call or packet
+/// and added to the medium's [`ShardedCounts`] once.
+#[derive(Default)]
+struct SurfaceTally {
+    checked: u64,
+    saw_field: u64,
+}
+
 /// Ids of media (never reused, unlike addresses).
 static MEDIUM_IDS: AtomicU64 = AtomicU64::new(1);
 
@@ -1759,15 +1889,25 @@ impl DiscreteMedium {
     /// Free flights of a packet: the distance to each lane's next site (None: the ray leaves [0, t_max)).
     pub fn packet_free_flights(&self, rays: &[Option<PacketRay>], t: &mut [Option<f64>]) {
         let n_rays = rays.iter().filter(|r| r.is_some()).count() as u64;
+        let mut surface = SurfaceTally::default();
         let sites = self.with_packet_state(|st| {
+            let view = self.view.read().unwrap();
             let mut sites = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 st.pending[i] = PendingLane::default();
                 t[i] = None;
                 let Some((o, d, t_max)) = *ray else { continue };
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
-                let (site, _, parent) =
-                    self.lane_free_flight(&st.events, o, d, t_max as f64, u, false);
+                let (site, _, parent) = self.lane_free_flight(
+                    &st.events,
+                    &view,
+                    &mut surface,
+                    o,
+                    d,
+                    t_max as f64,
+                    u,
+                    false,
+                );
                 st.pending[i] = PendingLane { site, parent };
                 t[i] = site.map(|s| s.t);
                 sites += site.is_some() as u64;
@@ -1775,6 +1915,9 @@ impl DiscreteMedium {
             sites
         });
         self.packet_counts.add(n_rays, sites);
+        if surface.checked > 0 {
+            self.surface_counts.add(surface.checked, surface.saw_field);
+        }
     }
 
     /// Remember the events of this thread's last packet of free flights at the positions the renderer

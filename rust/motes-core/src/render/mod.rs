@@ -6,8 +6,11 @@
 //! * [`storage`]: what each particle carries (disk, cross section, bin), per particle or per class.
 //! * [`continuous`]: size classes whose grains no pixel resolves, sampled as a continuous medium and
 //!   combined exactly with the discrete classes.
+//! * [`footprint`]: when a ray from a surface may see the grains' continuous equivalent (its pixel
+//!   footprint holds many of every discrete class).
 
 pub mod continuous;
 pub mod discrete;
+pub mod footprint;
 pub mod procedural;
 pub mod storage;

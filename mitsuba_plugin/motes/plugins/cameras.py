@@ -1,0 +1,155 @@
+"""The scene's cameras and lights, handed to its ``discrete`` media for the surface-ray rule
+(``surface_footprint``).
+
+A ray that starts on a surface may see the grains' continuous equivalent when the narrowest pixel footprint
+it can carry holds many grains (``rust/motes-core/src/render/footprint.rs``); the medium needs each camera's
+position, its narrowest angular pixel width and its lens aperture for that, and where the lights are that
+shadow rays converge to (a grain near a lamp casts a large shadow). Mitsuba gives a medium no access to the
+sensors or emitters, so ``attach(scene)`` reads them from the scene and sets them on every ``discrete``
+medium in it: after every ``mi.load_file`` / ``mi.load_dict`` / ``mi.load_string`` and before every
+``mi.render`` (both wrapped once per process by ``wrap_render`` and ``scene_checks.wrap_loaders``), so that
+a camera moved through ``mi.traverse`` is seen at the next render. A caller that renders through
+``Integrator.render`` directly after moving a camera calls ``attach(scene)`` itself.
+
+Cameras: ``perspective`` and ``thinlens`` (anything with an ``x_fov``). A scene with any other sensor
+(orthographic, radiance meters, batches) gets no cameras, and its rays from surfaces walk the grains.
+Lights: point and spot lights (and any other light at a point) by position, area lights by a sphere around
+their shape's bounding box; the sky and distant lights need none. An emitter of any other kind leaves the
+lights unknown (every ray's end is then taken for a light).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+#: Discrete media constructed in this process (``attach`` does nothing before the first).
+_made = [0]
+
+
+def note_medium() -> None:
+    _made[0] += 1
+
+
+def _scalar(x) -> float:
+    a = np.asarray(x, dtype=np.float64).ravel()
+    return float(a[0])
+
+
+def camera_of(sensor):
+    """(position, narrowest angular pixel width in radians, aperture radius) of a pinhole or thin-lens
+    camera, or None for any other sensor."""
+    import mitsuba as mi
+
+    params = mi.traverse(sensor)
+    if "x_fov" not in params:
+        return None
+    width, height = (int(v) for v in sensor.film().size())
+    tan_half = math.tan(math.radians(_scalar(params["x_fov"])) / 2.0)
+    # A pixel spans 2 tan(fov/2) / width of the image plane at unit distance: that angle at the centre,
+    # cos²θ of it radially at field angle θ; the image's corners have the largest θ.
+    tan_corner2 = tan_half**2 * (1.0 + (height / max(width, 1)) ** 2)
+    pixel_angle = 2.0 * tan_half / max(width, 1) / (1.0 + tan_corner2)
+    aperture = _scalar(params["aperture_radius"]) if "aperture_radius" in params else 0.0
+    m = np.asarray(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
+    position = tuple(float(v) for v in m[:3, 3] / m[3, 3])
+    if not (pixel_angle > 0 and all(math.isfinite(v) for v in position)):
+        return None
+    return position, pixel_angle, aperture
+
+
+def cameras_of(scene, extra=None) -> list:
+    """Every camera of the scene (and ``extra``, a sensor rendered that the scene does not hold); empty when
+    any of them is not a pinhole or thin-lens camera (the medium could not tell its rays)."""
+    sensors = list(scene.sensors())
+    if extra is not None and not any(extra == s for s in sensors):
+        sensors.append(extra)
+    cams = [camera_of(s) for s in sensors]
+    return [] if any(c is None for c in cams) else cams
+
+
+def light_of(emitter):
+    """(centre, radius) of a light at finite distance; () for one at infinity; None for one it cannot place."""
+    import mitsuba as mi
+
+    flags = int(emitter.flags())
+    if flags & int(mi.EmitterFlags.Infinite):
+        return ()
+    shape = emitter.get_shape()
+    if shape is not None:
+        box = shape.bbox()
+        lo, hi = (np.asarray(v, dtype=np.float64).ravel()[:3] for v in (box.min, box.max))
+        return tuple(float(v) for v in (lo + hi) / 2), float(np.linalg.norm(hi - lo) / 2)
+    if flags & int(mi.EmitterFlags.DeltaPosition):
+        params = mi.traverse(emitter)
+        if "position" in params:
+            centre = np.asarray(params["position"], dtype=np.float64).ravel()[:3]
+        else:
+            m = np.asarray(emitter.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
+            centre = m[:3, 3] / m[3, 3]
+        return tuple(float(v) for v in centre), 0.0
+    return None
+
+
+def lights_of(scene):
+    """The scene's lights at finite distance as (centre, radius) tuples, or None if any cannot be placed."""
+    lights = [light_of(e) for e in scene.emitters()]
+    if any(light is None for light in lights):
+        return None
+    return [light for light in lights if light]
+
+
+def discrete_media(scene) -> list:
+    """The data (``motes.DiscreteMedium``) of every ``discrete`` medium the scene's shapes and sensors hold."""
+    from .discrete_medium import native_data
+    from .scene_checks import _discrete_data
+
+    media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
+    media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
+    found = {}
+    for m in media:
+        if m is None:
+            continue
+        data = _discrete_data(m) or native_data(m)
+        if data is not None:
+            found[id(data)] = data
+    return list(found.values())
+
+
+def attach(scene, sensor=None) -> None:
+    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media."""
+    if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
+        return
+    media = discrete_media(scene)
+    if media:
+        cams, lights = cameras_of(scene, sensor), lights_of(scene)
+        for data in media:
+            data.set_cameras(cams, lights)
+
+
+def _wrapped_render(render):
+    if getattr(render, "_motes_cameras", False):
+        return render
+
+    @functools.wraps(render)
+    def render_with_cameras(scene, *args, **kwargs):
+        import mitsuba as mi
+
+        sensor = kwargs.get("sensor", args[1] if len(args) > 1 else 0)
+        attach(scene, sensor if isinstance(sensor, mi.Sensor) else None)
+        return render(scene, *args, **kwargs)
+
+    render_with_cameras._motes_cameras = True
+    return render_with_cameras
+
+
+def wrap_render() -> None:
+    """Make ``mi.render`` set the cameras first (once per process)."""
+    import mitsuba as mi
+
+    mi.render = _wrapped_render(mi.render)
+
+
+__all__ = ["attach", "camera_of", "cameras_of", "discrete_media", "light_of", "lights_of", "wrap_render"]

@@ -1,0 +1,147 @@
+"""Rays from surfaces and their pixel footprint (issue 25; ``rust/motes-core/src/render/footprint.rs``): the
+scene's cameras reach its discrete media at load and at every ``mi.render``; camera rays always walk the
+grains; rays from surfaces see the grains' continuous equivalent only where their footprint holds many
+grains; and doing so keeps the furnace at 1 and changes no expected value."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import motes
+
+mi = pytest.importorskip("mitsuba")
+
+from motes.plugins.cameras import discrete_media  # noqa: E402
+
+
+def _grains(count: int = 200_000, r_over_spacing: float = 0.05, **extra) -> dict:
+    """Grains in the unit cube (local units of 1 mm), radius a twentieth of their spacing: few per camera
+    query cylinder (discrete), hundreds per pixel footprint on a floor 5 units from the camera."""
+    spacing = (8.0 / count) ** (1.0 / 3.0)
+    r_um = r_over_spacing * spacing * 1e3
+    return {"type": "discrete", "count": count, "eta": 1.31, "scale_m": 1e-3, "size_bins": 4, "seed": 5,
+            "radius_median": r_um, "radius_sigma_g": 1.1, "phase": {"type": "particle"}, **extra}
+
+
+def _scene(medium: dict, res: int, spp: int, sensor: str = "perspective", albedo_floor: float = 1.0):
+    """The grains in a null cube above a two-sided floor, under a constant white sky; volpath without depth
+    limit or roulette."""
+    T = mi.ScalarTransform4f
+    sensor_d = {"type": sensor, "to_world": T().look_at(origin=[0, 1.5, 5], target=[0, -0.6, 0], up=[0, 1, 0]),
+                "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                "sampler": {"type": "independent", "sample_count": spp}}
+    if sensor != "orthographic":
+        sensor_d["fov"] = 40
+    if sensor == "thinlens":
+        sensor_d.update(aperture_radius=0.05, focus_distance=5.0)
+    return mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 1_000_000},
+        "sensor": sensor_d,
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "floor": {"type": "rectangle", "to_world": T().translate([0, -1.3, 0]).rotate([1, 0, 0], -90).scale(4),
+                  "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo_floor}}}},
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium},
+    })
+
+
+def _pixels(scene, spp: int, seeds) -> np.ndarray:
+    return np.concatenate([np.asarray(mi.render(scene, spp=spp, seed=s), dtype=np.float64).mean(axis=2).ravel()
+                           for s in seeds])
+
+
+def test_cameras_reach_the_medium():
+    """Pinhole and thin-lens cameras arrive with their position, narrowest pixel angle and aperture; a
+    sensor the medium cannot read (orthographic) leaves no camera; a camera moved through mi.traverse is
+    seen at the next mi.render."""
+    motes.set_variant("scalar_rgb")
+    med = _grains(2000)
+    (data,) = discrete_media(_scene(med, 24, 1))
+    ((pos, angle, aperture),) = data.cameras
+    assert np.allclose(pos, (0, 1.5, 5)) and aperture == 0.0
+    tan_half = math.tan(math.radians(20))
+    assert angle == pytest.approx(2 * tan_half / 24 / (1 + 2 * tan_half**2), rel=1e-9)
+    assert discrete_media(_scene(med, 24, 1, "thinlens"))[0].cameras[0][2] == pytest.approx(0.05)
+    assert discrete_media(_scene(med, 24, 1, "orthographic"))[0].cameras == []
+    scene = _scene(med, 8, 1)
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith("to_world") and "sensor" in k.lower() or k == "PerspectiveCamera.to_world")
+    params[key] = mi.ScalarTransform4f().look_at(origin=[3, 0, 4], target=[0, 0, 0], up=[0, 1, 0])
+    params.update()
+    mi.render(scene, spp=1)
+    assert np.allclose(discrete_media(scene)[0].cameras[0][0], (3, 0, 4), atol=1e-5)
+    with pytest.raises(ValueError, match="pixel_angle"):
+        data.set_cameras([((0, 0, 0), 0.0, 0.0)])
+    with pytest.raises((ValueError, RuntimeError), match="surface_footprint"):
+        _scene(dict(med, surface_footprint=1.5), 8, 1)
+
+
+def test_camera_rays_walk_grains_surface_rays_see_the_field():
+    """Through the core's free flights, two media alike but for the rule (the same random numbers call by
+    call): rays on the camera's lines (re-spawned anywhere along them) sample the same sites with the rule
+    on and off; rays from the floor towards the cloud sample others (the field) with it on, and the same
+    without cameras, with an infinite continuous_count (exact), or through sparse large grains."""
+    motes.set_variant("scalar_rgb")
+    rng = np.random.default_rng(1)
+    n = 4000
+    cam = np.array([0.0, 1.5, 5.0])
+    target = rng.uniform(-0.8, 0.8, (n, 3))
+    d_cam = target - cam
+    d_cam /= np.linalg.norm(d_cam, axis=1)[:, None]
+    o_cam = cam + rng.uniform(0.0, 3.5, n)[:, None] * d_cam  # re-spawned at a boundary on the way
+    o_floor = np.column_stack([rng.uniform(-2, 2, n), np.full(n, -1.3), rng.uniform(-2, 2, n)])
+    d_floor = target - o_floor
+    d_floor /= np.linalg.norm(d_floor, axis=1)[:, None]
+
+    def pair(**grains):
+        return [discrete_media(_scene(_grains(**grains, surface_footprint=on), 64, 1))[0] for on in (True, False)]
+
+    def flights(data, o, d):
+        t = data.core.sample_sites(o.astype(np.float32).ravel(), d.astype(np.float32).ravel(),
+                                   np.full(len(o), np.inf), np.zeros(len(o), dtype=bool))[0]
+        return np.asarray(t)
+
+    on, off = pair()
+    assert on.continuous_particles == 0  # every class discrete for the camera
+    assert np.array_equal(flights(on, o_cam, d_cam), flights(off, o_cam, d_cam), equal_nan=True)
+    assert np.mean(flights(on, o_floor, d_floor) != flights(off, o_floor, d_floor)) > 0.3
+    on.set_cameras([])
+    assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
+    on, off = pair(continuous_count=math.inf)
+    assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
+    # Sparse large grains (a few per footprint of a 64-pixel image): rays from the floor keep walking them.
+    on, off = pair(count=300, r_over_spacing=0.2)
+    assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb", "scalar_spectral", "llvm_ad_spectral"])
+def test_furnace_with_surfaces(variant):
+    """Non-absorbing grains above a white two-sided floor under a white sky, no roulette: every pixel's
+    expectation is 1 with rays from the floor seeing the field (3 SE + 1e-3), and they do see it."""
+    motes.set_variant(variant)
+    res, spp = (24, 32) if variant.startswith("llvm") else (12, 16)
+    scene = _scene(_grains(albedo=1.0), res, spp)
+    pix = _pixels(scene, spp, (0,))
+    m, se = pix.mean(), pix.std(ddof=1) / math.sqrt(pix.size)
+    assert abs(m - 1.0) < 3 * se + 1e-3, f"{variant}: {m:.4f} +- {se:.4f}"
+    checked, saw_field = discrete_media(scene)[0].core.surface_counts
+    assert 0 < saw_field < checked
+
+
+def test_surface_rule_changes_no_expected_value():
+    """Absorbing grains over a grey floor: the image (the floor in the cloud's shadow, the cloud lit by the
+    floor) has the same mean with rays from the floor seeing the field as with every ray walking grains,
+    within 4 SE of the difference."""
+    motes.set_variant("llvm_ad_rgb")
+    means = {}
+    for on in (True, False):
+        scene = _scene(_grains(eta_k=0.002, surface_footprint=on), 32, 32, albedo_floor=0.7)
+        pix = _pixels(scene, 32, (0, 1))
+        means[on] = (pix.mean(), pix.std(ddof=1) / math.sqrt(pix.size))
+        assert (discrete_media(scene)[0].core.surface_counts[1] > 0) == on
+    (a, sa), (b, sb) = means[True], means[False]
+    assert b < 0.9  # the cloud and floor absorb visibly
+    assert abs(a - b) < 4 * math.hypot(sa, sb), (means, (a - b) / math.hypot(sa, sb))
