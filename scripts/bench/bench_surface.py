@@ -13,6 +13,7 @@ the lit ones (above twice the median): where the grains' shadows on walls and fl
 
 from __future__ import annotations
 
+import argparse  # noqa: F401 (the annotation of scene_parser)
 import pathlib
 import sys
 import time
@@ -74,12 +75,18 @@ def run_scene(mi, name: str, res: int, spp: int, seeds: int) -> dict:
     return row
 
 
-def main() -> None:
-    ap = C.parser(__doc__)
-    ap.add_argument("--scenes", default=",".join(SCENES))
+def scene_parser(doc: str, scenes) -> "argparse.ArgumentParser":
+    """The arguments of the shipped-scene benchmarks (this one and ``bench_gallery.py``)."""
+    ap = C.parser(doc)
+    ap.add_argument("--scenes", default=",".join(scenes), help="comma-separated shipped scenes")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--res", type=int, default=96)
     ap.add_argument("--spp", type=int, default=16)
+    return ap
+
+
+def main() -> None:
+    ap = scene_parser(__doc__, SCENES)
     ap.add_argument("--seeds", type=int, default=4)
     args = ap.parse_args()
     names = [s.strip() for s in args.scenes.split(",") if s.strip()]
