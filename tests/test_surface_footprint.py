@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import motes
 
@@ -145,3 +147,42 @@ def test_surface_rule_changes_no_expected_value():
     (a, sa), (b, sb) = means[True], means[False]
     assert b < 0.9  # the cloud and floor absorb visibly
     assert abs(a - b) < 4 * math.hypot(sa, sb), (means, (a - b) / math.hypot(sa, sb))
+
+
+_finite = st.floats(-1e6, 1e6, allow_nan=False)
+_cameras = st.lists(st.tuples(st.tuples(_finite, _finite, _finite), st.floats(1e-9, math.pi), st.floats(0.0, 1e3)),
+                    max_size=3)
+_lights = st.none() | st.lists(st.tuples(st.tuples(_finite, _finite, _finite), st.floats(0.0, 1e6)), max_size=3)
+
+
+@pytest.fixture(scope="module")
+def rule_pair():
+    """Two media alike but for the rule, over dense grains (the rule passes for many rays)."""
+    motes.set_variant("scalar_rgb")
+    return [discrete_media(_scene(_grains(20_000, **{"surface_footprint": on}), 8, 1))[0] for on in (True, False)]
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, database=None)
+@given(cameras=_cameras, lights=_lights, seed=st.integers(0, 2**32 - 1),
+       t_max=st.sampled_from([math.inf, float(np.finfo(np.float32).max), 1e-6, 0.5, 3.0, 1e6]))
+def test_any_cameras_and_lights(rule_pair, cameras, lights, seed, t_max):
+    """Over the full ranges of the cameras and lights (none to three, at 1e6 units, pixel angles 1e-9 to pi,
+    apertures to 1e3, light radii to 1e6, rays that end anywhere): free flights stay finite and inside
+    (0, t_max), and a ray that starts at a camera samples what it samples without the rule."""
+    on, off = rule_pair
+    for data in (on, off):
+        data.set_cameras(cameras, lights)
+    rng = np.random.default_rng(seed)
+    n = 64
+    o = rng.uniform(-3, 3, (n, 3))
+    if cameras:
+        o[: n // 2] = np.asarray(cameras[0][0])  # camera rays
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    args = (o.astype(np.float32).ravel(), d.astype(np.float32).ravel(), np.full(n, t_max), np.zeros(n, dtype=bool))
+    t_on, t_off = (np.asarray(data.core.sample_sites(*args)[0]) for data in (on, off))
+    for t in (t_on, t_off):
+        hit = ~np.isnan(t)
+        assert np.all(t[hit] > 0) and np.all(t[hit] <= t_max * (1 + 1e-9)) and np.all(np.isfinite(t[hit]))
+    if cameras and cameras[0][2] == 0.0:
+        assert np.array_equal(t_on[: n // 2], t_off[: n // 2], equal_nan=True)
