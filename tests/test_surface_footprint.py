@@ -81,6 +81,28 @@ def test_cameras_reach_the_medium():
         _scene(dict(med, surface_footprint=1.5), 8, 1)
 
 
+@pytest.mark.parametrize("variant", ["scalar_rgb", "llvm_ad_rgb"])
+def test_lights_are_placed(variant):
+    """Point and spot lights by position, area lights by a sphere around their shape, the sky and distant lights
+    not at all; an emitter that cannot be placed leaves the lights unknown (None)."""
+    motes.set_variant(variant)
+    from motes.plugins.cameras import light_of, lights_of
+
+    T = mi.ScalarTransform4f
+    scene = mi.load_dict({
+        "type": "scene", "point": {"type": "point", "position": [1, 2, 3]},
+        "spot": {"type": "spot", "to_world": T().look_at(origin=[-8, 19, -15], target=[0, 0, 0], up=[0, 1, 0])},
+        "sky": {"type": "constant"}, "sun": {"type": "directional", "direction": [0, -1, 0]},
+        "panel": {"type": "rectangle", "to_world": T().translate([0, 5, 0]).scale(2), "emitter": {"type": "area"}},
+        "bulb": {"type": "sphere", "center": [3, 3, 3], "radius": 0.5, "emitter": {"type": "area"}}})
+    lights = sorted(lights_of(scene))
+    expect = sorted([((1, 2, 3), 0.0), ((-8, 19, -15), 0.0), ((0, 5, 0), math.sqrt(8)), ((3, 3, 3), math.sqrt(0.75))])
+    assert len(lights) == 4
+    for (c, r), (ce, re) in zip(lights, expect):
+        assert np.allclose(c, ce, atol=1e-5) and r == pytest.approx(re, rel=1e-5)
+    assert all(light_of(e) == () for e in scene.emitters() if e.is_environment())
+
+
 def test_camera_rays_walk_grains_surface_rays_see_the_field():
     """Through the core's free flights, two media alike but for the rule (the same random numbers call by
     call): rays on the camera's lines (re-spawned anywhere along them) sample the same sites with the rule
