@@ -136,6 +136,13 @@ def test_camera_rays_walk_grains_surface_rays_see_the_field():
     assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
     on, off = pair(continuous_count=math.inf)
     assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
+    # A query radius thirteen times the grains' (Eq. 23's usual regime): the disks alone hold ~10 grains
+    # per cylinder of the length the classes are chosen by (discrete), and more along the longest camera
+    # rays; camera rays still walk them, rays from the floor still see the field.
+    on, off = pair(r_over_spacing=0.02, query_radius=0.009)
+    assert on.continuous_particles == 0
+    assert np.array_equal(flights(on, o_cam, d_cam), flights(off, o_cam, d_cam), equal_nan=True)
+    assert np.mean(flights(on, o_floor, d_floor) != flights(off, o_floor, d_floor)) > 0.1
     # Sparse large grains (a few per footprint of a 64-pixel image): rays from the floor keep walking them.
     on, off = pair(count=300, r_over_spacing=0.2)
     assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)

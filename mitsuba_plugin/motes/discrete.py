@@ -37,7 +37,8 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
 ``surface_footprint``       rays that start at no event (a surface, a boundary) see the grains'
                             continuous equivalent where the narrowest pixel footprint they can carry
                             (from the cameras given to ``set_cameras``; the Mitsuba plugin reads them
-                            from the scene) holds ``continuous_count`` grains of every discrete class;
+                            from the scene) holds ``continuous_count`` grains (an effective count over
+                            the discrete size classes);
                             camera rays always walk them (``rust/motes-core/src/render/footprint.rs``;
                             True; without cameras nothing changes)
 ``storage``                 ``compact`` (default): each particle is a class of its optics bin and one of

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 
 import numpy as np
 
@@ -126,7 +127,12 @@ def attach(scene, sensor=None) -> None:
     if media:
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
         for data in media:
-            data.set_cameras(cams, lights)
+            try:
+                data.set_cameras(cams, lights)
+            except ValueError as e:  # a camera or light the rule cannot use: rays from surfaces walk grains
+                warnings.warn(f"motes: the scene's cameras or lights are not usable by the surface-ray rule ({e}); "
+                              "rays from surfaces walk the grains", RuntimeWarning, stacklevel=3)
+                data.set_cameras([], None)
 
 
 def _wrapped_render(render):

@@ -43,8 +43,9 @@ Parameter               Type       Meaning (default)
                                    ``continuous_count`` is inf, which keeps every ray exact)
 ``surface_footprint``   boolean    rays from surfaces (a wall's shadow ray, a bounce off the floor) see
                                    the grains' continuous equivalent where the narrowest pixel
-                                   footprint they can carry holds ``continuous_count`` grains of every
-                                   discrete class; camera rays always walk them. The cameras are read
+                                   footprint they can carry holds ``continuous_count`` grains (an
+                                   effective count over the discrete size classes); camera rays always
+                                   walk them. The cameras are read
                                    from the scene at every load and ``mi.render``
                                    (``rust/motes-core/src/render/footprint.rs``; true; false: rays
                                    from surfaces walk the grains)

@@ -480,7 +480,7 @@ impl PyDiscreteMedium {
     }
 
     /// Whether rays from surfaces may see the grains' continuous equivalent where their pixel
-    /// footprint holds many grains of every discrete class (on as built).
+    /// footprint holds many grains (an effective count over the discrete classes; on as built).
     #[getter]
     fn surface_footprint(&self) -> bool {
         self.medium.surface_footprint()

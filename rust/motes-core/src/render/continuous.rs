@@ -103,7 +103,7 @@ pub fn resolvable(
         .map(|(s, _)| ClassMoments::from_sums(*s, volume))
         .collect();
     let bounds = Bounds3 { lo, hi };
-    let footprint = SurfaceFootprint::new(moments, bounds, sigma, min_count);
+    let footprint = SurfaceFootprint::new(moments, bounds, length, min_count);
     let keep = (0..n)
         .into_par_iter()
         .map(|i| keep[size_class(reach_max, reach(i))])

@@ -668,7 +668,20 @@ fn procedural_footprint(
         .iter()
         .map(|s| ClassMoments::from_sums(*s, volume))
         .collect();
-    SurfaceFootprint::new(classes, Bounds3 { lo, hi }, sigma / volume, min_count)
+    // resolvable's cylinder length: the box's mean chord 4V/S, or a mean free path if shorter.
+    let e = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(0.0));
+    let surface = 2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]);
+    let chord = if surface > 0.0 {
+        4.0 * volume / surface
+    } else {
+        0.0
+    };
+    let length = if sigma > 0.0 {
+        chord.min(volume / sigma)
+    } else {
+        chord
+    };
+    SurfaceFootprint::new(classes, Bounds3 { lo, hi }, length, min_count)
 }
 
 /// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
@@ -1250,8 +1263,9 @@ impl DiscreteMedium {
     }
 
     /// The continuous equivalent of all particles when a ray that starts at no event (a surface, a
-    /// boundary, a camera) carries a pixel footprint that holds many grains of every discrete class
-    /// (`crate::render::footprint`): None for camera rays, without cameras, or with the rule off.
+    /// boundary, a camera) carries a pixel footprint that holds many grains (an effective count over the
+    /// discrete classes, `crate::render::footprint`): None for camera rays, without cameras, or with
+    /// the rule off.
     fn surface_field(
         &self,
         parent: &Event,

@@ -22,7 +22,11 @@
 //! which has a closed form ([`cone_slope`]). Any other ray (a bounce, a shadow ray towards the sky or
 //! a distant light) keeps ρ = (α/2) min_{s ≥ 0} |o − c − s d|, the distance from the camera to the
 //! backward half-line. A camera ray's backward half-line passes through its camera, so its footprint
-//! bound is 0 and it keeps walking the grains: camera rays need no flag.
+//! bound is 0. Its grains' own disks could still pass the count (a query radius far wider than the
+//! grains, Eq. 23's usual case, with the classes pooled), so a ray whose backward half-line passes
+//! within the lens aperture (plus float rounding) of a camera is refused outright, and a ray passes only
+//! where its footprint, not the disks, is what holds the grains: ρ at the window's narrow end must be at
+//! least the largest mean disk radius of a discrete class.
 //!
 //! Which rays head for a light: those whose forward line passes within a light's radius of its centre
 //! ([`Light`]: the scene's point and spot lights, and a sphere around each area light's shape). The
@@ -31,10 +35,11 @@
 //! keeps the rule safe and makes it rarely apply.
 //!
 //! The rule: a ray that starts at no event sees the grains' continuous equivalent when the grains
-//! that stay discrete would hold at least `continuous_count` of them in that cone, counted over one
-//! mean free path of the whole medium (or the ray's chord through the particles' box, if shorter) at
-//! the cone's narrow end, with each size class's mean density over the particles' box: the count of
-//! [`crate::render::continuous::resolvable`] with the ray's own footprint in place of r_c alone.
+//! that stay discrete would hold at least `continuous_count` of them in that cone, counted over the
+//! length [`crate::render::continuous::resolvable`] counts over (one mean free path of the whole
+//! medium, or the box's mean chord if shorter; less where the ray's own chord is shorter) at the
+//! cone's narrow end, with each size class's mean density over the particles' box: that count with
+//! the ray's own footprint added to each disk.
 //! Several classes count as an *effective* number, N_eff = (Σ_k τ_k)² / Σ_k τ_k² / N_k, with N_k
 //! the class's expected count and τ_k its expected optical depth: what a viewer would see of the
 //! grains is the grain-to-grain texture of the transmittance over the footprint, whose relative
@@ -172,7 +177,10 @@ impl ClassMoments {
 pub struct SurfaceFootprint {
     classes: Vec<ClassMoments>,
     bounds: Bounds3,
-    mean_free_path: f64,
+    /// The longest window counted: `resolvable`'s cylinder length.
+    length: f64,
+    /// The largest mean disk radius of a class: the footprint must reach it (module docs).
+    disk_max: f64,
     min_count: f64,
     /// The least footprint radius with which any ray could pass (a cylinder as long as the box's
     /// diagonal or a mean free path): rays whose footprint bound stays below it are turned away
@@ -181,36 +189,33 @@ pub struct SurfaceFootprint {
 }
 
 impl SurfaceFootprint {
-    /// The rule for the discrete classes `classes` of particles whose centres fill `bounds`, in a
-    /// medium of mean extinction `sigma_t` (all classes); None when nothing could pass it (no
-    /// discrete class, or an infinite `min_count`).
+    /// The rule for the discrete classes `classes` of particles whose centres fill `bounds`, counted
+    /// over windows of at most `length` (the cylinder length of `resolvable`); None when nothing
+    /// could pass it (no discrete class, or an infinite `min_count`).
     pub fn new(
         classes: Vec<ClassMoments>,
         bounds: Bounds3,
-        sigma_t: f64,
+        length: f64,
         min_count: f64,
     ) -> Option<Self> {
         let classes: Vec<ClassMoments> = classes.into_iter().filter(|c| c.density > 0.0).collect();
         if !(min_count.is_finite() && !classes.is_empty()) {
             return None;
         }
+        let disk_max = classes.iter().map(|c| c.mean_radius).fold(0.0, f64::max);
         let mut rule = SurfaceFootprint {
             classes,
             bounds,
-            mean_free_path: if sigma_t > 0.0 {
-                1.0 / sigma_t
-            } else {
-                f64::INFINITY
-            },
+            length,
+            disk_max,
             min_count,
             least_radius: 0.0,
         };
         // The effective count grows with the radius: bisect for where it reaches min_count.
         let e = [0, 1, 2].map(|a| (bounds.hi[a] - bounds.lo[a]).max(0.0));
-        let len = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
-            .sqrt()
-            .min(rule.mean_free_path);
-        let passes = |r: f64| rule.effective_count(len, len * r, len * r * r) >= min_count;
+        let len = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt().min(length);
+        let passes =
+            |r: f64| r >= disk_max && rule.effective_count(len, len * r, len * r * r) >= min_count;
         let (mut lo, mut hi) = (0.0, len.max(1e-300));
         while !passes(hi) && hi < 1e300 {
             (lo, hi) = (hi, hi * 4.0);
@@ -270,6 +275,9 @@ impl SurfaceFootprint {
         if bound2.is_nan() || bound2 < self.least_radius * self.least_radius {
             return false;
         }
+        if view.cameras.iter().any(|c| is_camera_ray(c, o, d)) {
+            return false;
+        }
         let Some((ta, tb)) = self.bounds.clip(&RaySegment::new(o, d, 0.0, t_max)) else {
             return false; // misses the grains: nothing to save
         };
@@ -283,8 +291,8 @@ impl SurfaceFootprint {
             .iter()
             .map(|c| cone_slope(c, o, d, a))
             .fold(f64::INFINITY, f64::min);
-        // The window: one mean free path at the cone's narrow end (the far end of the chord).
-        let ta = ta.max(tb - self.mean_free_path);
+        // The window: `length` at the cone's narrow end (the far end of the chord).
+        let ta = ta.max(tb - self.length);
         // ρ at the window's ends (linear between: k (a − t), or k for a cone without an end);
         // Mitsuba's unbounded rays end at the largest float, so a − t is never formed alone.
         let (ra, rb) = if a.is_finite() {
@@ -297,12 +305,41 @@ impl SurfaceFootprint {
             i0 * (ra + rb) / 2.0,
             i0 * (ra * ra + ra * rb + rb * rb) / 3.0,
         );
-        if !(i0 > 0.0 && i0.is_finite()) {
+        if !(i0 > 0.0 && i0.is_finite()) || ra.min(rb) < self.disk_max {
             return false;
         }
         self.effective_count(i0, i1, i2) >= self.min_count
     }
 }
+
+/// Does the ray's backward half-line pass within the lens aperture of the camera (a camera ray, or
+/// one re-spawned along a camera ray's line at a boundary)? The tolerance covers single-precision
+/// origins and Mitsuba's offsets of re-spawned rays.
+pub fn is_camera_ray(cam: &Camera, o: [f64; 3], d: [f64; 3]) -> bool {
+    let v = [0, 1, 2].map(|a| o[a] - cam.position[a]);
+    let vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    let b = (v[0] * d[0] + v[1] * d[1] + v[2] * d[2]).max(0.0);
+    // Distance from the camera to the nearest point o − s d (s = b ≥ 0), from the cross product.
+    let x = [
+        v[1] * d[2] - v[2] * d[1],
+        v[2] * d[0] - v[0] * d[2],
+        v[0] * d[1] - v[1] * d[0],
+    ];
+    let dist2 = if b > 0.0 {
+        x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+    } else {
+        vv
+    };
+    let scale = 1.0
+        + o.iter()
+            .chain(&cam.position)
+            .fold(0.0f64, |m, x| m.max(x.abs()));
+    let tol = cam.aperture + CAMERA_LINE_TOLERANCE * scale;
+    dist2 <= tol * tol
+}
+
+/// Relative tolerance of [`is_camera_ray`] (of the scene's coordinates).
+const CAMERA_LINE_TOLERANCE: f64 = 1e-4;
 
 /// The footprint cone's radius per unit distance to where it converges (`t_end` finite: a light), or
 /// its constant radius (`t_end` infinite), bounded below over every surface point on the backward
@@ -396,7 +433,8 @@ mod tests {
                 mean_square_radius: 0.028f64.powi(2),
                 mean_extinction: 2.0 * PI * 0.008f64.powi(2),
             };
-            let rule = SurfaceFootprint::new(vec![c], bounds, density * 4e-4, 16.0).unwrap();
+            let rule =
+                SurfaceFootprint::new(vec![c], bounds, 1.0 / (density * 4e-4), 16.0).unwrap();
             let full = SurfaceFootprint {
                 least_radius: 0.0,
                 ..rule.clone()
@@ -424,6 +462,39 @@ mod tests {
     }
 
     #[test]
+    fn camera_rays_never_see_the_field() {
+        // A query radius ten times the grains' radius (Eq. 23's usual case): the disks alone hold ~10
+        // grains per cylinder of resolvable's length (8, the cube's mean chord), and a camera ray along
+        // the cube's diagonal crosses 20.8; two such classes pooled would pass 16.
+        let (bounds, _) = cube_and_camera(None);
+        let class = |r: f64| ClassMoments {
+            density: 10.0 / (PI * (0.02 + r).powi(2) * 8.0),
+            mean_radius: 0.02 + r,
+            mean_square_radius: (0.02 + r).powi(2),
+            mean_extinction: 2.0 * PI * r * r,
+        };
+        let one = SurfaceFootprint::new(vec![class(0.002)], bounds, 8.0, 16.0).unwrap();
+        let two =
+            SurfaceFootprint::new(vec![class(0.002), class(0.0015)], bounds, 8.0, 16.0).unwrap();
+        let c = [20.0, 20.0, 20.0];
+        let view = View {
+            cameras: vec![Camera::new(c, 0.01, 0.0).unwrap()],
+            lights: Some(vec![]),
+        };
+        let s3 = 1.0 / 3f64.sqrt();
+        let d = [-s3, -s3, -s3];
+        // From the camera, re-spawned at the cube's corner, and re-spawned with an offset of 1e-5.
+        for o in [c, [6.0, 6.0, 6.0], [6.00001, 6.0, 5.99999]] {
+            for rule in [&one, &two] {
+                assert!(!rule.sees_field(&view, o, d, f64::INFINITY));
+                assert!(!rule.sees_field(&view, o, d, 1e6));
+            }
+        }
+        // A wall's ray across the same cube, far from the camera's lines, does.
+        assert!(two.sees_field(&view, [-40.0, 0.0, 0.0], [1.0, 0.0, 0.0], f64::INFINITY));
+    }
+
+    #[test]
     fn camera_rays_have_no_footprint() {
         let cam = Camera::new([0.0, 2.0, 42.0], 0.0076, 0.0).unwrap();
         assert!(Light::new([0.0; 3], -1.0).is_err() && Camera::new([0.0; 3], 0.0, 0.0).is_err());
@@ -448,7 +519,7 @@ mod tests {
                 mean_square_radius: 0.028f64.powi(2),
                 mean_extinction: 2.0 * PI * 0.008f64.powi(2),
             };
-            SurfaceFootprint::new(vec![c], bounds, 0.37, 16.0).unwrap()
+            SurfaceFootprint::new(vec![c], bounds, 1.0 / 0.37, 16.0).unwrap()
         };
         // A bounce from the left wall across the cloud: footprint 0.0038 × ~20 = 0.076 wide.
         let (o, d) = ([-20.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
@@ -496,7 +567,7 @@ mod tests {
                 mean_square_radius: (0.02 + r).powi(2),
                 mean_extinction: 2.0 * PI * r * r,
             };
-            SurfaceFootprint::new(vec![dense, rare], bounds, 0.37, 16.0).unwrap()
+            SurfaceFootprint::new(vec![dense, rare], bounds, 1.0 / 0.37, 16.0).unwrap()
         };
         let (o, d) = ([-20.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
         assert!(mixed(0.004, 2.0).sees_field(&cam, o, d, f64::INFINITY));

@@ -7,7 +7,7 @@
 //! * [`continuous`]: size classes whose grains no pixel resolves, sampled as a continuous medium and
 //!   combined exactly with the discrete classes.
 //! * [`footprint`]: when a ray from a surface may see the grains' continuous equivalent (its pixel
-//!   footprint holds many of every discrete class).
+//!   footprint holds many grains; camera rays never do).
 
 pub mod continuous;
 pub mod discrete;
