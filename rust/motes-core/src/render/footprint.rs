@@ -25,8 +25,9 @@
 //! bound is 0. Its grains' own disks could still pass the count (a query radius far wider than the
 //! grains, Eq. 23's usual case, with the classes pooled), so a ray whose backward half-line passes
 //! within the lens aperture (plus float rounding) of a camera is refused outright, and a ray passes only
-//! where its footprint, not the disks, is what holds the grains: ρ at the window's narrow end must be at
-//! least the largest mean disk radius of a discrete class.
+//! where its footprint, not the disks, is what holds the grains: the footprint must at least double the
+//! effective count the disks alone hold over the same window (a ray just off a camera's line, through a
+//! glass pane say, keeps walking them).
 //!
 //! Which rays head for a light: those whose forward line passes within a light's radius of its centre
 //! ([`Light`]: the scene's point and spot lights, and a sphere around each area light's shape). The
@@ -179,8 +180,6 @@ pub struct SurfaceFootprint {
     bounds: Bounds3,
     /// The longest window counted: `resolvable`'s cylinder length.
     length: f64,
-    /// The largest mean disk radius of a class: the footprint must reach it (module docs).
-    disk_max: f64,
     min_count: f64,
     /// The least footprint radius with which any ray could pass (a cylinder as long as the box's
     /// diagonal or a mean free path): rays whose footprint bound stays below it are turned away
@@ -202,20 +201,17 @@ impl SurfaceFootprint {
         if !(min_count.is_finite() && !classes.is_empty()) {
             return None;
         }
-        let disk_max = classes.iter().map(|c| c.mean_radius).fold(0.0, f64::max);
         let mut rule = SurfaceFootprint {
             classes,
             bounds,
             length,
-            disk_max,
             min_count,
             least_radius: 0.0,
         };
         // The effective count grows with the radius: bisect for where it reaches min_count.
         let e = [0, 1, 2].map(|a| (bounds.hi[a] - bounds.lo[a]).max(0.0));
         let len = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt().min(length);
-        let passes =
-            |r: f64| r >= disk_max && rule.effective_count(len, len * r, len * r * r) >= min_count;
+        let passes = |r: f64| rule.passes(len, len * r, len * r * r);
         let (mut lo, mut hi) = (0.0, len.max(1e-300));
         while !passes(hi) && hi < 1e300 {
             (lo, hi) = (hi, hi * 4.0);
@@ -230,6 +226,14 @@ impl SurfaceFootprint {
         }
         rule.least_radius = lo;
         Some(rule)
+    }
+
+    /// Does a window (∫dt, ∫ρ dt, ∫ρ² dt) pass: an effective count of at least `min_count`, at least
+    /// twice what the disks alone hold (module docs)? Monotone in ρ and, at constant ρ, in the window's
+    /// length, as the early rejection needs.
+    fn passes(&self, i0: f64, i1: f64, i2: f64) -> bool {
+        let n = self.effective_count(i0, i1, i2);
+        n >= self.min_count && n >= FOOTPRINT_SHARE * self.effective_count(i0, 0.0, 0.0)
     }
 
     /// The grains' effective count (module docs) in a window of the cone with ∫dt = `i0`, ∫ρ dt =
@@ -305,10 +309,10 @@ impl SurfaceFootprint {
             i0 * (ra + rb) / 2.0,
             i0 * (ra * ra + ra * rb + rb * rb) / 3.0,
         );
-        if !(i0 > 0.0 && i0.is_finite()) || ra.min(rb) < self.disk_max {
+        if !(i0 > 0.0 && i0.is_finite()) {
             return false;
         }
-        self.effective_count(i0, i1, i2) >= self.min_count
+        self.passes(i0, i1, i2)
     }
 }
 
@@ -337,6 +341,9 @@ pub fn is_camera_ray(cam: &Camera, o: [f64; 3], d: [f64; 3]) -> bool {
     let tol = cam.aperture + CAMERA_LINE_TOLERANCE * scale;
     dist2 <= tol * tol
 }
+
+/// How much the footprint must raise the effective count over the disks' own (module docs).
+const FOOTPRINT_SHARE: f64 = 2.0;
 
 /// Relative tolerance of [`is_camera_ray`] (of the scene's coordinates).
 const CAMERA_LINE_TOLERANCE: f64 = 1e-4;
