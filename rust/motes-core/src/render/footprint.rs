@@ -46,10 +46,10 @@
 //! grains is the grain-to-grain texture of the transmittance over the footprint, whose relative
 //! spread is τ / √N for one class and τ / √N_eff for a mixture. So a rare class of small grains
 //! (a few in a footprint, but little of the extinction) does not keep a ray walking, and a rare class
-//! of large grains (few, but much of the extinction) does. Area
-//! lights (penumbrae), curved mirrors that focus, and clouds much denser in places than on average are
-//! where the bound is not conservative; `surface_footprint` off (or an infinite `continuous_count`)
-//! keeps every surface ray walking the grains.
+//! of large grains (few, but much of the extinction) does. Curved mirrors that focus, and clouds much
+//! denser in places than on average, are where the bound is not conservative (area lights are: their
+//! penumbrae blur the shadows more than the cone to their near side assumes); `surface_footprint` off
+//! (or an infinite `continuous_count`) keeps every surface ray walking the grains.
 
 use crate::error::{require, OpticsError};
 use crate::space::dda::Bounds3;
