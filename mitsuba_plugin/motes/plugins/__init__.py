@@ -88,20 +88,16 @@ def register() -> None:
     mi.register_medium("discrete", lambda props: medium(props))
     mi.register_phase("particle", lambda props: phase(props))
     _registered.add(variant)
-    _media_classes.add(discrete_medium.plugin_class())
 
 
-_media_classes: set = set()
 PRBVOLPATH_WARNING = ("motes: prbvolpath does not support the discrete medium (it loses ~4 % of the energy in a "
                       "white furnace: BENCHMARKS.md, issue 5); render with volpath or volpathmis")
 
 
 def _scene_has_discrete_medium(scene) -> bool:
-    media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
-    media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
-    from .discrete_medium import native_data
+    from .cameras import discrete_media
 
-    return any(isinstance(m, tuple(_media_classes)) or native_data(m) is not None for m in media if m is not None)
+    return bool(discrete_media(scene))
 
 
 def _warn_under_prbvolpath() -> None:
