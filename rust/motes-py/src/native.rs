@@ -179,9 +179,16 @@ impl Record {
     }
 }
 
-/// The packet's lanes as an array (inactive: None), without allocating.
+/// The packet's lanes as an array (inactive: None), without allocating. A loop over the `width`
+/// lanes, not `array::from_fn`: that one was unrolled over all 16 lanes, building each in a temporary
+/// and copying it, the scalar variants' one lane included (4 % of a scalar render).
+#[inline(always)]
 fn lanes<T: Copy>(width: usize, f: impl Fn(usize) -> Option<T>) -> [Option<T>; PACKET_LANES] {
-    std::array::from_fn(|i| if i < width { f(i) } else { None })
+    let mut out = [None; PACKET_LANES];
+    for (i, x) in out.iter_mut().enumerate().take(width) {
+        *x = f(i);
+    }
+    out
 }
 
 /// Per-lane wavelengths from the packed `mask`/`id` fields.

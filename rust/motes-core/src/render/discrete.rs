@@ -85,7 +85,7 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Mutex, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
 /// Optical data of one radius bin of one species at the tabulated wavelengths.
 pub struct BinOptics {
@@ -253,7 +253,10 @@ impl EventMap {
     }
     fn insert(&mut self, key: [u32; 3], event: Event) {
         if self.current.len() >= self.capacity {
-            self.previous = std::mem::take(&mut self.current);
+            // The old generation's table becomes the new current one, emptied but with its capacity:
+            // a fresh map would rehash its way up again every generation (1 % of a scalar render).
+            std::mem::swap(&mut self.previous, &mut self.current);
+            self.current.clear();
         }
         self.current.insert(key, event);
     }
@@ -473,7 +476,11 @@ pub struct DiscreteMedium {
     footprint: Option<SurfaceFootprint>,
     /// The scene's cameras and lights, as the renderer set them (`set_view`; no camera: rays from
     /// surfaces walk the grains).
-    view: RwLock<View>,
+    view: RwLock<Arc<View>>,
+    /// Counts `set_view` calls: the packet path keeps each thread's own reference to the view and
+    /// takes the lock only when this changed (a shared lock per packet made two threads fight over its
+    /// cache line: 8 % of a scalar render, where a packet is one ray).
+    view_epoch: AtomicU64,
     /// Whether the footprint rule applies (`set_surface_footprint`).
     surface_footprint: std::sync::atomic::AtomicBool,
     /// Rays checked against the rule, and those that saw the field (statistics).
@@ -904,7 +911,8 @@ impl DiscreteMedium {
             field: w.field,
             grains_field: w.grains_field,
             footprint: w.footprint,
-            view: RwLock::new(View::default()),
+            view: RwLock::new(Arc::new(View::default())),
+            view_epoch: AtomicU64::new(0),
             surface_footprint: std::sync::atomic::AtomicBool::new(true),
             surface_counts: ShardedCounts::default(),
             optics: w.optics,
@@ -1147,7 +1155,7 @@ impl DiscreteMedium {
     ) -> Vec<SiteSample> {
         let call = self.calls.fetch_add(1, Ordering::Relaxed);
         let events = self.events.read().unwrap();
-        let view = self.view.read().unwrap().clone();
+        let view = Arc::clone(&self.view.read().unwrap());
         let res: Vec<(Option<Site>, f64, Parent)> = o
             .par_iter()
             .zip(d.par_iter().zip(t_max.par_iter()))
@@ -1293,12 +1301,13 @@ impl DiscreteMedium {
     /// converge to (`crate::render::footprint`); no camera makes every ray from a surface walk the
     /// grains. Set by the renderer from its scene.
     pub fn set_view(&self, view: View) {
-        *self.view.write().unwrap() = view;
+        *self.view.write().unwrap() = Arc::new(view);
+        self.view_epoch.fetch_add(1, Ordering::Release);
     }
 
     /// What [`Self::set_view`] set.
     pub fn view(&self) -> View {
-        self.view.read().unwrap().clone()
+        View::clone(&self.view.read().unwrap())
     }
 
     /// Whether rays from surfaces may see the grains' continuous equivalent where their pixel footprint
@@ -1797,6 +1806,9 @@ struct PacketState {
     events: EventMap,
     /// The medium's `optics_epoch` when these events were made (older ones carry stale albedos).
     epoch: u64,
+    /// The medium's view as of its `view_epoch` (u64::MAX: not read yet).
+    view: Arc<View>,
+    view_epoch: u64,
 }
 
 impl Default for PacketState {
@@ -1805,6 +1817,8 @@ impl Default for PacketState {
             pending: [PendingLane::default(); PACKET_LANES],
             events: EventMap::new(PACKET_EVENT_CAPACITY),
             epoch: 0,
+            view: Arc::new(View::default()),
+            view_epoch: u64::MAX,
         }
     }
 }
@@ -1905,7 +1919,12 @@ impl DiscreteMedium {
         let n_rays = rays.iter().filter(|r| r.is_some()).count() as u64;
         let mut surface = SurfaceTally::default();
         let sites = self.with_packet_state(|st| {
-            let view = self.view.read().unwrap();
+            let epoch = self.view_epoch.load(Ordering::Acquire);
+            if st.view_epoch != epoch {
+                st.view = Arc::clone(&self.view.read().unwrap());
+                st.view_epoch = epoch;
+            }
+            let view = &*st.view;
             let mut sites = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 st.pending[i] = PendingLane::default();
@@ -1914,7 +1933,7 @@ impl DiscreteMedium {
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
                 let (site, _, parent) = self.lane_free_flight(
                     &st.events,
-                    &view,
+                    view,
                     &mut surface,
                     o,
                     d,
