@@ -841,7 +841,8 @@ impl DiscreteMedium {
             &grid_radius,
             &grid_c,
             &p_c,
-            &GridSettings::new(query_radius, cells_per_particle),
+            &GridSettings::new(query_radius, cells_per_particle)
+                .quantised(storage == Storage::Compact),
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),
         );

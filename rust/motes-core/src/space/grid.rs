@@ -24,6 +24,17 @@
 //! least R_max wide, reference their own particles only, and a traversal scans the 3×3×3 cells around
 //! each cell it crosses. Either way a particle is counted only in the DDA step whose t-interval holds
 //! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
+//!
+//! ## Quantised slots (compact storage, issue 24)
+//! A sparse class's slots copy each ball into every cell it overlaps (24 bytes a slot: the sphere in
+//! f32, τ and the particle's index). With [`GridSettings::quantise`] a slot is 12 bytes: the centre in
+//! u16 steps of a lattice of 2^14 steps per cell edge from a corner one cell below the slot's cell
+//! (6·10⁻⁵ of a cell; a ball overlapping the cell has its centre within a cell of it), a u16 code into
+//! the class's table of (R, τ), and the index. The lattice point *is* the particle: every slot of a
+//! particle decodes to the same double-precision centre, the cells that reference it are chosen from
+//! that centre, and the exact test runs on it, so the free flight stays exact for the particles as
+//! stored. The single-precision pre-test works in the step's cell frame (the cell's offset across the
+//! ray once per step, then `h (q·e)` per lane), which is more precise than the spheres' global one.
 
 use crate::error::{require, require_len, OpticsError};
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
@@ -93,6 +104,8 @@ struct Segment {
     c1: usize,
     t_enter: f64,
     t_exit: f64,
+    /// The cell of a k = 0 step (whose quantised slots are relative to it).
+    cell: [usize; 3],
 }
 
 /// Ask for the cache line holding `p` (a hint: no fault for any address).
@@ -110,11 +123,16 @@ fn prefetch<T>(p: *const T) {
 /// (t of its projection)?
 #[inline]
 fn sphere_contribution(p: [f32; 4], ray: &RaySegment) -> Option<f64> {
+    ball_contribution([p[0] as f64, p[1] as f64, p[2] as f64], p[3] as f64, ray)
+}
+
+/// [`sphere_contribution`] of the ball (centre `c`, radius `r`) in double precision.
+#[inline]
+fn ball_contribution(c: [f64; 3], r: f64, ray: &RaySegment) -> Option<f64> {
     let (o, d) = (ray.o, ray.d);
-    let v = [p[0] as f64 - o[0], p[1] as f64 - o[1], p[2] as f64 - o[2]];
+    let v = [c[0] - o[0], c[1] - o[1], c[2] - o[2]];
     let t = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
     let q = [v[0] - t * d[0], v[1] - t * d[1], v[2] - t * d[2]];
-    let r = p[3] as f64;
     (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < r * r).then_some(t)
 }
 
@@ -169,6 +187,75 @@ impl Spheres {
     }
 }
 
+/// Lattice steps per cell edge of quantised slots (2^14). A slot stores its centre as u16 steps from a
+/// corner one cell below its own cell's (a ball referenced by a cell overlaps it, and k = 0 balls are
+/// at most half a cell wide, so the centre lies within [−1, 2) cells of the corner: the u16 range
+/// covers [−1, 3)).
+const LATTICE_PER_CELL: i64 = 1 << 14;
+
+/// [`LANES`] quantised slots (issue 24's compact storage): the centres in lattice steps from the
+/// cell's slot origin ([`LATTICE_PER_CELL`]) and each slot's code into its class's (R, τ) table.
+/// One cache line where a [`Block`] and its τ and index take three.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug, Default)]
+struct QBlock {
+    x: [u16; LANES],
+    y: [u16; LANES],
+    z: [u16; LANES],
+    code: [u16; LANES],
+}
+
+/// The slots of a k = 0 class in compact storage: centres on a lattice of step `step` (the cell edge
+/// / [`LATTICE_PER_CELL`], 6·10⁻⁵ of a cell), radii and optical depths by code. The lattice point is
+/// the particle *as stored*: every slot of a particle decodes to the same double-precision centre, the
+/// cells that reference it were chosen from that centre, and the free flight is exact for it. Code 0
+/// is padding: R = NaN, which no test passes.
+#[derive(Default)]
+struct QSlots {
+    blocks: Vec<QBlock>,
+    /// Inclusion radius per code.
+    reach: Vec<f32>,
+    /// τ per code and channel.
+    tau: Vec<f32>,
+    step: f64,
+}
+
+impl QSlots {
+    /// The lattice coordinates of slot `s` of cell `cell`.
+    #[inline(always)]
+    fn lattice(&self, s: usize, cell: [usize; 3]) -> [i64; 3] {
+        let (b, l) = (&self.blocks[s / LANES], s % LANES);
+        let origin = |a: usize| (cell[a] as i64 - 1) * LATTICE_PER_CELL;
+        [
+            origin(0) + b.x[l] as i64,
+            origin(1) + b.y[l] as i64,
+            origin(2) + b.z[l] as i64,
+        ]
+    }
+    /// Centre (scene units) and inclusion radius of slot `s` of cell `cell` in a grid from `lo`.
+    #[inline(always)]
+    fn ball(&self, lo: [f64; 3], s: usize, cell: [usize; 3]) -> ([f64; 3], f64) {
+        let g = self.lattice(s, cell);
+        (
+            [0, 1, 2].map(|a| lo[a] + g[a] as f64 * self.step),
+            self.reach[self.code(s)] as f64,
+        )
+    }
+    #[inline(always)]
+    fn code(&self, s: usize) -> usize {
+        self.blocks[s / LANES].code[s % LANES] as usize
+    }
+    fn bytes(&self) -> usize {
+        self.blocks.len() * std::mem::size_of::<QBlock>() + (self.reach.len() + self.tau.len()) * 4
+    }
+}
+
+/// The lattice point (steps of `step` from `lo`) nearest `p`.
+#[inline]
+fn lattice_point(p: [f64; 3], lo: [f64; 3], step: f64) -> [i64; 3] {
+    [0, 1, 2].map(|a| ((p[a] - lo[a]) / step).round() as i64)
+}
+
 /// The ray as the pre-test sees it: two unit vectors `e1`, `e2` perpendicular to its direction and the
 /// origin's coordinates along them, in single precision. A centre c lies within R of the ray's line iff
 /// (c·e1 − o·e1)² + (c·e2 − o·e2)² < R²: the distance across the ray without forming c − o or its
@@ -187,6 +274,11 @@ struct RayFrame {
     o2: [f32; LANES],
     /// The pre-test's tolerance (see [`PRETEST_SLACK`]).
     slack: [f32; LANES],
+    /// e1 and e2 times the lattice step of quantised slots (zero for spheres).
+    he1: [[f32; LANES]; 3],
+    he2: [[f32; LANES]; 3],
+    /// e1 and e2 in double precision (a quantised step's offset).
+    e: [[f64; 3]; 2],
 }
 
 impl RayFrame {
@@ -197,9 +289,13 @@ impl RayFrame {
         o1: [0.0; LANES],
         o2: [0.0; LANES],
         slack: [0.0; LANES],
+        he1: [[0.0; LANES]; 3],
+        he2: [[0.0; LANES]; 3],
+        e: [[0.0; 3]; 2],
     };
 
-    fn new(ray: &RaySegment, slack: f32) -> Self {
+    /// The frame of `ray` for spheres, and for quantised slots of lattice step `step` (0: none).
+    fn new(ray: &RaySegment, slack: f32, step: f64) -> Self {
         let (o, d) = (ray.o, ray.d);
         // Any unit vector perpendicular to d, then d × e1 (Duff et al.'s branchless basis).
         let sign = 1f64.copysign(d[2]);
@@ -215,7 +311,19 @@ impl RayFrame {
             o1: lanes(dot(e1)),
             o2: lanes(dot(e2)),
             slack: [slack; LANES],
+            he1: e1.map(|x| lanes(x * step)),
+            he2: e2.map(|x| lanes(x * step)),
+            e: [e1, e2],
         }
+    }
+
+    /// A quantised step's offsets: (corner − o)·e1 and (corner − o)·e2 for the slot origin `corner` of
+    /// its cell, in single precision (rounded once from double: within the pre-test's slack).
+    #[inline(always)]
+    fn offsets(&self, corner: [f64; 3], o: [f64; 3]) -> [f32; 2] {
+        let v = [corner[0] - o[0], corner[1] - o[1], corner[2] - o[2]];
+        self.e
+            .map(|e| (v[0] * e[0] + v[1] * e[1] + v[2] * e[2]) as f32)
     }
 }
 
@@ -315,6 +423,61 @@ fn block_pretest_narrow(b: &Block, f: &RayFrame) -> u32 {
     }
 }
 
+/// The lanes of a quantised block whose ball may contribute to the ray: [`block_pretest`] for
+/// centres `off + h (q·e)` across the ray, radii by code (`reach`).
+#[inline(always)]
+fn qblock_pretest<const WIDE: bool>(b: &QBlock, reach: &[f32], f: &RayFrame, off: [f32; 2]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if WIDE {
+        // SAFETY: WIDE walks run only where `wide_simd()` found AVX2 and FMA; codes index `reach`.
+        return unsafe { qblock_pretest_avx2(b, reach, f, off) };
+    }
+    let mut m = 0u32;
+    for l in 0..LANES {
+        let q = [b.x[l] as f32, b.y[l] as f32, b.z[l] as f32];
+        let across =
+            |e: &[[f32; LANES]; 3], o: f32| o + q[0] * e[0][0] + q[1] * e[1][0] + q[2] * e[2][0];
+        let (q1, q2) = (across(&f.he1, off[0]), across(&f.he2, off[1]));
+        let rr = reach[b.code[l] as usize] + f.slack[0];
+        m |= ((q1 * q1 + q2 * q2 < rr * rr) as u32) << l;
+    }
+    m
+}
+
+/// [`qblock_pretest`] in AVX2: the u16 lattice coordinates widened to f32, the radii gathered by code.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn qblock_pretest_avx2(b: &QBlock, reach: &[f32], f: &RayFrame, off: [f32; 2]) -> u32 {
+    use std::arch::x86_64::*;
+    // SAFETY (loads): `QBlock` is 64-byte aligned with 16-byte lane arrays; `RayFrame` 32-byte aligned.
+    let wide =
+        |p: &[u16; LANES]| _mm256_cvtepu16_epi32(_mm_load_si128(p.as_ptr() as *const __m128i));
+    let ld = |p: &[f32; LANES]| _mm256_load_ps(p.as_ptr());
+    let (x, y, z) = (
+        _mm256_cvtepi32_ps(wide(&b.x)),
+        _mm256_cvtepi32_ps(wide(&b.y)),
+        _mm256_cvtepi32_ps(wide(&b.z)),
+    );
+    let across = |e: &[[f32; LANES]; 3], o: f32| {
+        _mm256_fmadd_ps(
+            z,
+            ld(&e[2]),
+            _mm256_fmadd_ps(
+                y,
+                ld(&e[1]),
+                _mm256_fmadd_ps(x, ld(&e[0]), _mm256_set1_ps(o)),
+            ),
+        )
+    };
+    let (q1, q2) = (across(&f.he1, off[0]), across(&f.he2, off[1]));
+    let qq = _mm256_fmadd_ps(q1, q1, _mm256_mul_ps(q2, q2));
+    // SAFETY: every code indexes `reach` (`build_qslots`).
+    let r = _mm256_i32gather_ps::<4>(reach.as_ptr(), wide(&b.code));
+    let rr = _mm256_add_ps(r, ld(&f.slack));
+    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(qq, _mm256_mul_ps(rr, rr))) as u32
+}
+
 /// A traversal of one [`SubGrid`] in progress: the DDA and what the pre-test needs.
 pub(crate) struct Cursor {
     dda: Dda,
@@ -348,6 +511,9 @@ pub struct SubGrid {
     /// hit on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
     slot_tau: Vec<f32>,
     slot_index: Vec<u32>,
+    /// A k = 0 class's slots quantised (compact storage, [`GridSettings::quantise`]): in place of
+    /// `inline` and `slot_tau`.
+    quant: Option<QSlots>,
     /// The cells (cubes) as a DDA walks them.
     frame: GridFrame,
     /// Largest inclusion radius.
@@ -413,18 +579,17 @@ fn counting_sort(keys: &[u32], n_keys: usize) -> (Vec<u32>, Vec<u32>) {
     (start, order)
 }
 
-/// The slots of a k = 0 class: every cell references (by a copy of its sphere) each stored particle
-/// whose inclusion ball overlaps it, padded to whole blocks. Returns each cell's first slot (and the
-/// end), the spheres and the stored particle of each slot (`PADDING_SLOT` for padding).
+/// The slots of a k = 0 class: every cell references each stored particle whose inclusion ball
+/// overlaps it, padded to whole blocks. Returns each cell's first slot (and the end) and the stored
+/// particle of each slot (`PADDING_SLOT` for padding).
 fn inline_slots(
-    positions: &[[f64; 3]],
+    at: &(impl Fn(usize) -> [f64; 3] + Sync),
     reach: &[f64],
     order: &[u32],
-    particles: &Spheres,
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
-) -> (Vec<u32>, Spheres, Vec<u32>) {
+) -> (Vec<u32>, Vec<u32>) {
     let n_cells = dims[0] * dims[1] * dims[2];
     let cell_index = |idx: [usize; 3]| (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0];
     // Cell ranges (per axis) overlapped by each stored particle's inclusion ball, then a second
@@ -435,7 +600,7 @@ fn inline_slots(
     let mut ref_cell = Vec::new();
     let mut ref_particle = Vec::new();
     for (j, &i) in order.iter().enumerate() {
-        let (p, r) = (positions[i as usize], reach[i as usize] * BOX_MARGIN.0);
+        let (p, r) = (at(i as usize), reach[i as usize] * BOX_MARGIN.0);
         let rg = [0, 1, 2].map(|a| axis_range(p[a], r, a));
         for z in rg[2][0]..=rg[2][1] {
             for y in rg[1][0]..=rg[1][1] {
@@ -462,11 +627,92 @@ fn inline_slots(
             slot_particle[start[c] as usize + k] = ref_particle[r as usize];
         }
     }
-    let inline = Spheres::from_iter(slot_particle.len(), |s| match slot_particle[s] {
+    (start, slot_particle)
+}
+
+/// Each slot's copy of its particle's sphere (padding: NaN centres, which no test passes).
+fn slot_spheres(slot_particle: &[u32], particles: &Spheres) -> Spheres {
+    Spheres::from_iter(slot_particle.len(), |s| match slot_particle[s] {
         PADDING_SLOT => [f32::NAN, f32::NAN, f32::NAN, 0.0],
         j => particles.get(j as usize),
-    });
-    (start, inline, slot_particle)
+    })
+}
+
+/// The quantised slots ([`QSlots`]) of a k = 0 class of particles at `positions` (storage order
+/// `order`) on the lattice of `step` from `lo` (each at its nearest point), or None where they have more
+/// distinct (R, τ) pairs than a u16 code holds (then the class keeps spheres).
+#[allow(clippy::too_many_arguments)]
+fn build_qslots(
+    positions: &[[f64; 3]],
+    reach: &[f64],
+    tau: &[f32],
+    channels: usize,
+    order: &[u32],
+    start: &[u32],
+    slot_particle: &[u32],
+    lo: [f64; 3],
+    step: f64,
+    dims: [usize; 3],
+) -> Option<QSlots> {
+    if channels > 3 {
+        return None;
+    }
+    // Codes by (R, τ) of each stored particle j; code 0 is padding.
+    let mut table: rustc_hash::FxHashMap<[u32; 4], u16> = Default::default();
+    let mut q_reach = vec![f32::NAN];
+    let mut q_tau = vec![0f32; channels];
+    let mut code_of = Vec::with_capacity(order.len());
+    for (j, &i) in order.iter().enumerate() {
+        let r = reach[i as usize] as f32;
+        let t = &tau[j * channels..(j + 1) * channels];
+        let mut key = [r.to_bits(), 0, 0, 0];
+        for (k, x) in t.iter().enumerate() {
+            key[k + 1] = x.to_bits();
+        }
+        let code = match table.get(&key) {
+            Some(&c) => c,
+            None => {
+                if q_reach.len() > u16::MAX as usize {
+                    return None;
+                }
+                let c = q_reach.len() as u16;
+                table.insert(key, c);
+                q_reach.push(r);
+                q_tau.extend_from_slice(t);
+                c
+            }
+        };
+        code_of.push(code);
+    }
+    let mut blocks = vec![QBlock::default(); slot_particle.len() / LANES];
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let c = (z * dims[1] + y) * dims[0] + x;
+                let origin = [x, y, z].map(|i| (i as i64 - 1) * LATTICE_PER_CELL);
+                for s in start[c] as usize..start[c + 1] as usize {
+                    let j = slot_particle[s];
+                    if j == PADDING_SLOT {
+                        continue; // code 0, R = NaN
+                    }
+                    let g = lattice_point(positions[order[j as usize] as usize], lo, step);
+                    let q = [0, 1, 2].map(|a| {
+                        let q = g[a] - origin[a];
+                        debug_assert!((0..=u16::MAX as i64).contains(&q), "lattice offset {q}");
+                        q.clamp(0, u16::MAX as i64) as u16
+                    });
+                    let (b, l) = (&mut blocks[s / LANES], s % LANES);
+                    (b.x[l], b.y[l], b.z[l], b.code[l]) = (q[0], q[1], q[2], code_of[j as usize]);
+                }
+            }
+        }
+    }
+    Some(QSlots {
+        blocks,
+        reach: q_reach,
+        tau: q_tau,
+        step,
+    })
 }
 
 /// Each particle's optical depth per channel, in storage order: C_ext / (π R²), the disk of its
@@ -483,7 +729,7 @@ fn disk_tau(order: &[u32], reach: &[f64], c_ext: &[f64], channels: usize) -> Vec
 }
 
 /// What a hit reads, per slot of a k = 0 class: its particle's τ per channel and original index
-/// (padding slots: τ = 0, index unused).
+/// (padding slots: τ = 0, index unused); no τ where `tau` is empty (quantised slots: τ by code).
 fn slot_hits(
     slot_particle: &[u32],
     tau: &[f32],
@@ -491,6 +737,13 @@ fn slot_hits(
     channels: usize,
 ) -> (Vec<f32>, Vec<u32>) {
     let slot_of = |sp: &u32| (*sp != PADDING_SLOT).then_some(*sp as usize);
+    if tau.is_empty() {
+        let index = slot_particle
+            .iter()
+            .map(|sp| slot_of(sp).map_or(u32::MAX, |j| index[j]))
+            .collect();
+        return (Vec::new(), index);
+    }
     let mut slot_tau = vec![0f32; slot_particle.len() * channels];
     for (s, sp) in slot_particle.iter().enumerate() {
         if let Some(j) = slot_of(sp) {
@@ -525,7 +778,7 @@ impl SubGrid {
             lo[a] -= reach_max * BOX_MARGIN.0 + BOX_MARGIN.1;
             hi[a] += reach_max * BOX_MARGIN.0 + BOX_MARGIN.1;
         }
-        let ext: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
+        let mut ext: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
         let volume = volume_hint
             .unwrap_or(ext[0] * ext[1] * ext[2])
             .max(ext[0] * ext[1] * ext[2] * 1e-9);
@@ -538,6 +791,26 @@ impl SubGrid {
         let spacing = cell_spacing(volume, n, settings.cells_per_particle);
         let k: i64 = if is_sparse(reach_max, spacing) { 0 } else { 1 };
         let cell = spacing.max(reach_max).max(1e-12);
+        // Compact storage quantises a sparse class's centres to a lattice of its cells (`QSlots`):
+        // from here on the particles are those lattice points, the box grown by two steps to hold them.
+        let quantise = settings.quantise && k == 0;
+        let step = cell / LATTICE_PER_CELL as f64;
+        if quantise {
+            for a in 0..3 {
+                lo[a] -= 2.0 * step;
+                hi[a] += 2.0 * step;
+                ext[a] = hi[a] - lo[a];
+            }
+        }
+        // Each particle's centre as stored (computed where needed: no copy of the positions).
+        let at = |i: usize| -> [f64; 3] {
+            if quantise {
+                let g = lattice_point(positions[i], lo, step);
+                [0, 1, 2].map(|a| lo[a] + g[a] as f64 * step)
+            } else {
+                positions[i]
+            }
+        };
         let dims =
             [0, 1, 2].map(|a| ((ext[a] / cell).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS));
         let n_cells = dims[0] * dims[1] * dims[2];
@@ -546,24 +819,51 @@ impl SubGrid {
             cell_index([0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1)))
         };
         // The storage order: particles sorted by the cell of their centre.
-        let cells: Vec<u32> = positions.par_iter().map(|p| cell_of(p) as u32).collect();
+        let cells: Vec<u32> = (0..n)
+            .into_par_iter()
+            .map(|i| cell_of(&at(i)) as u32)
+            .collect();
         let (centre_start, order) = counting_sort(&cells, n_cells);
         drop(cells);
         let sphere_of = |i: usize| {
-            let p = positions[i];
+            let p = at(i);
             [p[0] as f32, p[1] as f32, p[2] as f32, reach[i] as f32]
         };
         let particles = Spheres::from_iter(n, |j| sphere_of(order[j] as usize));
         let tau = disk_tau(&order, &reach, c_ext, channels);
-        let (start, inline, slot_particle) = if k == 1 {
+        let (start, slot_particle) = if k == 1 {
             // Each cell's slots are its own particles, already in cell order.
-            (centre_start, Spheres::default(), Vec::new())
+            (centre_start, Vec::new())
         } else {
-            inline_slots(positions, &reach, &order, &particles, lo, cell, dims)
+            inline_slots(&at, &reach, &order, lo, cell, dims)
+        };
+        let quant = quantise
+            .then(|| {
+                build_qslots(
+                    positions,
+                    &reach,
+                    &tau,
+                    channels,
+                    &order,
+                    &start,
+                    &slot_particle,
+                    lo,
+                    step,
+                    dims,
+                )
+            })
+            .flatten();
+        let inline = if k == 0 && quant.is_none() {
+            slot_spheres(&slot_particle, &particles)
+        } else {
+            Spheres::default()
         };
         let index: Vec<u32> = order.iter().map(|&i| ids[i as usize]).collect();
-        let prefetch_slots = inline.bytes().max(particles.bytes()) > PREFETCH_SLOTS_ABOVE_BYTES;
-        let (slot_tau, slot_index) = slot_hits(&slot_particle, &tau, &index, channels);
+        let slot_bytes = quant.as_ref().map_or(inline.bytes(), QSlots::bytes);
+        let prefetch_slots = slot_bytes.max(particles.bytes()) > PREFETCH_SLOTS_ABOVE_BYTES;
+        // Quantised slots read τ by code.
+        let slot_tau_of: &[f32] = if quant.is_some() { &[] } else { &tau };
+        let (slot_tau, slot_index) = slot_hits(&slot_particle, slot_tau_of, &index, channels);
         SubGrid {
             particles,
             tau,
@@ -573,6 +873,7 @@ impl SubGrid {
             inline,
             slot_tau,
             slot_index,
+            quant,
             frame: GridFrame::new(lo, [cell; 3], dims),
             reach_max,
             k,
@@ -601,22 +902,28 @@ impl SubGrid {
     /// Each particle once with its sphere, τ per channel and original index: the stored particles,
     /// or (released) the first slot of each (the oracles' view).
     #[cfg(any(test, feature = "oracles"))]
-    fn each_particle(&self, mut visit: impl FnMut([f32; 4], &[f32], u32)) {
-        if self.index.len() == self.count {
+    fn each_particle(&self, mut visit: impl FnMut(([f64; 3], f64), &[f32], u32)) {
+        let ball = |p: [f32; 4]| ([p[0] as f64, p[1] as f64, p[2] as f64], p[3] as f64);
+        if self.index.len() == self.count && self.quant.is_none() {
             for j in 0..self.count {
                 visit(
-                    self.particles.get(j),
+                    ball(self.particles.get(j)),
                     &self.tau[j * self.channels..(j + 1) * self.channels],
                     self.index[j],
                 );
             }
             return;
         }
+        // The slots (quantised: decoded in their cells), each particle at its first.
         let mut seen = std::collections::HashSet::new();
-        for s in 0..self.slot_index.len() {
-            let i = self.slot_index[s];
-            if i != u32::MAX && seen.insert(i) {
-                visit(self.inline.get(s), self.hit_tau(s), i);
+        let dims = self.frame.dims;
+        for c in 0..dims[0] * dims[1] * dims[2] {
+            let cell = [c % dims[0], c / dims[0] % dims[1], c / (dims[0] * dims[1])];
+            for s in self.start[c] as usize..self.start[c + 1] as usize {
+                let i = self.hit_index(s);
+                if i != u32::MAX && seen.insert(i) {
+                    visit(self.slot_ball(s, cell), self.hit_tau(s), i);
+                }
             }
         }
     }
@@ -631,6 +938,7 @@ impl SubGrid {
     pub fn bytes(&self) -> usize {
         self.particles.bytes()
             + self.inline.bytes()
+            + self.quant.as_ref().map_or(0, QSlots::bytes)
             + self.slot_tau.len() * 4
             + self.slot_index.len() * 4
             + self.tau.len() * 4
@@ -655,9 +963,24 @@ impl SubGrid {
             &self.particles
         }
     }
+    /// Centre and inclusion radius of slot `s` of cell `cell` (double precision).
+    #[inline(always)]
+    fn slot_ball(&self, s: usize, cell: [usize; 3]) -> ([f64; 3], f64) {
+        match &self.quant {
+            Some(q) => q.ball(self.frame.bounds.lo, s, cell),
+            None => {
+                let p = self.slots().get(s);
+                ([p[0] as f64, p[1] as f64, p[2] as f64], p[3] as f64)
+            }
+        }
+    }
     /// τ per channel of the particle in slot `s` (what `walk` reports).
     #[inline(always)]
     fn hit_tau(&self, s: usize) -> &[f32] {
+        if let Some(q) = &self.quant {
+            let c = q.code(s);
+            return &q.tau[c * self.channels..(c + 1) * self.channels];
+        }
         let tau = if self.k == 0 {
             &self.slot_tau
         } else {
@@ -687,7 +1010,11 @@ impl SubGrid {
             let scale = (0..3)
                 .map(|a| ray.o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
                 .fold(0.0, f64::max);
-            RayFrame::new(ray, (PRETEST_SLACK * scale) as f32)
+            // Quantised slots add the rounding of their lattice offsets' single-precision sums
+            // (up to 4 cells of 2^16 steps, ~1e-6 of a cell): covered ten times over.
+            let step = self.quant.as_ref().map_or(0.0, |q| q.step);
+            let slack = PRETEST_SLACK * scale + 1e-5 * step * LATTICE_PER_CELL as f64;
+            RayFrame::new(ray, slack as f32, step)
         };
         Cursor {
             dda,
@@ -748,7 +1075,10 @@ impl SubGrid {
             (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
             if self.prefetch_slots {
                 for blk in sg.c0 / LANES..sg.c1.div_ceil(LANES) {
-                    slots.prefetch_block(blk);
+                    match &self.quant {
+                        Some(q) => prefetch(q.blocks.as_ptr().wrapping_add(blk)),
+                        None => slots.prefetch_block(blk),
+                    }
                 }
             }
         }
@@ -799,6 +1129,9 @@ impl SubGrid {
         cur: &Cursor,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
+        if let Some(q) = &self.quant {
+            return self.test_qblock::<WIDE>(q, blk, lanes, sg, cur, found);
+        }
         let mut m = lanes & block_pretest::<WIDE>(&slots.0[blk], &cur.frame);
         while m != 0 {
             let s = LANES * blk + m.trailing_zeros() as usize;
@@ -813,6 +1146,40 @@ impl SubGrid {
                 }
                 if in_step && !found(t, s) {
                     return false;
+                }
+            }
+        }
+        true
+    }
+
+    /// [`Self::test_block`] for quantised slots: the pre-test in the step's cell frame, the exact test
+    /// on the decoded (double-precision) lattice centre.
+    #[inline(always)]
+    fn test_qblock<const WIDE: bool>(
+        &self,
+        q: &QSlots,
+        blk: usize,
+        lanes: u32,
+        sg: &Segment,
+        cur: &Cursor,
+        found: &mut impl FnMut(f64, usize) -> bool,
+    ) -> bool {
+        let lo = self.frame.bounds.lo;
+        let corner =
+            [0, 1, 2].map(|a| lo[a] + ((sg.cell[a] as i64 - 1) * LATTICE_PER_CELL) as f64 * q.step);
+        let off = cur.frame.offsets(corner, cur.ray.o);
+        let mut m = lanes & qblock_pretest::<WIDE>(&q.blocks[blk], &q.reach, &cur.frame, off);
+        while m != 0 {
+            let s = LANES * blk + m.trailing_zeros() as usize;
+            m &= m - 1;
+            let (c, r) = q.ball(lo, s, sg.cell);
+            if let Some(t) = ball_contribution(c, r, &cur.ray) {
+                let in_step = t >= sg.t_enter && t < sg.t_exit && cur.ray.contains(t);
+                if in_step {
+                    prefetch(self.slot_index.as_ptr().wrapping_add(s));
+                    if !found(t, s) {
+                        return false;
+                    }
                 }
             }
         }
@@ -845,9 +1212,14 @@ impl SubGrid {
             // render, where Mitsuba's own data shares the cache).
             let next = if last { None } else { take(cur) };
             if let Some((st, _)) = &next {
-                let b = (slots.0.as_ptr() as *const u8).wrapping_add(
-                    self.start[st.index] as usize / LANES * std::mem::size_of::<Block>(),
-                );
+                let (base, block) = match &self.quant {
+                    Some(q) => (
+                        q.blocks.as_ptr() as *const u8,
+                        std::mem::size_of::<QBlock>(),
+                    ),
+                    None => (slots.0.as_ptr() as *const u8, std::mem::size_of::<Block>()),
+                };
+                let b = base.wrapping_add(self.start[st.index] as usize / LANES * block);
                 for k in 0..PREFETCH_AHEAD_LINES {
                     prefetch(b.wrapping_add(64 * k));
                 }
@@ -858,6 +1230,7 @@ impl SubGrid {
                 c1: self.start[c + 1] as usize,
                 t_enter: if cur.first { cur.ray.t0 } else { step.t_enter },
                 t_exit: if last { cur.ray.t1 } else { step.t_exit },
+                cell: step.cell,
             };
             cur.first = false;
             // Whole blocks (padded cells): every lane is tested.
@@ -895,6 +1268,7 @@ impl SubGrid {
                 c1: index + 1,
                 t_enter,
                 t_exit,
+                cell: c,
             };
             return 1;
         }
@@ -911,6 +1285,7 @@ impl SubGrid {
                     c1: row + x1 + 1,
                     t_enter,
                     t_exit,
+                    cell: c,
                 };
                 n += 1;
             }
@@ -933,12 +1308,10 @@ impl SubGrid {
         let mut rows = [Segment::default(); ROWS_PER_STEP];
         let index = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
         let n = self.step_rows(c, index, 0.0, 0.0, &mut rows);
-        let slots = self.slots();
         for sg in &rows[..n] {
             for s in self.start[sg.c0] as usize..self.start[sg.c1] as usize {
-                let q = slots.get(s);
-                let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
-                let r = q[3] as f64;
+                let (q, r) = self.slot_ball(s, sg.cell);
+                let dd = (0..3).map(|a| (q[a] - p[a]).powi(2)).sum::<f64>();
                 if dd < r * r {
                     visit(s);
                 }
@@ -954,8 +1327,8 @@ impl SubGrid {
         if ray.is_empty() {
             return;
         }
-        self.each_particle(|sphere, tau, _| {
-            if let Some(t) = sphere_contribution(sphere, ray) {
+        self.each_particle(|(c, r), tau, _| {
+            if let Some(t) = ball_contribution(c, r, ray) {
                 if ray.contains(t) {
                     out.iter_mut().zip(tau).for_each(|(v, &x)| *v += x as f64);
                 }
@@ -996,6 +1369,9 @@ pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 pub struct GridSettings {
     pub query_radius: f64,
     pub cells_per_particle: f64,
+    /// Quantise the slots of sparse (k = 0) classes ([`QSlots`]: centres on a lattice of 2^14 steps
+    /// per cell, radii and τ by code): compact storage's 12 bytes per slot instead of 24.
+    pub quantise: bool,
 }
 
 impl GridSettings {
@@ -1003,7 +1379,12 @@ impl GridSettings {
         GridSettings {
             query_radius,
             cells_per_particle,
+            quantise: false,
         }
+    }
+    /// The same settings, quantising sparse classes' slots or not.
+    pub fn quantised(self, quantise: bool) -> Self {
+        GridSettings { quantise, ..self }
     }
 }
 
@@ -1105,6 +1486,7 @@ pub fn check_particles(
     let GridSettings {
         query_radius,
         cells_per_particle,
+        ..
     } = *settings;
     let n = positions.len();
     require("positions (count)", n as f64, n >= 1, ">= 1")?;
@@ -1192,6 +1574,7 @@ impl ParticleGrid {
         let GridSettings {
             query_radius,
             cells_per_particle,
+            ..
         } = *settings;
         let n = positions.len();
         let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
@@ -1479,9 +1862,9 @@ impl ParticleGrid {
     pub fn containing_brute(&self, p: [f64; 3]) -> Vec<u32> {
         let mut out = Vec::new();
         for c in &self.classes {
-            c.each_particle(|q, _, i| {
-                let dd = (0..3).map(|a| (q[a] as f64 - p[a]).powi(2)).sum::<f64>();
-                if dd < (q[3] as f64).powi(2) {
+            c.each_particle(|(q, r), _, i| {
+                let dd = (0..3).map(|a| (q[a] - p[a]).powi(2)).sum::<f64>();
+                if dd < r * r {
                     out.push(i);
                 }
             });
@@ -1507,8 +1890,8 @@ impl ParticleGrid {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         if !ray.is_empty() {
             for c in &self.classes {
-                c.each_particle(|sphere, _, _| {
-                    if let Some(t) = sphere_contribution(sphere, ray) {
+                c.each_particle(|(c, r), _, _| {
+                    if let Some(t) = ball_contribution(c, r, ray) {
                         if ray.contains(t) {
                             lo = lo.min(t);
                             hi = hi.max(t);
@@ -1633,12 +2016,12 @@ mod tests {
         );
         let mut expect = Vec::new();
         for c in &g.classes {
-            for j in 0..c.len() {
-                match c.contribution(j, ray) {
-                    Some(t) if ray.contains(t) => expect.push(c.index[j]),
+            c.each_particle(
+                |(centre, r), _, i| match ball_contribution(centre, r, ray) {
+                    Some(t) if ray.contains(t) => expect.push(i),
                     _ => {}
-                }
-            }
+                },
+            );
         }
         let mut got: Vec<u32> = walked.iter().map(|w| w.1).collect();
         got.sort();
@@ -1674,8 +2057,13 @@ mod tests {
     fn released_grid_answers_the_same() {
         let mut s = 5u64;
         let (pos, rad, cext) = two_channel_particles(&mut s);
-        for (rc, cpp) in [(0.01, 1.0), (0.0, 20.0)] {
-            let settings = GridSettings::new(rc, cpp);
+        for (rc, cpp, quantise) in [
+            (0.01, 1.0, false),
+            (0.0, 20.0, false),
+            (0.01, 1.0, true),
+            (0.0, 20.0, true),
+        ] {
+            let settings = GridSettings::new(rc, cpp).quantised(quantise);
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
             let mut r = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
             r.release_stored();
@@ -1731,8 +2119,17 @@ mod tests {
         let mut s = 11u64;
         let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
         let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
-        for (rc, cpp) in [(0.01, 1.0), (0.0, 0.125), (0.2, 5.0), (0.0, 20.0)] {
-            let g = ParticleGrid::build(&pos, &rad, &cext, 1, &GridSettings::new(rc, cpp)).unwrap();
+        for (rc, cpp, quantise) in [
+            (0.01, 1.0, false),
+            (0.0, 0.125, false),
+            (0.2, 5.0, false),
+            (0.0, 20.0, false),
+            (0.01, 1.0, true),
+            (0.0, 0.125, true),
+            (0.0, 20.0, true),
+        ] {
+            let settings = GridSettings::new(rc, cpp).quantised(quantise);
+            let g = ParticleGrid::build(&pos, &rad, &cext, 1, &settings).unwrap();
             let frame = &g.classes[0].frame;
             let rays = test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]);
             let hits = |wide: bool, ray: &RaySegment| {
@@ -1769,15 +2166,24 @@ mod tests {
     fn grid_equals_brute_force() {
         let mut s = 7u64;
         let (pos, rad, cext) = two_channel_particles(&mut s);
-        for (rc, cpp) in [
+        for ((rc, cpp), quantise) in [
             (0.0, 1.0),
             (0.01, 1.0),
             (0.05, 0.2),
             (0.2, 5.0),
             (0.0, 0.25),
             (0.0, 20.0),
-        ] {
-            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &GridSettings::new(rc, cpp)).unwrap();
+        ]
+        .into_iter()
+        .flat_map(|x| [(x, false), (x, true)])
+        {
+            let settings = GridSettings::new(rc, cpp).quantised(quantise);
+            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
+            assert_eq!(
+                g.classes.iter().any(|c| c.quant.is_some()),
+                quantise && g.classes.iter().any(|c| c.k == 0),
+                "sparse classes are quantised exactly when asked"
+            );
             if rc == 0.0 && cpp == 1.0 {
                 // Every class is sparse at this resolution: one grid (merge_sparse_classes).
                 assert_eq!(g.class_count(), 1);
@@ -1802,6 +2208,59 @@ mod tests {
             for ray in &rays {
                 assert_queries_match_brute(&g, ray, rc);
             }
+        }
+    }
+
+    /// Quantised slots (compact storage) move each centre by at most half a lattice step (6·10⁻⁵ of a
+    /// cell), keep every particle, and take fewer bytes than spheres; a class with more distinct
+    /// (R, τ) than a u16 code holds keeps spheres.
+    #[test]
+    fn quantised_slots_stay_on_their_particles() {
+        let mut s = 3u64;
+        let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
+        let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
+        let settings = GridSettings::new(0.01, 1.0);
+        let full = ParticleGrid::build(&pos, &rad, &cext, 1, &settings).unwrap();
+        let q = ParticleGrid::build(&pos, &rad, &cext, 1, &settings.quantised(true)).unwrap();
+        let c = &q.classes[0];
+        let step = c.quant.as_ref().expect("a sparse class, quantised").step;
+        assert!(step < 1e-4 * c.frame.cell[0]);
+        let mut seen = 0;
+        c.each_particle(|(centre, r), _, i| {
+            seen += 1;
+            for a in 0..3 {
+                let d = (centre[a] - pos[i as usize][a]).abs();
+                assert!(
+                    d <= 0.5 * step * (1.0 + 1e-6),
+                    "particle {i} moved {d} (step {step})"
+                );
+            }
+            assert!((r - (0.01 + rad[i as usize])).abs() < 1e-6 * r);
+        });
+        assert_eq!(seen, pos.len());
+        let (mut qr, mut fr) = (q, full);
+        qr.release_stored();
+        fr.release_stored();
+        assert!(
+            (qr.bytes() as f64) < 0.6 * fr.bytes() as f64,
+            "{} vs {}",
+            qr.bytes(),
+            fr.bytes()
+        );
+        // More distinct (R, τ) than codes: spheres, still answering as the oracle does.
+        let n = 70_000;
+        let (pos, _) = random_particles(&mut s, n, 0.001, 0.002);
+        let rad: Vec<f64> = (0..n).map(|i| 1e-4 * (1.0 + i as f64 / n as f64)).collect();
+        let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
+        let exact_radii = GridSettings::new(0.0, 1.0).quantised(true);
+        let g = ParticleGrid::build(&pos, &rad, &cext, 1, &exact_radii).unwrap();
+        assert!(g.classes.iter().all(|c| c.k == 0 && c.quant.is_none()));
+        let frame = &g.classes[0].frame;
+        for ray in test_rays(&mut s, frame.bounds.lo[0], frame.cell[0])
+            .iter()
+            .take(50)
+        {
+            assert_queries_match_brute(&g, ray, 0.0);
         }
     }
 }
