@@ -841,8 +841,10 @@ impl DiscreteMedium {
             &grid_radius,
             &grid_c,
             &p_c,
-            &GridSettings::new(query_radius, cells_per_particle)
-                .quantised(storage == Storage::Compact),
+            &GridSettings::new(query_radius, cells_per_particle).quantised(
+                storage == Storage::Compact
+                    && std::env::var("MOTES_QUANTISE").map_or(true, |v| v != "0"),
+            ),
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),
         );

@@ -35,6 +35,10 @@
 //! that centre, and the exact test runs on it, so the free flight stays exact for the particles as
 //! stored. The single-precision pre-test works in the step's cell frame (the cell's offset across the
 //! ray once per step, then `h (q·e)` per lane), which is more precise than the spheres' global one.
+//! Its radius is the block's largest (each cell's slots sorted by radius): a per-lane gather of radii
+//! by code cost more than the few extra exact tests on AMD's cores. Measured against spheres side by
+//! side (`scripts/bench/bench_quantise.py`; `MOTES_QUANTISE=0` at load keeps spheres, for that
+//! comparison only): BENCHMARKS.md section 24.
 
 use crate::error::{require, require_len, OpticsError};
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
@@ -106,6 +110,9 @@ struct Segment {
     t_exit: f64,
     /// The cell of a k = 0 step (whose quantised slots are relative to it).
     cell: [usize; 3],
+    /// Quantised slots: the cell's slot origin across the ray (`RayFrame::offsets`), set when the
+    /// step is tested.
+    off: [f32; 2],
 }
 
 /// Ask for the cache line holding `p` (a hint: no fault for any address).
@@ -213,6 +220,10 @@ struct QBlock {
 #[derive(Default)]
 struct QSlots {
     blocks: Vec<QBlock>,
+    /// The largest inclusion radius of each block (its pre-test's radius: a per-lane gather costs
+    /// more than the few extra exact tests on AMD's cores; each cell's slots are sorted by radius, so
+    /// its blocks' radii stay close).
+    block_reach: Vec<f32>,
     /// Inclusion radius per code.
     reach: Vec<f32>,
     /// τ per code and channel.
@@ -246,7 +257,15 @@ impl QSlots {
         self.blocks[s / LANES].code[s % LANES] as usize
     }
     fn bytes(&self) -> usize {
-        self.blocks.len() * std::mem::size_of::<QBlock>() + (self.reach.len() + self.tau.len()) * 4
+        self.blocks.len() * std::mem::size_of::<QBlock>()
+            + (self.block_reach.len() + self.reach.len() + self.tau.len()) * 4
+    }
+    /// The slot origin of cell `cell` across the ray of `frame` (once per step).
+    #[inline(always)]
+    fn offsets(&self, lo: [f64; 3], cell: [usize; 3], frame: &RayFrame, o: [f64; 3]) -> [f32; 2] {
+        let corner =
+            [0, 1, 2].map(|a| lo[a] + ((cell[a] as i64 - 1) * LATTICE_PER_CELL) as f64 * self.step);
+        frame.offsets(corner, o)
     }
 }
 
@@ -424,31 +443,32 @@ fn block_pretest_narrow(b: &Block, f: &RayFrame) -> u32 {
 }
 
 /// The lanes of a quantised block whose ball may contribute to the ray: [`block_pretest`] for
-/// centres `off + h (q·e)` across the ray, radii by code (`reach`).
+/// centres `off + h (q·e)` across the ray and the block's largest radius `reach` (padding lanes
+/// may pass: their exact test fails on R = NaN).
 #[inline(always)]
-fn qblock_pretest<const WIDE: bool>(b: &QBlock, reach: &[f32], f: &RayFrame, off: [f32; 2]) -> u32 {
+fn qblock_pretest<const WIDE: bool>(b: &QBlock, reach: f32, f: &RayFrame, off: [f32; 2]) -> u32 {
     #[cfg(target_arch = "x86_64")]
     if WIDE {
-        // SAFETY: WIDE walks run only where `wide_simd()` found AVX2 and FMA; codes index `reach`.
+        // SAFETY: WIDE walks run only where `wide_simd()` found AVX2 and FMA.
         return unsafe { qblock_pretest_avx2(b, reach, f, off) };
     }
+    let rr = reach + f.slack[0];
     let mut m = 0u32;
     for l in 0..LANES {
         let q = [b.x[l] as f32, b.y[l] as f32, b.z[l] as f32];
         let across =
             |e: &[[f32; LANES]; 3], o: f32| o + q[0] * e[0][0] + q[1] * e[1][0] + q[2] * e[2][0];
         let (q1, q2) = (across(&f.he1, off[0]), across(&f.he2, off[1]));
-        let rr = reach[b.code[l] as usize] + f.slack[0];
         m |= ((q1 * q1 + q2 * q2 < rr * rr) as u32) << l;
     }
     m
 }
 
-/// [`qblock_pretest`] in AVX2: the u16 lattice coordinates widened to f32, the radii gathered by code.
+/// [`qblock_pretest`] in AVX2: the u16 lattice coordinates widened to f32.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[inline]
-unsafe fn qblock_pretest_avx2(b: &QBlock, reach: &[f32], f: &RayFrame, off: [f32; 2]) -> u32 {
+unsafe fn qblock_pretest_avx2(b: &QBlock, reach: f32, f: &RayFrame, off: [f32; 2]) -> u32 {
     use std::arch::x86_64::*;
     // SAFETY (loads): `QBlock` is 64-byte aligned with 16-byte lane arrays; `RayFrame` 32-byte aligned.
     let wide =
@@ -472,9 +492,7 @@ unsafe fn qblock_pretest_avx2(b: &QBlock, reach: &[f32], f: &RayFrame, off: [f32
     };
     let (q1, q2) = (across(&f.he1, off[0]), across(&f.he2, off[1]));
     let qq = _mm256_fmadd_ps(q1, q1, _mm256_mul_ps(q2, q2));
-    // SAFETY: every code indexes `reach` (`build_qslots`).
-    let r = _mm256_i32gather_ps::<4>(reach.as_ptr(), wide(&b.code));
-    let rr = _mm256_add_ps(r, ld(&f.slack));
+    let rr = _mm256_add_ps(_mm256_set1_ps(reach), ld(&f.slack));
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(qq, _mm256_mul_ps(rr, rr))) as u32
 }
 
@@ -707,8 +725,19 @@ fn build_qslots(
             }
         }
     }
+    let block_reach = blocks
+        .iter()
+        .map(|b| {
+            b.code
+                .iter()
+                .filter(|&&c| c != 0)
+                .map(|&c| q_reach[c as usize])
+                .fold(0.0f32, f32::max)
+        })
+        .collect();
     Some(QSlots {
         blocks,
+        block_reach,
         reach: q_reach,
         tau: q_tau,
         step,
@@ -831,12 +860,24 @@ impl SubGrid {
         };
         let particles = Spheres::from_iter(n, |j| sphere_of(order[j] as usize));
         let tau = disk_tau(&order, &reach, c_ext, channels);
-        let (start, slot_particle) = if k == 1 {
+        let (start, mut slot_particle) = if k == 1 {
             // Each cell's slots are its own particles, already in cell order.
             (centre_start, Vec::new())
         } else {
             inline_slots(&at, &reach, &order, lo, cell, dims)
         };
+        if quantise {
+            // Largest balls first in each cell, padding last: a block's pre-test radius is its
+            // largest, so blocks of like radii test tightly.
+            let key = |j: &u32| match *j {
+                PADDING_SLOT => -1.0,
+                j => reach[order[j as usize] as usize],
+            };
+            for c in 0..n_cells {
+                slot_particle[start[c] as usize..start[c + 1] as usize]
+                    .sort_unstable_by(|a, b| key(b).total_cmp(&key(a)));
+            }
+        }
         let quant = quantise
             .then(|| {
                 build_qslots(
@@ -1073,6 +1114,9 @@ impl SubGrid {
         let slots = self.slots();
         for sg in batch.iter_mut() {
             (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
+            if let Some(q) = &self.quant {
+                sg.off = q.offsets(self.frame.bounds.lo, sg.cell, &cur.frame, cur.ray.o);
+            }
             if self.prefetch_slots {
                 for blk in sg.c0 / LANES..sg.c1.div_ceil(LANES) {
                     match &self.quant {
@@ -1165,10 +1209,8 @@ impl SubGrid {
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         let lo = self.frame.bounds.lo;
-        let corner =
-            [0, 1, 2].map(|a| lo[a] + ((sg.cell[a] as i64 - 1) * LATTICE_PER_CELL) as f64 * q.step);
-        let off = cur.frame.offsets(corner, cur.ray.o);
-        let mut m = lanes & qblock_pretest::<WIDE>(&q.blocks[blk], &q.reach, &cur.frame, off);
+        let mut m =
+            lanes & qblock_pretest::<WIDE>(&q.blocks[blk], q.block_reach[blk], &cur.frame, sg.off);
         while m != 0 {
             let s = LANES * blk + m.trailing_zeros() as usize;
             m &= m - 1;
@@ -1225,13 +1267,17 @@ impl SubGrid {
                 }
             }
             let c = step.index;
-            let sg = Segment {
+            let mut sg = Segment {
                 c0: self.start[c] as usize,
                 c1: self.start[c + 1] as usize,
                 t_enter: if cur.first { cur.ray.t0 } else { step.t_enter },
                 t_exit: if last { cur.ray.t1 } else { step.t_exit },
                 cell: step.cell,
+                off: [0.0; 2],
             };
+            if let Some(q) = &self.quant {
+                sg.off = q.offsets(self.frame.bounds.lo, sg.cell, &cur.frame, cur.ray.o);
+            }
             cur.first = false;
             // Whole blocks (padded cells): every lane is tested.
             for blk in sg.c0 / LANES..sg.c1 / LANES {
@@ -1269,6 +1315,7 @@ impl SubGrid {
                 t_enter,
                 t_exit,
                 cell: c,
+                off: [0.0; 2],
             };
             return 1;
         }
@@ -1286,6 +1333,7 @@ impl SubGrid {
                     t_enter,
                     t_exit,
                     cell: c,
+                    off: [0.0; 2],
                 };
                 n += 1;
             }

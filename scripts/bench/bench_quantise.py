@@ -1,0 +1,91 @@
+"""Issue 24.2: compact storage's quantised slots against spheres, side by side in one process.
+
+A sparse class's slots are quantised under compact storage (``rust/motes-core/src/space/grid.rs``,
+"Quantised slots"); ``MOTES_QUANTISE=0`` at load keeps them as f32 spheres with per-slot τ (the layout
+before, for this comparison). Each scene is loaded both ways, rendered alternately ``--reps`` times after a
+warm-up (this machine is shared: the best of each is compared), with the same sampler seeds:
+
+* ``cornell``, ``dust_box``: the shipped scenes at ``--res`` (their defaults otherwise);
+* ``4e5``, ``1.6e6``: ``bench_dense.py``'s cube of 80 µm grains in the spot-lit room.
+
+Prints seconds per render, their ratio, the image means (sampler seeds 0.. ``--reps``) and the medium's
+bytes per particle.
+
+    .venv/bin/python scripts/bench/bench_quantise.py [--variant scalar_rgb] [--scenes cornell,4e5] [--reps 4]
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import sys
+import time
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "paper"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import numpy as np  # noqa: E402
+
+import _common as C  # noqa: E402
+
+DENSE = {"4e5": (400_000, 80.0), "1.6e6": (1_600_000, 80.0)}
+
+
+def loader(mi, kind: str, res: int, spp: int):
+    import _paper as P  # noqa: PLC0415
+    import bench_dense as BD  # noqa: PLC0415
+
+    if kind in DENSE:
+        n, r = DENSE[kind]
+        return lambda: mi.load_dict(BD.scene(mi, BD.discrete(mi, n, r), res, spp, 8))
+    return lambda: mi.load_file(str(P.scene_file(kind)), res=res)
+
+
+def main() -> None:
+    ap = C.parser(__doc__)
+    ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--scenes", default="cornell,dust_box,4e5,1.6e6")
+    ap.add_argument("--res", type=int, default=96)
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--reps", type=int, default=4)
+    args = ap.parse_args()
+    out, sw = C.out_dir(args.out), C.Stopwatch()
+    motes = C.import_motes()
+    motes.set_variant(args.variant)
+    import mitsuba as mi  # noqa: PLC0415
+
+    rows = []
+    for kind in args.scenes.split(","):
+        scenes, data = {}, {}
+        for q in ("1", "0"):
+            os.environ["MOTES_QUANTISE"] = q
+            scenes[q] = loader(mi, kind, args.res, args.spp)()
+            data[q] = next(s.interior_medium() for s in scenes[q].shapes() if s.interior_medium() is not None).data
+            mi.render(scenes[q], spp=args.spp)  # warm-up
+        os.environ.pop("MOTES_QUANTISE")
+        secs, means = {"1": [], "0": []}, {"1": [], "0": []}
+        for rep in range(args.reps):
+            for q in ("1", "0"):
+                t = time.perf_counter()
+                img = mi.render(scenes[q], spp=args.spp, seed=rep)
+                secs[q].append(time.perf_counter() - t)
+                means[q].append(float(np.asarray(img, dtype=np.float64).mean()))
+        n = len(data["1"]._core)
+        row = {"scene": kind, "quantised_s": min(secs["1"]), "spheres_s": min(secs["0"]),
+               "ratio": min(secs["1"]) / min(secs["0"]), "mean_quantised": float(np.mean(means["1"])),
+               "mean_spheres": float(np.mean(means["0"])), "bytes_quantised": data["1"].bytes / n,
+               "bytes_spheres": data["0"].bytes / n}
+        print(f"[{args.variant} {kind}] quantised {row['quantised_s']:.3f} s, spheres {row['spheres_s']:.3f} s: "
+              f"{row['ratio']:.3f}x; means {row['mean_quantised']:.4f} / {row['mean_spheres']:.4f}; "
+              f"B/particle {row['bytes_quantised']:.1f} / {row['bytes_spheres']:.1f}", flush=True)
+        rows.append(row)
+    C.print_table(f"**{args.variant}, {args.res}^2 px, {args.spp} spp: quantised slots / spheres (best of {args.reps})**",
+                  ["scene", "quantised (s)", "spheres (s)", "ratio", "mean quantised", "mean spheres",
+                   "B/particle quantised", "spheres"],
+                  [[r["scene"], r["quantised_s"], r["spheres_s"], r["ratio"], r["mean_quantised"], r["mean_spheres"],
+                    r["bytes_quantised"], r["bytes_spheres"]] for r in rows])
+    C.finish(args, sw, out / f"bench_quantise_{args.variant}.json", rows=rows)
+
+
+if __name__ == "__main__":
+    main()
