@@ -12,6 +12,9 @@ Prints seconds per render, their ratio, the image means (sampler seeds 0.. ``--r
 bytes per particle.
 
     .venv/bin/python scripts/bench/bench_quantise.py [--variant scalar_rgb] [--scenes cornell,4e5] [--reps 4]
+
+``--furnace ROW`` (a ``bench_storage.py`` row, e.g. ``1e5x300``) instead: the white furnace (albedo 1, roulette
+off, ``bench_storage.furnace``, 32² px, 64 spp) of ``--clouds`` clouds of that row, quantised and spheres.
 """
 
 from __future__ import annotations
@@ -41,6 +44,26 @@ def loader(mi, kind: str, res: int, spp: int):
     return lambda: mi.load_file(str(P.scene_file(kind)), res=res)
 
 
+def furnace(mi, args, out, sw) -> None:
+    import bench_dense as BD  # noqa: PLC0415
+    import bench_storage as BS  # noqa: PLC0415
+
+    count, median = BS.ROWS[args.furnace]
+    res = {}
+    for q in ("1", "0"):
+        os.environ["MOTES_QUANTISE"] = q
+        vals = [BS.furnace(mi, BD.discrete(mi, count, median, albedo=1.0, seed=seed), 32, 64)
+                for seed in range(args.clouds)]
+        m, e = np.array([v[0] for v in vals]), np.array([v[1] for v in vals])
+        res[q] = (float(m.mean()), float(np.sqrt((e ** 2).sum()) / len(e)))
+        print(f"[{args.variant} {args.furnace}] {'quantised' if q == '1' else 'spheres'}: furnace "
+              + " ".join(f"{a:.4f}+-{b:.4f}" for a, b in vals) + f"; mean {res[q][0]:.4f} +- {res[q][1]:.4f}",
+              flush=True)
+    os.environ.pop("MOTES_QUANTISE")
+    C.finish(args, sw, out / f"bench_quantise_furnace_{args.variant}.json",
+             furnace={"quantised": res["1"], "spheres": res["0"]})
+
+
 def main() -> None:
     ap = C.parser(__doc__)
     ap.add_argument("--variant", default="llvm_ad_rgb")
@@ -48,12 +71,17 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=96)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--reps", type=int, default=4)
+    ap.add_argument("--furnace", default="", help="a bench_storage row: the white furnace instead")
+    ap.add_argument("--clouds", type=int, default=3)
     args = ap.parse_args()
     out, sw = C.out_dir(args.out), C.Stopwatch()
     motes = C.import_motes()
     motes.set_variant(args.variant)
     import mitsuba as mi  # noqa: PLC0415
 
+    if args.furnace:
+        furnace(mi, args, out, sw)
+        return
     rows = []
     for kind in args.scenes.split(","):
         scenes, data = {}, {}
