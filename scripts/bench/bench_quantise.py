@@ -1,8 +1,8 @@
 """Issue 24.2: compact storage's quantised slots against spheres, side by side in one process.
 
-A sparse class's slots can be quantised under compact storage (``rust/motes-core/src/space/grid.rs``,
-"Quantised slots"; opt-in for now with ``MOTES_QUANTISE=1`` at load, ``0``: f32 spheres with per-slot τ,
-the default layout). Each scene is loaded both ways, rendered alternately ``--reps`` times after a
+A sparse class's slots are quantised under compact storage (``rust/motes-core/src/space/grid.rs``,
+"Quantised slots"); ``MOTES_QUANTISE=0`` at load keeps them as f32 spheres with per-slot τ (the layout
+before, for this comparison only). Each scene is loaded both ways, rendered alternately ``--reps`` times after a
 warm-up (this machine is shared: the best of each is compared), with the same sampler seeds:
 
 * ``cornell``, ``dust_box``: the shipped scenes at ``--res`` (their defaults otherwise);

@@ -841,11 +841,10 @@ impl DiscreteMedium {
             &grid_radius,
             &grid_c,
             &p_c,
-            // Quantised slots are opt-in (MOTES_QUANTISE=1) until a furnace difference of 0.2 %
-            // (3 SE, BENCHMARKS.md section 24) is understood.
+            // MOTES_QUANTISE=0 keeps spheres (scripts/bench/bench_quantise.py's comparison).
             &GridSettings::new(query_radius, cells_per_particle).quantised(
                 storage == Storage::Compact
-                    && std::env::var("MOTES_QUANTISE").is_ok_and(|v| v == "1"),
+                    && std::env::var("MOTES_QUANTISE").map_or(true, |v| v != "0"),
             ),
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),

@@ -14,8 +14,7 @@
 //!   particles as stored. Four bytes per particle instead of seventeen. The grid's sparse classes
 //!   also quantise their centres (`crate::space::grid`, "Quantised slots": a lattice of 2^14 steps per
 //!   cell edge, radii and τ by code; 12 bytes a slot instead of 24), which halves what a visible grain
-//!   costs (`scripts/bench/bench_quantise.py`: 60–69 → 36–44 bytes per discrete particle); opt-in
-//!   (`MOTES_QUANTISE=1`) until a 0.2 % furnace gap is understood (BENCHMARKS.md section 24).
+//!   costs (`scripts/bench/bench_quantise.py`: 60–69 → 36–44 bytes per discrete particle).
 
 use crate::error::{require, OpticsError};
 use crate::render::continuous::{Column, CLASS_FLAG};

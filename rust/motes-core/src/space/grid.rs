@@ -37,10 +37,8 @@
 //! ray once per step, then `h (q·e)` per lane), which is more precise than the spheres' global one.
 //! Its radius is the block's largest (each cell's slots sorted by radius): a per-lane gather of radii
 //! by code cost more than the few extra exact tests on AMD's cores. Measured against spheres side by
-//! side (`scripts/bench/bench_quantise.py`): BENCHMARKS.md section 24. A discrete medium quantises its
-//! slots only with `MOTES_QUANTISE=1` for now: the white furnace read 0.9986 ± 0.0006 quantised
-//! against 1.0013 ± 0.0007 with spheres (scalar_rgb, 10^5 grains of 300 µm, 3 clouds), a 0.2 % gap at
-//! 3 SE not yet explained.
+//! side (`scripts/bench/bench_quantise.py`; `MOTES_QUANTISE=0` at load keeps spheres, for that
+//! comparison): BENCHMARKS.md section 24.
 
 use crate::error::{require, require_len, OpticsError};
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
