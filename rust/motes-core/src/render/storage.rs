@@ -61,8 +61,31 @@ pub(crate) struct ParticleOptics {
     /// Sampled as part of the continuous field (its size class is continuous).
     pub in_field: Vec<bool>,
     /// Each particle's class (compact storage); None: the code is the particle's index.
-    codes: Option<Vec<u32>>,
+    codes: Option<Codes>,
     particles: usize,
+}
+
+/// Each particle's class code, in 16 bits where the classes are at most 65 536 (2 bytes per
+/// particle at render; the build hands them over in 32).
+enum Codes {
+    Narrow(Vec<u16>),
+    Wide(Vec<u32>),
+}
+
+impl Codes {
+    fn new(codes: Vec<u32>) -> Self {
+        if codes.iter().all(|&c| c <= u16::MAX as u32) {
+            Codes::Narrow(codes.into_iter().map(|c| c as u16).collect())
+        } else {
+            Codes::Wide(codes)
+        }
+    }
+    fn bytes(&self) -> usize {
+        match self {
+            Codes::Narrow(c) => c.len() * 2,
+            Codes::Wide(c) => c.len() * 4,
+        }
+    }
 }
 
 /// Particles as classes: each particle's code and, per class, the radius, cross section and bin.
@@ -167,6 +190,7 @@ impl ParticleOptics {
         codes: Option<Vec<u32>>,
         particles: usize,
     ) -> Self {
+        let codes = codes.map(Codes::new);
         ParticleOptics {
             tau: disks.iter().map(|d| d.1 as f32).collect(),
             reach: disks.iter().map(|d| d.0 as f32).collect(),
@@ -186,7 +210,8 @@ impl ParticleOptics {
             return (j & !CLASS_FLAG) as usize;
         }
         match &self.codes {
-            Some(c) => c[j as usize] as usize,
+            Some(Codes::Narrow(c)) => c[j as usize] as usize,
+            Some(Codes::Wide(c)) => c[j as usize] as usize,
             None => j as usize,
         }
     }
@@ -210,7 +235,7 @@ impl ParticleOptics {
     }
     /// Heap bytes.
     pub(crate) fn bytes(&self) -> usize {
-        self.tau.len() * 17 + self.codes.as_ref().map_or(0, |c| c.len() * 4)
+        self.tau.len() * 17 + self.codes.as_ref().map_or(0, Codes::bytes)
     }
 }
 
