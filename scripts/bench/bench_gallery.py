@@ -8,6 +8,7 @@ rendered ``--reps`` times, interleaved, after a warm-up; the best times are comp
 printed beside (a check that the twin is a twin: they agree where the grains are many and small).
 
     .venv/bin/python scripts/bench/bench_gallery.py [--scenes lamp,cornell,...] [--res 96] [--spp 16] [--reps 2]
+        [--set count=300000 --set radius=2000]   (a scene's XML defaults overridden, twin included)
 """
 
 from __future__ import annotations
@@ -26,11 +27,13 @@ import _paper as P  # noqa: E402
 import bench_surface  # noqa: E402
 
 SCENES = ("dust_box", "lamp", "cornell", "bench", "footprint", "staircase", "limit", "house")
+#: `--set name=value`: the scenes' XML defaults replaced (the discrete scene and its twin alike).
+OVERRIDES: dict[str, str] = {}
 
 
 def defaults(name: str) -> dict:
     xml = P.scene_file(name).read_text()
-    return {k: v for k, v in re.findall(r'<default name="(\w+)" value="([^"]*)"/>', xml)}
+    return {**{k: v for k, v in re.findall(r'<default name="(\w+)" value="([^"]*)"/>', xml)}, **OVERRIDES}
 
 
 def medium_values(name: str) -> dict:
@@ -95,15 +98,25 @@ def best_of(mi, scene, spp: int, reps: int) -> tuple[float, float]:
 def main() -> None:
     ap = bench_surface.scene_parser(__doc__, SCENES)
     ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="replace a scene default (e.g. count=300000), in the discrete scene and its twin")
     args = ap.parse_args()
+    for item in args.set:
+        k, _, v = item.partition("=")
+        if not k or not v:
+            raise SystemExit(f"--set {item!r}: expected NAME=VALUE")
+        OVERRIDES[k] = v
     out, sw = C.out_dir(args.out), C.Stopwatch()
     mi = P.setup(args.variant)
     import motes  # noqa: PLC0415
 
     rows = []
     for name in [s.strip() for s in args.scenes.split(",") if s.strip()]:
-        disc = mi.load_file(str(P.scene_file(name)), spp=str(args.spp), res=str(args.res))
-        hom = P.load_with_medium(mi, name, equivalent(motes, name, args.res), args.spp, args.res)
+        disc = mi.load_file(str(P.scene_file(name)), **OVERRIDES, spp=str(args.spp), res=str(args.res))
+        xml = P.scene_file(name).read_text()
+        a, b = P.medium_block(xml)
+        outside = {k: v for k, v in OVERRIDES.items() if f"${k}" in xml[:a] + xml[b:]}
+        hom = P.load_with_medium(mi, name, equivalent(motes, name, args.res), args.spp, args.res, **outside)
         for sc in (disc, hom):  # warm-up: compiles the kernels
             mi.render(sc, spp=args.spp, seed=999)
         times = {"discrete": [], "homogeneous": []}
