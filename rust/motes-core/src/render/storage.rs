@@ -291,4 +291,27 @@ mod tests {
         assert_eq!(c.radius[0], 3.0);
         assert!((c.c_ext[0] - PI * 18.0).abs() < 1e-12);
     }
+
+    /// Codes of at most 65 536 classes are kept in 16 bits, more in 32; either way a particle's code
+    /// reads back as given, and the bytes follow the width.
+    #[test]
+    fn codes_narrow_where_they_fit() {
+        for (classes, width) in [(65_536usize, 2usize), (65_537, 4)] {
+            let codes: Vec<u32> = (0..100_000u32).map(|i| i % classes as u32).collect();
+            let disks = vec![(1.0, 0.5); classes];
+            let optics = ParticleOptics::new(
+                &disks,
+                &vec![1.0; classes],
+                vec![0; classes],
+                vec![false; classes],
+                Some(codes.clone()),
+                codes.len(),
+            );
+            for (j, &k) in codes.iter().enumerate().step_by(997) {
+                assert_eq!(optics.code(j as u32), k as usize);
+            }
+            let tables = optics.tau.len() * 17;
+            assert_eq!(optics.bytes() - tables, codes.len() * width);
+        }
+    }
 }
