@@ -96,11 +96,37 @@ def test_lights_are_placed(variant):
         "panel": {"type": "rectangle", "to_world": T().translate([0, 5, 0]).scale(2), "emitter": {"type": "area"}},
         "bulb": {"type": "sphere", "center": [3, 3, 3], "radius": 0.5, "emitter": {"type": "area"}}})
     lights = sorted(lights_of(scene))
-    expect = sorted([((1, 2, 3), 0.0), ((-8, 19, -15), 0.0), ((0, 5, 0), math.sqrt(8)), ((3, 3, 3), math.sqrt(0.75))])
+    # (centre, radius, disc on the light, its normal): the panel's inscribed disc, the bulb's outline.
+    none = (0, 0, 0)
+    expect = sorted([((1, 2, 3), 0.0, 0.0, none), ((-8, 19, -15), 0.0, 0.0, none),
+                     ((0, 5, 0), math.sqrt(8), 2.0, (0, 0, 1)), ((3, 3, 3), math.sqrt(0.75), 0.5, none)])
     assert len(lights) == 4
-    for (c, r), (ce, re) in zip(lights, expect):
+    for (c, r, disc, n), (ce, re, de, ne) in zip(lights, expect):
         assert np.allclose(c, ce, atol=1e-5) and r == pytest.approx(re, rel=1e-5)
+        assert disc == pytest.approx(de, rel=1e-5) and np.allclose(np.abs(n), ne, atol=1e-6)
     assert all(light_of(e) == () for e in scene.emitters() if e.is_environment())
+    # A tilted, stretched disk: its least semi-axis and its normal; any other shape: no disc.
+    tilted = mi.load_dict({"type": "scene", "lamp": {
+        "type": "disk", "to_world": T().translate([1, 1, 1]).rotate([1, 0, 0], 90).scale([3, 0.5, 1]),
+        "emitter": {"type": "area"}}, "box": {"type": "cube", "emitter": {"type": "area"}}})
+    by_disc = sorted(lights_of(tilted), key=lambda light: light[2])
+    assert by_disc[0][2] == 0.0 and by_disc[1][2] == pytest.approx(0.5, rel=1e-5)
+    assert np.allclose(np.abs(by_disc[1][3]), (0, 1, 0), atol=1e-6)
+    # Behind a mirror or glass a ray towards a light shows the grains against it: no disc counts there.
+    shiny = mi.load_dict({"type": "scene", "panel": {"type": "rectangle", "emitter": {"type": "area"}},
+                          "mirror": {"type": "disk", "bsdf": {"type": "conductor"},
+                                     "to_world": T().translate([0, 0, -3])}})
+    assert [light[2] for light in lights_of(shiny)] == [0.0]
+    shiny = mi.load_dict({"type": "scene", "panel": {"type": "rectangle", "emitter": {"type": "area"}},
+                          "pane": {"type": "cube", "bsdf": {"type": "roughplastic"}}})
+    assert [light[2] for light in lights_of(shiny)] == [0.0]
+    # The core keeps both forms; a disc wider than the light's sphere is refused, naming it.
+    data = motes.DiscreteMedium(np.zeros((3, 3)), np.full(3, 5.0), np.zeros(3, dtype=np.int64),
+                                [motes.Species(motes.LogNormal(5, 1.2), 1.31)], [0.55])
+    data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 1, 0), 2.0), ((0, 2, 0), 2.0, 1.0, (0, 0, 2))])
+    assert data.lights == [((0, 1, 0), 2.0, 0.0, (0, 0, 0)), ((0, 2, 0), 2.0, 1.0, (0, 0, 1))]
+    with pytest.raises(ValueError, match="light disc"):
+        data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 2, 0), 2.0, 3.0, (0, 0, 1))])
 
 
 def test_camera_rays_walk_grains_surface_rays_see_the_field():

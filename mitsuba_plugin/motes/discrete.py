@@ -219,6 +219,12 @@ class _BinTables:
         return self.albedos, self.theta, self.f, self.offsets
 
 
+def _light_tuple(centre, radius, disc=0.0, normal=(0.0, 0.0, 0.0)) -> tuple:
+    """A light for the core: (centre, radius, disc, normal) as floats (``DiscreteMedium.set_cameras``)."""
+    c, n = (tuple(float(v[i]) for i in range(3)) for v in (centre, normal))
+    return c, float(radius), float(disc), n
+
+
 class DiscreteMedium:
     """Particles with per-bin optics in the Rust medium (module docs)."""
 
@@ -262,18 +268,21 @@ class DiscreteMedium:
         """The cameras whose pixel footprints rays from surfaces carry (``surface_footprint``): a list of
         (position (x, y, z) in scene units, narrowest angular pixel width in radians, lens aperture radius);
         empty: rays from surfaces walk the grains. ``lights``: the lights at finite distance that shadow
-        rays converge to, a list of (centre (x, y, z), radius) (0 for a point or spot light); None: unknown,
-        every ray taken to end at a light (safe, and the rule then rarely applies).
-        ``motes.plugins.cameras`` sets both from a Mitsuba scene."""
+        rays converge to, a list of (centre (x, y, z), radius) (0 for a point or spot light) or (centre, radius,
+        disc, normal): a disc of radius ``disc`` <= ``radius`` around the centre that lies on the light, with
+        its normal (x, y, z), or (0, 0, 0) where the light shows the whole disc from every side (a sphere): an
+        area light's penumbra blurs the grains' shadows; None: unknown, every ray taken to end at a light
+        (safe, and the rule then rarely applies). ``motes.plugins.cameras`` sets both from a Mitsuba scene."""
         try:
             cams = [((float(p[0]), float(p[1]), float(p[2])), float(a), float(r)) for p, a, r in cameras]
         except (TypeError, ValueError, IndexError):
             raise ValueError("cameras must be a list of ((x, y, z), pixel_angle, aperture) tuples") from None
         if lights is not None:
             try:
-                lights = [((float(c[0]), float(c[1]), float(c[2])), float(r)) for c, r in lights]
+                lights = [_light_tuple(*light) for light in lights]
             except (TypeError, ValueError, IndexError):
-                raise ValueError("lights must be None or a list of ((x, y, z), radius) tuples") from None
+                raise ValueError("lights must be None or a list of ((x, y, z), radius) or "
+                                 "((x, y, z), radius, disc, (nx, ny, nz)) tuples") from None
         self._core.set_cameras(cams, lights)
 
     @property

@@ -98,14 +98,9 @@ def best_of(mi, scene, spp: int, reps: int) -> tuple[float, float]:
 def main() -> None:
     ap = bench_surface.scene_parser(__doc__, SCENES)
     ap.add_argument("--reps", type=int, default=2)
-    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="replace a scene default (e.g. count=300000), in the discrete scene and its twin")
+    bench_surface.add_overrides(ap)
     args = ap.parse_args()
-    for item in args.set:
-        k, _, v = item.partition("=")
-        if not k or not v:
-            raise SystemExit(f"--set {item!r}: expected NAME=VALUE")
-        OVERRIDES[k] = v
+    bench_surface.read_overrides(args, OVERRIDES)
     out, sw = C.out_dir(args.out), C.Stopwatch()
     mi = P.setup(args.variant)
     import motes  # noqa: PLC0415

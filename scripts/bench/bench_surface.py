@@ -9,6 +9,7 @@ RMS difference over the renders' own seed-to-seed RMS difference (1 = at noise l
 the lit ones (above twice the median): where the grains' shadows on walls and floors would show.
 
     .venv/bin/python scripts/bench/bench_surface.py [--scenes dust_box,lamp,...] [--res 96] [--spp 16] [--seeds 4]
+        [--set count=300000]   (a scene's XML defaults overridden)
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import _common as C  # noqa: E402
 import _paper as P  # noqa: E402
 
 SCENES = ("dust_box", "lamp", "cornell", "bench", "footprint", "staircase")
+#: `--set name=value`: the scenes' XML defaults replaced.
+OVERRIDES: dict[str, str] = {}
 
 
 def pair_stats(on: list, off: list) -> dict:
@@ -49,7 +52,7 @@ def pair_stats(on: list, off: list) -> dict:
 
 
 def run_scene(mi, name: str, res: int, spp: int, seeds: int) -> dict:
-    scene = mi.load_file(str(P.scene_file(name)), spp=str(spp), res=str(res))
+    scene = mi.load_file(str(P.scene_file(name)), **OVERRIDES, spp=str(spp), res=str(res))
     core = P.discrete_medium_of(scene).data.core
     mi.render(scene, spp=spp, seed=999)  # compiles the kernels
     imgs, best = {True: [], False: []}, {True: np.inf, False: np.inf}
@@ -85,10 +88,27 @@ def scene_parser(doc: str, scenes) -> "argparse.ArgumentParser":
     return ap
 
 
+def add_overrides(ap: "argparse.ArgumentParser") -> None:
+    """``--set NAME=VALUE`` (repeatable): a scene default replaced (see ``read_overrides``)."""
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="replace a scene default (e.g. count=300000), in the discrete scene and any twin")
+
+
+def read_overrides(args, into: dict) -> None:
+    """The ``--set`` items of ``args`` into ``into`` (name -> value)."""
+    for item in args.set:
+        k, _, v = item.partition("=")
+        if not k or not v:
+            raise SystemExit(f"--set {item!r}: expected NAME=VALUE")
+        into[k] = v
+
+
 def main() -> None:
     ap = scene_parser(__doc__, SCENES)
     ap.add_argument("--seeds", type=int, default=4)
+    add_overrides(ap)
     args = ap.parse_args()
+    read_overrides(args, OVERRIDES)
     names = [s.strip() for s in args.scenes.split(",") if s.strip()]
     out, sw = C.out_dir(args.out), C.Stopwatch()
     mi = P.setup(args.variant)

@@ -14,7 +14,8 @@ a camera moved through ``mi.traverse`` is seen at the next render. A caller that
 Cameras: ``perspective`` and ``thinlens`` (anything with an ``x_fov``). A scene with any other sensor
 (orthographic, radiance meters, batches) gets no cameras, and its rays from surfaces walk the grains.
 Lights: point and spot lights (and any other light at a point) by position, area lights by a sphere around
-their shape's bounding box; the sky and distant lights need none. An emitter of any other kind leaves the
+their shape's bounding box and a disc that lies on them (rectangles, disks and spheres; its penumbra blurs the
+grains' shadows, counted only in scenes whose every surface is diffuse); the sky and distant lights need none. An emitter of any other kind leaves the
 lights unknown (every ray's end is then taken for a light).
 """
 
@@ -72,7 +73,11 @@ def cameras_of(scene, extra=None) -> list:
 
 
 def light_of(emitter):
-    """(centre, radius) of a light at finite distance; () for one at infinity; None for one it cannot place."""
+    """(centre, radius, disc, normal) of a light at finite distance; () for one at infinity; None for one it
+    cannot place. Point and spot lights: radius 0, no disc. Area lights: the sphere around their shape's
+    bounding box, and a disc that lies on the light (its penumbra blurs the grains' shadows:
+    ``rust/motes-core/src/render/footprint.rs``): a rectangle's or disk's inscribed disc and normal, a
+    sphere's outline (normal (0, 0, 0): seen whole from every side); none known (0) for any other shape."""
     import mitsuba as mi
 
     flags = int(emitter.flags())
@@ -82,7 +87,9 @@ def light_of(emitter):
     if shape is not None:
         box = shape.bbox()
         lo, hi = (np.asarray(v, dtype=np.float64).ravel()[:3] for v in (box.min, box.max))
-        return tuple(float(v) for v in (lo + hi) / 2), float(np.linalg.norm(hi - lo) / 2)
+        centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
+        disc, normal = _disc_of(shape, centre, lo, hi)
+        return tuple(float(v) for v in centre), radius, min(disc, radius), normal
     if flags & int(mi.EmitterFlags.DeltaPosition):
         params = mi.traverse(emitter)
         if "position" in params:
@@ -90,16 +97,63 @@ def light_of(emitter):
         else:
             m = np.asarray(emitter.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
             centre = m[:3, 3] / m[3, 3]
-        return tuple(float(v) for v in centre), 0.0
+        return tuple(float(v) for v in centre), 0.0, 0.0, (0.0, 0.0, 0.0)
     return None
 
 
+def _disc_of(shape, centre, lo, hi) -> tuple:
+    """(radius, normal) of a disc centred on ``centre`` that lies on an emitting shape (module docs)."""
+    import mitsuba as mi
+
+    kind = shape.class_name() if hasattr(shape, "class_name") else type(shape).__name__
+    none = (0.0, (0.0, 0.0, 0.0))
+    if kind == "Sphere":
+        return float(np.min(hi - lo) / 2), (0.0, 0.0, 0.0)
+    if kind not in ("Rectangle", "Disk"):
+        return none
+    params = mi.traverse(shape)
+    if "to_world" not in params:
+        return none
+    m = np.asarray(params["to_world"].matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
+    u, v, o = m[:3, 0], m[:3, 1], m[:3, 3] / m[3, 3]
+    n = np.cross(u, v)
+    area = float(np.linalg.norm(n))
+    if not (area > 0 and np.allclose(o, centre, atol=1e-6 * (1 + float(np.abs(centre).max())))):
+        return none
+    if kind == "Rectangle":  # [-1, 1]² by (u, v): its inscribed disc touches the nearer pair of sides
+        radius = min(area / float(np.linalg.norm(u)), area / float(np.linalg.norm(v)))
+    else:  # the unit disk by (u, v): an ellipse, whose inscribed disc is its least semi-axis
+        radius = float(np.linalg.svd(np.stack([u, v], axis=1), compute_uv=False).min())
+    return radius, tuple(float(x) for x in n / area)
+
+
 def lights_of(scene):
-    """The scene's lights at finite distance as (centre, radius) tuples, or None if any cannot be placed."""
+    """The scene's lights at finite distance as (centre, radius, disc, normal) tuples, or None if any cannot be
+    placed. The discs count only where every surface of the scene is diffuse (``diffuse_only``); elsewhere they
+    are 0."""
     lights = [light_of(e) for e in scene.emitters()]
     if any(light is None for light in lights):
         return None
-    return [light for light in lights if light]
+    lights = [light for light in lights if light]
+    if not diffuse_only(scene):
+        lights = [(c, r, 0.0, (0.0, 0.0, 0.0)) for c, r, _, _ in lights]
+    return lights
+
+
+def diffuse_only(scene) -> bool:
+    """Does every shape of the scene reflect and transmit only diffusely (or let rays through unchanged, a null
+    boundary)? Only then does an area light's penumbra blur the grains' shadows that a pixel receives: behind a
+    mirror or a glass pane, a ray towards the light shows the grains in silhouette against it."""
+    import mitsuba as mi
+
+    specular = 0
+    for name in ("DeltaReflection", "DeltaTransmission", "GlossyReflection", "GlossyTransmission"):
+        specular |= int(getattr(mi.BSDFFlags, name))
+    for shape in scene.shapes():
+        bsdf = shape.bsdf() if hasattr(shape, "bsdf") else None
+        if bsdf is None or int(bsdf.flags()) & specular:
+            return False
+    return True
 
 
 def discrete_media(scene) -> list:
@@ -158,4 +212,4 @@ def wrap_render() -> None:
     mi.render = _wrapped_render(mi.render)
 
 
-__all__ = ["attach", "camera_of", "cameras_of", "discrete_media", "light_of", "lights_of", "wrap_render"]
+__all__ = ["attach", "camera_of", "cameras_of", "discrete_media", "diffuse_only", "light_of", "lights_of", "wrap_render"]

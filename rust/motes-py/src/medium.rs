@@ -12,8 +12,8 @@ use std::sync::Arc;
 
 /// A camera as Python passes it: (position, pixel angle in radians, aperture radius).
 type CameraTuple = ((f64, f64, f64), f64, f64);
-/// A light as Python passes it: (centre, radius).
-type LightTuple = ((f64, f64, f64), f64);
+/// A light as Python passes it: (centre, radius, radius of a disc on it, the disc's normal or zero).
+type LightTuple = ((f64, f64, f64), f64, f64, (f64, f64, f64));
 
 /// The discrete medium as the renderer queries it (see `motes_core::render::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
@@ -444,18 +444,24 @@ impl PyDiscreteMedium {
             .collect()
     }
 
-    /// The lights that shadow rays converge to, as (centre, radius) tuples (None: unknown).
+    /// The lights that shadow rays converge to, as (centre, radius, disc radius, disc normal) tuples
+    /// (None: unknown).
     #[getter]
     fn lights(&self) -> Option<Vec<LightTuple>> {
         let t = |p: [f64; 3]| (p[0], p[1], p[2]);
         let view = self.medium.view();
-        view.lights
-            .map(|ls| ls.iter().map(|l| (t(l.centre), l.radius)).collect())
+        view.lights.map(|ls| {
+            ls.iter()
+                .map(|l| (t(l.centre), l.radius, l.disc, t(l.normal)))
+                .collect()
+        })
     }
 
     /// Set the cameras (a list of (position, pixel angle, aperture) tuples; empty: rays from surfaces
-    /// walk the grains) and the lights at finite distance (a list of (centre, radius) tuples; None:
-    /// unknown, every ray's end taken for a light). The renderer calls it with its scene's sensors.
+    /// walk the grains) and the lights at finite distance (a list of (centre, radius, disc radius,
+    /// disc normal) tuples: a sphere that shadow rays aim into and a disc on the light, radius 0 where
+    /// none is known; None: unknown, every ray's end taken for a light). The renderer calls it with
+    /// its scene's sensors and emitters.
     #[pyo3(signature = (cameras, lights = None))]
     fn set_cameras(
         &self,
@@ -470,7 +476,9 @@ impl PyDiscreteMedium {
         let lights = lights
             .map(|ls| {
                 ls.into_iter()
-                    .map(|(c, r)| Light::new([c.0, c.1, c.2], r))
+                    .map(|(c, r, disc, n)| {
+                        Light::new([c.0, c.1, c.2], r)?.with_disc(disc, [n.0, n.1, n.2])
+                    })
                     .collect::<Result<Vec<_>, _>>()
             })
             .transpose()

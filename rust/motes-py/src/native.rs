@@ -179,12 +179,13 @@ impl Record {
     }
 }
 
-/// The packet's lanes as an array (inactive: None), without allocating. A loop over the `width`
-/// lanes, not `array::from_fn`: that one was unrolled over all 16 lanes, building each in a temporary
-/// and copying it, the scalar variants' one lane included (4 % of a scalar render).
+/// The packet's lanes as an array of `N` (inactive: None), without allocating. A loop over the
+/// `width` lanes, not `array::from_fn`: that one was unrolled over all 16 lanes, building each in a
+/// temporary and copying it. `N` is 1 for the scalar variants' one-ray calls, so that they neither
+/// clear nor copy sixteen lanes' arrays (3 % of a scalar render in memset and memmove alone).
 #[inline(always)]
-fn lanes<T: Copy>(width: usize, f: impl Fn(usize) -> Option<T>) -> [Option<T>; PACKET_LANES] {
-    let mut out = [None; PACKET_LANES];
+fn lanes<T: Copy, const N: usize>(width: usize, f: impl Fn(usize) -> Option<T>) -> [Option<T>; N] {
+    let mut out = [None; N];
     for (i, x) in out.iter_mut().enumerate().take(width) {
         *x = f(i);
     }
@@ -231,23 +232,53 @@ pub unsafe extern "C" fn motes_packet(
 ) {
     clear_upper_vector_state();
     let m = core(medium);
-    let width = (width as usize).min(PACKET_LANES);
     let ch = (channels as usize).clamp(1, 4);
+    // Scalar variants call with one lane: arrays of one, not of sixteen (see `lanes`).
+    if width == 1 {
+        run::<1>(m, op, 1, valid, args, lambda, ch);
+    } else {
+        run::<PACKET_LANES>(
+            m,
+            op,
+            (width as usize).min(PACKET_LANES),
+            valid,
+            args,
+            lambda,
+            ch,
+        );
+    }
+}
+
+/// [`motes_packet`] for packets of at most `N` lanes.
+///
+/// # Safety
+/// As for [`motes_packet`], with `width` ≤ `N`.
+#[inline(always)]
+unsafe fn run<const N: usize>(
+    m: &DiscreteMedium,
+    op: u32,
+    width: usize,
+    valid: *const i32,
+    args: *mut u8,
+    lambda: *const f64,
+    ch: usize,
+) {
     let r = Record { args, width };
     let active = |i: usize| valid.is_null() || *valid.add(i) != 0;
-    let mut lam = [0.0f64; PACKET_LANES * 4];
+    let mut lam = [[0.0f64; 4]; N];
     // Free flights are grey: only the other operations read wavelengths.
     let lam: &[f64] = if op == FREE_FLIGHT {
         &[]
     } else if lambda.is_null() {
+        let flat = lam.as_flattened_mut();
         for i in (0..width).filter(|&i| active(i)) {
-            lane_lambda(&r, i, &mut lam[i * ch..(i + 1) * ch]);
+            lane_lambda(&r, i, &mut flat[i * ch..(i + 1) * ch]);
         }
-        &lam[..width * ch]
+        &flat[..width * ch]
     } else {
         std::slice::from_raw_parts(lambda, ch)
     };
-    let packet = Packet {
+    let packet = Packet::<N> {
         m,
         r: &r,
         width,
@@ -267,7 +298,7 @@ pub unsafe extern "C" fn motes_packet(
 /// One call's packet: the medium, the ray/hit record of `width` lanes, which lanes are active, and the
 /// wavelengths (`ch` per lane, or `ch` shared).
 #[derive(Clone, Copy)]
-struct Packet<'a> {
+struct Packet<'a, const N: usize> {
     m: &'a DiscreteMedium,
     r: &'a Record,
     width: usize,
@@ -276,9 +307,9 @@ struct Packet<'a> {
     ch: usize,
 }
 
-impl Packet<'_> {
+impl<const N: usize> Packet<'_, N> {
     /// `f(lane)` of each active lane (inactive: None).
-    fn gather<T: Copy>(&self, f: impl Fn(usize) -> T) -> [Option<T>; PACKET_LANES] {
+    fn gather<T: Copy>(&self, f: impl Fn(usize) -> T) -> [Option<T>; N] {
         lanes(self.width, |i| (self.active)(i).then(|| f(i)))
     }
 
@@ -292,14 +323,14 @@ impl Packet<'_> {
 
     /// The packet's free flights: each hit lane's tfar becomes its site's distance.
     fn free_flights(&self) {
-        let rays: [Option<PacketRay>; PACKET_LANES] = self.gather(|i| {
+        let rays: [Option<PacketRay>; N] = self.gather(|i| {
             (
                 self.r.v3(Field::Ox, i),
                 self.r.v3(Field::Dx, i),
                 self.r.f(Field::Tfar, i),
             )
         });
-        let mut t = [None; PACKET_LANES];
+        let mut t = [None; N];
         self.m.packet_free_flights(&rays[..self.width], &mut t);
         for (i, t) in t.iter().enumerate().take(self.width) {
             if let Some(t) = t {
@@ -312,9 +343,10 @@ impl Packet<'_> {
     /// Remember the packet's events where the renderer placed them; each lane's albedo per channel.
     fn commit(&self) {
         let p = self.gather(|i| self.r.v3(Field::Ox, i));
-        let mut albedo = [0.0; PACKET_LANES * 4];
+        let mut albedo = [[0.0; 4]; N];
+        let albedo = albedo.as_flattened_mut();
         self.m
-            .packet_commit(&p[..self.width], self.lam, self.ch, &mut albedo);
+            .packet_commit(&p[..self.width], self.lam, self.ch, albedo);
         self.answer(|i| write_channels(self.r, i, &albedo[i * self.ch..(i + 1) * self.ch]));
     }
 
@@ -329,7 +361,7 @@ impl Packet<'_> {
                 self.r.f(Field::Tfar, i) as f64,
             ],
         });
-        let (mut wo, mut pdf) = ([[0.0; 3]; PACKET_LANES], [0.0; PACKET_LANES]);
+        let (mut wo, mut pdf) = ([[0.0; 3]; N], [0.0; N]);
         self.m
             .packet_phase_sample(&l[..self.width], self.lam, self.ch, &mut wo, &mut pdf);
         self.answer(|i| {
@@ -351,9 +383,10 @@ impl Packet<'_> {
                 self.r.f(Field::Tfar, i),
             ],
         });
-        let (mut v, mut pdf) = ([0.0; PACKET_LANES * 4], [0.0; PACKET_LANES]);
+        let (mut v, mut pdf) = ([[0.0; 4]; N], [0.0; N]);
+        let v = v.as_flattened_mut();
         self.m
-            .packet_phase_eval(&l[..self.width], self.lam, self.ch, &mut v, &mut pdf);
+            .packet_phase_eval(&l[..self.width], self.lam, self.ch, v, &mut pdf);
         self.answer(|i| {
             write_channels(self.r, i, &v[i * self.ch..(i + 1) * self.ch]);
             self.r.set_f(Field::InstId, i, pdf[i]);

@@ -29,6 +29,18 @@
 //! effective count the disks alone hold over the same window (a ray just off a camera's line, through a
 //! glass pane say, keeps walking them).
 //!
+//! An area light blurs each grain's shadow further: every point of the light casts its own, so at a
+//! distance t from W along a ray towards the light the grains' shadows reaching W spread over the light's
+//! outline seen from W, projected to t: a cone widening from W with radius c t, c = (least half-width of
+//! the light as seen from W) / (distance to its far side). A light that holds a disc of radius b with
+//! normal n (a rectangle's or disk's inscribed disc, a sphere's outline with no normal) shows at least
+//! b |n·u| in every direction from W along u, and |n·u| over every W on the backward half-line is least at
+//! one of its ends (or 0 where n·u changes sign). The pixel's cone and the penumbra's combine by
+//! convolution, whose effective area (∫w)² / ∫w² is at least that of either (Young's inequality), so the
+//! rule takes ρ(t) = max(K (a − t), c t): V-shaped, narrowest between W and the light, and the window
+//! counted is the one of least count (where ρ is equal at both its ends). A grain near W still casts a
+//! shadow as sharp as the pixel's footprint: the window reaches it where that is the narrowest part.
+//!
 //! Which rays head for a light: those whose forward line passes within a light's radius of its centre
 //! ([`Light`]: the scene's point and spot lights, and a sphere around each area light's shape). The
 //! ray's own t_max says nothing here (Mitsuba ends a ray at the medium's boundary, not at the light);
@@ -39,7 +51,7 @@
 //! that stay discrete would hold at least `continuous_count` of them in that cone, counted over the
 //! length [`crate::render::continuous::resolvable`] counts over (one mean free path of the whole
 //! medium, or the box's mean chord if shorter; less where the ray's own chord is shorter) at the
-//! cone's narrow end, with each size class's mean density over the particles' box: that count with
+//! cone's narrowest (the window of least count), with each size class's mean density over the particles' box: that count with
 //! the ray's own footprint added to each disk.
 //! Several classes count as an *effective* number, N_eff = (Σ_k τ_k)² / Σ_k τ_k² / N_k, with N_k
 //! the class's expected count and τ_k its expected optical depth: what a viewer would see of the
@@ -47,8 +59,7 @@
 //! spread is τ / √N for one class and τ / √N_eff for a mixture. So a rare class of small grains
 //! (a few in a footprint, but little of the extinction) does not keep a ray walking, and a rare class
 //! of large grains (few, but much of the extinction) does. Curved mirrors that focus, and clouds much
-//! denser in places than on average, are where the bound is not conservative (area lights are: their
-//! penumbrae blur the shadows more than the cone to their near side assumes); `surface_footprint` off
+//! denser in places than on average, are where the bound is not conservative; `surface_footprint` off
 //! (or an infinite `continuous_count`) keeps every surface ray walking the grains.
 
 use crate::error::{require, OpticsError};
@@ -93,11 +104,16 @@ impl Camera {
 }
 
 /// A light as the footprint rule sees it: a sphere that shadow rays towards it aim into (radius 0 for
-/// a point or spot light).
+/// a point or spot light), and a disc that lies on the light (an area light's penumbra: module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Light {
     pub centre: [f64; 3],
     pub radius: f64,
+    /// Radius of a disc centred on `centre` that lies on the light (0: none known, as for a point).
+    pub disc: f64,
+    /// Unit normal of that disc, or zero where the light shows the whole disc from every side (a
+    /// sphere's outline).
+    pub normal: [f64; 3],
 }
 
 impl Light {
@@ -111,7 +127,69 @@ impl Light {
             radius.is_finite() && radius >= 0.0,
             "finite and >= 0",
         )?;
-        Ok(Light { centre, radius })
+        Ok(Light {
+            centre,
+            radius,
+            disc: 0.0,
+            normal: [0.0; 3],
+        })
+    }
+
+    /// The light with a disc of radius `disc` (at most `radius`) and normal `normal` (any length; zero:
+    /// seen whole from every side) lying on it.
+    pub fn with_disc(mut self, disc: f64, normal: [f64; 3]) -> Result<Self, OpticsError> {
+        require(
+            "light disc",
+            disc,
+            disc.is_finite() && disc >= 0.0 && disc <= self.radius,
+            "finite, >= 0 and <= the light's radius",
+        )?;
+        let len = normal.iter().map(|x| x * x).sum::<f64>().sqrt();
+        require("light normal", len, len.is_finite(), "finite")?;
+        self.disc = disc;
+        self.normal = if len > 0.0 {
+            normal.map(|x| x / len)
+        } else {
+            [0.0; 3]
+        };
+        Ok(self)
+    }
+
+    /// Least half-width of the disc as seen from anywhere on the backward half-line W = o − s d (s ≥ 0)
+    /// of a ray heading for it, over the distance from W to the light's far side: the slope of the
+    /// penumbra cone from o (module docs). `along` and `off`: the centre's distance from o along d
+    /// and from the ray's line. The cone's radius at distance t from o is at least this slope times t
+    /// whatever s: |C − W| + radius ≤ along + s + off + radius, and (t + s) / (x + s) ≥ t / x for t ≤ x.
+    fn penumbra_slope(&self, o: [f64; 3], d: [f64; 3], along: f64, off: f64) -> f64 {
+        if self.disc <= 0.0 {
+            return 0.0;
+        }
+        let n = self.normal;
+        let cos = if n == [0.0; 3] {
+            1.0
+        } else {
+            // From o − s d the centre lies along u(s), which sweeps the arc from u(0) to d: |n·u| is
+            // least at an end, or 0 where n·u changes sign on the way.
+            let v = [0, 1, 2].map(|a| self.centre[a] - o[a]);
+            let vl = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+            let nu = if vl > 0.0 {
+                (n[0] * v[0] + n[1] * v[1] + n[2] * v[2]) / vl
+            } else {
+                nd
+            };
+            if nu * nd <= 0.0 {
+                0.0
+            } else {
+                nu.abs().min(nd.abs())
+            }
+        };
+        let far = along + off + self.radius;
+        if far > 0.0 {
+            self.disc * cos / far
+        } else {
+            0.0
+        }
     }
 }
 
@@ -130,8 +208,14 @@ impl View {
     /// Where along the ray the footprint cone converges: the nearest light the ray heads for (module
     /// docs), or infinity; with the lights unknown, `t_max`.
     pub fn convergence(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> f64 {
+        self.target(o, d, t_max).0
+    }
+
+    /// [`Self::convergence`] and the slope of the nearest light's penumbra cone from o (0 for a point
+    /// light, an unknown light, or none).
+    pub fn target(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> (f64, f64) {
         let Some(lights) = &self.lights else {
-            return t_max;
+            return (t_max, 0.0);
         };
         lights
             .iter()
@@ -140,10 +224,23 @@ impl View {
                 let along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
                 let off2 = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along).max(0.0);
                 let reach = l.radius + AIM_TOLERANCE * along.abs();
-                (along + l.radius > 0.0 && off2 <= reach * reach)
-                    .then(|| (along - l.radius).max(0.0))
+                (along + l.radius > 0.0 && off2 <= reach * reach).then(|| {
+                    let slope = l.penumbra_slope(o, d, along, off2.sqrt());
+                    ((along - l.radius).max(0.0), slope)
+                })
             })
-            .fold(f64::INFINITY, f64::min)
+            .fold(
+                (f64::INFINITY, 0.0),
+                |best, x| if x.0 < best.0 { x } else { best },
+            )
+    }
+
+    /// The widest disc of any light (bounds a penumbra cone's radius).
+    fn widest_disc(&self) -> f64 {
+        self.lights
+            .iter()
+            .flatten()
+            .fold(0.0, |m: f64, l| m.max(l.disc))
     }
 }
 
@@ -267,7 +364,8 @@ impl SurfaceFootprint {
         if view.cameras.is_empty() {
             return false;
         }
-        // ρ(t) ≤ (α/2) |o − c| on every ray (module docs): most rays of a sparse cloud stop here.
+        // ρ(t) ≤ (α/2) |o − c| on every ray, or the widest light's disc in a penumbra (module docs):
+        // most rays of a sparse cloud stop here.
         let bound2 = view
             .cameras
             .iter()
@@ -275,7 +373,8 @@ impl SurfaceFootprint {
                 let v = [0, 1, 2].map(|a| o[a] - c.position[a]);
                 (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) * (0.5 * c.pixel_angle).powi(2)
             })
-            .fold(f64::INFINITY, f64::min);
+            .fold(f64::INFINITY, f64::min)
+            .max(view.widest_disc().powi(2));
         if bound2.is_nan() || bound2 < self.least_radius * self.least_radius {
             return false;
         }
@@ -285,7 +384,7 @@ impl SurfaceFootprint {
         let Some((ta, tb)) = self.bounds.clip(&RaySegment::new(o, d, 0.0, t_max)) else {
             return false; // misses the grains: nothing to save
         };
-        let a = view.convergence(o, d, t_max);
+        let (a, c) = view.target(o, d, t_max);
         let tb = tb.min(a); // a shadow ray ends at its light
         if tb <= ta {
             return false;
@@ -293,27 +392,50 @@ impl SurfaceFootprint {
         let k = view
             .cameras
             .iter()
-            .map(|c| cone_slope(c, o, d, a))
+            .map(|cam| cone_slope(cam, o, d, a))
             .fold(f64::INFINITY, f64::min);
-        // The window: `length` at the cone's narrow end (the far end of the chord).
-        let ta = ta.max(tb - self.length);
-        // ρ at the window's ends (linear between: k (a − t), or k for a cone without an end);
-        // Mitsuba's unbounded rays end at the largest float, so a − t is never formed alone.
-        let (ra, rb) = if a.is_finite() {
-            (k * (a - ta).max(0.0), k * (a - tb).max(0.0))
-        } else {
-            (k, k)
-        };
-        let i0 = tb - ta;
-        let (i1, i2) = (
-            i0 * (ra + rb) / 2.0,
-            i0 * (ra * ra + ra * rb + rb * rb) / 3.0,
-        );
-        if !(i0 > 0.0 && i0.is_finite()) {
-            return false;
+        match window(k, a, c, ta, tb, self.length) {
+            Some((i0, i1, i2)) => self.passes(i0, i1, i2),
+            None => false,
         }
-        self.passes(i0, i1, i2)
     }
+}
+
+/// The window of the footprint cone that holds the fewest grains (module docs) and its integrals
+/// (∫dt, ∫ρ dt, ∫ρ² dt), on [ta, tb] and at most `length` long. ρ(t) = max(k (a − t), c t): the pixel's
+/// cone narrowing to a light at `a` (or ρ = k throughout where `a` is infinite) and an area light's
+/// penumbra widening from the surface (slope `c`, 0 for a point light). The count over a window of
+/// fixed length is convex in its start (its integrand is), least where ρ is equal at both ends.
+fn window(k: f64, a: f64, c: f64, ta: f64, tb: f64, length: f64) -> Option<(f64, f64, f64)> {
+    let len = (tb - ta).min(length);
+    if !(len > 0.0 && len.is_finite()) {
+        return None;
+    }
+    if !a.is_finite() {
+        // Mitsuba's unbounded rays end at the largest float, so a − t is never formed alone.
+        return Some((len, len * k, len * k * k));
+    }
+    let start = if c > 0.0 {
+        ((k * a - c * len) / (k + c)).min(tb - len).max(ta)
+    } else {
+        tb - len // the narrow end: at the light
+    };
+    let rho = |t: f64| (k * (a - t).max(0.0)).max(c * t);
+    // ρ is linear on each side of where the two cones cross.
+    let cross = if k + c > 0.0 { k * a / (k + c) } else { a };
+    let (mut i1, mut i2) = (0.0, 0.0);
+    let mut piece = |t0: f64, t1: f64| {
+        if t1 > t0 {
+            let (ra, rb, l) = (rho(t0), rho(t1), t1 - t0);
+            i1 += l * (ra + rb) / 2.0;
+            i2 += l * (ra * ra + ra * rb + rb * rb) / 3.0;
+        }
+    };
+    let end = start + len;
+    let mid = cross.clamp(start, end);
+    piece(start, mid);
+    piece(mid, end);
+    Some((len, i1, i2))
 }
 
 /// Does the ray's backward half-line pass within the lens aperture of the camera (a camera ray, or
@@ -409,6 +531,152 @@ mod tests {
             assert!(k <= brute * (1.0 + 1e-9) + 1e-12, "{k} > {brute}");
             assert!(k >= brute * (1.0 - 1e-3) - 1e-9, "{k} << {brute}");
         }
+    }
+
+    #[test]
+    fn the_window_holds_the_fewest_grains() {
+        let mut seed = 5u64;
+        let mut next = || {
+            seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
+            crate::rng::unit_f64(seed)
+        };
+        for _ in 0..300 {
+            let (k, c) = (0.02 * next(), if next() < 0.3 { 0.0 } else { 0.3 * next() });
+            let a = 5.0 + 50.0 * next();
+            let (ta, tb) = (a * 0.5 * next(), a * (0.5 + 0.5 * next()));
+            let length = 1.0 + 30.0 * next();
+            let r = 0.3 * next();
+            let rho = |t: f64| (k * (a - t).max(0.0)).max(c * t);
+            // Brute force: every start on a fine grid, the count ∫(ρ + R)² by the midpoint rule.
+            let len = (tb - ta).min(length);
+            let count = |t0: f64| {
+                let m = 2000;
+                (0..m)
+                    .map(|i| (rho(t0 + (i as f64 + 0.5) * len / m as f64) + r).powi(2))
+                    .sum::<f64>()
+                    * len
+                    / m as f64
+            };
+            let best = (0..=400)
+                .map(|j| count(ta + (tb - ta - len) * j as f64 / 400.0))
+                .fold(f64::INFINITY, f64::min);
+            let (i0, i1, i2) = window(k, a, c, ta, tb, length).unwrap();
+            let got = i2 + 2.0 * r * i1 + r * r * i0;
+            assert!((i0 - len).abs() < 1e-12);
+            assert!(got <= best * (1.0 + 1e-6), "{got} > {best}");
+            assert!(got >= best * (1.0 - 1e-3), "{got} << {best}");
+        }
+    }
+
+    #[test]
+    fn the_penumbra_is_the_least_over_the_backward_half_line() {
+        let mut seed = 9u64;
+        let mut next = || {
+            seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
+            crate::rng::unit_f64(seed) * 2.0 - 1.0
+        };
+        let unit = |v: [f64; 3]| {
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / l)
+        };
+        for _ in 0..300 {
+            let centre = [10.0 * next(), 10.0 * next(), 10.0 * next()];
+            let normal = if next() > 0.8 {
+                [0.0; 3]
+            } else {
+                unit([next(), next(), next()])
+            };
+            let radius = 0.5 + 3.0 * (next() + 1.0);
+            let light = Light::new(centre, radius)
+                .unwrap()
+                .with_disc(radius * 0.5 * (next() + 1.0), normal)
+                .unwrap();
+            let o = [20.0 * next(), 20.0 * next(), 20.0 * next()];
+            // Aim at a point of the light's sphere.
+            let p = [0, 1, 2].map(|a| centre[a] + 0.7 * radius * next());
+            let d = unit([0, 1, 2].map(|a| p[a] - o[a]));
+            let along: f64 = (0..3).map(|a| (centre[a] - o[a]) * d[a]).sum();
+            if along <= radius {
+                continue;
+            }
+            let off = {
+                let v = [0, 1, 2].map(|a| centre[a] - o[a]);
+                (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along)
+                    .max(0.0)
+                    .sqrt()
+            };
+            let slope = light.penumbra_slope(o, d, along, off);
+            // From W = o − s d the disc shows a least half-width b |n·u| at distance |C − W|: at a
+            // distance t from o (t + s from W) its cone is b |n·u| (t + s) / (|C − W| + radius) wide.
+            for t in [0.1, 0.5, 0.9].map(|f| f * (along - radius)) {
+                let brute = (0..20_000)
+                    .map(|i| {
+                        let s = (i as f64 * 1e-3).exp() - 1.0;
+                        let v = [0, 1, 2].map(|a| centre[a] - (o[a] - s * d[a]));
+                        let vl = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                        let cos = if normal == [0.0; 3] {
+                            1.0
+                        } else {
+                            (0..3).map(|a| normal[a] * v[a]).sum::<f64>().abs() / vl
+                        };
+                        light.disc * cos * (t + s) / (vl + radius)
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert!(
+                    slope * t <= brute * (1.0 + 1e-9) + 1e-12,
+                    "{} > {brute}",
+                    slope * t
+                );
+            }
+        }
+        // Validation names the parameter.
+        let l = Light::new([0.0; 3], 1.0).unwrap();
+        assert!(l.with_disc(2.0, [0.0, 0.0, 1.0]).is_err());
+        assert!(l.with_disc(-0.1, [0.0, 0.0, 1.0]).is_err());
+        assert!(l.with_disc(0.5, [f64::NAN, 0.0, 1.0]).is_err());
+    }
+
+    #[test]
+    fn an_area_light_blurs_what_a_point_light_shows() {
+        // The Cornell box (scene units cm): 3·10^5 grains of 1 mm in a 56 cm box, the camera at 106 cm,
+        // a 14 cm ceiling light. A shadow ray from the floor to the light: the pixel's cone alone holds
+        // few grains where it converges to the light; the light's penumbra many.
+        let bounds = Bounds3 {
+            lo: [-28.0; 3],
+            hi: [28.0; 3],
+        };
+        let class = ClassMoments {
+            density: 3e5 / 56f64.powi(3),
+            mean_radius: 0.3,
+            mean_square_radius: 0.09,
+            mean_extinction: 2.0 * PI * 0.01,
+        };
+        let rule = SurfaceFootprint::new(vec![class], bounds, 18.0, 16.0).unwrap();
+        let point = Light::new([0.0, 27.9, 0.0], 9.9).unwrap();
+        let panel = point.with_disc(7.0, [0.0, 1.0, 0.0]).unwrap();
+        let camera = vec![Camera::new([0.0, 0.0, 106.0], 0.0071, 0.0).unwrap()];
+        let view = |l: Light| View {
+            cameras: camera.clone(),
+            lights: Some(vec![l]),
+        };
+        let o = [5.0, -28.0, -10.0];
+        let d = {
+            let v: [f64; 3] = [0.0 - o[0], 27.9 - o[1], 0.0 - o[2]];
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / l)
+        };
+        assert!(!rule.sees_field(&view(point), o, d, f64::INFINITY));
+        assert!(rule.sees_field(&view(panel), o, d, f64::INFINITY));
+        // Seen edge-on the panel shows no width in one direction: no blur.
+        let edge = point.with_disc(7.0, [d[1], -d[0], 0.0]).unwrap();
+        assert!(!rule.sees_field(&view(edge), o, d, f64::INFINITY));
+        // Sparse grains: still nothing.
+        let sparse = ClassMoments {
+            density: 1e3 / 56f64.powi(3),
+            ..class
+        };
+        let rule = SurfaceFootprint::new(vec![sparse], bounds, 1e3, 16.0).unwrap();
+        assert!(!rule.sees_field(&view(panel), o, d, f64::INFINITY));
     }
 
     /// The 12 cm cube of `scripts/bench/bench_dense.py` (centimetres) and its camera.

@@ -1,0 +1,96 @@
+"""Issue 25: an area light's penumbra in the surface-ray rule (``rust/motes-core/src/render/footprint.rs``), on
+against off on the same medium with the same seeds, interleaved.
+
+"On" is what a user gets: the lights handed to the medium carry a disc that lies on each area light (rectangles,
+disks, spheres; in scenes whose every surface is diffuse), whose penumbra blurs the grains' shadows reaching a
+pixel. "Off" hands the same lights without their discs (the rule as it was: the pixel's cone alone). Reported per
+scene: seconds per render on over off, the share of rays from no event that saw the grains' continuous
+equivalent on each side, the image means' difference in standard errors and the per-pixel RMS difference over
+the renders' own seed-to-seed RMS difference, on all pixels and on the lit ones (above twice the median), where
+the grains' shadows on walls and floors would show (``bench_surface.pair_stats``); the mean difference also in
+units of its paired standard error (the two sides share their seeds: ``paired_se``).
+
+    .venv/bin/python scripts/bench/bench_penumbra.py [--scenes cornell,staircase,...] [--seeds 8]
+        [--set count=300000] [--variant scalar_rgb]
+"""
+
+from __future__ import annotations
+
+import pathlib
+import sys
+import time
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "paper"))
+import numpy as np  # noqa: E402
+
+import _common as C  # noqa: E402
+import _paper as P  # noqa: E402
+import bench_surface  # noqa: E402
+
+SCENES = ("dust_box", "lamp", "cornell", "bench", "staircase", "house")
+
+
+def paired_se(on: list, off: list) -> float:
+    """Standard error of the relative difference of the image means from the per-seed differences: the two
+    sides share their seeds, so their paths agree until a ray from a surface sees the field on one side only,
+    and the pairs' spread is far smaller than either side's (``pair_stats`` takes them as independent)."""
+    a, b = (np.asarray(x).mean(axis=(1, 2)) for x in (on, off))
+    return float((a - b).std(ddof=1) / np.sqrt(len(a)) / b.mean())
+
+
+def run_scene(mi, name: str, args) -> dict:
+    from motes.plugins import cameras  # noqa: PLC0415
+
+    scene = mi.load_file(str(P.scene_file(name)), **bench_surface.OVERRIDES, spp=str(args.spp), res=str(args.res))
+    core = P.discrete_medium_of(scene).data.core
+    diffuse_only = cameras.diffuse_only
+    mi.render(scene, spp=args.spp, seed=999)  # compiles the kernels
+    imgs, best, counts = {True: [], False: []}, {True: np.inf, False: np.inf}, {True: [0, 0], False: [0, 0]}
+    try:
+        for s in range(args.seeds):
+            for on in (True, False):
+                # mi.render hands the scene's lights to the medium again: with or without their discs.
+                cameras.diffuse_only = diffuse_only if on else (lambda _scene: False)
+                before = core.surface_counts
+                t = time.perf_counter()
+                img = np.asarray(mi.render(scene, spp=args.spp, seed=s), dtype=np.float64)[..., :3]
+                best[on] = min(best[on], time.perf_counter() - t)
+                after = core.surface_counts
+                counts[on] = [counts[on][k] + after[k] - before[k] for k in range(2)]
+                imgs[on].append(P.luminance(img))
+    finally:
+        cameras.diffuse_only = diffuse_only
+    share = {on: counts[on][1] / max(counts[on][0], 1) for on in (True, False)}
+    row = {"scene": name, "res": args.res, "spp": args.spp, "seeds": args.seeds, "seconds_on": best[True],
+           "seconds_off": best[False], "speed_ratio": best[True] / best[False], "field_share_on": share[True],
+           "field_share_off": share[False], "discs": diffuse_only(scene),
+           **bench_surface.pair_stats(imgs[True], imgs[False]), "paired_se": paired_se(imgs[True], imgs[False])}
+    print(f"[{name}] on/off {row['speed_ratio']:.2f} ({best[True]:.2f} / {best[False]:.2f} s), field "
+          f"{share[True]:.0%} / {share[False]:.0%} of rays from no event, mean {row['rel_diff']:+.3%} "
+          f"({row['diff_se']:+.1f} SE; {row['rel_diff'] / row['paired_se']:+.1f} paired SE), rms/noise {row['rms_over_noise']:.2f} lit {row['rms_over_noise_lit']:.2f}",
+          flush=True)
+    return row
+
+
+def main() -> None:
+    ap = bench_surface.scene_parser(__doc__, SCENES)
+    ap.add_argument("--seeds", type=int, default=8)
+    bench_surface.add_overrides(ap)
+    args = ap.parse_args()
+    bench_surface.read_overrides(args, bench_surface.OVERRIDES)
+    args.seeds = 2 if args.quick else max(2, args.seeds)
+    out, sw = C.out_dir(args.out), C.Stopwatch()
+    mi = P.setup(args.variant)
+    rows = [run_scene(mi, n.strip(), args) for n in args.scenes.split(",") if n.strip()]
+    C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, {args.seeds} seeds: area-light penumbra "
+                  "on against off", ["scene", "time on/off", "rays seeing the field on / off",
+                                     "mean diff (SE; paired SE)", "RMS/noise all; lit"],
+                  [[r["scene"], f"{r['speed_ratio']:.2f}", f"{r['field_share_on']:.0%} / {r['field_share_off']:.0%}",
+                    f"{r['rel_diff']:+.3%} ({r['diff_se']:+.1f}; {r['rel_diff'] / r['paired_se']:+.1f})",
+                    f"{r['rms_over_noise']:.2f}; {r['rms_over_noise_lit']:.2f}"] for r in rows])
+    C.finish(args, sw, out / f"bench_penumbra_{args.variant}.json", rows=rows)
+
+
+if __name__ == "__main__":
+    main()
