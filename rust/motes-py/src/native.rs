@@ -264,14 +264,18 @@ unsafe fn run<const N: usize>(
     ch: usize,
 ) {
     let r = Record { args, width };
-    let active = |i: usize| valid.is_null() || *valid.add(i) != 0;
+    // The active lanes as bits (one test per lane, not a call through a closure per use).
+    let active = (0..width).fold(0u32, |m, i| {
+        m | ((valid.is_null() || *valid.add(i) != 0) as u32) << i
+    });
+    let is_active = |i: usize| active >> i & 1 != 0;
     let mut lam = [[0.0f64; 4]; N];
     // Free flights are grey: only the other operations read wavelengths.
     let lam: &[f64] = if op == FREE_FLIGHT {
         &[]
     } else if lambda.is_null() {
         let flat = lam.as_flattened_mut();
-        for i in (0..width).filter(|&i| active(i)) {
+        for i in (0..width).filter(|&i| is_active(i)) {
             lane_lambda(&r, i, &mut flat[i * ch..(i + 1) * ch]);
         }
         &flat[..width * ch]
@@ -282,7 +286,7 @@ unsafe fn run<const N: usize>(
         m,
         r: &r,
         width,
-        active: &active,
+        active,
         lam,
         ch,
     };
@@ -302,20 +306,26 @@ struct Packet<'a, const N: usize> {
     m: &'a DiscreteMedium,
     r: &'a Record,
     width: usize,
-    active: &'a dyn Fn(usize) -> bool,
+    /// Bit i: lane i is active.
+    active: u32,
     lam: &'a [f64],
     ch: usize,
 }
 
 impl<const N: usize> Packet<'_, N> {
+    #[inline(always)]
+    fn is_active(&self, i: usize) -> bool {
+        self.active >> i & 1 != 0
+    }
+
     /// `f(lane)` of each active lane (inactive: None).
     fn gather<T: Copy>(&self, f: impl Fn(usize) -> T) -> [Option<T>; N] {
-        lanes(self.width, |i| (self.active)(i).then(|| f(i)))
+        lanes(self.width, |i| self.is_active(i).then(|| f(i)))
     }
 
     /// Marks each active lane as returned, then `write`s its results.
     fn answer(&self, write: impl Fn(usize)) {
-        for i in (0..self.width).filter(|&i| (self.active)(i)) {
+        for i in (0..self.width).filter(|&i| self.is_active(i)) {
             self.r.returned(i);
             write(i);
         }

@@ -411,7 +411,10 @@ impl ContinuousField {
         (self.sigma.len() + self.start.len() + self.majorant.len()) * 4
             + self.members.bytes()
             + self.cdf.len() * 2
-            + self.picks.as_ref().map_or(0, |(a, b)| (a.len() + b.len()) * 4)
+            + self
+                .picks
+                .as_ref()
+                .map_or(0, |(a, b)| (a.len() + b.len()) * 4)
     }
 
     /// The same free flight as [`Self::free_flight`] in distribution, by delta tracking (Woodcock
@@ -748,8 +751,7 @@ mod tests {
             let classes: Vec<u32> = (0..n)
                 .map(|_| (lcg(&mut s) * classes_count as f64) as u32)
                 .collect();
-            let mut f =
-                ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+            let mut f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
             assert_eq!(f.picks.is_some(), classes_count <= 8, "{classes_count}");
             let Some(table) = f.picks.take() else {
                 continue;

@@ -1799,15 +1799,39 @@ struct PendingLane {
 }
 
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
-const PACKET_EVENT_CAPACITY: usize = 4096;
+const PACKET_EVENT_CAPACITY: usize = 512;
 /// Media whose per-thread state a thread keeps before it forgets all but the one in use.
 const PACKET_MEDIA_KEPT: usize = 8;
 
+/// A lane's last phase-function sample, kept for the evaluation that Mitsuba's phase function asks for
+/// next at the same event and direction (the C++ plugin's `sample` calls `eval_pdf`, and only `pdf`
+/// and a direction travel back from a sample): the inputs as their bits, the values and pdf computed
+/// with the sample.
+#[derive(Clone, Copy, Default)]
+struct SampledLane {
+    inputs: [[u32; 3]; 3],
+    lambda: [u64; MAX_CHANNELS],
+    values: [f64; MAX_CHANNELS],
+    pdf: f64,
+}
+
+impl SampledLane {
+    fn inputs(p: [f32; 3], wi: [f32; 3], wo: [f32; 3]) -> [[u32; 3]; 3] {
+        [p, wi, wo].map(|v| v.map(f32::to_bits))
+    }
+    fn lambda(lam: &[f64]) -> [u64; MAX_CHANNELS] {
+        let mut out = [u64::MAX; MAX_CHANNELS];
+        out.iter_mut().zip(lam).for_each(|(o, l)| *o = l.to_bits());
+        out
+    }
+}
+
 /// One thread's state of the packet interface for one medium: the pending sites of its last packet of
-/// free flights, and its events.
+/// free flights, its events, and its lanes' last phase-function samples.
 struct PacketState {
     pending: [PendingLane; PACKET_LANES],
     events: EventMap,
+    sampled: [Option<SampledLane>; PACKET_LANES],
     /// The medium's `optics_epoch` when these events were made (older ones carry stale albedos).
     epoch: u64,
     /// The medium's view as of its `view_epoch` (u64::MAX: not read yet).
@@ -1820,6 +1844,7 @@ impl Default for PacketState {
         PacketState {
             pending: [PendingLane::default(); PACKET_LANES],
             events: EventMap::new(PACKET_EVENT_CAPACITY),
+            sampled: [None; PACKET_LANES],
             epoch: 0,
             view: Arc::new(View::default()),
             view_epoch: u64::MAX,
@@ -1912,6 +1937,7 @@ impl DiscreteMedium {
             let epoch = self.optics_epoch.load(Ordering::Relaxed);
             if st.epoch != epoch {
                 st.events.clear();
+                st.sampled = [None; PACKET_LANES];
                 st.epoch = epoch;
             }
             f(st)
@@ -1997,6 +2023,7 @@ impl DiscreteMedium {
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
+                st.sampled[i] = None;
                 let Some(lane) = lane else {
                     continue;
                 };
@@ -2005,6 +2032,20 @@ impl DiscreteMedium {
                 (wo[i], pdf[i]) = (sample.0, sample.2);
                 if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(lane.p))) {
                     e.t_out = t;
+                }
+                if sample.2 > 0.0 && lam.len() <= MAX_CHANNELS {
+                    // What the evaluation at the direction as it travels back (f32) would give.
+                    let mut values = [0.0; MAX_CHANNELS];
+                    values
+                        .iter_mut()
+                        .zip(&sample.1)
+                        .for_each(|(v, w)| *v = w * sample.2);
+                    st.sampled[i] = Some(SampledLane {
+                        inputs: SampledLane::inputs(lane.p, lane.wi, sample.0.map(|x| x as f32)),
+                        lambda: SampledLane::lambda(lam),
+                        values,
+                        pdf: sample.2,
+                    });
                 }
             }
         })
@@ -2029,6 +2070,16 @@ impl DiscreteMedium {
                     continue;
                 };
                 let lam = lane_wavelengths(lambda, channels, i);
+                // The direction this lane's last sample returned, at the same event: its values.
+                let same = |c: &SampledLane| {
+                    c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
+                        && c.lambda == SampledLane::lambda(lam)
+                };
+                if let Some(c) = st.sampled[i].filter(same) {
+                    v.copy_from_slice(&c.values[..lam.len()]);
+                    pdf[i] = c.pdf;
+                    continue;
+                }
                 pdf[i] = self.lane_phase_eval(&st.events, lane, lam, v);
             }
         })
