@@ -183,11 +183,12 @@ pub struct ContinuousField {
     /// in units of 1/65535 (the last of a cell is 65535); empty where `members` holds it
     /// ([`Members::Classes`]).
     cdf: Vec<u16>,
-    /// Where the cells hold few distinct classes (a monodisperse cloud: one), each cell's classes once
-    /// with the running share of the cell's extinction (packed as in [`Members::Classes`]) and each
-    /// cell's first entry: what a pick reads instead of `members`, small enough to stay in cache (a
-    /// pick's cache miss was 10 % of a dense Cornell box's render in llvm_ad_rgb). Picks a class with
-    /// the same probability as `members` does.
+    /// Where the cells hold few distinct classes, or few groups of classes that scatter alike
+    /// ([`Self::picking_by`]: an optics bin's radius levels), each cell's classes (or one class of each
+    /// group) once with the running share of the cell's extinction (packed as in [`Members::Classes`])
+    /// and each cell's first entry: what a pick reads instead of `members`, small enough to stay in
+    /// cache (a pick's cache miss was 10 % of a dense Cornell box's render in llvm_ad_rgb, and of the
+    /// staircase's). Picks each class (group) with the same probability as `members` does.
     picks: Option<(Vec<u32>, Vec<u32>)>,
     /// Blocks of [`MAJORANT_BLOCK`]³ cells (the last ones along an axis may reach past the field's
     /// box, where σ_t = 0) and the largest σ_t of each.
@@ -302,7 +303,7 @@ impl ContinuousField {
         };
         let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
         let picks = match &members {
-            Members::Classes(m) => distinct_classes(m, &start),
+            Members::Classes(m) => distinct_classes(m, &start, &|k| k),
             _ => None,
         };
         ContinuousField {
@@ -369,6 +370,18 @@ impl ContinuousField {
             block_frame,
             majorant,
         }
+    }
+
+    /// Picks by groups of classes (`group` of a class code; compact storage: its optics bin, which
+    /// is all an interaction in the field reads of the particle: albedo and phase function): each
+    /// cell's groups with their summed shares and one class of each stand in for its classes, so that
+    /// a broad size distribution's picks also read a table that stays in cache. The group is picked with
+    /// its exact probability; which of its classes stands for it is the first in the cell.
+    pub fn picking_by(mut self, group: impl Fn(u32) -> u32) -> Self {
+        if let Members::Classes(m) = &self.members {
+            self.picks = distinct_classes(m, &self.start, &group);
+        }
+        self
     }
 
     /// The members of cell `c`: `range.0..range.1` of the member list.
@@ -521,15 +534,20 @@ impl ContinuousField {
     }
 }
 
-/// Each cell's distinct classes of a [`Members::Classes`] list (cells `start`), with their summed
-/// shares of the cell's extinction, packed as the list is: (first entry per cell, entries), or None
-/// where a cell holds more than eight of them or the whole would not be at most a quarter
-/// of the list (a broad size distribution: its picks read the list).
-fn distinct_classes(members: &[u32], start: &[u32]) -> Option<(Vec<u32>, Vec<u32>)> {
-    const PICK_CLASSES: usize = 8;
+/// Each cell's distinct groups of classes (`group` of a class code) of a [`Members::Classes`] list
+/// (cells `start`), with their summed shares of the cell's extinction and the first class of each,
+/// packed as the list is: (first entry per cell, entries), or None where a cell holds more than
+/// sixteen groups or the whole would not be at most a quarter of the list.
+fn distinct_classes(
+    members: &[u32],
+    start: &[u32],
+    group: &dyn Fn(u32) -> u32,
+) -> Option<(Vec<u32>, Vec<u32>)> {
+    const PICK_GROUPS: usize = 16;
     let cells = start.len() - 1;
     let (mut first, mut packed) = (Vec::with_capacity(start.len()), Vec::new());
-    let mut shares: Vec<(u32, u32)> = Vec::new();
+    // (group, its first class, summed share)
+    let mut shares: Vec<(u32, u32, u32)> = Vec::new();
     for c in 0..cells {
         first.push(packed.len() as u32);
         shares.clear();
@@ -538,16 +556,17 @@ fn distinct_classes(members: &[u32], start: &[u32]) -> Option<(Vec<u32>, Vec<u32
             let (cdf, class) = (m >> 16, m & 0xFFFF);
             let share = cdf - below.min(cdf);
             below = cdf;
-            if let Some(s) = shares.iter_mut().find(|s| s.0 == class) {
-                s.1 += share;
-            } else if shares.len() < PICK_CLASSES {
-                shares.push((class, share));
+            let g = group(class);
+            if let Some(s) = shares.iter_mut().find(|s| s.0 == g) {
+                s.2 += share;
+            } else if shares.len() < PICK_GROUPS {
+                shares.push((g, class, share));
             } else {
                 return None;
             }
         }
         let mut acc = 0u32;
-        for (j, &(class, share)) in shares.iter().enumerate() {
+        for (j, &(_, class, share)) in shares.iter().enumerate() {
             acc += share;
             // The last entry ends at the cell's total, as the list's does.
             let cdf = if j + 1 == shares.len() { below } else { acc };
@@ -740,7 +759,8 @@ mod tests {
         assert!(keep.iter().all(|&k| k));
     }
     /// A field of few classes picks from its table of each cell's distinct classes with the same
-    /// probabilities as from the list of its particles; one of many classes keeps the list alone.
+    /// probabilities as from the list of its particles; one of many classes keeps the list alone,
+    /// unless they fall in few groups (`picking_by`).
     #[test]
     fn picks_of_distinct_classes_match_the_list() {
         let mut s = 17u64;
@@ -752,7 +772,7 @@ mod tests {
                 .map(|_| (lcg(&mut s) * classes_count as f64) as u32)
                 .collect();
             let mut f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
-            assert_eq!(f.picks.is_some(), classes_count <= 8, "{classes_count}");
+            assert_eq!(f.picks.is_some(), classes_count <= 16, "{classes_count}");
             let Some(table) = f.picks.take() else {
                 continue;
             };
@@ -773,6 +793,30 @@ mod tests {
                 assert_eq!(by_list, by_table, "cell {cell}");
                 f.picks = None;
             }
+        }
+        // Many classes in four groups: the groups are picked as the list picks them, each by a class
+        // of its own.
+        let classes: Vec<u32> = (0..n).map(|_| (lcg(&mut s) * 5000.0) as u32).collect();
+        let group = |k: u32| (k & 0xFFFF) % 4;
+        let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+        assert!(f.picks.is_none());
+        let mut f = f.picking_by(group);
+        let table = f.picks.take().expect("four groups");
+        for cell in (0..f.start.len() - 1).step_by(7) {
+            let steps = 65_535 * 2;
+            let mut by_list: Vec<u32> = (0..steps)
+                .filter_map(|j| f.pick(cell, (j as f64 + 0.5) / steps as f64))
+                .map(group)
+                .collect();
+            f.picks = Some(table.clone());
+            let mut by_table: Vec<u32> = (0..steps)
+                .filter_map(|j| f.pick(cell, (j as f64 + 0.5) / steps as f64))
+                .map(group)
+                .collect();
+            f.picks = None;
+            by_list.sort_unstable();
+            by_table.sort_unstable();
+            assert_eq!(by_list, by_table, "cell {cell}");
         }
     }
 }

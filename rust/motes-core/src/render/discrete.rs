@@ -864,6 +864,15 @@ impl DiscreteMedium {
                 classes.as_ref().map(|c| &c.codes[..]),
             )
         });
+        // An interaction in a field reads only its particle's optics bin: picks by bin (compact storage).
+        let (field, grains_field) = match &classes {
+            Some(c) => {
+                let by_bin =
+                    |f: ContinuousField| f.picking_by(|k| c.bin[(k & !CLASS_FLAG) as usize]);
+                (field.map(by_bin), grains_field.map(by_bin))
+            }
+            None => (field, grains_field),
+        };
         let (table_c, table_bin, in_field) = match classes {
             Some(c) => {
                 let mut in_field = vec![false; c.radius.len()];
