@@ -120,6 +120,11 @@ def test_lights_are_placed(variant):
     shiny = mi.load_dict({"type": "scene", "panel": {"type": "rectangle", "emitter": {"type": "area"}},
                           "pane": {"type": "cube", "bsdf": {"type": "roughplastic"}}})
     assert [light[2] for light in lights_of(shiny)] == [0.0]
+    # A sun or an environment map casts sharp shadows: no blur from diffuse surfaces there; a uniform sky does not.
+    from motes.plugins.cameras import uniform_distant_light
+    assert not uniform_distant_light(scene) and not uniform_distant_light(mi.load_dict(
+        {"type": "scene", "sun": {"type": "directional", "direction": [0, -1, 0]}}))
+    assert uniform_distant_light(mi.load_dict({"type": "scene", "sky": {"type": "constant"}, "lamp": {"type": "point"}}))
     # The core keeps both forms; a disc wider than the light's sphere is refused, naming it.
     data = motes.DiscreteMedium(np.zeros((3, 3)), np.full(3, 5.0), np.zeros(3, dtype=np.int64),
                                 [motes.Species(motes.LogNormal(5, 1.2), 1.31)], [0.55])
@@ -169,8 +174,13 @@ def test_camera_rays_walk_grains_surface_rays_see_the_field():
     assert on.continuous_particles == 0
     assert np.array_equal(flights(on, o_cam, d_cam), flights(off, o_cam, d_cam), equal_nan=True)
     assert np.mean(flights(on, o_floor, d_floor) != flights(off, o_floor, d_floor)) > 0.1
-    # Sparse large grains (a few per footprint of a 64-pixel image): rays from the floor keep walking them.
+    # Sparse large grains (a few per footprint of a 64-pixel image): rays from the floor keep walking them where
+    # the floor could be a mirror; off this diffuse floor under a uniform sky, whose lobe blurs them over a cone a
+    # quarter of the distance wide, they see the field.
     on, off = pair(count=300, r_over_spacing=0.2)
+    assert on.diffuse_surfaces
+    assert np.mean(flights(on, o_floor, d_floor) != flights(off, o_floor, d_floor)) > 0.1
+    on.set_cameras(on.cameras, on.lights, diffuse_surfaces=False)
     assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
 
 

@@ -264,7 +264,7 @@ class DiscreteMedium:
         self.grain_depth = int(grain_depth)
         self.surface_footprint = bool(surface_footprint)
 
-    def set_cameras(self, cameras, lights=None) -> None:
+    def set_cameras(self, cameras, lights=None, diffuse_surfaces=False) -> None:
         """The cameras whose pixel footprints rays from surfaces carry (``surface_footprint``): a list of
         (position (x, y, z) in scene units, narrowest angular pixel width in radians, lens aperture radius);
         empty: rays from surfaces walk the grains. ``lights``: the lights at finite distance that shadow
@@ -272,7 +272,9 @@ class DiscreteMedium:
         disc, normal): a disc of radius ``disc`` <= ``radius`` around the centre that lies on the light, with
         its normal (x, y, z), or (0, 0, 0) where the light shows the whole disc from every side (a sphere): an
         area light's penumbra blurs the grains' shadows; None: unknown, every ray taken to end at a light
-        (safe, and the rule then rarely applies). ``motes.plugins.cameras`` sets both from a Mitsuba scene."""
+        (safe, and the rule then rarely applies). ``diffuse_surfaces``: every surface of the scene reflects and
+        transmits only diffusely, so that a ray bounced off one carries the grains blurred by the lobe (default
+        False: a surface may be a mirror). ``motes.plugins.cameras`` sets all three from a Mitsuba scene."""
         try:
             cams = [((float(p[0]), float(p[1]), float(p[2])), float(a), float(r)) for p, a, r in cameras]
         except (TypeError, ValueError, IndexError):
@@ -283,7 +285,12 @@ class DiscreteMedium:
             except (TypeError, ValueError, IndexError):
                 raise ValueError("lights must be None or a list of ((x, y, z), radius) or "
                                  "((x, y, z), radius, disc, (nx, ny, nz)) tuples") from None
-        self._core.set_cameras(cams, lights)
+        self._core.set_cameras(cams, lights, bool(diffuse_surfaces))
+
+    @property
+    def diffuse_surfaces(self) -> bool:
+        """Whether the scene's surfaces were set as diffuse only (``set_cameras``)."""
+        return self._core.diffuse_surfaces
 
     @property
     def cameras(self) -> list:

@@ -1,9 +1,11 @@
-"""Issue 25: an area light's penumbra in the surface-ray rule (``rust/motes-core/src/render/footprint.rs``), on
-against off on the same medium with the same seeds, interleaved.
+"""Issue 25: what diffuse surfaces blur in the surface-ray rule (``rust/motes-core/src/render/footprint.rs``: an
+area light's penumbra, a diffuse surface's lobe), on against off on the same medium with the same seeds,
+interleaved.
 
-"On" is what a user gets: the lights handed to the medium carry a disc that lies on each area light (rectangles,
-disks, spheres; in scenes whose every surface is diffuse), whose penumbra blurs the grains' shadows reaching a
-pixel. "Off" hands the same lights without their discs (the rule as it was: the pixel's cone alone). Reported per
+"On" is what a user gets: in a scene whose every surface is diffuse (``motes.plugins.cameras.diffuse_only``) the
+lights handed to the medium carry a disc that lies on each area light (rectangles, disks, spheres), whose penumbra
+blurs the grains' shadows reaching a pixel, and rays bounced off a surface carry the grains blurred by its cosine
+lobe. "Off" takes the scene's surfaces for possible mirrors (the rule as it was: the pixel's cone alone). Reported per
 scene: seconds per render on over off, the share of rays from no event that saw the grains' continuous
 equivalent on each side, the image means' difference in standard errors and the per-pixel RMS difference over
 the renders' own seed-to-seed RMS difference, on all pixels and on the lit ones (above twice the median), where
@@ -50,7 +52,7 @@ def run_scene(mi, name: str, args) -> dict:
     try:
         for s in range(args.seeds):
             for on in (True, False):
-                # mi.render hands the scene's lights to the medium again: with or without their discs.
+                # mi.render hands the scene's lights and surfaces to the medium again: diffuse or not.
                 cameras.diffuse_only = diffuse_only if on else (lambda _scene: False)
                 before = core.surface_counts
                 t = time.perf_counter()
@@ -64,7 +66,7 @@ def run_scene(mi, name: str, args) -> dict:
     share = {on: counts[on][1] / max(counts[on][0], 1) for on in (True, False)}
     row = {"scene": name, "res": args.res, "spp": args.spp, "seeds": args.seeds, "seconds_on": best[True],
            "seconds_off": best[False], "speed_ratio": best[True] / best[False], "field_share_on": share[True],
-           "field_share_off": share[False], "discs": diffuse_only(scene),
+           "field_share_off": share[False], "diffuse": diffuse_only(scene),
            **bench_surface.pair_stats(imgs[True], imgs[False]), "paired_se": paired_se(imgs[True], imgs[False])}
     print(f"[{name}] on/off {row['speed_ratio']:.2f} ({best[True]:.2f} / {best[False]:.2f} s), field "
           f"{share[True]:.0%} / {share[False]:.0%} of rays from no event, mean {row['rel_diff']:+.3%} "
@@ -83,7 +85,7 @@ def main() -> None:
     out, sw = C.out_dir(args.out), C.Stopwatch()
     mi = P.setup(args.variant)
     rows = [run_scene(mi, n.strip(), args) for n in args.scenes.split(",") if n.strip()]
-    C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, {args.seeds} seeds: area-light penumbra "
+    C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, {args.seeds} seeds: diffuse surfaces' blur "
                   "on against off", ["scene", "time on/off", "rays seeing the field on / off",
                                      "mean diff (SE; paired SE)", "RMS/noise all; lit"],
                   [[r["scene"], f"{r['speed_ratio']:.2f}", f"{r['field_share_on']:.0%} / {r['field_share_off']:.0%}",

@@ -15,7 +15,10 @@ Cameras: ``perspective`` and ``thinlens`` (anything with an ``x_fov``). A scene 
 (orthographic, radiance meters, batches) gets no cameras, and its rays from surfaces walk the grains.
 Lights: point and spot lights (and any other light at a point) by position, area lights by a sphere around
 their shape's bounding box and a disc that lies on them (rectangles, disks and spheres; its penumbra blurs the
-grains' shadows, counted only in scenes whose every surface is diffuse); the sky and distant lights need none. An emitter of any other kind leaves the
+grains' shadows, counted only in scenes whose every surface is diffuse); the sky and distant lights need none.
+Surfaces: whether every shape's BSDF is diffuse (``diffuse_only``) and every light at infinity a uniform sky
+(``uniform_distant_light``); then rays bounced off a surface carry the grains blurred by the lobe, and may see their
+continuous equivalent sooner. An emitter of any other kind leaves the
 lights unknown (every ray's end is then taken for a light).
 """
 
@@ -140,6 +143,16 @@ def lights_of(scene):
     return lights
 
 
+def uniform_distant_light(scene) -> bool:
+    """Is every light at infinity a uniform sky (``constant``)? A sun (``directional``) or an environment map (which
+    may hold one) casts shadows of the grains as sharp as the grains, which a diffuse surface's lobe does not blur:
+    its rays are its own, not the lobe's."""
+    import mitsuba as mi
+
+    infinite = int(mi.EmitterFlags.Infinite)
+    return all(not int(e.flags()) & infinite or e.class_name() == "ConstantBackgroundEmitter" for e in scene.emitters())
+
+
 def diffuse_only(scene) -> bool:
     """Does every shape of the scene reflect and transmit only diffusely (or let rays through unchanged, a null
     boundary)? Only then does an area light's penumbra blur the grains' shadows that a pixel receives: behind a
@@ -180,9 +193,10 @@ def attach(scene, sensor=None) -> None:
     media = discrete_media(scene)
     if media:
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
+        diffuse = diffuse_only(scene) and uniform_distant_light(scene)
         for data in media:
             try:
-                data.set_cameras(cams, lights)
+                data.set_cameras(cams, lights, diffuse)
             except ValueError as e:  # a camera or light the rule cannot use: rays from surfaces walk grains
                 warnings.warn(f"motes: the scene's cameras or lights are not usable by the surface-ray rule ({e}); "
                               "rays from surfaces walk the grains", RuntimeWarning, stacklevel=3)
@@ -212,4 +226,5 @@ def wrap_render() -> None:
     mi.render = _wrapped_render(mi.render)
 
 
-__all__ = ["attach", "camera_of", "cameras_of", "discrete_media", "diffuse_only", "light_of", "lights_of", "wrap_render"]
+__all__ = ["attach", "camera_of", "cameras_of", "discrete_media", "diffuse_only", "light_of", "lights_of", "uniform_distant_light",
+           "wrap_render"]

@@ -460,13 +460,15 @@ impl PyDiscreteMedium {
     /// Set the cameras (a list of (position, pixel angle, aperture) tuples; empty: rays from surfaces
     /// walk the grains) and the lights at finite distance (a list of (centre, radius, disc radius,
     /// disc normal) tuples: a sphere that shadow rays aim into and a disc on the light, radius 0 where
-    /// none is known; None: unknown, every ray's end taken for a light). The renderer calls it with
-    /// its scene's sensors and emitters.
-    #[pyo3(signature = (cameras, lights = None))]
+    /// none is known; None: unknown, every ray's end taken for a light), and whether every surface of
+    /// the scene reflects and transmits only diffusely (rays bounced off them are blurred by the
+    /// lobe). The renderer calls it with its scene's sensors, emitters and shapes.
+    #[pyo3(signature = (cameras, lights = None, diffuse_surfaces = false))]
     fn set_cameras(
         &self,
         cameras: Vec<CameraTuple>,
         lights: Option<Vec<LightTuple>>,
+        diffuse_surfaces: bool,
     ) -> PyResult<()> {
         let cameras = cameras
             .into_iter()
@@ -483,8 +485,18 @@ impl PyDiscreteMedium {
             })
             .transpose()
             .map_err(to_py)?;
-        self.medium.set_view(View { cameras, lights });
+        self.medium.set_view(View {
+            cameras,
+            lights,
+            diffuse_surfaces,
+        });
         Ok(())
+    }
+
+    /// Whether the scene's surfaces were set as diffuse only (`set_cameras`).
+    #[getter]
+    fn diffuse_surfaces(&self) -> bool {
+        self.medium.view().diffuse_surfaces
     }
 
     /// Whether rays from surfaces may see the grains' continuous equivalent where their pixel
