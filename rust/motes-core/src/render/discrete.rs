@@ -201,17 +201,61 @@ fn lane_wavelengths(lambda: &[f64], channels: usize, i: usize) -> &[f64] {
     }
 }
 
+/// Per-channel values of one lane: up to [`MAX_CHANNELS`] inline, more on the heap, so that a lane's
+/// phase-function work allocates nothing in the RGB and spectral variants (allocations were 4 % of a
+/// dense render).
+#[derive(Clone, Debug)]
+enum PerChannel<T> {
+    Inline([T; MAX_CHANNELS], usize),
+    Heap(Vec<T>),
+}
+
+impl<T: Copy + Default> PerChannel<T> {
+    fn from_fn(n: usize, mut f: impl FnMut(usize) -> T) -> Self {
+        if n <= MAX_CHANNELS {
+            let mut a = [T::default(); MAX_CHANNELS];
+            a.iter_mut()
+                .take(n)
+                .enumerate()
+                .for_each(|(c, x)| *x = f(c));
+            PerChannel::Inline(a, n)
+        } else {
+            PerChannel::Heap((0..n).map(f).collect())
+        }
+    }
+}
+
+impl<T> std::ops::Deref for PerChannel<T> {
+    type Target = [T];
+    fn deref(&self) -> &[T] {
+        match self {
+            PerChannel::Inline(a, n) => &a[..*n],
+            PerChannel::Heap(v) => v,
+        }
+    }
+}
+
+impl<T> std::ops::DerefMut for PerChannel<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
+        match self {
+            PerChannel::Inline(a, n) => &mut a[..*n],
+            PerChannel::Heap(v) => v,
+        }
+    }
+}
+
 /// Uniform channel choice.
-fn uniform_channels(channels: usize) -> Vec<f64> {
-    vec![1.0 / channels as f64; channels]
+fn uniform_channels(channels: usize) -> PerChannel<f64> {
+    PerChannel::from_fn(channels, |_| 1.0 / channels as f64)
 }
 
 /// The channel choice of an event for `channels` channels (uniform beyond [`MAX_CHANNELS`]).
-fn event_channels(e: &Event, channels: usize) -> Vec<f64> {
+fn event_channels(e: &Event, channels: usize) -> PerChannel<f64> {
     if channels > MAX_CHANNELS {
         return uniform_channels(channels);
     }
-    channel_probabilities(&e.t_in, channels)[..channels].to_vec()
+    let pi = channel_probabilities(&e.t_in, channels);
+    PerChannel::from_fn(channels, |c| pi[c])
 }
 
 /// Events one generation of the [`EventMap`] holds before it becomes the previous one: far more than
@@ -339,17 +383,21 @@ struct Mixture<'a, S> {
 }
 
 /// A sampled direction, its weights per channel (value / pdf) and pdf.
-type Sample = ([f64; 3], Vec<f64>, f64);
+type Sample = ([f64; 3], PerChannel<f64>, f64);
 
 fn null_sample(channels: usize) -> Sample {
-    ([0.0, 0.0, 1.0], vec![0.0; channels], 0.0)
+    ([0.0, 0.0, 1.0], PerChannel::from_fn(channels, |_| 0.0), 0.0)
 }
 
 /// Per-lane samples as flat columns (directions, weights lane-major, pdfs).
 fn unzip_samples(res: Vec<Sample>) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
     let wo = res.iter().map(|r| r.0).collect();
     let pdf = res.iter().map(|r| r.2).collect();
-    (wo, res.into_iter().flat_map(|r| r.1).collect(), pdf)
+    (
+        wo,
+        res.iter().flat_map(|r| r.1.iter().copied()).collect(),
+        pdf,
+    )
 }
 
 fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
@@ -1519,7 +1567,7 @@ impl DiscreteMedium {
         let st = (1.0 - mu * mu).max(0.0).sqrt();
         let (e1, e2) = frame(w_in);
         let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
-        let mut v = vec![0.0; ls.len()];
+        let mut v = PerChannel::from_fn(ls.len(), |_| 0.0);
         let pdf = self.mixture_phase(m, mu, &mut v);
         if pdf > 0.0 {
             v.iter_mut().for_each(|x| *x /= pdf);
@@ -1678,7 +1726,7 @@ impl DiscreteMedium {
         let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return 0.0;
         };
-        let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+        let ls = PerChannel::from_fn(lam.len(), |c| self.bracket(lam[c]));
         let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
         let pi = event_channels(&e, lam.len());
         let mixture = self.event_mixture(&e, &ls, &pi);
@@ -1727,7 +1775,7 @@ impl DiscreteMedium {
         let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return (null_sample(channels), None);
         };
-        let ls: Vec<_> = lam.iter().map(|&l| self.bracket(l)).collect();
+        let ls = PerChannel::from_fn(channels, |c| self.bracket(lam[c]));
         let pi = event_channels(&e, channels);
         let mixture = self.event_mixture(&e, &ls, &pi);
         let sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
@@ -2047,7 +2095,7 @@ impl DiscreteMedium {
                     let mut values = [0.0; MAX_CHANNELS];
                     values
                         .iter_mut()
-                        .zip(&sample.1)
+                        .zip(sample.1.iter())
                         .for_each(|(v, w)| *v = w * sample.2);
                     st.sampled[i] = Some(SampledLane {
                         inputs: SampledLane::inputs(lane.p, lane.wi, sample.0.map(|x| x as f32)),
