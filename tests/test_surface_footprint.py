@@ -120,6 +120,22 @@ def test_lights_are_placed(variant):
     shiny = mi.load_dict({"type": "scene", "panel": {"type": "rectangle", "emitter": {"type": "area"}},
                           "pane": {"type": "cube", "bsdf": {"type": "roughplastic"}}})
     assert [light[2] for light in lights_of(shiny)] == [0.0]
+    # A collimated or a textured area light casts sharp shadows: no disc; a uniform one has its disc.
+    kinds = mi.load_dict({"type": "scene", "a": {"type": "rectangle", "emitter": {"type": "directionalarea"}},
+                          "b": {"type": "rectangle", "to_world": T().translate([0, 3, 0]), "emitter": {
+                              "type": "area", "radiance": {"type": "bitmap",
+                                                           "bitmap": mi.Bitmap(np.ones((2, 2, 3), dtype=np.float32))}}},
+                          "c": {"type": "rectangle", "to_world": T().translate([0, 6, 0]), "emitter": {"type": "area"}}})
+    assert sorted((light[0][1], light[2]) for light in lights_of(kinds)) == [(0.0, 0.0), (3.0, 0.0), (6.0, 1.0)]
+    # Not diffuse only: a glass cube, an instance (its shape group unseen), a fog of another medium.
+    from motes.plugins.cameras import diffuse_only
+    assert not diffuse_only(mi.load_dict({"type": "scene", "box": {"type": "cube", "bsdf": {"type": "dielectric"}}}))
+    assert not diffuse_only(mi.load_dict({"type": "scene", "g": {"type": "shapegroup", "s": {"type": "sphere"}},
+                                          "i": {"type": "instance", "shapegroup": {"type": "ref", "id": "g"}}}))
+    assert not diffuse_only(mi.load_dict({"type": "scene", "fog": {"type": "cube", "bsdf": {"type": "null"},
+                                                                   "interior": {"type": "homogeneous"}}}))
+    assert diffuse_only(mi.load_dict({"type": "scene", "floor": {
+        "type": "rectangle", "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse"}}}}))
     # A sun or an environment map casts sharp shadows: no blur from diffuse surfaces there; a uniform sky does not.
     from motes.plugins.cameras import uniform_distant_light
     assert not uniform_distant_light(scene) and not uniform_distant_light(mi.load_dict(

@@ -41,6 +41,11 @@ def paired_se(on: list, off: list) -> float:
     return float((a - b).std(ddof=1) / np.sqrt(len(a)) / b.mean())
 
 
+def in_paired_se(row: dict) -> str:
+    """The mean difference in paired SEs ("same images" where every pair is equal)."""
+    return f"{row['rel_diff'] / row['paired_se']:+.1f}" if row["paired_se"] > 0 else "same images"
+
+
 def run_scene(mi, name: str, args) -> dict:
     from motes.plugins import cameras  # noqa: PLC0415
 
@@ -70,7 +75,7 @@ def run_scene(mi, name: str, args) -> dict:
            **bench_surface.pair_stats(imgs[True], imgs[False]), "paired_se": paired_se(imgs[True], imgs[False])}
     print(f"[{name}] on/off {row['speed_ratio']:.2f} ({best[True]:.2f} / {best[False]:.2f} s), field "
           f"{share[True]:.0%} / {share[False]:.0%} of rays from no event, mean {row['rel_diff']:+.3%} "
-          f"({row['diff_se']:+.1f} SE; {row['rel_diff'] / row['paired_se']:+.1f} paired SE), rms/noise {row['rms_over_noise']:.2f} lit {row['rms_over_noise_lit']:.2f}",
+          f"({row['diff_se']:+.1f} SE; {in_paired_se(row)} paired SE), rms/noise {row['rms_over_noise']:.2f} lit {row['rms_over_noise_lit']:.2f}",
           flush=True)
     return row
 
@@ -89,7 +94,7 @@ def main() -> None:
                   "on against off", ["scene", "time on/off", "rays seeing the field on / off",
                                      "mean diff (SE; paired SE)", "RMS/noise all; lit"],
                   [[r["scene"], f"{r['speed_ratio']:.2f}", f"{r['field_share_on']:.0%} / {r['field_share_off']:.0%}",
-                    f"{r['rel_diff']:+.3%} ({r['diff_se']:+.1f}; {r['rel_diff'] / r['paired_se']:+.1f})",
+                    f"{r['rel_diff']:+.3%} ({r['diff_se']:+.1f}; {in_paired_se(r)})",
                     f"{r['rms_over_noise']:.2f}; {r['rms_over_noise_lit']:.2f}"] for r in rows])
     C.finish(args, sw, out / f"bench_penumbra_{args.variant}.json", rows=rows)
 

@@ -91,7 +91,7 @@ def light_of(emitter):
         box = shape.bbox()
         lo, hi = (np.asarray(v, dtype=np.float64).ravel()[:3] for v in (box.min, box.max))
         centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
-        disc, normal = _disc_of(shape, centre, lo, hi)
+        disc, normal = _disc_of(shape, centre, lo, hi) if _spreads_its_light(emitter) else (0.0, (0.0, 0.0, 0.0))
         return tuple(float(v) for v in centre), radius, min(disc, radius), normal
     if flags & int(mi.EmitterFlags.DeltaPosition):
         params = mi.traverse(emitter)
@@ -102,6 +102,18 @@ def light_of(emitter):
             centre = m[:3, 3] / m[3, 3]
         return tuple(float(v) for v in centre), 0.0, 0.0, (0.0, 0.0, 0.0)
     return None
+
+
+def _spreads_its_light(emitter) -> bool:
+    """Does an area light shine alike from all of its surface in all directions, so that its whole outline
+    blurs the grains' shadows? Not a collimated one (``directionalarea``: shadows as sharp as the grains) nor one
+    whose radiance is a texture (a hot spot casts narrow shadows)."""
+    import mitsuba as mi
+
+    if int(emitter.flags()) & int(mi.EmitterFlags.DeltaDirection):
+        return False
+    keys = [k for k in mi.traverse(emitter).keys() if k.startswith("radiance.")]
+    return keys == ["radiance.value"]
 
 
 def _disc_of(shape, centre, lo, hi) -> tuple:
@@ -155,16 +167,29 @@ def uniform_distant_light(scene) -> bool:
 
 def diffuse_only(scene) -> bool:
     """Does every shape of the scene reflect and transmit only diffusely (or let rays through unchanged, a null
-    boundary)? Only then does an area light's penumbra blur the grains' shadows that a pixel receives: behind a
-    mirror or a glass pane, a ray towards the light shows the grains in silhouette against it."""
+    boundary), with no instances (whose shape groups it cannot see into) and no medium other than discrete ones
+    (a forward-scattering fog's vertex is nearly a mirror)? Only then do an area light's penumbra and a surface's
+    lobe blur the grains that a pixel receives: behind a mirror or a glass pane a ray is seen as sharply as a
+    camera ray, grains in silhouette against a light included."""
     import mitsuba as mi
 
-    specular = 0
-    for name in ("DeltaReflection", "DeltaTransmission", "GlossyReflection", "GlossyTransmission"):
-        specular |= int(getattr(mi.BSDFFlags, name))
+    from .discrete_medium import native_data
+    from .scene_checks import _discrete_data
+
+    allowed = int(mi.BSDFFlags.DiffuseReflection) | int(mi.BSDFFlags.DiffuseTransmission) | int(mi.BSDFFlags.Null)
+    lobes = int(mi.BSDFFlags.All)
     for shape in scene.shapes():
+        if shape.class_name() in ("Instance", "ShapeGroup"):
+            return False
         bsdf = shape.bsdf() if hasattr(shape, "bsdf") else None
-        if bsdf is None or int(bsdf.flags()) & specular:
+        if bsdf is None or int(bsdf.flags()) & lobes & ~allowed:
+            return False
+        for medium in (shape.interior_medium(), shape.exterior_medium()):
+            if medium is not None and _discrete_data(medium) is None and native_data(medium) is None:
+                return False
+    for sensor in scene.sensors():
+        medium = getattr(sensor, "medium", lambda: None)()
+        if medium is not None and _discrete_data(medium) is None and native_data(medium) is None:
             return False
     return True
 
@@ -193,7 +218,8 @@ def attach(scene, sensor=None) -> None:
     media = discrete_media(scene)
     if media:
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
-        diffuse = diffuse_only(scene) and uniform_distant_light(scene)
+        # A light the rule cannot place may be small and sharp: no blur then.
+        diffuse = lights is not None and diffuse_only(scene) and uniform_distant_light(scene)
         for data in media:
             try:
                 data.set_cameras(cams, lights, diffuse)
