@@ -40,6 +40,10 @@
 //! rule takes ρ(t) = max(K (a − t), c t): V-shaped, narrowest between W and the light, and the window
 //! counted is the one of least count (where ρ is equal at both its ends). A grain near W still casts a
 //! shadow as sharp as the pixel's footprint: the window reaches it where that is the narrowest part.
+//! The penumbra counts only for a ray that ends on the light itself (a flat light's plane crossed
+//! within its radius of the centre, a sphere's outline), and the caller gives a light its disc only
+//! where that is safe (`motes.plugins.cameras`: a light that shines alike from all its surface, in a
+//! scene whose surfaces are all diffuse).
 //!
 //! Diffuse surfaces. A pixel that sees a diffuse surface at W integrates the light arriving there over
 //! the cosine lobe: a ray bounced off W is one sample of that integral, and the grains along it reach
@@ -47,9 +51,10 @@
 //! a quarter of that, ρ(t) = max(K, c t) with c = [`DIFFUSE_LOBE_SLOPE`] (the lobe's effective solid
 //! angle, (∫cos)² / ∫cos² = 3π/2 sr, is a cone of half-angle ~1.2 rad), and counts the window of least
 //! count (at the ray's start, near W, where ρ is the pixel's). It does so only when told that every
-//! surface of the scene is diffuse ([`View::diffuse_surfaces`], from the scene's BSDFs): behind a mirror
-//! a bounced ray is seen as sharply as a camera ray. Rays towards a light keep the pixel's cone and the
-//! light's penumbra: the surface does not blur its own shadows.
+//! surface of the scene is diffuse, every light placed and every light at infinity a uniform sky
+//! ([`View::diffuse_surfaces`], from the scene: `motes.plugins.cameras`): behind a mirror a bounced
+//! ray is seen as sharply as a camera ray, and a sun's shadows are as sharp as the grains. Rays towards
+//! a light keep the pixel's cone and the light's penumbra: the surface does not blur its own shadows.
 //!
 //! Which rays head for a light: those whose forward line passes within a light's radius of its centre
 //! ([`Light`]: the scene's point and spot lights, and a sphere around each area light's shape). The
@@ -60,9 +65,12 @@
 //! The rule: a ray that starts at no event sees the grains' continuous equivalent when the grains
 //! that stay discrete would hold at least `continuous_count` of them in that cone, counted over the
 //! length [`crate::render::continuous::resolvable`] counts over (one mean free path of the whole
-//! medium, or the box's mean chord if shorter; less where the ray's own chord is shorter) at the
-//! cone's narrowest (the window of least count), with each size class's mean density over the particles' box: that count with
-//! the ray's own footprint added to each disk.
+//! medium, or the box's mean chord if shorter; less where the ray's own chord is shorter) where the
+//! count is least, with each size class's mean density over the particles' box: that count with the
+//! ray's own footprint added to each disk. Where the cone's radius changes along the window each grain
+//! weighs 1 / (its disk and the cone's area) at its distance, and the count is the effective one of
+//! those weights, N = n π ℓ² / ∫ dt / (ρ + R̄)²: the grains in the window where ρ is constant, fewer
+//! elsewhere (Cauchy–Schwarz), the grains where the cone is narrowest weighing most.
 //! Several classes count as an *effective* number, N_eff = (Σ_k τ_k)² / Σ_k τ_k² / N_k, with N_k
 //! the class's expected count and τ_k its expected optical depth: what a viewer would see of the
 //! grains is the grain-to-grain texture of the transmittance over the footprint, whose relative
