@@ -233,7 +233,12 @@ def test_surface_rule_changes_no_expected_value():
 _finite = st.floats(-1e6, 1e6, allow_nan=False)
 _cameras = st.lists(st.tuples(st.tuples(_finite, _finite, _finite), st.floats(1e-9, math.pi), st.floats(0.0, 1e3)),
                     max_size=3)
-_lights = st.none() | st.lists(st.tuples(st.tuples(_finite, _finite, _finite), st.floats(0.0, 1e6)), max_size=3)
+# Lights as (centre, radius) or with a disc on them, (centre, radius, disc <= radius, normal of any length or 0).
+_light = st.tuples(st.tuples(_finite, _finite, _finite), st.floats(0.0, 1e6))
+_light_with_disc = st.builds(lambda c, r, f, n: (c, r, f * r, n), st.tuples(_finite, _finite, _finite),
+                             st.floats(0.0, 1e6), st.floats(0.0, 1.0),
+                             st.sampled_from([(0.0, 0.0, 0.0)]) | st.tuples(_finite, _finite, _finite))
+_lights = st.none() | st.lists(_light | _light_with_disc, max_size=3)
 
 
 @pytest.fixture(scope="module")
@@ -244,15 +249,16 @@ def rule_pair():
 
 
 @settings(max_examples=60, deadline=None, derandomize=True, database=None)
-@given(cameras=_cameras, lights=_lights, seed=st.integers(0, 2**32 - 1),
+@given(cameras=_cameras, lights=_lights, diffuse=st.booleans(), seed=st.integers(0, 2**32 - 1),
        t_max=st.sampled_from([math.inf, float(np.finfo(np.float32).max), 1e-6, 0.5, 3.0, 1e6]))
-def test_any_cameras_and_lights(rule_pair, cameras, lights, seed, t_max):
+def test_any_cameras_and_lights(rule_pair, cameras, lights, diffuse, seed, t_max):
     """Over the full ranges of the cameras and lights (none to three, at 1e6 units, pixel angles 1e-9 to pi,
-    apertures to 1e3, light radii to 1e6, rays that end anywhere): free flights stay finite and inside
-    (0, t_max), and a ray that starts at a camera samples what it samples without the rule."""
+    apertures to 1e3, light radii to 1e6, discs on them with any normal, surfaces diffuse or not, rays that end
+    anywhere): free flights stay finite and inside (0, t_max), and a ray that starts at a camera samples what it
+    samples without the rule."""
     on, off = rule_pair
     for data in (on, off):
-        data.set_cameras(cameras, lights)
+        data.set_cameras(cameras, lights, diffuse)
     rng = np.random.default_rng(seed)
     n = 64
     o = rng.uniform(-3, 3, (n, 3))
