@@ -101,9 +101,15 @@ def test_lights_are_placed(variant):
     expect = sorted([((1, 2, 3), 0.0, 0.0, none), ((-8, 19, -15), 0.0, 0.0, none),
                      ((0, 5, 0), math.sqrt(8), 2.0, (0, 0, 1)), ((3, 3, 3), math.sqrt(0.75), 0.5, none)])
     assert len(lights) == 4
-    for (c, r, disc, n), (ce, re, de, ne) in zip(lights, expect):
+    for (c, r, disc, n, axis, cos_cutoff), (ce, re, de, ne) in zip(lights, expect):
         assert np.allclose(c, ce, atol=1e-5) and r == pytest.approx(re, rel=1e-5)
         assert disc == pytest.approx(de, rel=1e-5) and np.allclose(np.abs(n), ne, atol=1e-6)
+        # The spot's cone (Mitsuba's default cutoff, 20 degrees) along its look_at; every way for the others.
+        if np.allclose(c, (-8, 19, -15)):
+            assert np.allclose(axis, np.array([8, -19, 15]) / np.linalg.norm([8, -19, 15]), atol=1e-6)
+            assert cos_cutoff == pytest.approx(math.cos(math.radians(20.0)), rel=1e-6)
+        else:
+            assert axis == (0, 0, 0) and cos_cutoff == -1.0
     assert all(light_of(e) == () for e in scene.emitters() if e.is_environment())
     # A tilted, stretched disk: its least semi-axis and its normal; any other shape: no disc.
     tilted = mi.load_dict({"type": "scene", "lamp": {
@@ -144,10 +150,15 @@ def test_lights_are_placed(variant):
     # The core keeps both forms; a disc wider than the light's sphere is refused, naming it.
     data = motes.DiscreteMedium(np.zeros((3, 3)), np.full(3, 5.0), np.zeros(3, dtype=np.int64),
                                 [motes.Species(motes.LogNormal(5, 1.2), 1.31)], [0.55])
-    data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 1, 0), 2.0), ((0, 2, 0), 2.0, 1.0, (0, 0, 2))])
-    assert data.lights == [((0, 1, 0), 2.0, 0.0, (0, 0, 0)), ((0, 2, 0), 2.0, 1.0, (0, 0, 1))]
+    data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 1, 0), 2.0), ((0, 2, 0), 2.0, 1.0, (0, 0, 2)),
+                                                ((0, 3, 0), 0.0, 0.0, (0, 0, 0), (0, -3, 0), 0.5)])
+    assert data.lights == [((0, 1, 0), 2.0, 0.0, (0, 0, 0), (0, 0, 0), -1.0),
+                           ((0, 2, 0), 2.0, 1.0, (0, 0, 1), (0, 0, 0), -1.0),
+                           ((0, 3, 0), 0.0, 0.0, (0, 0, 0), (0, -1, 0), 0.5)]
     with pytest.raises(ValueError, match="light disc"):
         data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 2, 0), 2.0, 3.0, (0, 0, 1))])
+    with pytest.raises(ValueError, match="spot cos_cutoff"):
+        data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 2, 0), 0.0, 0.0, (0, 0, 0), (0, 1, 0), 1.5)])
 
 
 def test_camera_rays_walk_grains_surface_rays_see_the_field():
@@ -238,7 +249,9 @@ _light = st.tuples(st.tuples(_finite, _finite, _finite), st.floats(0.0, 1e6))
 _light_with_disc = st.builds(lambda c, r, f, n: (c, r, f * r, n), st.tuples(_finite, _finite, _finite),
                              st.floats(0.0, 1e6), st.floats(0.0, 1.0),
                              st.sampled_from([(0.0, 0.0, 0.0)]) | st.tuples(_finite, _finite, _finite))
-_lights = st.none() | st.lists(_light | _light_with_disc, max_size=3)
+_spot = st.builds(lambda c, axis, cos: (c, 0.0, 0.0, (0.0, 0.0, 0.0), axis, cos), st.tuples(_finite, _finite, _finite),
+                  st.tuples(_finite, _finite, _finite), st.floats(-1.0, 1.0))
+_lights = st.none() | st.lists(_light | _light_with_disc | _spot, max_size=3)
 
 
 @pytest.fixture(scope="module")
@@ -253,8 +266,8 @@ def rule_pair():
        t_max=st.sampled_from([math.inf, float(np.finfo(np.float32).max), 1e-6, 0.5, 3.0, 1e6]))
 def test_any_cameras_and_lights(rule_pair, cameras, lights, diffuse, seed, t_max):
     """Over the full ranges of the cameras and lights (none to three, at 1e6 units, pixel angles 1e-9 to pi,
-    apertures to 1e3, light radii to 1e6, discs on them with any normal, surfaces diffuse or not, rays that end
-    anywhere): free flights stay finite and inside (0, t_max), and a ray that starts at a camera samples what it
+    apertures to 1e3, light radii to 1e6, discs on them with any normal, spots of any axis and cutoff, surfaces
+    diffuse or not, rays that end anywhere): free flights stay finite and inside (0, t_max), and a ray that starts at a camera samples what it
     samples without the rule."""
     on, off = rule_pair
     for data in (on, off):

@@ -219,10 +219,11 @@ class _BinTables:
         return self.albedos, self.theta, self.f, self.offsets
 
 
-def _light_tuple(centre, radius, disc=0.0, normal=(0.0, 0.0, 0.0)) -> tuple:
-    """A light for the core: (centre, radius, disc, normal) as floats (``DiscreteMedium.set_cameras``)."""
-    c, n = (tuple(float(v[i]) for i in range(3)) for v in (centre, normal))
-    return c, float(radius), float(disc), n
+def _light_tuple(centre, radius, disc=0.0, normal=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 0.0), cos_cutoff=-1.0) -> tuple:
+    """A light for the core: (centre, radius, disc, normal, spot axis, spot cos_cutoff) as floats
+    (``DiscreteMedium.set_cameras``)."""
+    c, n, a = (tuple(float(v[i]) for i in range(3)) for v in (centre, normal, axis))
+    return c, float(radius), float(disc), n, a, float(cos_cutoff)
 
 
 class DiscreteMedium:
@@ -269,9 +270,11 @@ class DiscreteMedium:
         (position (x, y, z) in scene units, narrowest angular pixel width in radians, lens aperture radius);
         empty: rays from surfaces walk the grains. ``lights``: the lights at finite distance that shadow
         rays converge to, a list of (centre (x, y, z), radius) (0 for a point or spot light) or (centre, radius,
-        disc, normal): a disc of radius ``disc`` <= ``radius`` around the centre that lies on the light, with
-        its normal (x, y, z), or (0, 0, 0) where the light shows the whole disc from every side (a sphere): an
-        area light's penumbra blurs the grains' shadows; None: unknown, every ray taken to end at a light
+        disc, normal) or (centre, radius, disc, normal, axis, cos_cutoff): a disc of radius ``disc`` <= ``radius``
+        around the centre that lies on the light, with its normal (x, y, z), or (0, 0, 0) where the light shows
+        the whole disc from every side (a sphere): an area light's penumbra blurs the grains' shadows; a spot's
+        axis and the cosine of its cutoff angle (a shadow ray from outside its cone carries nothing: it sees the
+        continuous equivalent; axis (0, 0, 0) and -1: no spot); None: unknown, every ray taken to end at a light
         (safe, and the rule then rarely applies). ``diffuse_surfaces``: every surface of the scene reflects and
         transmits only diffusely, so that a ray bounced off one carries the grains blurred by the lobe (default
         False: a surface may be a mirror). ``motes.plugins.cameras`` sets all three from a Mitsuba scene."""
@@ -283,8 +286,8 @@ class DiscreteMedium:
             try:
                 lights = [_light_tuple(*light) for light in lights]
             except (TypeError, ValueError, IndexError):
-                raise ValueError("lights must be None or a list of ((x, y, z), radius) or "
-                                 "((x, y, z), radius, disc, (nx, ny, nz)) tuples") from None
+                raise ValueError("lights must be None or a list of ((x, y, z), radius), ((x, y, z), radius, disc, "
+                                 "(nx, ny, nz)) or (..., (ax, ay, az), cos_cutoff) tuples") from None
         self._core.set_cameras(cams, lights, bool(diffuse_surfaces))
 
     @property

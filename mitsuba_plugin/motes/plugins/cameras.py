@@ -76,8 +76,9 @@ def cameras_of(scene, extra=None) -> list:
 
 
 def light_of(emitter):
-    """(centre, radius, disc, normal) of a light at finite distance; () for one at infinity; None for one it
-    cannot place. Point and spot lights: radius 0, no disc. Area lights: the sphere around their shape's
+    """(centre, radius, disc, normal, spot axis, spot cos_cutoff) of a light at finite distance; () for one at
+    infinity; None for one it cannot place. Point and spot lights: radius 0, no disc; a spot its cone (outside
+    it, a shadow ray carries nothing). Area lights: the sphere around their shape's
     bounding box, and a disc that lies on the light (its penumbra blurs the grains' shadows:
     ``rust/motes-core/src/render/footprint.rs``): a rectangle's or disk's inscribed disc and normal, a
     sphere's outline (normal (0, 0, 0): seen whole from every side); none known (0) for any other shape."""
@@ -92,7 +93,7 @@ def light_of(emitter):
         lo, hi = (np.asarray(v, dtype=np.float64).ravel()[:3] for v in (box.min, box.max))
         centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo) / 2)
         disc, normal = _disc_of(shape, centre, lo, hi) if _spreads_its_light(emitter) else (0.0, (0.0, 0.0, 0.0))
-        return tuple(float(v) for v in centre), radius, min(disc, radius), normal
+        return tuple(float(v) for v in centre), radius, min(disc, radius), normal, _NO_SPOT[0], _NO_SPOT[1]
     if flags & int(mi.EmitterFlags.DeltaPosition):
         params = mi.traverse(emitter)
         if "position" in params:
@@ -100,8 +101,32 @@ def light_of(emitter):
         else:
             m = np.asarray(emitter.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
             centre = m[:3, 3] / m[3, 3]
-        return tuple(float(v) for v in centre), 0.0, 0.0, (0.0, 0.0, 0.0)
+        axis, cos_cutoff = _spot_cone(emitter)
+        return tuple(float(v) for v in centre), 0.0, 0.0, (0.0, 0.0, 0.0), axis, cos_cutoff
     return None
+
+
+#: (axis, cos_cutoff) of a light that shines every way.
+_NO_SPOT = ((0.0, 0.0, 0.0), -1.0)
+
+
+def _spot_cone(emitter) -> tuple:
+    """(axis, cosine of the cutoff angle) of a ``spot`` light: outside that cone it lights nothing, and a shadow
+    ray from there carries nothing; every way for any other light."""
+    import mitsuba as mi
+
+    if emitter.class_name() != "SpotLight":
+        return _NO_SPOT
+    params = mi.traverse(emitter)
+    if "cutoff_angle" not in params:
+        return _NO_SPOT
+    cutoff = math.radians(_scalar(params["cutoff_angle"]))
+    m = np.asarray(emitter.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
+    axis = m[:3, 2]
+    norm = float(np.linalg.norm(axis))
+    if not (norm > 0 and math.isfinite(norm) and 0 <= cutoff <= math.pi):
+        return _NO_SPOT
+    return tuple(float(v) for v in axis / norm), math.cos(cutoff)
 
 
 def _spreads_its_light(emitter) -> bool:
@@ -151,7 +176,7 @@ def lights_of(scene):
         return None
     lights = [light for light in lights if light]
     if not diffuse_only(scene):
-        lights = [(c, r, 0.0, (0.0, 0.0, 0.0)) for c, r, _, _ in lights]
+        lights = [(c, r, 0.0, (0.0, 0.0, 0.0), axis, cos) for c, r, _, _, axis, cos in lights]
     return lights
 
 

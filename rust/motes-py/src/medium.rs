@@ -12,8 +12,16 @@ use std::sync::Arc;
 
 /// A camera as Python passes it: (position, pixel angle in radians, aperture radius).
 type CameraTuple = ((f64, f64, f64), f64, f64);
-/// A light as Python passes it: (centre, radius, radius of a disc on it, the disc's normal or zero).
-type LightTuple = ((f64, f64, f64), f64, f64, (f64, f64, f64));
+/// A light as Python passes it: (centre, radius, radius of a disc on it, the disc's normal or zero,
+/// a spot's axis or zero, the cosine of its cutoff angle or -1).
+type LightTuple = (
+    (f64, f64, f64),
+    f64,
+    f64,
+    (f64, f64, f64),
+    (f64, f64, f64),
+    f64,
+);
 
 /// The discrete medium as the renderer queries it (see `motes_core::render::discrete`).
 #[pyclass(name = "DiscreteMedium", module = "motes._motes", frozen)]
@@ -444,23 +452,33 @@ impl PyDiscreteMedium {
             .collect()
     }
 
-    /// The lights that shadow rays converge to, as (centre, radius, disc radius, disc normal) tuples
-    /// (None: unknown).
+    /// The lights that shadow rays converge to, as (centre, radius, disc radius, disc normal, spot
+    /// axis, spot cos_cutoff) tuples (None: unknown).
     #[getter]
     fn lights(&self) -> Option<Vec<LightTuple>> {
         let t = |p: [f64; 3]| (p[0], p[1], p[2]);
         let view = self.medium.view();
         view.lights.map(|ls| {
             ls.iter()
-                .map(|l| (t(l.centre), l.radius, l.disc, t(l.normal)))
+                .map(|l| {
+                    (
+                        t(l.centre),
+                        l.radius,
+                        l.disc,
+                        t(l.normal),
+                        t(l.axis),
+                        l.cos_cutoff,
+                    )
+                })
                 .collect()
         })
     }
 
     /// Set the cameras (a list of (position, pixel angle, aperture) tuples; empty: rays from surfaces
     /// walk the grains) and the lights at finite distance (a list of (centre, radius, disc radius,
-    /// disc normal) tuples: a sphere that shadow rays aim into and a disc on the light, radius 0 where
-    /// none is known; None: unknown, every ray's end taken for a light), and whether every surface of
+    /// disc normal, spot axis, spot cos_cutoff) tuples: a sphere that shadow rays aim into, a disc on
+    /// the light (radius 0 where none is known) and a spot's cone (axis 0 and -1 for none); None:
+    /// unknown, every ray's end taken for a light), and whether every surface of
     /// the scene reflects and transmits only diffusely (rays bounced off them are blurred by the
     /// lobe). The renderer calls it with its scene's sensors, emitters and shapes.
     #[pyo3(signature = (cameras, lights = None, diffuse_surfaces = false))]
@@ -478,8 +496,10 @@ impl PyDiscreteMedium {
         let lights = lights
             .map(|ls| {
                 ls.into_iter()
-                    .map(|(c, r, disc, n)| {
-                        Light::new([c.0, c.1, c.2], r)?.with_disc(disc, [n.0, n.1, n.2])
+                    .map(|(c, r, disc, n, axis, cos_cutoff)| {
+                        Light::new([c.0, c.1, c.2], r)?
+                            .with_disc(disc, [n.0, n.1, n.2])?
+                            .with_spot([axis.0, axis.1, axis.2], cos_cutoff)
                     })
                     .collect::<Result<Vec<_>, _>>()
             })

@@ -56,6 +56,10 @@
 //! ray is seen as sharply as a camera ray, and a sun's shadows are as sharp as the grains. Rays towards
 //! a light keep the pixel's cone and the light's penumbra: the surface does not blur its own shadows.
 //!
+//! Spots: a shadow ray from a point that a spot light leaves dark (outside its cone) carries nothing,
+//! whatever it meets, yet Mitsuba traces it (its sample has a pdf, and a zero value); such a ray sees
+//! the field, whatever its footprint (the cheapest flight; the camera's lines excepted).
+//!
 //! Which rays head for a light: those whose forward line passes within a light's radius of its centre
 //! ([`Light`]: the scene's point and spot lights, and a sphere around each area light's shape). The
 //! ray's own t_max says nothing here (Mitsuba ends a ray at the medium's boundary, not at the light);
@@ -132,6 +136,10 @@ pub struct Light {
     /// Unit normal of that disc, or zero where the light shows the whole disc from every side (a
     /// sphere's outline).
     pub normal: [f64; 3],
+    /// A spot light's axis (unit; zero: it shines every way) and the cosine of the widest angle from
+    /// it that it lights (-1: every way).
+    pub axis: [f64; 3],
+    pub cos_cutoff: f64,
 }
 
 impl Light {
@@ -150,7 +158,42 @@ impl Light {
             radius,
             disc: 0.0,
             normal: [0.0; 3],
+            axis: [0.0; 3],
+            cos_cutoff: -1.0,
         })
+    }
+
+    /// The light as a spot shining along `axis` (any length; zero: every way) within `cos_cutoff`
+    /// (the cosine of the widest angle it lights, in [-1, 1]).
+    pub fn with_spot(mut self, axis: [f64; 3], cos_cutoff: f64) -> Result<Self, OpticsError> {
+        require(
+            "spot cos_cutoff",
+            cos_cutoff,
+            (-1.0..=1.0).contains(&cos_cutoff),
+            "in [-1, 1]",
+        )?;
+        let len = axis.iter().map(|x| x * x).sum::<f64>().sqrt();
+        require("spot axis", len, len.is_finite(), "finite")?;
+        self.axis = if len > 0.0 {
+            axis.map(|x| x / len)
+        } else {
+            [0.0; 3]
+        };
+        self.cos_cutoff = if len > 0.0 { cos_cutoff } else { -1.0 };
+        Ok(self)
+    }
+
+    /// Does the light leave the point `p` dark (a spot pointing elsewhere)? A shadow ray from there
+    /// carries nothing, whatever it meets.
+    fn leaves_dark(&self, p: [f64; 3]) -> bool {
+        if self.cos_cutoff <= -1.0 || self.axis == [0.0; 3] {
+            return false;
+        }
+        let v = [0, 1, 2].map(|a| p[a] - self.centre[a]);
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let cos = (v[0] * self.axis[0] + v[1] * self.axis[1] + v[2] * self.axis[2]) / l;
+        // Outside the cone by a margin (float rounding of Mitsuba's own test).
+        l > 0.0 && cos < self.cos_cutoff - SPOT_MARGIN
     }
 
     /// The light with a disc of radius `disc` (at most `radius`) and normal `normal` (any length; zero:
@@ -240,6 +283,9 @@ pub struct View {
     pub diffuse_surfaces: bool,
 }
 
+/// How far outside a spot's cone (in cosine) a point must be for the rule to take it as dark.
+const SPOT_MARGIN: f64 = 1e-4;
+
 /// The cone a diffuse surface's reflection blurs a ray's grains over, per unit distance from the
 /// surface: a conservative fraction of the cosine lobe's width (module docs, "Diffuse surfaces").
 pub const DIFFUSE_LOBE_SLOPE: f64 = 0.25;
@@ -253,6 +299,17 @@ impl View {
     /// docs), or infinity; with the lights unknown, `t_max`.
     pub fn convergence(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> f64 {
         self.target(o, d, t_max).0
+    }
+
+    /// Does the ray head for a light that leaves its origin dark (a spot pointing elsewhere)?
+    pub fn heads_for_darkness(&self, o: [f64; 3], d: [f64; 3]) -> bool {
+        self.lights.iter().flatten().any(|l| {
+            let v = [0, 1, 2].map(|a| l.centre[a] - o[a]);
+            let along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
+            let off2 = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along).max(0.0);
+            let reach = l.radius + AIM_TOLERANCE * along.abs();
+            along > 0.0 && off2 <= reach * reach && l.leaves_dark(o)
+        })
     }
 
     /// [`Self::convergence`] and the slope of the nearest light's penumbra cone from o (0 for a point
@@ -435,6 +492,11 @@ impl SurfaceFootprint {
     pub fn sees_field(&self, view: &View, o: [f64; 3], d: [f64; 3], t_max: f64) -> bool {
         if view.cameras.is_empty() {
             return false;
+        }
+        // A shadow ray towards a spot that leaves its origin dark carries nothing, whatever it meets:
+        // the field is the cheapest (module docs). Not a camera ray's line, whatever it heads for.
+        if view.heads_for_darkness(o, d) && !view.cameras.iter().any(|c| is_camera_ray(c, o, d)) {
+            return true;
         }
         // ρ(t) ≤ (α/2) |o − c| on every ray, or the widest light's disc in a penumbra (module docs):
         // most rays of a sparse cloud stop here.
@@ -844,6 +906,49 @@ mod tests {
         };
         let rule = SurfaceFootprint::new(vec![sparse], bounds, 1e3, 16.0).unwrap();
         assert!(!rule.sees_field(&view(true), o, bounce, f64::INFINITY));
+    }
+
+    #[test]
+    fn rays_towards_a_spot_that_leaves_them_dark_see_the_field() {
+        let (bounds, view) = cube_and_camera(None);
+        let class = ClassMoments {
+            density: 5.0,
+            mean_radius: 0.028,
+            mean_square_radius: 0.028f64.powi(2),
+            mean_extinction: 2.0 * PI * 0.008f64.powi(2),
+        };
+        let rule = SurfaceFootprint::new(vec![class], bounds, 1.0 / 0.37, 16.0).unwrap();
+        // A spot above the cube pointing down at its centre, 8 degrees wide.
+        let spot = Light::new([0.0, 20.0, 0.0], 0.0)
+            .unwrap()
+            .with_spot([0.0, -1.0, 0.0], 8f64.to_radians().cos())
+            .unwrap();
+        let view = View {
+            lights: Some(vec![spot]),
+            ..view
+        };
+        let unit = |v: [f64; 3]| {
+            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            v.map(|x| x / l)
+        };
+        let towards = |o: [f64; 3]| unit([0, 1, 2].map(|a| spot.centre[a] - o[a]));
+        // From the floor inside the beam: a sharp shadow, walked; from outside it: dark, the field.
+        let lit = [0.5, -12.0, 0.5];
+        let dark = [8.0, -12.0, 0.0];
+        assert!(!rule.sees_field(&view, lit, towards(lit), f64::INFINITY));
+        assert!(rule.sees_field(&view, dark, towards(dark), f64::INFINITY));
+        // Another direction from the dark point: a bounce, walked as before.
+        assert!(!rule.sees_field(&view, dark, unit([-0.3, 1.0, 0.1]), f64::INFINITY));
+        // Without the spot's cone: walked.
+        let everywhere = View {
+            lights: Some(vec![Light::new(spot.centre, 0.0).unwrap()]),
+            ..view.clone()
+        };
+        assert!(!rule.sees_field(&everywhere, dark, towards(dark), f64::INFINITY));
+        assert!(Light::new([0.0; 3], 0.0)
+            .unwrap()
+            .with_spot([0.0, 0.0, 1.0], 1.5)
+            .is_err());
     }
 
     /// The 12 cm cube of `scripts/bench/bench_dense.py` (centimetres) and its camera.
