@@ -13,13 +13,14 @@ a camera moved through ``mi.traverse`` is seen at the next render. A caller that
 
 Cameras: ``perspective`` and ``thinlens`` (anything with an ``x_fov``). A scene with any other sensor
 (orthographic, radiance meters, batches) gets no cameras, and its rays from surfaces walk the grains.
-Lights: point and spot lights (and any other light at a point) by position, area lights by a sphere around
-their shape's bounding box and a disc that lies on them (rectangles, disks and spheres; its penumbra blurs the
-grains' shadows, counted only in scenes whose every surface is diffuse); the sky and distant lights need none.
+Lights: point and spot lights (and any other light at a point) by position, a spot also by its cone (a shadow ray
+from outside it carries nothing), area lights by a sphere around their shape's bounding box and a disc that lies on
+them (rectangles, disks and spheres; its penumbra blurs the grains' shadows, counted only in scenes whose every
+surface is diffuse); the sky and distant lights need none. An emitter of any other kind leaves the lights unknown
+(every ray's end is then taken for a light).
 Surfaces: whether every shape's BSDF is diffuse (``diffuse_only``) and every light at infinity a uniform sky
 (``uniform_distant_light``); then rays bounced off a surface carry the grains blurred by the lobe, and may see their
-continuous equivalent sooner. An emitter of any other kind leaves the
-lights unknown (every ray's end is then taken for a light).
+continuous equivalent sooner.
 """
 
 from __future__ import annotations
