@@ -271,18 +271,7 @@ struct EventMap {
     current: FxHashMap<[u32; 3], Event>,
     previous: FxHashMap<[u32; 3], Event>,
     capacity: usize,
-    /// The events inserted last, direct-mapped by their key: an event is read by its path's next
-    /// calls right after its commit (the phase function's evaluation and sample, the next free
-    /// flight), which then find it in a few cache lines instead of the tables (the lookups were 3 %
-    /// of a dense render). Copies of what the tables hold, kept equal by [`Self::set_t_out`].
-    recent: Box<[Option<Keyed>; RECENT_EVENTS]>,
 }
-
-/// An event with its key.
-type Keyed = ([u32; 3], Event);
-
-/// Slots of [`EventMap::recent`] (a power of two).
-const RECENT_EVENTS: usize = 64;
 
 impl EventMap {
     /// An empty map whose generations hold `capacity` events each.
@@ -291,37 +280,20 @@ impl EventMap {
             current: FxHashMap::default(),
             previous: FxHashMap::default(),
             capacity,
-            recent: Box::new([None; RECENT_EVENTS]),
         }
-    }
-    fn slot(key: &[u32; 3]) -> usize {
-        (key[0] ^ key[1].rotate_left(11) ^ key[2].rotate_left(22)) as usize & (RECENT_EVENTS - 1)
     }
     fn get(&self, key: &[u32; 3]) -> Option<&Event> {
-        if let Some((k, e)) = &self.recent[Self::slot(key)] {
-            if k == key {
-                return Some(e);
-            }
-        }
         self.current.get(key).or_else(|| self.previous.get(key))
     }
-    /// Set the throughput after the event at `key` (the only change an event sees after its commit).
-    fn set_t_out(&mut self, key: &[u32; 3], t_out: [f32; MAX_CHANNELS]) {
-        if let Some((k, e)) = &mut self.recent[Self::slot(key)] {
-            if k == key {
-                e.t_out = t_out;
-            }
-        }
-        if let Some(e) = self.current.get_mut(key) {
-            e.t_out = t_out;
-        } else if let Some(e) = self.previous.get_mut(key) {
-            e.t_out = t_out;
+    fn get_mut(&mut self, key: &[u32; 3]) -> Option<&mut Event> {
+        match self.current.get_mut(key) {
+            Some(e) => Some(e),
+            None => self.previous.get_mut(key),
         }
     }
     fn clear(&mut self) {
         self.current.clear();
         self.previous.clear();
-        self.recent.iter_mut().for_each(|r| *r = None);
     }
     fn insert(&mut self, key: [u32; 3], event: Event) {
         if self.current.len() >= self.capacity {
@@ -330,7 +302,6 @@ impl EventMap {
             std::mem::swap(&mut self.previous, &mut self.current);
             self.current.clear();
         }
-        self.recent[Self::slot(&key)] = Some((key, event));
         self.current.insert(key, event);
     }
 }
@@ -1781,8 +1752,8 @@ impl DiscreteMedium {
         drop(events);
         let mut events = self.events.write().unwrap();
         for (lane, (_, t_out)) in lanes.iter().zip(&res) {
-            if let Some(t) = t_out {
-                events.set_t_out(&key(lane.p), *t);
+            if let (Some(t), Some(e)) = (t_out, events.get_mut(&key(lane.p))) {
+                e.t_out = *t;
             }
         }
         drop(events);
@@ -2116,8 +2087,8 @@ impl DiscreteMedium {
                 let lam = lane_wavelengths(lambda, channels, i);
                 let (sample, t_out) = self.lane_phase_sample(&st.events, lane, lam);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
-                if let Some(t) = t_out {
-                    st.events.set_t_out(&key(lane.p), t);
+                if let (Some(t), Some(e)) = (t_out, st.events.get_mut(&key(lane.p))) {
+                    e.t_out = t;
                 }
                 if sample.2 > 0.0 && lam.len() <= MAX_CHANNELS {
                     // What the evaluation at the direction as it travels back (f32) would give.
