@@ -183,9 +183,8 @@ pub struct ContinuousField {
     /// in units of 1/65535 (the last of a cell is 65535); empty where `members` holds it
     /// ([`Members::Classes`]).
     cdf: Vec<u16>,
-    /// Where the cells hold few distinct classes, or few groups of classes that scatter alike
-    /// ([`Self::picking_by`]: an optics bin's radius levels), each cell's classes (or one class of each
-    /// group) once with the running share of the cell's extinction (packed as in [`Members::Classes`])
+    /// Where [`Self::picking_by`] found few groups of classes per cell (classes that scatter alike:
+    /// an optics bin's radius levels), one class of each group once with the running share of the cell's extinction (packed as in [`Members::Classes`])
     /// and each cell's first entry: what a pick reads instead of `members`, small enough to stay in
     /// cache (a pick's cache miss was 10 % of a dense Cornell box's render in llvm_ad_rgb, and of the
     /// staircase's). Picks each class (group) with the same probability as `members` does.
@@ -302,17 +301,13 @@ impl ContinuousField {
             ),
         };
         let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
-        let picks = match &members {
-            Members::Classes(m) => distinct_classes(m, &start, &|k| k),
-            _ => None,
-        };
         ContinuousField {
             frame: GridFrame::new(lo, cell, dims),
             sigma,
             start,
             members,
             cdf,
-            picks,
+            picks: None, // `picking_by`
             block_frame,
             majorant,
         }
@@ -758,9 +753,9 @@ mod tests {
         let keep = resolvable(&pos, &|i| reach[i], &|i| w_thick[i], 16.0).0;
         assert!(keep.iter().all(|&k| k));
     }
-    /// A field of few classes picks from its table of each cell's distinct classes with the same
-    /// probabilities as from the list of its particles; one of many classes keeps the list alone,
-    /// unless they fall in few groups (`picking_by`).
+    /// A field of few classes picks from its table of each cell's distinct classes (`picking_by` each
+    /// class alone) with the same probabilities as from the list of its particles; one of many classes
+    /// keeps the list alone, unless they fall in few groups.
     #[test]
     fn picks_of_distinct_classes_match_the_list() {
         let mut s = 17u64;
@@ -771,7 +766,8 @@ mod tests {
             let classes: Vec<u32> = (0..n)
                 .map(|_| (lcg(&mut s) * classes_count as f64) as u32)
                 .collect();
-            let mut f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+            let mut f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes))
+                .picking_by(|k| k);
             assert_eq!(f.picks.is_some(), classes_count <= 16, "{classes_count}");
             let Some(table) = f.picks.take() else {
                 continue;
@@ -799,6 +795,7 @@ mod tests {
         let classes: Vec<u32> = (0..n).map(|_| (lcg(&mut s) * 5000.0) as u32).collect();
         let group = |k: u32| (k & 0xFFFF) % 4;
         let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+        let f = f.picking_by(|k| k);
         assert!(f.picks.is_none());
         let mut f = f.picking_by(group);
         let table = f.picks.take().expect("four groups");

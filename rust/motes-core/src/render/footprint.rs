@@ -216,6 +216,17 @@ impl Light {
         Ok(self)
     }
 
+    /// Does the ray (origin `o`, unit direction `d`) head for the light: its forward line within the
+    /// light's radius of its centre (plus the float tolerance of Mitsuba's directions)? Then the
+    /// centre's distance along the ray and the line's squared distance from it.
+    fn aimed_at(&self, o: [f64; 3], d: [f64; 3]) -> Option<(f64, f64)> {
+        let v = [0, 1, 2].map(|a| self.centre[a] - o[a]);
+        let along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
+        let off2 = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along).max(0.0);
+        let reach = self.radius + AIM_TOLERANCE * along.abs();
+        (along + self.radius > 0.0 && off2 <= reach * reach).then_some((along, off2))
+    }
+
     /// Does the ray (origin `o`, unit direction `d`, its line `off2` squared from the centre) end on
     /// the light: a flat light's plane crossed ahead within its radius of the centre, a sphere's
     /// outline (its disc) passed within?
@@ -304,11 +315,8 @@ impl View {
     /// Does the ray head for a light that leaves its origin dark (a spot pointing elsewhere)?
     pub fn heads_for_darkness(&self, o: [f64; 3], d: [f64; 3]) -> bool {
         self.lights.iter().flatten().any(|l| {
-            let v = [0, 1, 2].map(|a| l.centre[a] - o[a]);
-            let along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
-            let off2 = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along).max(0.0);
-            let reach = l.radius + AIM_TOLERANCE * along.abs();
-            along > 0.0 && off2 <= reach * reach && l.leaves_dark(o)
+            l.aimed_at(o, d)
+                .is_some_and(|(along, _)| along > 0.0 && l.leaves_dark(o))
         })
     }
 
@@ -321,20 +329,15 @@ impl View {
         lights
             .iter()
             .filter_map(|l| {
-                let v = [0, 1, 2].map(|a| l.centre[a] - o[a]);
-                let along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
-                let off2 = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] - along * along).max(0.0);
-                let reach = l.radius + AIM_TOLERANCE * along.abs();
-                (along + l.radius > 0.0 && off2 <= reach * reach).then(|| {
-                    // The penumbra only where the ray ends on the light itself, not merely in the
-                    // sphere around it (a rectangle fills little of that).
-                    let slope = if l.ends_on(o, d, off2) {
-                        l.penumbra_slope(o, d, along, off2.sqrt())
-                    } else {
-                        0.0
-                    };
-                    ((along - l.radius).max(0.0), slope)
-                })
+                let (along, off2) = l.aimed_at(o, d)?;
+                // The penumbra only where the ray ends on the light itself, not merely in the
+                // sphere around it (a rectangle fills little of that).
+                let slope = if l.ends_on(o, d, off2) {
+                    l.penumbra_slope(o, d, along, off2.sqrt())
+                } else {
+                    0.0
+                };
+                Some(((along - l.radius).max(0.0), slope))
             })
             .fold(
                 (f64::INFINITY, 0.0),
@@ -673,6 +676,12 @@ pub fn cone_slope(cam: &Camera, o: [f64; 3], d: [f64; 3], t_end: f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// `v` scaled to unit length.
+    fn unit(v: [f64; 3]) -> [f64; 3] {
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|x| x / l)
+    }
+
     fn brute_slope(cam: &Camera, o: [f64; 3], d: [f64; 3], a: f64) -> f64 {
         (0..200_000)
             .map(|i| {
@@ -753,10 +762,6 @@ mod tests {
         let mut next = || {
             seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
             crate::rng::unit_f64(seed) * 2.0 - 1.0
-        };
-        let unit = |v: [f64; 3]| {
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            v.map(|x| x / l)
         };
         for _ in 0..300 {
             let centre = [10.0 * next(), 10.0 * next(), 10.0 * next()];
@@ -840,11 +845,7 @@ mod tests {
             diffuse_surfaces: false,
         };
         let o = [5.0, -28.0, -10.0];
-        let d = {
-            let v: [f64; 3] = [0.0 - o[0], 27.9 - o[1], 0.0 - o[2]];
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            v.map(|x| x / l)
-        };
+        let d = unit([0.0 - o[0], 27.9 - o[1], 0.0 - o[2]]);
         assert!(!rule.sees_field(&view(point), o, d, f64::INFINITY));
         assert!(rule.sees_field(&view(panel), o, d, f64::INFINITY));
         // Seen edge-on the panel shows no width in one direction: no blur.
@@ -881,10 +882,6 @@ mod tests {
             cameras: vec![Camera::new([0.0, 2.0, 42.0], 0.0027, 0.0).unwrap()],
             lights: Some(vec![Light::new(spot, 0.0).unwrap()]),
             diffuse_surfaces,
-        };
-        let unit = |v: [f64; 3]| {
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            v.map(|x| x / l)
         };
         let o = [2.0, -12.0, 3.0];
         let bounce = unit([0.3, 1.0, -0.2]);
@@ -926,10 +923,6 @@ mod tests {
         let view = View {
             lights: Some(vec![spot]),
             ..view
-        };
-        let unit = |v: [f64; 3]| {
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            v.map(|x| x / l)
         };
         let towards = |o: [f64; 3]| unit([0, 1, 2].map(|a| spot.centre[a] - o[a]));
         // From the floor inside the beam: a sharp shadow, walked; from outside it: dark, the field.
@@ -1020,9 +1013,7 @@ mod tests {
                         ];
                     }
                 }
-                let v = [0, 1, 2].map(|a| t[a] - o[a]);
-                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                let d = v.map(|x| x / l);
+                let d = unit([0, 1, 2].map(|a| t[a] - o[a]));
                 let t_max = if next() > 0.0 { f64::INFINITY } else { 60.0 };
                 let a = rule.sees_field(&view, o, d, t_max);
                 assert_eq!(a, full.sees_field(&view, o, d, t_max));
