@@ -13,6 +13,9 @@ bytes per particle.
 
     .venv/bin/python scripts/bench/bench_quantise.py [--variant scalar_rgb] [--scenes cornell,4e5] [--reps 4]
 
+``--switch MOTES_CENTRE_CELLS`` compares compact storage's centre cells (every class stored once, by its
+centres' cells, eight bytes a particle) against the sparse classes' overlap slots (``=0``) instead.
+
 ``--furnace ROW`` (a ``bench_storage.py`` row, e.g. ``1e5x300``) instead: the white furnace (albedo 1, roulette
 off, ``bench_storage.furnace``, 32² px, 64 spp) of ``--clouds`` clouds of that row, quantised and spheres.
 """
@@ -32,6 +35,8 @@ import numpy as np  # noqa: E402
 import _common as C  # noqa: E402
 
 DENSE = {"4e5": (400_000, 80.0), "1.6e6": (1_600_000, 80.0)}
+#: What each switch's "1" and "0" mean.
+LABELS = {"MOTES_QUANTISE": ("quantised", "spheres"), "MOTES_CENTRE_CELLS": ("centred", "overlap")}
 
 
 def loader(mi, kind: str, res: int, spp: int):
@@ -50,18 +55,19 @@ def furnace(mi, args, out, sw) -> None:
 
     count, median = BS.ROWS[args.furnace]
     res = {}
+    on, off = LABELS[args.switch]
     for q in ("1", "0"):
-        os.environ["MOTES_QUANTISE"] = q
+        os.environ[args.switch] = q
         vals = [BS.furnace(mi, BD.discrete(mi, count, median, albedo=1.0, seed=seed), 32, 64)
                 for seed in range(args.clouds)]
         m, e = np.array([v[0] for v in vals]), np.array([v[1] for v in vals])
         res[q] = (float(m.mean()), float(np.sqrt((e ** 2).sum()) / len(e)))
-        print(f"[{args.variant} {args.furnace}] {'quantised' if q == '1' else 'spheres'}: furnace "
+        print(f"[{args.variant} {args.furnace}] {on if q == '1' else off}: furnace "
               + " ".join(f"{a:.4f}+-{b:.4f}" for a, b in vals) + f"; mean {res[q][0]:.4f} +- {res[q][1]:.4f}",
               flush=True)
-    os.environ.pop("MOTES_QUANTISE")
-    C.finish(args, sw, out / f"bench_quantise_furnace_{args.variant}.json",
-             furnace={"quantised": res["1"], "spheres": res["0"]})
+    os.environ.pop(args.switch)
+    C.finish(args, sw, out / f"bench_quantise_furnace_{args.switch}_{args.variant}.json",
+             furnace={on: res["1"], off: res["0"]})
 
 
 def main() -> None:
@@ -73,6 +79,7 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=4)
     ap.add_argument("--furnace", default="", help="a bench_storage row: the white furnace instead")
     ap.add_argument("--clouds", type=int, default=3)
+    ap.add_argument("--switch", default="MOTES_QUANTISE", choices=sorted(LABELS))
     args = ap.parse_args()
     out, sw = C.out_dir(args.out), C.Stopwatch()
     motes = C.import_motes()
@@ -83,14 +90,15 @@ def main() -> None:
         furnace(mi, args, out, sw)
         return
     rows = []
+    on, off = LABELS[args.switch]
     for kind in args.scenes.split(","):
         scenes, data = {}, {}
         for q in ("1", "0"):
-            os.environ["MOTES_QUANTISE"] = q
+            os.environ[args.switch] = q
             scenes[q] = loader(mi, kind, args.res, args.spp)()
             data[q] = next(s.interior_medium() for s in scenes[q].shapes() if s.interior_medium() is not None).data
             mi.render(scenes[q], spp=args.spp)  # warm-up
-        os.environ.pop("MOTES_QUANTISE")
+        os.environ.pop(args.switch)
         secs, means = {"1": [], "0": []}, {"1": [], "0": []}
         for rep in range(args.reps):
             for q in ("1", "0"):
@@ -104,16 +112,16 @@ def main() -> None:
                "ratio": min(secs["1"]) / min(secs["0"]), "mean_quantised": float(np.mean(means["1"])),
                "mean_spheres": float(np.mean(means["0"])), "bytes_quantised": data["1"].bytes / n,
                "bytes_spheres": data["0"].bytes / n}
-        print(f"[{args.variant} {kind}] quantised {row['quantised_s']:.3f} s, spheres {row['spheres_s']:.3f} s: "
+        print(f"[{args.variant} {kind}] {on} {row['quantised_s']:.3f} s, {off} {row['spheres_s']:.3f} s: "
               f"{row['ratio']:.3f}x; means {row['mean_quantised']:.4f} / {row['mean_spheres']:.4f}; "
               f"B/particle {row['bytes_quantised']:.1f} / {row['bytes_spheres']:.1f}", flush=True)
         rows.append(row)
-    C.print_table(f"**{args.variant}, {args.res}^2 px, {args.spp} spp: quantised slots / spheres (best of {args.reps})**",
-                  ["scene", "quantised (s)", "spheres (s)", "ratio", "mean quantised", "mean spheres",
-                   "B/particle quantised", "spheres"],
+    C.print_table(f"**{args.variant}, {args.res}^2 px, {args.spp} spp: {on} / {off} (best of {args.reps})**",
+                  ["scene", f"{on} (s)", f"{off} (s)", "ratio", f"mean {on}", f"mean {off}",
+                   f"B/particle {on}", off],
                   [[r["scene"], r["quantised_s"], r["spheres_s"], r["ratio"], r["mean_quantised"], r["mean_spheres"],
                     r["bytes_quantised"], r["bytes_spheres"]] for r in rows])
-    C.finish(args, sw, out / f"bench_quantise_{args.variant}.json", rows=rows)
+    C.finish(args, sw, out / f"bench_quantise_{args.switch}_{args.variant}.json", rows=rows)
 
 
 if __name__ == "__main__":

@@ -4,8 +4,9 @@
 //! directions and run 40 units (out of it): a full walk (every contributing particle), the grey optical
 //! depth, and free flights to the first site (`sample_site`, what the renderer calls).
 //!
-//! Each grid resolution (cells per particle; the default first) is timed in interleaved rounds and the
-//! median round is reported, so a busy machine shifts all columns alike.
+//! Each layout (cells per particle, the default first; spheres, quantised slots (`q`), and quantised
+//! centre cells (`qc`, compact storage's)) is timed in interleaved rounds and the median round is
+//! reported, so a busy machine shifts all columns alike.
 //!
 //!     cargo bench -p motes-core --bench traverse [-- sparse|dense]
 use motes_core::space::grid::{GridSettings, ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
@@ -54,11 +55,31 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
             RaySegment::new(o, d.map(|x| x / l), 0.0, 40.0)
         })
         .collect();
-    let resolutions = [DEFAULT_CELLS_PER_PARTICLE, 1.0, 0.5, 0.25, 0.0625];
-    let grids: Vec<ParticleGrid> = resolutions
+    let d = DEFAULT_CELLS_PER_PARTICLE;
+    let layouts = [
+        (d, ""),
+        (d, "q"),
+        (d, "qc"),
+        (4.0 * d, "qc"),
+        (1.0, ""),
+        (0.25, ""),
+        (0.0625, ""),
+    ];
+    // TRAVERSE_LAYOUT=qc (say) times only that layout (for a profiler).
+    let only = std::env::var("TRAVERSE_LAYOUT").ok();
+    let layouts: Vec<(f64, &str)> = layouts
+        .into_iter()
+        .filter(|(_, l)| only.as_deref().is_none_or(|o| o == *l))
+        .collect();
+    let grids: Vec<ParticleGrid> = layouts
         .iter()
-        .map(|&cpp| {
-            ParticleGrid::build(&pos, &rad, &c, 1, &GridSettings::new(query_radius, cpp)).unwrap()
+        .map(|&(cpp, l)| {
+            let settings = GridSettings::new(query_radius, cpp)
+                .quantised(l.starts_with('q'))
+                .centred(l == "qc");
+            let mut g = ParticleGrid::build(&pos, &rad, &c, 1, &settings).unwrap();
+            g.release_stored(); // as a medium keeps it
+            g
         })
         .collect();
     let mut times = vec![[const { Vec::new() }; 3]; grids.len()];
@@ -94,10 +115,10 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
         hits as f64 / rays.len() as f64,
         100.0 * sites as f64 / rays.len() as f64
     );
-    for ((cpp, g), t) in resolutions.iter().zip(&grids).zip(times) {
+    for ((&(cpp, l), g), t) in layouts.iter().zip(&grids).zip(times) {
         let [w, o, f] = t.map(median);
         println!(
-            "  cells/particle {cpp:<5} cells {:?}, {:.1} bytes/particle | walk {w:.2} us/ray, optical_depth {o:.2} us/ray, free flight {f:.2} us/ray",
+            "  cells/particle {cpp:<6} {l:<2} cells {:?}, {:.1} bytes/particle | walk {w:.2} us/ray, optical_depth {o:.2} us/ray, free flight {f:.2} us/ray",
             g.dims(),
             g.bytes() as f64 / n as f64,
         );

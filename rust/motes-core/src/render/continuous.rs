@@ -140,6 +140,9 @@ enum Members {
     /// One list of class codes (with [`CLASS_FLAG`]) that every cell holds in the same shares, its
     /// σ_t set by a density (a procedural cloud, `crate::render::procedural`): `start` is empty.
     Shared(Vec<u32>),
+    /// As many particles, not kept: the field's pick table ([`ContinuousField::picks`]) answers
+    /// every pick ([`ContinuousField::forget_members`]).
+    Counted(usize),
 }
 
 impl Members {
@@ -149,6 +152,7 @@ impl Members {
             Members::Ids(v) => v[j],
             Members::Classes(v) => CLASS_FLAG | (v[j] & 0xFFFF),
             Members::WideClasses(v) | Members::Shared(v) => v[j],
+            Members::Counted(_) => unreachable!("a field without its members picks by its table"),
         }
     }
     fn len(&self) -> usize {
@@ -157,6 +161,7 @@ impl Members {
             | Members::WideClasses(v)
             | Members::Shared(v)
             | Members::Classes(v) => v.len(),
+            Members::Counted(n) => *n,
         }
     }
     fn bytes(&self) -> usize {
@@ -165,6 +170,7 @@ impl Members {
             | Members::WideClasses(v)
             | Members::Shared(v)
             | Members::Classes(v) => v.len() * 4,
+            Members::Counted(_) => 0,
         }
     }
 }
@@ -379,6 +385,16 @@ impl ContinuousField {
         self
     }
 
+    /// The same field without its list of members where its pick table answers every pick (the
+    /// grains' continuous equivalent, whose picks are all it is asked: 4 bytes per particle saved).
+    /// Its cells' members are then their table's classes, one for each group.
+    pub fn forget_members(mut self) -> Self {
+        if let (Some(_), Members::Classes(m)) = (&self.picks, &self.members) {
+            self.members = Members::Counted(m.len());
+        }
+        self
+    }
+
     /// The members of cell `c`: `range.0..range.1` of the member list.
     #[inline]
     fn range(&self, c: usize) -> (usize, usize) {
@@ -518,14 +534,23 @@ impl ContinuousField {
         Some((c[2] * dims[1] + c[1]) * dims[0] + c[0])
     }
 
-    /// The particles of a cell (original indices, or class codes with [`CLASS_FLAG`]).
+    /// The particles of a cell (original indices, or class codes with [`CLASS_FLAG`]; a field that
+    /// forgot its members: one class of each group in the cell).
     pub fn members(&self, cell: usize) -> impl Iterator<Item = u32> + '_ {
-        let (a, b) = self.range(cell);
+        let (table, (a, b)): (&[u32], _) = match (&self.members, &self.picks) {
+            (Members::Counted(_), Some((first, packed))) => (
+                &packed[first[cell] as usize..first[cell + 1] as usize],
+                (0, 0),
+            ),
+            _ => (&[], self.range(cell)),
+        };
         // A shared list's classes that carry none of the cell's extinction are not in it.
         let shared = matches!(self.members, Members::Shared(_));
-        (a..b)
-            .filter(move |&j| !shared || self.cdf[j] > if j == 0 { 0 } else { self.cdf[j - 1] })
-            .map(|j| self.members.get(j))
+        table.iter().map(|&x| CLASS_FLAG | (x & 0xFFFF)).chain(
+            (a..b)
+                .filter(move |&j| !shared || self.cdf[j] > if j == 0 { 0 } else { self.cdf[j - 1] })
+                .map(|j| self.members.get(j)),
+        )
     }
 }
 
@@ -815,5 +840,30 @@ mod tests {
             by_table.sort_unstable();
             assert_eq!(by_list, by_table, "cell {cell}");
         }
+        // Without its list (the grains' equivalent): the same picks, the table's classes as each
+        // cell's members, four bytes fewer per particle; a field without a table keeps its list.
+        f.picks = Some(table);
+        let picks = |f: &ContinuousField| -> Vec<Option<u32>> {
+            (0..f.start.len() - 1)
+                .flat_map(|c| (0..100).map(move |j| (c, (j as f64 + 0.5) / 100.0)))
+                .map(|(c, u)| f.pick(c, u))
+                .collect()
+        };
+        let (before, bytes) = (picks(&f), f.bytes());
+        let members: Vec<Vec<u32>> = (0..f.start.len() - 1)
+            .map(|c| f.members(c).collect())
+            .collect();
+        let f = f.forget_members();
+        assert_eq!(picks(&f), before);
+        assert_eq!(f.bytes() + 4 * n, bytes);
+        assert_eq!(f.len(), n);
+        for (c, m) in members.iter().enumerate() {
+            let kept: Vec<u32> = f.members(c).collect();
+            assert!(!kept.is_empty() || m.is_empty());
+            assert!(kept.iter().all(|k| m.contains(k)), "cell {c}");
+        }
+        let untabled = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+        let bytes = untabled.bytes();
+        assert_eq!(untabled.forget_members().bytes(), bytes);
     }
 }

@@ -633,6 +633,8 @@ fn check_build_inputs(
 
 /// The structures a free flight walks: the grid of the particles whose grains a pixel can resolve and
 /// the continuous field of the others (`continuous_count`, crate::render::continuous), and which is which.
+/// With `classes` (compact storage) the grid names its particles by position
+/// ([`ParticleGrid::positional`]), and the last item is their original indices in that order.
 #[allow(clippy::type_complexity)]
 fn build_walk(
     positions: &[[f64; 3]],
@@ -648,6 +650,7 @@ fn build_walk(
     Option<ContinuousField>,
     Vec<bool>,
     Option<SurfaceFootprint>,
+    Option<Vec<u32>>,
 ) {
     let n = positions.len();
     let (keep, footprint) = resolvable(positions, reach, c_ext, continuous_count);
@@ -680,6 +683,15 @@ fn build_walk(
         );
         Some(g.with_indices(&discrete_ids))
     };
+    // Compact storage: particles named by position (no index kept).
+    let (grid, order) = match (grid, classes) {
+        (Some(g), Some(_)) => {
+            let (g, order) = g.positional();
+            (Some(g), Some(order))
+        }
+        (g, Some(_)) => (g, Some(Vec::new())),
+        (g, None) => (g, None),
+    };
     // The medium keeps its grid for rendering: what the slots duplicate is dropped.
     let grid = grid.map(|mut g| {
         g.release_stored();
@@ -692,7 +704,7 @@ fn build_walk(
         let ids = (!discrete_ids.is_empty()).then_some(&field_ids[..]);
         ContinuousField::build(positions, reach, c_ext, ids, classes)
     });
-    (grid, field, keep, footprint)
+    (grid, field, keep, footprint, order)
 }
 
 /// The surface-ray rule (`crate::render::footprint`) of a procedural cloud: its discrete classes'
@@ -752,6 +764,11 @@ pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -
         (-(-fill).ln_1p()).min(TAU_OPAQUE)
     };
     (reach, tau)
+}
+
+/// An on-by-default switch of the environment (comparisons only): off where set to "0".
+fn env_flag(name: &str) -> bool {
+    std::env::var(name).map_or(true, |v| v != "0")
 }
 
 /// The coincidence window (sites closer than this along a ray are one site) and the box outside
@@ -883,17 +900,17 @@ impl DiscreteMedium {
             let (r, tau) = table_disks[code_of(i)];
             tau * PI * r * r
         };
-        let (grid, field, keep, footprint) = build_walk(
+        let (grid, field, keep, footprint, order) = build_walk(
             positions,
             &reach,
             &grid_radius,
             &grid_c,
             &p_c,
-            // MOTES_QUANTISE=0 keeps spheres (scripts/bench/bench_quantise.py's comparison).
-            &GridSettings::new(query_radius, cells_per_particle).quantised(
-                storage == Storage::Compact
-                    && std::env::var("MOTES_QUANTISE").map_or(true, |v| v != "0"),
-            ),
+            // MOTES_QUANTISE=0 keeps spheres (scripts/bench/bench_quantise.py's comparison) and
+            // MOTES_CENTRE_CELLS=0 the sparse classes' overlap slots (bench_storage.py's).
+            &GridSettings::new(query_radius, cells_per_particle)
+                .quantised(storage == Storage::Compact && env_flag("MOTES_QUANTISE"))
+                .centred(storage == Storage::Compact && env_flag("MOTES_CENTRE_CELLS")),
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),
         );
@@ -917,7 +934,9 @@ impl DiscreteMedium {
             Some(c) => {
                 let by_bin =
                     |f: ContinuousField| f.picking_by(|k| c.bin[(k & !CLASS_FLAG) as usize]);
-                (field.map(by_bin), grains_field.map(by_bin))
+                // The grains' equivalent is only ever picked from: its table is enough.
+                let forget = |f: ContinuousField| by_bin(f).forget_members();
+                (field.map(by_bin), grains_field.map(forget))
             }
             None => (field, grains_field),
         };
@@ -927,7 +946,13 @@ impl DiscreteMedium {
                 for (i, &k) in c.codes.iter().enumerate() {
                     in_field[k as usize] = !keep[i];
                 }
-                (c.c_ext, c.bin, Some((in_field, c.codes)))
+                // The grid's particles by position (`build_walk`): the continuous ones are named by
+                // class in their field, so only the grid's keep a code.
+                let codes = match order {
+                    Some(order) => order.par_iter().map(|&i| c.codes[i as usize]).collect(),
+                    None => c.codes,
+                };
+                (c.c_ext, c.bin, Some((in_field, codes)))
             }
             None => (c_full, bin, None),
         };
@@ -1822,8 +1847,8 @@ impl DiscreteMedium {
             require(
                 "particle",
                 i as f64,
-                (i as usize) < self.optics.len(),
-                "< number of particles",
+                (i as usize) < self.optics.ids(),
+                "< number of particles walked one by one (compact storage: by position)",
             )?;
             s.push(i);
         }

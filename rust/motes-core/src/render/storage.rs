@@ -11,10 +11,14 @@
 //!   C_t,i follows as π r² Q̄_ext of the bin (every particle of a bin has its bin's mean efficiency,
 //!   `motes.DiscreteMedium`), so a class is what a particle of that radius is, not an average. The grid,
 //!   the continuous fields and the optics all see the class's values: the free flight is exact for the
-//!   particles as stored. Four bytes per particle instead of seventeen. The grid's sparse classes
-//!   also quantise their centres (`crate::space::grid`, "Quantised slots": a lattice of 2^14 steps per
-//!   cell edge, radii and τ by code; 12 bytes a slot instead of 24), which halves what a visible grain
-//!   costs (`scripts/bench/bench_quantise.py`: 60–69 → 36–44 bytes per discrete particle).
+//!   particles as stored. Four bytes per particle instead of seventeen. The grid stores every class by
+//!   its centres' cells with quantised centres (`crate::space::grid`, "Quantised slots": a lattice of
+//!   2^14 steps per cell edge, radii and τ by code; 8 bytes a particle) and names its particles by
+//!   their position in it, so a particle walked one by one keeps its slot and a 16-bit class code by
+//!   position (this table's `codes`; the continuous ones are named by class in their field and keep
+//!   nothing), and the grains' continuous equivalent only its cells' pick tables: 11–14 bytes per
+//!   discrete particle (`scripts/bench/bench_storage.py`; 60–69 with spheres and overlap slots, 34–44
+//!   with quantised overlap slots).
 
 use crate::error::{require, OpticsError};
 use crate::render::continuous::{Column, CLASS_FLAG};
@@ -60,7 +64,8 @@ pub(crate) struct ParticleOptics {
     pub bin: Vec<u32>,
     /// Sampled as part of the continuous field (its size class is continuous).
     pub in_field: Vec<bool>,
-    /// Each particle's class (compact storage); None: the code is the particle's index.
+    /// The class of each particle the grid walks, by its position in the grid (compact storage:
+    /// `ParticleGrid::positional`); None: the code is the particle's index (full storage).
     codes: Option<Codes>,
     particles: usize,
 }
@@ -232,6 +237,15 @@ impl ParticleOptics {
     }
     pub(crate) fn len(&self) -> usize {
         self.particles
+    }
+    /// How many particle identities there are: every particle, or (compact storage) the particles
+    /// the grid walks, by position (`ParticleGrid::positional`).
+    pub(crate) fn ids(&self) -> usize {
+        match &self.codes {
+            Some(Codes::Narrow(c)) => c.len(),
+            Some(Codes::Wide(c)) => c.len(),
+            None => self.particles,
+        }
     }
     /// Heap bytes.
     pub(crate) fn bytes(&self) -> usize {

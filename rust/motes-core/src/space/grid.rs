@@ -16,29 +16,41 @@
 //!
 //! ## Grid
 //! Each particle's data is stored once, in the order of its centre's cell (counting sort, O(N)); each
-//! cell keeps references to particles. Where inclusion balls (radius R_i) are narrower than the cells
-//! (sparse classes), a cell references every particle whose ball overlaps it, and a traversal (3D-DDA,
-//! Amanatides & Woo) tests only the particles referenced by the cells the ray itself crosses: the
-//! projection p_i = o + t_i d of a contributing particle lies within R_i of its centre, hence in a cell
-//! that references it. Where balls are wider than the particle spacing (dense classes), cells are at
-//! least R_max wide, reference their own particles only, and a traversal scans the 3×3×3 cells around
-//! each cell it crosses. Either way a particle is counted only in the DDA step whose t-interval holds
-//! t_i — exactly once. The grid box is the centres' bounding box grown by R_max.
+//! cell keeps references to particles. Two layouts of a class of similar sizes:
+//!
+//! * **Overlap slots** (k = 0; sparse classes of full storage): where inclusion balls (radius R_i)
+//!   are narrower than the cells, a cell references every particle whose ball overlaps it, and a
+//!   traversal (3D-DDA, Amanatides & Woo) tests only the particles referenced by the cells the ray
+//!   itself crosses: the projection p_i = o + t_i d of a contributing particle lies within R_i of its
+//!   centre, hence in a cell that references it. A particle counts in the DDA step whose t-interval
+//!   holds t_i. Costs (1 + 2R/L)³ references a particle, padded to blocks (~2.5–3).
+//! * **Centre cells** (k = 1; every class of compact storage, and classes whose balls are wider than
+//!   the particle spacing): cells at least R_max wide hold the particles whose centres they contain,
+//!   once each. A traversal tests, per DDA step, the cells of the 3×3×3 block around the ray's cell
+//!   that no earlier step tested (the first step the whole block, each later one the 3×3 slab its move
+//!   adds) and that the ray comes within R_max of (`SubGrid::step_rows`): every particle near the ray
+//!   is tested exactly once, wherever its t_i lies, and once a step is done every t_i before its exit
+//!   is known, so the walk reports in order (it holds later ones back).
+//!
+//! The grid box is the centres' bounding box grown by R_max.
 //!
 //! ## Quantised slots (compact storage, issue 24)
-//! A sparse class's slots copy each ball into every cell it overlaps (24 bytes a slot: the sphere in
-//! f32, τ and the particle's index). With [`GridSettings::quantise`] a slot is 12 bytes: the centre in
-//! u16 steps of a lattice of 2^14 steps per cell edge from a corner one cell below the slot's cell
-//! (6·10⁻⁵ of a cell; a ball overlapping the cell has its centre within a cell of it), a u16 code into
-//! the class's table of (R, τ), and the index. The lattice point *is* the particle: every slot of a
-//! particle decodes to the same double-precision centre, the cells that reference it are chosen from
-//! that centre, and the exact test runs on it, so the free flight stays exact for the particles as
-//! stored. The single-precision pre-test works in the step's cell frame (the cell's offset across the
-//! ray once per step, then `h (q·e)` per lane), which is more precise than the spheres' global one.
-//! Its radius is the block's largest (each cell's slots sorted by radius): a per-lane gather of radii
-//! by code cost more than the few extra exact tests on AMD's cores. Measured against spheres side by
-//! side (`scripts/bench/bench_quantise.py`; `MOTES_QUANTISE=0` at load keeps spheres, for that
-//! comparison): BENCHMARKS.md section 24.
+//! A sparse class's overlap slots copy each ball into every cell it overlaps (24 bytes a slot: the
+//! sphere in f32, τ and the particle's index). With [`GridSettings::quantise`] a slot is 8 bytes: the
+//! centre's lattice coordinates (2^14 steps per cell edge, 6·10⁻⁵ of a cell) modulo 2^16 and a u16
+//! code into the class's table of (R, τ); read relative to a corner one cell below the slot's cell
+//! (or row of cells), the wrapped difference is the exact offset (`LATTICE_PER_CELL`). The lattice
+//! point *is* the particle: every slot of a particle decodes to the same double-precision centre, the
+//! cells that reference it are chosen from that centre, and the exact test runs on it, so the free
+//! flight stays exact for the particles as stored. The single-precision pre-test works in the
+//! segment's cell frame (its origin's offset across the ray once per segment, then `h (q·e)` per
+//! lane), which is more precise than the spheres' global one. Its radius is the block's largest (each
+//! cell's slots sorted by radius): a per-lane gather of radii by code cost more than the few extra
+//! exact tests on AMD's cores. Overlap slots add each slot's particle index (12 bytes a slot);
+//! centre cells need none where the grid names particles by position ([`ParticleGrid::positional`]):
+//! compact storage's 8 bytes a particle (`crate::render::storage`). Measured side by side
+//! (`scripts/bench/bench_quantise.py`; `MOTES_QUANTISE=0` keeps spheres, `MOTES_CENTRE_CELLS=0`
+//! overlap slots, for those comparisons): BENCHMARKS.md section 24.
 
 use crate::error::{require, require_len, OpticsError};
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
@@ -95,6 +107,12 @@ const OCCUPANCY_PARTICLES_PER_CELL: f64 = 16.0;
 const PREFETCH_AHEAD_LINES: usize = 4;
 /// `slot_particle` of a padding slot (k = 0 cells are padded to whole blocks; see `build_class`).
 const PADDING_SLOT: u32 = u32::MAX;
+/// Cells per particle of centre-cell classes ([`GridSettings::centre_cells`]) relative to the
+/// setting: a centre-cell step works out which cells of its slab the ray comes near before it tests
+/// any, so fewer, larger cells pay (32 particles a cell at the default; llvm_ad_rgb, 96 px, 16 spp,
+/// s per render at 1 / 0.5 / 0.25 / 0.125 of the setting: dust_box 0.139 / 0.129 / 0.129 / 0.128,
+/// cornell 0.756 / 0.739 / 0.722 / 0.720; the overlap layout 0.110 and 0.703 beside them).
+const CENTRE_CELLS_FACTOR: f64 = 0.25;
 /// Most cells per axis (the counting sorts index cells with u32).
 const MAX_CELLS_PER_AXIS: usize = 1 << 20;
 /// Most cells in all (a sparse cloud of 2e8 particles at one cell each: 800 MB of cell starts).
@@ -113,6 +131,8 @@ struct Segment {
     /// Quantised slots: the cell's slot origin across the ray (`RayFrame::offsets`), set when the
     /// step is tested.
     off: [f32; 2],
+    /// Quantised slots: the slot origin's lattice coordinates modulo 2^16 (`QSlots::origin_bits`).
+    base: [u16; 3],
 }
 
 /// Ask for the cache line holding `p` (a hint: no fault for any address).
@@ -194,10 +214,11 @@ impl Spheres {
     }
 }
 
-/// Lattice steps per cell edge of quantised slots (2^14). A slot stores its centre as u16 steps from a
-/// corner one cell below its own cell's (a ball referenced by a cell overlaps it, and k = 0 balls are
-/// at most half a cell wide, so the centre lies within [−1, 2) cells of the corner: the u16 range
-/// covers [−1, 3)).
+/// Lattice steps per cell edge of quantised slots (2^14). A slot stores its centre's lattice
+/// coordinates modulo 2^16 (the u16 wraps every four cells) and is read relative to a corner one cell
+/// below the cell (or row of cells) that holds it: a ball referenced by a k = 0 cell overlaps it and is
+/// at most half a cell wide, and a k = 1 row holds centres of at most three consecutive cells, so the
+/// centre lies within [1, 4) cells of that corner, where `q − corner` modulo 2^16 is its exact offset.
 const LATTICE_PER_CELL: i64 = 1 << 14;
 
 /// [`LANES`] quantised slots (issue 24's compact storage): the centres in lattice steps from the
@@ -232,16 +253,19 @@ struct QSlots {
 }
 
 impl QSlots {
-    /// The lattice coordinates of slot `s` of cell `cell`.
+    /// The lattice coordinates of slot `s` of cell `cell` (k = 1: of the row that starts at `cell`).
     #[inline(always)]
     fn lattice(&self, s: usize, cell: [usize; 3]) -> [i64; 3] {
         let (b, l) = (&self.blocks[s / LANES], s % LANES);
         let origin = |a: usize| (cell[a] as i64 - 1) * LATTICE_PER_CELL;
-        [
-            origin(0) + b.x[l] as i64,
-            origin(1) + b.y[l] as i64,
-            origin(2) + b.z[l] as i64,
-        ]
+        let at = |a: usize, q: u16| origin(a) + q.wrapping_sub(origin(a) as u16) as i64;
+        [at(0, b.x[l]), at(1, b.y[l]), at(2, b.z[l])]
+    }
+    /// The slot origin of `cell` in lattice coordinates modulo 2^16: what a pre-test subtracts from a
+    /// slot's coordinates to get its offset from that origin.
+    #[inline(always)]
+    fn origin_bits(cell: [usize; 3]) -> [u16; 3] {
+        cell.map(|c| ((c as i64 - 1) * LATTICE_PER_CELL) as u16)
     }
     /// Centre (scene units) and inclusion radius of slot `s` of cell `cell` in a grid from `lo`.
     #[inline(always)]
@@ -259,13 +283,6 @@ impl QSlots {
     fn bytes(&self) -> usize {
         self.blocks.len() * std::mem::size_of::<QBlock>()
             + (self.block_reach.len() + self.reach.len() + self.tau.len()) * 4
-    }
-    /// The slot origin of cell `cell` across the ray of `frame` (once per step).
-    #[inline(always)]
-    fn offsets(&self, lo: [f64; 3], cell: [usize; 3], frame: &RayFrame, o: [f64; 3]) -> [f32; 2] {
-        let corner =
-            [0, 1, 2].map(|a| lo[a] + ((cell[a] as i64 - 1) * LATTICE_PER_CELL) as f64 * self.step);
-        frame.offsets(corner, o)
     }
 }
 
@@ -336,13 +353,19 @@ impl RayFrame {
         }
     }
 
-    /// A quantised step's offsets: (corner − o)·e1 and (corner − o)·e2 for the slot origin `corner` of
-    /// its cell, in single precision (rounded once from double: within the pre-test's slack).
-    #[inline(always)]
-    fn offsets(&self, corner: [f64; 3], o: [f64; 3]) -> [f32; 2] {
-        let v = [corner[0] - o[0], corner[1] - o[1], corner[2] - o[2]];
-        self.e
-            .map(|e| (v[0] * e[0] + v[1] * e[1] + v[2] * e[2]) as f32)
+    /// How quantised slot origins lie across the ray: (corner − o)·e_k of the slot origin of cell
+    /// (i, j, l) (its corner one cell below, `lo + (cell − 1) L`) is `[k][3] + i [k][0] + j [k][1] +
+    /// l [k][2]`, so that a step's offsets cost three multiply-adds each.
+    fn corner_offsets(&self, lo: [f64; 3], edge: [f64; 3], o: [f64; 3]) -> [[f64; 4]; 2] {
+        self.e.map(|e| {
+            let v = [0, 1, 2].map(|a| lo[a] - edge[a] - o[a]);
+            [
+                edge[0] * e[0],
+                edge[1] * e[1],
+                edge[2] * e[2],
+                v[0] * e[0] + v[1] * e[1] + v[2] * e[2],
+            ]
+        })
     }
 }
 
@@ -446,16 +469,26 @@ fn block_pretest_narrow(b: &Block, f: &RayFrame) -> u32 {
 /// centres `off + h (q·e)` across the ray and the block's largest radius `reach` (padding lanes
 /// may pass: their exact test fails on R = NaN).
 #[inline(always)]
-fn qblock_pretest<const WIDE: bool>(b: &QBlock, reach: f32, f: &RayFrame, off: [f32; 2]) -> u32 {
+fn qblock_pretest<const WIDE: bool>(
+    b: &QBlock,
+    reach: f32,
+    f: &RayFrame,
+    off: [f32; 2],
+    base: [u16; 3],
+) -> u32 {
     #[cfg(target_arch = "x86_64")]
     if WIDE {
         // SAFETY: WIDE walks run only where `wide_simd()` found AVX2 and FMA.
-        return unsafe { qblock_pretest_avx2(b, reach, f, off) };
+        return unsafe { qblock_pretest_avx2(b, reach, f, off, base) };
     }
     let rr = reach + f.slack[0];
     let mut m = 0u32;
     for l in 0..LANES {
-        let q = [b.x[l] as f32, b.y[l] as f32, b.z[l] as f32];
+        let q = [
+            b.x[l].wrapping_sub(base[0]) as f32,
+            b.y[l].wrapping_sub(base[1]) as f32,
+            b.z[l].wrapping_sub(base[2]) as f32,
+        ];
         let across =
             |e: &[[f32; LANES]; 3], o: f32| o + q[0] * e[0][0] + q[1] * e[1][0] + q[2] * e[2][0];
         let (q1, q2) = (across(&f.he1, off[0]), across(&f.he2, off[1]));
@@ -464,20 +497,28 @@ fn qblock_pretest<const WIDE: bool>(b: &QBlock, reach: f32, f: &RayFrame, off: [
     m
 }
 
-/// [`qblock_pretest`] in AVX2: the u16 lattice coordinates widened to f32.
+/// [`qblock_pretest`] in AVX2: the u16 lattice offsets (wrapping differences) widened to f32.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[inline]
-unsafe fn qblock_pretest_avx2(b: &QBlock, reach: f32, f: &RayFrame, off: [f32; 2]) -> u32 {
+unsafe fn qblock_pretest_avx2(
+    b: &QBlock,
+    reach: f32,
+    f: &RayFrame,
+    off: [f32; 2],
+    base: [u16; 3],
+) -> u32 {
     use std::arch::x86_64::*;
     // SAFETY (loads): `QBlock` is 64-byte aligned with 16-byte lane arrays; `RayFrame` 32-byte aligned.
-    let wide =
-        |p: &[u16; LANES]| _mm256_cvtepu16_epi32(_mm_load_si128(p.as_ptr() as *const __m128i));
+    let wide = |p: &[u16; LANES], base: u16| {
+        let q = _mm_load_si128(p.as_ptr() as *const __m128i);
+        _mm256_cvtepu16_epi32(_mm_sub_epi16(q, _mm_set1_epi16(base as i16)))
+    };
     let ld = |p: &[f32; LANES]| _mm256_load_ps(p.as_ptr());
     let (x, y, z) = (
-        _mm256_cvtepi32_ps(wide(&b.x)),
-        _mm256_cvtepi32_ps(wide(&b.y)),
-        _mm256_cvtepi32_ps(wide(&b.z)),
+        _mm256_cvtepi32_ps(wide(&b.x, base[0])),
+        _mm256_cvtepi32_ps(wide(&b.y, base[1])),
+        _mm256_cvtepi32_ps(wide(&b.z, base[2])),
     );
     let across = |e: &[[f32; LANES]; 3], o: f32| {
         _mm256_fmadd_ps(
@@ -505,7 +546,62 @@ pub(crate) struct Cursor {
     /// The cached sparse walk's next step (and whether it is the last), taken from the DDA one step
     /// early so that its blocks are on their way while the current step is tested.
     ahead: Option<(DdaCell, bool)>,
+    /// The previous step's cell (k = 1: a step tests only the slab of cells its move adds to the
+    /// neighbourhood already tested; `SubGrid::step_rows`).
+    prev: Option<[usize; 3]>,
+    /// Which cells the ray comes near (k = 1).
+    near: Near,
     frame: RayFrame,
+    /// Quantised slots: where their origins lie across the ray (`RayFrame::corner_offsets`).
+    corners: [[f64; 4]; 2],
+}
+
+impl Cursor {
+    /// A quantised step's offsets: (corner − o)·e1 and (corner − o)·e2 of the slot origin of `cell`, in
+    /// single precision (rounded once from double: within the pre-test's slack).
+    #[inline(always)]
+    fn offsets(&self, cell: [usize; 3]) -> [f32; 2] {
+        let [x, y, z] = cell.map(|c| c as f64);
+        self.corners
+            .map(|k| (k[3] + x * k[0] + y * k[1] + z * k[2]) as f32)
+    }
+}
+
+/// When a ray comes near a layer of cells (k = 1, `SubGrid::step_rows`): along axis a, its coordinate
+/// lies within R_max of cell layer m for t in [enter[a] + m step[a], exit[a] + m step[a]] (enter ≤
+/// exit; an axis the ray runs across at d = 0 gets a direction of 1e-200, whose huge but finite t
+/// values put the whole line near a layer it lies in, and never near another, with no NaN).
+#[derive(Clone, Copy, Default)]
+struct Near {
+    enter: [f64; 3],
+    exit: [f64; 3],
+    step: [f64; 3],
+    /// R_max with the grid's margin, in cells per axis.
+    cells: [f64; 3],
+    /// The ray's coordinates in cells from the grid's corner: `at + t per_t`.
+    at: [f64; 3],
+    per_t: [f64; 3],
+}
+
+/// The larger of two numbers that are never NaN (plain comparisons: `f64::max`'s NaN rule costs a
+/// compare and a blend per call on the walk's hot path).
+#[inline(always)]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The smaller of two numbers that are never NaN (see [`fmax`]).
+#[inline(always)]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
 }
 
 /// One size class of a [`ParticleGrid`]: particles of similar inclusion radius in a uniform grid whose cells are at least
@@ -543,6 +639,9 @@ pub struct SubGrid {
     /// Particles of the class (`particles`, `tau` and `index` are emptied by `release_stored` where the
     /// slots hold copies of everything a walk reads).
     count: usize,
+    /// Positional identities ([`ParticleGrid::positional`]): a k = 1 class with no `index` reports
+    /// stored particle j as `first_id + j`.
+    first_id: u32,
 }
 
 /// One contributing particle of a ray.
@@ -656,9 +755,10 @@ fn slot_spheres(slot_particle: &[u32], particles: &Spheres) -> Spheres {
     })
 }
 
-/// The quantised slots ([`QSlots`]) of a k = 0 class of particles at `positions` (storage order
-/// `order`) on the lattice of `step` from `lo` (each at its nearest point), or None where they have more
-/// distinct (R, τ) pairs than a u16 code holds (then the class keeps spheres).
+/// The quantised slots ([`QSlots`]) of a class of particles at `positions` (storage order `order`) on
+/// the lattice of `step` from `lo` (each at its nearest point), or None where they have more distinct
+/// (R, τ) pairs than a u16 code holds (then the class keeps spheres). `slot_particle`: each slot's
+/// stored particle (k = 0), or None where slot j is stored particle j (k = 1).
 #[allow(clippy::too_many_arguments)]
 fn build_qslots(
     positions: &[[f64; 3]],
@@ -667,7 +767,7 @@ fn build_qslots(
     channels: usize,
     order: &[u32],
     start: &[u32],
-    slot_particle: &[u32],
+    slot_particle: Option<&[u32]>,
     lo: [f64; 3],
     step: f64,
     dims: [usize; 3],
@@ -702,22 +802,25 @@ fn build_qslots(
         };
         code_of.push(code);
     }
-    let mut blocks = vec![QBlock::default(); slot_particle.len() / LANES];
+    let slots = slot_particle.map_or(order.len(), <[u32]>::len);
+    let mut blocks = vec![QBlock::default(); slots.div_ceil(LANES)];
     for z in 0..dims[2] {
         for y in 0..dims[1] {
             for x in 0..dims[0] {
                 let c = (z * dims[1] + y) * dims[0] + x;
                 let origin = [x, y, z].map(|i| (i as i64 - 1) * LATTICE_PER_CELL);
                 for s in start[c] as usize..start[c + 1] as usize {
-                    let j = slot_particle[s];
+                    let j = slot_particle.map_or(s as u32, |sp| sp[s]);
                     if j == PADDING_SLOT {
                         continue; // code 0, R = NaN
                     }
                     let g = lattice_point(positions[order[j as usize] as usize], lo, step);
+                    // The coordinates modulo 2^16 (`LATTICE_PER_CELL`), read relative to a corner
+                    // within four cells below.
                     let q = [0, 1, 2].map(|a| {
-                        let q = g[a] - origin[a];
-                        debug_assert!((0..=u16::MAX as i64).contains(&q), "lattice offset {q}");
-                        q.clamp(0, u16::MAX as i64) as u16
+                        let rel = g[a] - origin[a];
+                        debug_assert!((0..=u16::MAX as i64).contains(&rel), "lattice offset {rel}");
+                        g[a] as u16
                     });
                     let (b, l) = (&mut blocks[s / LANES], s % LANES);
                     (b.x[l], b.y[l], b.z[l], b.code[l]) = (q[0], q[1], q[2], code_of[j as usize]);
@@ -817,12 +920,23 @@ impl SubGrid {
         // the ray's own cells). Dense classes (balls wider than the spacing) would need many references
         // per particle; there cells are at least R_max wide, each particle is referenced by its centre's
         // cell only, and a traversal scans the 3×3×3 cells around the ray's cell (k = 1).
-        let spacing = cell_spacing(volume, n, settings.cells_per_particle);
-        let k: i64 = if is_sparse(reach_max, spacing) { 0 } else { 1 };
+        // With `centre_cells` every class is stored by its centres' cells (k = 1; issue 24's compact
+        // storage: each particle once, in eight bytes).
+        let factor = if settings.centre_cells {
+            CENTRE_CELLS_FACTOR
+        } else {
+            1.0
+        };
+        let spacing = cell_spacing(volume, n, settings.cells_per_particle * factor);
+        let k: i64 = if !settings.centre_cells && is_sparse(reach_max, spacing) {
+            0
+        } else {
+            1
+        };
         let cell = spacing.max(reach_max).max(1e-12);
-        // Compact storage quantises a sparse class's centres to a lattice of its cells (`QSlots`):
-        // from here on the particles are those lattice points, the box grown by two steps to hold them.
-        let quantise = settings.quantise && k == 0;
+        // Compact storage quantises a class's centres to a lattice of its cells (`QSlots`): from here
+        // on the particles are those lattice points, the box grown by two steps to hold them.
+        let quantise = settings.quantise;
         let step = cell / LATTICE_PER_CELL as f64;
         if quantise {
             for a in 0..3 {
@@ -852,21 +966,33 @@ impl SubGrid {
             .into_par_iter()
             .map(|i| cell_of(&at(i)) as u32)
             .collect();
-        let (centre_start, order) = counting_sort(&cells, n_cells);
+        let (centre_start, mut order) = counting_sort(&cells, n_cells);
         drop(cells);
+        if quantise && k == 1 {
+            // Largest balls first in each cell: a block's pre-test radius is its largest.
+            for c in 0..n_cells {
+                order[centre_start[c] as usize..centre_start[c + 1] as usize]
+                    .sort_unstable_by(|a, b| reach[*b as usize].total_cmp(&reach[*a as usize]));
+            }
+        }
         let sphere_of = |i: usize| {
             let p = at(i);
             [p[0] as f32, p[1] as f32, p[2] as f32, reach[i] as f32]
         };
-        let particles = Spheres::from_iter(n, |j| sphere_of(order[j] as usize));
-        let tau = disk_tau(&order, &reach, c_ext, channels);
+        // Quantised k = 1 slots are the stored particles: no spheres besides them.
+        let particles = if quantise && k == 1 {
+            Spheres::default()
+        } else {
+            Spheres::from_iter(n, |j| sphere_of(order[j] as usize))
+        };
+        let mut tau = disk_tau(&order, &reach, c_ext, channels);
         let (start, mut slot_particle) = if k == 1 {
             // Each cell's slots are its own particles, already in cell order.
             (centre_start, Vec::new())
         } else {
             inline_slots(&at, &reach, &order, lo, cell, dims)
         };
-        if quantise {
+        if quantise && k == 0 {
             // Largest balls first in each cell, padding last: a block's pre-test radius is its
             // largest, so blocks of like radii test tightly.
             let key = |j: &u32| match *j {
@@ -887,13 +1013,24 @@ impl SubGrid {
                     channels,
                     &order,
                     &start,
-                    &slot_particle,
+                    (k == 0).then_some(&slot_particle[..]),
                     lo,
                     step,
                     dims,
                 )
             })
             .flatten();
+        let particles = match (&quant, k) {
+            // Too many codes: spheres after all.
+            (None, 1) if particles.0.is_empty() && n > 0 => {
+                Spheres::from_iter(n, |j| sphere_of(order[j] as usize))
+            }
+            (Some(_), 1) => {
+                tau = Vec::new(); // τ by code
+                particles
+            }
+            _ => particles,
+        };
         let inline = if k == 0 && quant.is_none() {
             slot_spheres(&slot_particle, &particles)
         } else {
@@ -920,6 +1057,7 @@ impl SubGrid {
             k,
             prefetch_slots,
             count: n,
+            first_id: 0,
         }
     }
 
@@ -1029,14 +1167,35 @@ impl SubGrid {
         };
         &tau[s * self.channels..(s + 1) * self.channels]
     }
-    /// Original index of the particle in slot `s`.
+    /// Original index of the particle in slot `s` (positional grids: its position).
     #[inline(always)]
     fn hit_index(&self, s: usize) -> u32 {
         if self.k == 0 {
             self.slot_index[s]
+        } else if self.index.is_empty() {
+            self.first_id + s as u32
         } else {
             self.index[s]
         }
+    }
+
+    /// When `ray` comes near each layer of cells ([`Near`]).
+    fn near(&self, ray: &RaySegment) -> Near {
+        let (lo, edge) = (self.frame.bounds.lo, self.frame.cell);
+        let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1;
+        let mut near = Near::default();
+        for a in 0..3 {
+            near.cells[a] = reach / edge[a];
+            near.at[a] = (ray.o[a] - lo[a]) / edge[a];
+            near.per_t[a] = ray.d[a] / edge[a];
+            let d = if ray.d[a] == 0.0 { 1e-200 } else { ray.d[a] };
+            let inv = 1.0 / d;
+            let (x0, x1) = (lo[a] - reach - ray.o[a], lo[a] + edge[a] + reach - ray.o[a]);
+            let (t0, t1) = (x0 * inv, x1 * inv);
+            (near.enter[a], near.exit[a]) = if inv > 0.0 { (t0, t1) } else { (t1, t0) };
+            near.step[a] = edge[a] * inv;
+        }
+        near
     }
 
     /// Start a traversal of a ray segment, |d| = 1, `inv_d` the direction's reciprocals.
@@ -1062,6 +1221,17 @@ impl SubGrid {
             ray: *ray,
             first: true,
             ahead: None,
+            prev: None,
+            corners: if self.quant.is_some() {
+                frame.corner_offsets(b.lo, self.frame.cell, ray.o)
+            } else {
+                [[0.0; 4]; 2]
+            },
+            near: if self.k == 1 {
+                self.near(ray)
+            } else {
+                Near::default()
+            },
             frame,
         }
     }
@@ -1085,6 +1255,9 @@ impl SubGrid {
         if self.k == 0 && !self.prefetch_slots {
             return self.advance_cached_sparse::<WIDE>(cur, found);
         }
+        if self.k == 1 && !self.prefetch_slots {
+            return self.advance_cached_near::<WIDE>(cur, found);
+        }
         let mut segs = [Segment::default(); SEGMENTS_PER_BATCH];
         let mut n = 0;
         // Infinity unless the batch fills up before the ray leaves the grid.
@@ -1099,7 +1272,17 @@ impl SubGrid {
             let t_enter = if cur.first { cur.ray.t0 } else { step.t_enter };
             let t_exit = if last { cur.ray.t1 } else { step.t_exit };
             cur.first = false;
-            n += self.step_rows(step.cell, step.index, t_enter, t_exit, &mut segs[n..]);
+            let prev = cur.prev.replace(step.cell);
+            n += self.step_rows(
+                step.cell,
+                step.index,
+                prev,
+                &cur.ray,
+                &cur.near,
+                t_enter,
+                t_exit,
+                &mut segs[n..],
+            );
             if last {
                 frontier = f64::INFINITY;
                 break;
@@ -1114,8 +1297,9 @@ impl SubGrid {
         let slots = self.slots();
         for sg in batch.iter_mut() {
             (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
-            if let Some(q) = &self.quant {
-                sg.off = q.offsets(self.frame.bounds.lo, sg.cell, &cur.frame, cur.ray.o);
+            if self.quant.is_some() {
+                sg.off = cur.offsets(sg.cell);
+                sg.base = QSlots::origin_bits(sg.cell);
             }
             if self.prefetch_slots {
                 for blk in sg.c0 / LANES..sg.c1.div_ceil(LANES) {
@@ -1209,8 +1393,14 @@ impl SubGrid {
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         let lo = self.frame.bounds.lo;
-        let mut m =
-            lanes & qblock_pretest::<WIDE>(&q.blocks[blk], q.block_reach[blk], &cur.frame, sg.off);
+        let mut m = lanes
+            & qblock_pretest::<WIDE>(
+                &q.blocks[blk],
+                q.block_reach[blk],
+                &cur.frame,
+                sg.off,
+                sg.base,
+            );
         while m != 0 {
             let s = LANES * blk + m.trailing_zeros() as usize;
             m &= m - 1;
@@ -1218,7 +1408,14 @@ impl SubGrid {
             if let Some(t) = ball_contribution(c, r, &cur.ray) {
                 let in_step = t >= sg.t_enter && t < sg.t_exit && cur.ray.contains(t);
                 if in_step {
-                    prefetch(self.slot_index.as_ptr().wrapping_add(s));
+                    let index = if self.k == 0 {
+                        &self.slot_index
+                    } else {
+                        &self.index
+                    };
+                    if !index.is_empty() {
+                        prefetch(index.as_ptr().wrapping_add(s));
+                    }
                     if !found(t, s) {
                         return false;
                     }
@@ -1273,10 +1470,11 @@ impl SubGrid {
                 t_enter: if cur.first { cur.ray.t0 } else { step.t_enter },
                 t_exit: if last { cur.ray.t1 } else { step.t_exit },
                 cell: step.cell,
-                off: [0.0; 2],
+                ..Segment::default()
             };
-            if let Some(q) = &self.quant {
-                sg.off = q.offsets(self.frame.bounds.lo, sg.cell, &cur.frame, cur.ray.o);
+            if self.quant.is_some() {
+                sg.off = cur.offsets(sg.cell);
+                sg.base = QSlots::origin_bits(sg.cell);
             }
             cur.first = false;
             // Whole blocks (padded cells): every lane is tested.
@@ -1297,13 +1495,76 @@ impl SubGrid {
         Some(frontier)
     }
 
-    /// The rows of cells one DDA step at cell `c` (linear `index`) scans (k = 0: the cell; k = 1: the 3×3 rows of the
-    /// 3×3×3 block around it), as segments [first cell, last cell + 1) of `start`; returns how many.
+    /// [`Self::advance`] for a k = 1 class whose slots stay cached: one pass per step (the few rows
+    /// near the ray it adds, `step_rows`), no batch to gather and prefetch.
+    /// The same contract as `advance`.
+    #[inline(always)]
+    fn advance_cached_near<const WIDE: bool>(
+        &self,
+        cur: &mut Cursor,
+        found: &mut impl FnMut(f64, usize) -> bool,
+    ) -> Option<f64> {
+        let slots = self.slots();
+        let mut rows = [Segment::default(); ROWS_PER_STEP];
+        let mut frontier = cur.ray.t0;
+        for _ in 0..SEGMENTS_PER_BATCH {
+            let Some(step) = cur.dda.next() else {
+                return Some(f64::INFINITY);
+            };
+            let last = cur.dda.finished();
+            let t_enter = if cur.first { cur.ray.t0 } else { step.t_enter };
+            let t_exit = if last { cur.ray.t1 } else { step.t_exit };
+            cur.first = false;
+            let prev = cur.prev.replace(step.cell);
+            let n = self.step_rows(
+                step.cell, step.index, prev, &cur.ray, &cur.near, t_enter, t_exit, &mut rows,
+            );
+            for sg in rows[..n].iter_mut() {
+                (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
+                if sg.c0 == sg.c1 {
+                    continue;
+                }
+                if self.quant.is_some() {
+                    sg.off = cur.offsets(sg.cell);
+                    sg.base = QSlots::origin_bits(sg.cell);
+                }
+                if !self.test_slots::<WIDE>(slots, sg, cur, found) {
+                    return None;
+                }
+            }
+            if last {
+                return Some(f64::INFINITY);
+            }
+            frontier = t_exit;
+        }
+        Some(frontier)
+    }
+
+    /// The rows of cells one DDA step at cell `c` (linear `index`) scans, as segments [first cell,
+    /// last cell + 1) of `start`; returns how many.
+    ///
+    /// * k = 0: the cell itself, contributions counted in the step's t range.
+    /// * k = 1: the cells around `c` that no earlier step tested and that a ball can reach the ray
+    ///   from. The 3×3×3 block around `c` holds every centre whose ball reaches the ray inside `c`
+    ///   (R ≤ one cell); consecutive blocks overlap in all but the 3×3 slab the step's move adds on
+    ///   the far side (a DDA step moves along one axis), so a step tests only that slab (the first
+    ///   step, `prev` None, the whole block), and of it only the rows the segment comes within R_max
+    ///   of (per axis, over the t interval where it is near the slab: one or two rows of a slab for
+    ///   balls much narrower than a cell). Every particle near the ray is then tested exactly once,
+    ///   and its contribution counts wherever it lies on the segment (the segments' t range is
+    ///   unbounded). In order: a particle contributing at t lies within R of the ray's point at t,
+    ///   whose cell the DDA visits at t, so it is tested by then; once a step is done every
+    ///   contribution before its exit is known (the walk holds later ones back:
+    ///   `ParticleGrid::walk_lanes`).
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn step_rows(
         &self,
         c: [usize; 3],
         index: usize,
+        prev: Option<[usize; 3]>,
+        ray: &RaySegment,
+        near: &Near,
         t_enter: f64,
         t_exit: f64,
         out: &mut [Segment],
@@ -1315,25 +1576,88 @@ impl SubGrid {
                 t_enter,
                 t_exit,
                 cell: c,
-                off: [0.0; 2],
+                ..Segment::default()
             };
             return 1;
         }
-        let mut n = 0;
         let dims = self.frame.dims;
-        let x0 = c[0].saturating_sub(1);
-        let x1 = (c[0] + 1).min(dims[0] - 1);
-        for z in c[2].saturating_sub(1)..=(c[2] + 1).min(dims[2] - 1) {
-            for y in c[1].saturating_sub(1)..=(c[1] + 1).min(dims[1] - 1) {
-                // A row of cells is contiguous in `start`, so their slots are one run.
+        // Cells within one of `c` along axis a (clamped to the grid), or the slab's one coordinate.
+        let mut range = [0, 1, 2].map(|a| [c[a].saturating_sub(1), (c[a] + 1).min(dims[a] - 1)]);
+        // Where the segment comes within R_max of the candidate cells: first a t interval (near the
+        // slab's layer, or near the block along every axis), then along each other axis the layers
+        // the ray's coordinate comes near over that interval (a cell whose grown box the ray crosses
+        // at t has t in the interval and its layers within R_max of the coordinates there: none is
+        // dropped).
+        let (mut t0, mut t1) = (ray.t0, ray.t1);
+        let mut slab_axis = 3;
+        if let Some(p) = prev {
+            let a = (0..3).find(|&a| p[a] != c[a]).unwrap_or(0);
+            let far = if c[a] > p[a] {
+                c[a] + 1
+            } else {
+                c[a].wrapping_sub(1)
+            };
+            if far >= dims[a] {
+                return 0; // the slab lies outside the grid
+            }
+            range[a] = [far, far];
+            slab_axis = a;
+            t0 = fmax(t0, near.enter[a] + far as f64 * near.step[a]);
+            t1 = fmin(t1, near.exit[a] + far as f64 * near.step[a]);
+        } else {
+            for a in 0..3 {
+                let [m0, m1] = range[a];
+                let (first, last) = if near.step[a] > 0.0 {
+                    (m0, m1)
+                } else {
+                    (m1, m0)
+                };
+                t0 = fmax(t0, near.enter[a] + first as f64 * near.step[a]);
+                t1 = fmin(t1, near.exit[a] + last as f64 * near.step[a]);
+            }
+        }
+        if t0 > t1 {
+            return 0;
+        }
+        for a in 0..3 {
+            if a == slab_axis {
+                continue;
+            }
+            // The coordinate in cells from the grid's corner at both ends, grown by R_max: layer m is
+            // near where [m, m + 1) meets [from, to] (comparisons only: the candidates are c ± 1).
+            let (p, q) = (
+                near.at[a] + t0 * near.per_t[a],
+                near.at[a] + t1 * near.per_t[a],
+            );
+            let (from, to) = (fmin(p, q) - near.cells[a], fmax(p, q) + near.cells[a]);
+            let [mut m0, mut m1] = range[a];
+            while m0 <= m1 && ((m0 + 1) as f64) <= from {
+                m0 += 1;
+            }
+            while m1 >= m0 && (m1 as f64) > to {
+                if m1 == 0 {
+                    return 0;
+                }
+                m1 -= 1;
+            }
+            if m0 > m1 {
+                return 0;
+            }
+            range[a] = [m0, m1];
+        }
+        let mut n = 0;
+        let (first, last) = (range[0][0], range[0][1]);
+        for z in range[2][0]..=range[2][1] {
+            for y in range[1][0]..=range[1][1] {
                 let row = (z * dims[1] + y) * dims[0];
                 out[n] = Segment {
-                    c0: row + x0,
-                    c1: row + x1 + 1,
-                    t_enter,
-                    t_exit,
-                    cell: c,
-                    off: [0.0; 2],
+                    c0: row + first,
+                    c1: row + last + 1,
+                    t_enter: f64::NEG_INFINITY,
+                    t_exit: f64::INFINITY,
+                    // The row's first cell: quantised slots decode relative to it.
+                    cell: [first, y, z],
+                    ..Segment::default()
                 };
                 n += 1;
             }
@@ -1355,7 +1679,10 @@ impl SubGrid {
         }
         let mut rows = [Segment::default(); ROWS_PER_STEP];
         let index = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
-        let n = self.step_rows(c, index, 0.0, 0.0, &mut rows);
+        // The point as a ray of no length: only the cells within R_max of it.
+        let at_p = RaySegment::new(p, [1.0, 0.0, 0.0], 0.0, 0.0);
+        let near = self.near(&at_p);
+        let n = self.step_rows(c, index, None, &at_p, &near, 0.0, 0.0, &mut rows);
         for sg in &rows[..n] {
             for s in self.start[sg.c0] as usize..self.start[sg.c1] as usize {
                 let (q, r) = self.slot_ball(s, sg.cell);
@@ -1420,6 +1747,10 @@ pub struct GridSettings {
     /// Quantise the slots of sparse (k = 0) classes ([`QSlots`]: centres on a lattice of 2^14 steps
     /// per cell, radii and τ by code): compact storage's 12 bytes per slot instead of 24.
     pub quantise: bool,
+    /// Store every class by its centres' cells (k = 1: each particle once, the walk scanning the
+    /// cells around the ray) instead of referencing sparse classes' balls from every cell they
+    /// overlap: with `quantise`, eight bytes per particle instead of ~2.5 slots of twelve.
+    pub centre_cells: bool,
 }
 
 impl GridSettings {
@@ -1428,11 +1759,19 @@ impl GridSettings {
             query_radius,
             cells_per_particle,
             quantise: false,
+            centre_cells: false,
         }
     }
-    /// The same settings, quantising sparse classes' slots or not.
+    /// The same settings, quantising the slots or not.
     pub fn quantised(self, quantise: bool) -> Self {
         GridSettings { quantise, ..self }
+    }
+    /// The same settings, every class stored by its centres' cells or not.
+    pub fn centred(self, centre_cells: bool) -> Self {
+        GridSettings {
+            centre_cells,
+            ..self
+        }
     }
 }
 
@@ -1769,23 +2108,27 @@ impl ParticleGrid {
         };
         let mut pending: Vec<(f64, u32, u32)> = Vec::new();
         if let [c] = &self.classes[..] {
-            // One class: each batch is complete up to its frontier, in t order once sorted.
+            // One class: each batch is complete up to its frontier, in t order once sorted (a k = 1
+            // batch may also find contributions past its frontier: they wait for the next).
             let mut cur = c.cursor(ray, inverse(ray.d));
             loop {
-                pending.clear();
-                let frontier = c.advance::<WIDE>(&mut cur, &mut |t, j| {
-                    pending.push((t, 0, j as u32));
-                    true
-                });
+                let frontier = c
+                    .advance::<WIDE>(&mut cur, &mut |t, j| {
+                        pending.push((t, 0, j as u32));
+                        true
+                    })
+                    .unwrap_or(f64::INFINITY);
                 pending.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
-                for h in &pending {
+                let n = pending.partition_point(|h| h.0 < frontier);
+                for h in &pending[..n] {
                     if !emit(h) {
                         return;
                     }
                 }
-                if frontier == Some(f64::INFINITY) {
+                if frontier == f64::INFINITY {
                     return;
                 }
+                pending.drain(..n);
             }
         }
         let inv_d = inverse(ray.d);
@@ -1964,6 +2307,42 @@ impl ParticleGrid {
         out
     }
 
+    /// The same grid reporting each particle by its position in the grid's storage (classes in turn,
+    /// each in its storage order) instead of its original index, and that order: the original index
+    /// of the particle at each position. Centre-cell classes then keep no index at all (four bytes a
+    /// particle: compact storage's identities, `crate::render::storage`); a medium looks up what it
+    /// keeps per particle by position. Call before [`Self::release_stored`].
+    pub fn positional(mut self) -> (Self, Vec<u32>) {
+        let mut order = Vec::with_capacity(self.n);
+        for c in &mut self.classes {
+            assert_eq!(
+                c.index.len(),
+                c.count,
+                "positional() before release_stored()"
+            );
+            c.first_id = order.len() as u32;
+            if c.k == 0 {
+                // Overlap slots name their particle per slot: renamed through a map of the class.
+                let at: rustc_hash::FxHashMap<u32, u32> = c
+                    .index
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &i)| (i, c.first_id + j as u32))
+                    .collect();
+                c.slot_index
+                    .iter_mut()
+                    .filter(|i| **i != u32::MAX)
+                    .for_each(|i| *i = at[i]);
+                order.extend_from_slice(&c.index);
+                c.index = (c.first_id..c.first_id + c.count as u32).collect();
+            } else {
+                order.append(&mut c.index);
+                c.index = Vec::new();
+            }
+        }
+        (self, order)
+    }
+
     /// Drop the stored copies of particles that the slots of their cells duplicate (classes whose
     /// cells reference every overlapping ball, k = 0): walks and point queries read only the slots,
     /// and the oracles read them too. Saves the sphere, τ and index of each such particle (24 bytes at
@@ -2099,35 +2478,61 @@ mod tests {
         (pos, rad, cext)
     }
 
+    /// Every contribution a walk reports along `ray`: (t, τ per channel, `name` of the particle).
+    fn walk_hits(
+        g: &ParticleGrid,
+        ray: &RaySegment,
+        name: impl Fn(u32) -> u32,
+    ) -> Vec<(f64, Vec<f32>, u32)> {
+        let mut h = Vec::new();
+        g.walk(ray, |t, tau, i| {
+            h.push((t, tau.to_vec(), name(i)));
+            true
+        });
+        h
+    }
+
+    /// Grids of particles (`pos`, `rad`, `cext` of two channels) in the layouts (query radius, cells
+    /// per particle, quantised, centre cells) `layouts`.
+    fn grids_of<'a>(
+        pos: &'a [[f64; 3]],
+        rad: &'a [f64],
+        cext: &'a [f64],
+        layouts: &'a [(f64, f64, bool, bool)],
+    ) -> impl Iterator<Item = ((f64, f64, bool, bool), ParticleGrid)> + 'a {
+        layouts.iter().map(move |&(rc, cpp, quantise, centred)| {
+            let settings = GridSettings::new(rc, cpp)
+                .quantised(quantise)
+                .centred(centred);
+            let g = ParticleGrid::build(pos, rad, cext, 2, &settings).unwrap();
+            ((rc, cpp, quantise, centred), g)
+        })
+    }
+
     /// A grid whose sparse classes released their stored copies (what a medium keeps) answers every
     /// query as before, its oracles read the slots, and it keeps fewer bytes.
     #[test]
     fn released_grid_answers_the_same() {
         let mut s = 5u64;
         let (pos, rad, cext) = two_channel_particles(&mut s);
-        for (rc, cpp, quantise) in [
-            (0.01, 1.0, false),
-            (0.0, 20.0, false),
-            (0.01, 1.0, true),
-            (0.0, 20.0, true),
-        ] {
-            let settings = GridSettings::new(rc, cpp).quantised(quantise);
-            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
-            let mut r = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
+        let layouts = [
+            (0.01, 1.0, false, false),
+            (0.0, 20.0, false, false),
+            (0.01, 1.0, true, false),
+            (0.0, 20.0, true, false),
+            (0.01, 1.0, true, true),
+        ];
+        let released = grids_of(&pos, &rad, &cext, &layouts).map(|(_, mut r)| {
             r.release_stored();
-            assert!(r.bytes() < g.bytes() && r.len() == g.len());
+            r
+        });
+        for (((.., centred), g), r) in grids_of(&pos, &rad, &cext, &layouts).zip(released) {
+            // Centred classes store each particle once: nothing to release.
+            assert!(r.bytes() < g.bytes() || centred && r.bytes() == g.bytes());
+            assert_eq!(r.len(), g.len());
             let frame = &g.classes[0].frame;
             for ray in &test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]) {
-                let (mut a, mut b) = (Vec::new(), Vec::new());
-                g.walk(ray, |t, tau, i| {
-                    a.push((t, tau.to_vec(), i));
-                    true
-                });
-                r.walk(ray, |t, tau, i| {
-                    b.push((t, tau.to_vec(), i));
-                    true
-                });
-                assert_eq!(a, b);
+                assert_eq!(walk_hits(&g, ray, |i| i), walk_hits(&r, ray, |i| i));
                 let (mut x, mut y) = (vec![0.0; 2], vec![0.0; 2]);
                 g.optical_depth_brute(ray, &mut x);
                 r.optical_depth_brute(ray, &mut y);
@@ -2151,6 +2556,57 @@ mod tests {
         }
     }
 
+    /// A positional grid (`ParticleGrid::positional`) reports the same particles in the same order,
+    /// named by their positions, which its order maps back to the original indices; centre-cell
+    /// classes then keep no index.
+    #[test]
+    fn positional_ids_name_the_same_particles() {
+        let mut s = 13u64;
+        let (pos, rad, cext) = two_channel_particles(&mut s);
+        let layouts = [
+            (0.01, 1.0, true, false),
+            (0.0, 20.0, false, false),
+            (0.01, 1.0, true, true),
+            (0.2, 5.0, true, true),
+            (0.01, 1.0, false, true),
+        ];
+        let positional = grids_of(&pos, &rad, &cext, &layouts).map(|(_, g)| {
+            let (mut p, order) = g.positional();
+            p.release_stored();
+            (p, order)
+        });
+        for (((.., centred), g), (p, order)) in
+            grids_of(&pos, &rad, &cext, &layouts).zip(positional)
+        {
+            let mut sorted = order.clone();
+            sorted.sort_unstable();
+            assert!(sorted.iter().enumerate().all(|(j, &i)| j as u32 == i));
+            if centred {
+                assert!(
+                    p.bytes() + 4 * pos.len() <= g.bytes(),
+                    "{} {}",
+                    p.bytes(),
+                    g.bytes()
+                );
+            }
+            let frame = &g.classes[0].frame;
+            for ray in &test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]) {
+                assert_eq!(
+                    walk_hits(&g, ray, |i| i),
+                    walk_hits(&p, ray, |j| order[j as usize])
+                );
+            }
+            for _ in 0..100 {
+                let q = [lcg(&mut s), lcg(&mut s), lcg(&mut s)];
+                let mut a = g.containing(q);
+                let mut b: Vec<u32> = p.containing(q).iter().map(|&j| order[j as usize]).collect();
+                a.sort();
+                b.sort();
+                assert_eq!(a, b);
+            }
+        }
+    }
+
     /// The AVX2 walk (where the CPU has it, whatever `MOTES_SIMD` says) and the SSE/scalar one report
     /// the same hits, in the same order, on sparse and dense classes and on rays along the axes.
     #[test]
@@ -2167,16 +2623,21 @@ mod tests {
         let mut s = 11u64;
         let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
         let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
-        for (rc, cpp, quantise) in [
-            (0.01, 1.0, false),
-            (0.0, 0.125, false),
-            (0.2, 5.0, false),
-            (0.0, 20.0, false),
-            (0.01, 1.0, true),
-            (0.0, 0.125, true),
-            (0.0, 20.0, true),
+        for (rc, cpp, quantise, centred) in [
+            (0.01, 1.0, false, false),
+            (0.0, 0.125, false, false),
+            (0.2, 5.0, false, false),
+            (0.0, 20.0, false, false),
+            (0.01, 1.0, true, false),
+            (0.0, 0.125, true, false),
+            (0.0, 20.0, true, false),
+            (0.01, 1.0, true, true),
+            (0.0, 0.125, true, true),
+            (0.2, 5.0, true, true),
         ] {
-            let settings = GridSettings::new(rc, cpp).quantised(quantise);
+            let settings = GridSettings::new(rc, cpp)
+                .quantised(quantise)
+                .centred(centred);
             let g = ParticleGrid::build(&pos, &rad, &cext, 1, &settings).unwrap();
             let frame = &g.classes[0].frame;
             let rays = test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]);
@@ -2214,7 +2675,7 @@ mod tests {
     fn grid_equals_brute_force() {
         let mut s = 7u64;
         let (pos, rad, cext) = two_channel_particles(&mut s);
-        for ((rc, cpp), quantise) in [
+        for ((rc, cpp), quantise, centred) in [
             (0.0, 1.0),
             (0.01, 1.0),
             (0.05, 0.2),
@@ -2223,15 +2684,23 @@ mod tests {
             (0.0, 20.0),
         ]
         .into_iter()
-        .flat_map(|x| [(x, false), (x, true)])
-        {
-            let settings = GridSettings::new(rc, cpp).quantised(quantise);
+        .flat_map(|x| {
+            [
+                (x, false, false),
+                (x, true, false),
+                (x, true, true),
+                (x, false, true),
+            ]
+        }) {
+            let settings = GridSettings::new(rc, cpp)
+                .quantised(quantise)
+                .centred(centred);
             let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
-            assert_eq!(
-                g.classes.iter().any(|c| c.quant.is_some()),
-                quantise && g.classes.iter().any(|c| c.k == 0),
-                "sparse classes are quantised exactly when asked"
+            assert!(
+                g.classes.iter().all(|c| c.quant.is_some() == quantise),
+                "classes are quantised exactly when asked"
             );
+            assert!(!centred || g.classes.iter().all(|c| c.k == 1));
             if rc == 0.0 && cpp == 1.0 {
                 // Every class is sparse at this resolution: one grid (merge_sparse_classes).
                 assert_eq!(g.class_count(), 1);
