@@ -149,7 +149,8 @@ for f in (lambda: motes.LogNormal(10.0, 1.5).sample(10**12),
 
 def test_memory_estimate_bounds_the_build():
     """The per-particle estimates the memory check uses bound what building a medium really takes (peak
-    resident memory in a fresh process, inputs included; Linux /proc), sparse and dense."""
+    resident memory in a fresh process, inputs included; Linux /proc), sparse and dense, full and compact
+    storage."""
     if not pathlib.Path("/proc/self/clear_refs").exists():
         pytest.skip("needs Linux /proc to reset and read the peak resident size")
     import subprocess
@@ -168,19 +169,21 @@ with open("/proc/self/clear_refs", "w") as f:
     f.write("5")  # reset the peak (VmHWM) to the current resident size
 r = sp.psd.sample(n, seed=1)
 pos = np.random.default_rng(0).uniform(-10, 10, (n, 3))
-m = motes.DiscreteMedium(pos, r, np.zeros(n, int), sp, motes.RGB_WAVELENGTHS_UM, scale_m=0.01, query_radius=0.03)
+m = motes.DiscreteMedium(pos, r, np.zeros(n, int), sp, motes.RGB_WAVELENGTHS_UM, scale_m=0.01, query_radius=0.03,
+                         storage="STORAGE")
 extent = float(np.max(pos.max(axis=0) - pos.min(axis=0)))
-print((status("VmHWM:") - base) / n, _memory.BYTES_PER_PARTICLE, _memory.bytes_per_particle(n, extent, 0.03 + r.max() * 1e-4))
+print((status("VmHWM:") - base) / n, _memory.bytes_per_particle(n, extent, 0.03 + r.max() * 1e-4, "STORAGE"))
 """
-    for spread, dense in ((10, False), (1, True)):
+    for spread, storage, sparse_full in ((10, "full", True), (1, "full", False), (10, "compact", False),
+                                         (1, "compact", False)):
         # Sparse grains (balls narrower than the cells) and a dense cloud (the same grains in a box 1000x
-        # smaller): each within its own estimate, and the estimate picks the right one.
-        r = subprocess.run([sys.executable, "-c", code.replace("uniform(-10, 10", f"uniform(-{spread}, {spread}")],
-                           capture_output=True, text=True, timeout=300)
+        # smaller), in each storage: each within its own estimate, and the estimate picks the right one.
+        src = code.replace("uniform(-10, 10", f"uniform(-{spread}, {spread}").replace("STORAGE", storage)
+        r = subprocess.run([sys.executable, "-c", src], capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr[-2000:]
-        used, estimate, chosen = map(float, r.stdout.split())
-        assert chosen == (_memory.BYTES_PER_PARTICLE_DENSE if dense else _memory.BYTES_PER_PARTICLE)
-        assert 50 <= used <= chosen, (spread, used, chosen)
+        used, chosen = map(float, r.stdout.split())
+        assert chosen == (_memory.BYTES_PER_PARTICLE if sparse_full else _memory.BYTES_PER_PARTICLE_DENSE)
+        assert 50 <= used <= chosen, (spread, storage, used, chosen)
 
 
 def _cube_scene(integrator: str) -> dict:

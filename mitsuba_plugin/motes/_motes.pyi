@@ -108,9 +108,10 @@ class DiscreteMedium:
     def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], albedo: F64,
                  theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64, query_radius: float,
                  tau_max: float, cells_per_particle: float, continuous_count: float, seed: int,
-                 storage: str = "full") -> None:
-        """radius in scene units; q_ext: each bin's grey extinction efficiency (C_ext = pi r^2 q_ext);
-        storage "compact" or "full" (rust/motes-core/src/render/storage.rs)."""
+                 storage: str = "full", radius_scale: float = 1.0) -> None:
+        """radius x radius_scale in scene units (radii in um pass their scale, not a scaled copy); q_ext: each
+        bin's grey extinction efficiency (C_ext = pi r^2 q_ext); storage "compact" or "full"
+        (rust/motes-core/src/render/storage.rs)."""
     @staticmethod
     def procedural(count: float, lo: list[float], hi: list[float], kind: str, params: list[float], noise_seed: int,
                    psds: list[Psd], shares: list[float], cloud_seed: int, transform: list[list[float]],

@@ -129,7 +129,7 @@ def _checked_optics_inputs(species, wavelength_um, size_bins, scale_m):
 
 
 def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius,
-                    tau_max, cells_per_particle, continuous_count):
+                    tau_max, cells_per_particle, continuous_count, storage=DEFAULT_STORAGE):
     """The inputs as arrays (positions, radii, species index, species list, wavelengths as given and sorted), checked."""
     pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
@@ -151,7 +151,8 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
         lo_box, hi_box = box_of(pos)
         extent = float(np.max(hi_box - lo_box))
         reach_max = float(query_radius) + float(r.max()) * 1e-6 / scale_m
-        _memory.require(_memory.bytes_per_particle(n, extent, reach_max) * n, f"a discrete medium of {n} particles")
+        _memory.require(_memory.bytes_per_particle(n, extent, reach_max, storage) * n,
+                        f"a discrete medium of {n} particles")
     # The core's own rules, checked now rather than after minutes of optics tables.
     _motes.check_discrete_inputs(pos.ravel(), r, float(query_radius), float(tau_max), float(cells_per_particle),
                                  float(continuous_count))
@@ -242,7 +243,7 @@ class DiscreteMedium:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
         pos, r, idx, species, lam_in, lam = _checked_inputs(
             positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius, tau_max,
-            cells_per_particle, continuous_count)
+            cells_per_particle, continuous_count, storage)
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 
@@ -345,12 +346,13 @@ class DiscreteMedium:
         self.wavelength_um = lam
         #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
+        # Radii in um with their scale (a scaled copy of 1e8 radii would be 800 MB).
         self._core = _motes.DiscreteMedium(
-            pos.ravel(), r * um, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
+            pos.ravel(), r, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
             np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
             np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
-            float(continuous_count), int(seed) & (2**64 - 1), self.storage)
+            float(continuous_count), int(seed) & (2**64 - 1), self.storage, radius_scale=um)
         log.info("grid: %d particles, %.1f MB, %.1f s", n, self._core.bytes / 1e6, time.perf_counter() - t_grid)
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened

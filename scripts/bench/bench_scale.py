@@ -21,12 +21,16 @@ motes (median 100 um, sigma_g 1.3), query radius from Eq. 23 (k 0.7 at 0.5 m). W
 generated brick by brick where rays go; ``B/particle`` is then the medium's bytes after the renders (the
 bricks in its cache) over the count.
 
+With ``--discrete`` every grain of the room's cube stays discrete and stored (``continuous_count`` = inf: no
+size class is seen as a continuous medium), the case where the grid holds every particle.
+
 With ``--source file`` the grains come from a particle file instead (``filename``: an uncompressed .npz of
 float64 positions in [-1, 1]^3, float64 radii and uint32 species, written beforehand by another process
 from the same generator; its reading is part of the load); with ``--source ply`` a binary PLY (float64
 x y z radius, int32 species; read with meshio) instead.
 
     .venv/bin/python scripts/bench/bench_scale.py [--counts 1e6,1e7] [--storage compact] [--variant scalar_rgb] [--source file|ply]
+    .venv/bin/python scripts/bench/bench_scale.py --discrete --counts 1e6,1e7,1e8
     .venv/bin/python scripts/bench/bench_scale.py --storage procedural [--counts 1e6,1e8]
     .venv/bin/python scripts/bench/bench_scale.py --storage procedural --scene nave --counts 1e10,1e11,1e12
     .venv/bin/python scripts/bench/bench_scale.py --storage procedural --scene nave --counts 1e8 --res 32 --spp 1 [--cache-mb 16000]
@@ -89,7 +93,7 @@ def nave(mi, count: float, res: int, spp: int, cache_mb: float | None = None) ->
 
 
 def child(count: float, storage: str, variant: str, res: int, spp: int, filename: str | None = None,
-          scene_name: str = "room", cache_mb: float | None = None) -> dict:
+          scene_name: str = "room", cache_mb: float | None = None, discrete: bool = False) -> dict:
     """One row, measured in this (fresh) process."""
     import numpy as np  # noqa: PLC0415
 
@@ -112,6 +116,8 @@ def child(count: float, storage: str, variant: str, res: int, spp: int, filename
         medium["filename"] = filename
     if storage:
         medium["storage"] = storage
+    if discrete:
+        medium["continuous_count"] = float("inf")
     scene = BR.room(mi, medium, res, spp, max_depth=6)
     scene["cube"]["to_world"] = mi.ScalarTransform4f().scale(HALF)
     return measure(mi, np, _memory, scene, count, storage, variant, before)
@@ -150,6 +156,7 @@ def main() -> None:
                     help="generated grains, or grains read from an .npz (file) or a binary PLY (ply) file")
     ap.add_argument("--scene", default="room", choices=["room", "nave"])
     ap.add_argument("--cache-mb", type=float, default=None, help="the nave's cache_mb (default: the plugin's)")
+    ap.add_argument("--discrete", action="store_true", help="every grain discrete (continuous_count = inf)")
     ap.add_argument("--child", type=float, default=None, help=argparse_hidden())
     ap.add_argument("--file", default=None, help=argparse_hidden())
     ap.add_argument("--write", action="store_true", help=argparse_hidden())
@@ -159,7 +166,7 @@ def main() -> None:
         return
     if args.child is not None:
         print("RESULT " + json.dumps(child(args.child, args.storage, args.variant, args.res, args.spp, args.file,
-                                           args.scene, args.cache_mb)))
+                                           args.scene, args.cache_mb, args.discrete)))
         return
     out, sw = C.out_dir(args.out), C.Stopwatch()
     rows = []
@@ -168,6 +175,8 @@ def main() -> None:
                args.variant, "--res", str(args.res), "--spp", str(args.spp), "--scene", args.scene]
         if args.cache_mb:
             cmd += ["--cache-mb", str(args.cache_mb)]
+        if args.discrete:
+            cmd += ["--discrete"]
         path = None
         if args.source in ("file", "ply"):
             path = str(out / f"bench_scale_{count:.0e}.{'npz' if args.source == 'file' else 'ply'}")
@@ -196,13 +205,14 @@ def main() -> None:
                   f"{row['bytes_per_particle']:.3g} B/particle ({row['medium_mb']:.0f} MB), render "
                   f"{row['render_first_s']:.2f} s (again {row['render_s']:.2f} s), continuous "
                   f"{row['continuous']:.3g}, mean {row['image_mean']:.4g}", flush=True)
-    C.print_table(f"**{args.variant}, {args.scene}, {args.source} grains, storage {args.storage or 'default'}, "
+    C.print_table(f"**{args.variant}, {args.scene}{' (all discrete)' if args.discrete else ''}, {args.source} grains, "
+                  f"storage {args.storage or 'default'}, "
                   f"{args.res}^2 px, {args.spp} spp**",
                   ["count", "load (s)", "peak (GB)", "B/particle", "medium (MB)", "render (s)", "again (s)"],
                   [[f"{r['count']:.0e}", r.get("load_s", r.get("error")), r.get("peak_gb", "-"),
                     r.get("bytes_per_particle", "-"), r.get("medium_mb", "-"), r.get("render_first_s", "-"),
                     r.get("render_s", "-")] for r in rows])
-    tag = f"_cache{args.cache_mb:.0f}" if args.cache_mb else ""
+    tag = (f"_cache{args.cache_mb:.0f}" if args.cache_mb else "") + ("_discrete" if args.discrete else "")
     C.finish(args, sw, out / f"bench_scale_{args.variant}_{args.scene}_{args.source}_{args.storage or 'default'}{tag}.json",
              rows=rows)
 

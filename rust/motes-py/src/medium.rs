@@ -64,7 +64,7 @@ impl PyDiscreteMedium {
     /// at least continuous_count particles per query cylinder are sampled as a continuous medium;
     /// storage "compact" (per-class optics, quantised radii) or "full" (`motes_core::render::storage`).
     #[new]
-    #[pyo3(signature = (positions, radius, q_ext, bin, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, storage="full"))]
+    #[pyo3(signature = (positions, radius, q_ext, bin, albedo, theta, f, offsets, lambda, query_radius, tau_max, cells_per_particle, continuous_count, seed, storage="full", radius_scale=1.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -83,6 +83,7 @@ impl PyDiscreteMedium {
         continuous_count: f64,
         seed: u64,
         storage: &str,
+        radius_scale: f64,
     ) -> PyResult<Self> {
         let storage = motes_core::render::storage::Storage::parse(storage).map_err(to_py)?;
         let lam = lambda.as_slice()?.to_vec();
@@ -104,12 +105,17 @@ impl PyDiscreteMedium {
         }
         // The core checks the lengths and each bin index before it forms any cross section.
         let _ = py;
-        let c_ext = |i: usize| std::f64::consts::PI * r[i] * r[i] * q[b[i] as usize];
+        // Radii in scene units are r × radius_scale (the core checks the scale).
+        let c_ext = |i: usize| {
+            let r = r[i] * radius_scale;
+            std::f64::consts::PI * r * r * q[b[i] as usize]
+        };
         let medium = motes_core::render::discrete::DiscreteMedium::build(
             pos,
             r,
+            radius_scale,
             &c_ext,
-            b.to_vec(),
+            b,
             bins,
             lam,
             query_radius,

@@ -103,7 +103,7 @@ pub(crate) struct Classes {
 
 /// The classes of particles with radii `radius`, cross sections `c_ext` and bins `bin` (module docs).
 pub(crate) fn classes(
-    radius: &[f64],
+    radius: Column,
     c_ext: Column,
     bin: &[u32],
     bins: usize,
@@ -120,8 +120,8 @@ pub(crate) fn classes(
     let mut hi = vec![0.0f64; bins];
     let mut q = vec![0.0f64; bins];
     let mut count = vec![0usize; bins];
-    for (i, (&r, &b)) in radius.iter().zip(bin).enumerate() {
-        let (b, c) = (b as usize, c_ext(i));
+    for (i, &b) in bin.iter().enumerate() {
+        let (r, b, c) = (radius(i), b as usize, c_ext(i));
         lo[b] = lo[b].min(r);
         hi[b] = hi[b].max(r);
         q[b] += c / (PI * r * r);
@@ -144,11 +144,6 @@ pub(crate) fn classes(
             0
         }
     };
-    let level_codes: Vec<u32> = radius
-        .iter()
-        .zip(bin)
-        .map(|(&r, &b)| (b as usize * LEVELS_PER_BIN + level_of(r, b as usize)) as u32)
-        .collect();
     // Only the classes some particle is in, numbered densely (a small medium keeps a small table).
     let mut dense = vec![u32::MAX; bins * LEVELS_PER_BIN];
     let (mut radius_c, mut c_c, mut bin_c) = (Vec::new(), Vec::new(), Vec::new());
@@ -161,10 +156,12 @@ pub(crate) fn classes(
             }
         })
         .collect();
-    let codes = level_codes
+    // Each particle's level, numbered densely (one pass: no column of levels for 10^8 particles).
+    let codes = bin
         .iter()
-        .map(|&k| {
-            let k = k as usize;
+        .enumerate()
+        .map(|(i, &b)| {
+            let k = b as usize * LEVELS_PER_BIN + level_of(radius(i), b as usize);
             if dense[k] == u32::MAX {
                 let (b, l) = (k / LEVELS_PER_BIN, k % LEVELS_PER_BIN);
                 let r = lo[b] * ((l as f64 + 0.5) * step[b]).exp();
@@ -272,7 +269,7 @@ mod tests {
             .zip(&bin)
             .map(|(&r, &b)| PI * r * r * (2.0 + b as f64))
             .collect();
-        let c = classes(&radius, &|i| c_ext[i], &bin, 2).unwrap();
+        let c = classes(&|i| radius[i], &|i| c_ext[i], &bin, 2).unwrap();
         for (i, &k) in c.codes.iter().enumerate() {
             let k = k as usize;
             assert_eq!(c.bin[k], bin[i]);
@@ -300,7 +297,7 @@ mod tests {
     /// A bin whose particles share one radius keeps it exactly.
     #[test]
     fn a_monodisperse_bin_is_exact() {
-        let c = classes(&[3.0; 10], &|_| PI * 18.0, &[0; 10], 1).unwrap();
+        let c = classes(&|_| 3.0, &|_| PI * 18.0, &[0; 10], 1).unwrap();
         assert!(c.codes.iter().all(|&k| k == 0) && c.radius.len() == 1);
         assert_eq!(c.radius[0], 3.0);
         assert!((c.c_ext[0] - PI * 18.0).abs() < 1e-12);

@@ -57,14 +57,51 @@ use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
 use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 
+/// A per-particle value, by the caller's particle index: a column need not exist as an array (10^8
+/// particles; `DiscreteMedium` derives its grid's radii and cross sections from class tables).
+pub type Column<'a> = &'a (dyn Fn(usize) -> f64 + Sync);
+/// A per-particle value per channel: (particle index, channel).
+pub type ChannelColumn<'a> = &'a (dyn Fn(usize, usize) -> f64 + Sync);
+
+/// The particles a grid is built over, read through the caller's columns (no copies): its particles
+/// `ids` (None: all of `positions`), each reported by its index.
+#[derive(Clone, Copy)]
+pub struct Particles<'a> {
+    pub positions: &'a [[f64; 3]],
+    pub ids: Option<&'a [u32]>,
+    /// Geometric radius (scene units).
+    pub radius: Column<'a>,
+    /// Extinction cross section per channel (scene units²).
+    pub c_ext: ChannelColumn<'a>,
+    pub channels: usize,
+}
+
+impl Particles<'_> {
+    fn len(&self) -> usize {
+        self.ids.map_or(self.positions.len(), <[u32]>::len)
+    }
+    /// The caller's index of the j-th particle.
+    #[inline]
+    fn id(&self, j: usize) -> usize {
+        self.ids.map_or(j, |v| v[j] as usize)
+    }
+}
+
 /// Axis-aligned bounding box of the centres (in parallel: 10^8 centres are 2.4 GB to read).
 pub fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    bounding_box_by(positions.len(), |i| positions[i])
+}
+
+/// [`bounding_box`] of the `n` centres `at(0..n)`.
+fn bounding_box_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync) -> ([f64; 3], [f64; 3]) {
     let empty = || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    positions
-        .par_chunks(1 << 16)
-        .map(|chunk| {
+    const CHUNK: usize = 1 << 16;
+    (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
             let (mut lo, mut hi) = empty();
-            for p in chunk {
+            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let p = at(i);
                 for a in 0..3 {
                     lo[a] = lo[a].min(p[a]);
                     hi[a] = hi[a].max(p[a]);
@@ -701,7 +738,7 @@ fn counting_sort(keys: &[u32], n_keys: usize) -> (Vec<u32>, Vec<u32>) {
 /// particle of each slot (`PADDING_SLOT` for padding).
 fn inline_slots(
     at: &(impl Fn(usize) -> [f64; 3] + Sync),
-    reach: &[f64],
+    reach: &impl Fn(usize) -> f64,
     order: &[u32],
     lo: [f64; 3],
     cell: f64,
@@ -717,7 +754,7 @@ fn inline_slots(
     let mut ref_cell = Vec::new();
     let mut ref_particle = Vec::new();
     for (j, &i) in order.iter().enumerate() {
-        let (p, r) = (at(i as usize), reach[i as usize] * BOX_MARGIN.0);
+        let (p, r) = (at(i as usize), reach(i as usize) * BOX_MARGIN.0);
         let rg = [0, 1, 2].map(|a| axis_range(p[a], r, a));
         for z in rg[2][0]..=rg[2][1] {
             for y in rg[1][0]..=rg[1][1] {
@@ -761,9 +798,9 @@ fn slot_spheres(slot_particle: &[u32], particles: &Spheres) -> Spheres {
 /// stored particle (k = 0), or None where slot j is stored particle j (k = 1).
 #[allow(clippy::too_many_arguments)]
 fn build_qslots(
-    positions: &[[f64; 3]],
-    reach: &[f64],
-    tau: &[f32],
+    position: impl Fn(usize) -> [f64; 3],
+    reach: impl Fn(usize) -> f64,
+    tau: impl Fn(usize, usize) -> f32,
     channels: usize,
     order: &[u32],
     start: &[u32],
@@ -780,9 +817,13 @@ fn build_qslots(
     let mut q_reach = vec![f32::NAN];
     let mut q_tau = vec![0f32; channels];
     let mut code_of = Vec::with_capacity(order.len());
-    for (j, &i) in order.iter().enumerate() {
-        let r = reach[i as usize] as f32;
-        let t = &tau[j * channels..(j + 1) * channels];
+    for &i in order {
+        let r = reach(i as usize) as f32;
+        let mut t = [0f32; 3];
+        for (ch, x) in t.iter_mut().enumerate().take(channels) {
+            *x = tau(i as usize, ch);
+        }
+        let t = &t[..channels];
         let mut key = [r.to_bits(), 0, 0, 0];
         for (k, x) in t.iter().enumerate() {
             key[k + 1] = x.to_bits();
@@ -814,7 +855,7 @@ fn build_qslots(
                     if j == PADDING_SLOT {
                         continue; // code 0, R = NaN
                     }
-                    let g = lattice_point(positions[order[j as usize] as usize], lo, step);
+                    let g = lattice_point(position(order[j as usize] as usize), lo, step);
                     // The coordinates modulo 2^16 (`LATTICE_PER_CELL`), read relative to a corner
                     // within four cells below.
                     let q = [0, 1, 2].map(|a| {
@@ -847,17 +888,22 @@ fn build_qslots(
     })
 }
 
-/// Each particle's optical depth per channel, in storage order: C_ext / (π R²), the disk of its
-/// inclusion radius R (the caller has already capped it at tau_max by widening R).
-fn disk_tau(order: &[u32], reach: &[f64], c_ext: &[f64], channels: usize) -> Vec<f32> {
-    let mut tau = vec![0f32; order.len() * channels];
+/// The optical depth of a particle's disk in one channel: C_ext / (π R²), R its inclusion radius
+/// (the caller has already capped it at tau_max by widening R).
+#[inline]
+fn disk_tau(c_ext: f64, reach: f64) -> f32 {
+    (c_ext / (std::f64::consts::PI * reach * reach)) as f32
+}
+
+/// Each particle's [`disk_tau`] per channel, in storage order `order`.
+fn disk_taus(order: &[u32], tau: impl Fn(usize, usize) -> f32, channels: usize) -> Vec<f32> {
+    let mut out = vec![0f32; order.len() * channels];
     for (j, &i) in order.iter().enumerate() {
-        let area = std::f64::consts::PI * reach[i as usize] * reach[i as usize];
         for ch in 0..channels {
-            tau[j * channels + ch] = (c_ext[i as usize * channels + ch] / area) as f32;
+            out[j * channels + ch] = tau(i as usize, ch);
         }
     }
-    tau
+    out
 }
 
 /// What a hit reads, per slot of a k = 0 class: its particle's τ per channel and original index
@@ -891,21 +937,21 @@ fn slot_hits(
 }
 
 impl SubGrid {
-    /// Build one class from already validated inputs (see [`ParticleGrid::build`]); `ids` are the
-    /// particles' original indices.
+    /// Build one class from already validated inputs (see [`ParticleGrid::build`]): the particles
+    /// `ids` of `p` (the caller's indices, which the class reports).
     fn build_class(
-        positions: &[[f64; 3]],
-        radius: &[f64],
-        c_ext: &[f64],
+        p: &Particles,
         ids: &[u32],
-        channels: usize,
         settings: &GridSettings,
         volume_hint: Option<f64>,
     ) -> Self {
-        let n = positions.len();
-        let reach: Vec<f64> = radius.iter().map(|r| settings.query_radius + r).collect();
-        let reach_max = reach.iter().cloned().fold(0.0, f64::max);
-        let (mut lo, mut hi) = bounding_box(positions);
+        let (n, channels) = (ids.len(), p.channels);
+        // The class's particle j: the caller's ids[j], read where needed (no copies of the columns).
+        let position = |j: usize| p.positions[ids[j] as usize];
+        let reach = |j: usize| settings.query_radius + (p.radius)(ids[j] as usize);
+        let tau = |j: usize, ch: usize| disk_tau((p.c_ext)(ids[j] as usize, ch), reach(j));
+        let reach_max = (0..n).into_par_iter().map(reach).reduce(|| 0.0, f64::max);
+        let (mut lo, mut hi) = bounding_box_by(n, position);
         for a in 0..3 {
             lo[a] -= reach_max * BOX_MARGIN.0 + BOX_MARGIN.1;
             hi[a] += reach_max * BOX_MARGIN.0 + BOX_MARGIN.1;
@@ -948,10 +994,10 @@ impl SubGrid {
         // Each particle's centre as stored (computed where needed: no copy of the positions).
         let at = |i: usize| -> [f64; 3] {
             if quantise {
-                let g = lattice_point(positions[i], lo, step);
+                let g = lattice_point(position(i), lo, step);
                 [0, 1, 2].map(|a| lo[a] + g[a] as f64 * step)
             } else {
-                positions[i]
+                position(i)
             }
         };
         let dims =
@@ -972,12 +1018,12 @@ impl SubGrid {
             // Largest balls first in each cell: a block's pre-test radius is its largest.
             for c in 0..n_cells {
                 order[centre_start[c] as usize..centre_start[c + 1] as usize]
-                    .sort_unstable_by(|a, b| reach[*b as usize].total_cmp(&reach[*a as usize]));
+                    .sort_unstable_by(|a, b| reach(*b as usize).total_cmp(&reach(*a as usize)));
             }
         }
         let sphere_of = |i: usize| {
             let p = at(i);
-            [p[0] as f32, p[1] as f32, p[2] as f32, reach[i] as f32]
+            [p[0] as f32, p[1] as f32, p[2] as f32, reach(i) as f32]
         };
         // Quantised k = 1 slots are the stored particles: no spheres besides them.
         let particles = if quantise && k == 1 {
@@ -985,7 +1031,6 @@ impl SubGrid {
         } else {
             Spheres::from_iter(n, |j| sphere_of(order[j] as usize))
         };
-        let mut tau = disk_tau(&order, &reach, c_ext, channels);
         let (start, mut slot_particle) = if k == 1 {
             // Each cell's slots are its own particles, already in cell order.
             (centre_start, Vec::new())
@@ -997,7 +1042,7 @@ impl SubGrid {
             // largest, so blocks of like radii test tightly.
             let key = |j: &u32| match *j {
                 PADDING_SLOT => -1.0,
-                j => reach[order[j as usize] as usize],
+                j => reach(order[j as usize] as usize),
             };
             for c in 0..n_cells {
                 slot_particle[start[c] as usize..start[c + 1] as usize]
@@ -1007,9 +1052,9 @@ impl SubGrid {
         let quant = quantise
             .then(|| {
                 build_qslots(
-                    positions,
-                    &reach,
-                    &tau,
+                    position,
+                    reach,
+                    tau,
                     channels,
                     &order,
                     &start,
@@ -1025,11 +1070,13 @@ impl SubGrid {
             (None, 1) if particles.0.is_empty() && n > 0 => {
                 Spheres::from_iter(n, |j| sphere_of(order[j] as usize))
             }
-            (Some(_), 1) => {
-                tau = Vec::new(); // τ by code
-                particles
-            }
             _ => particles,
+        };
+        // τ per stored particle where no code holds it.
+        let tau = if quant.is_some() {
+            Vec::new()
+        } else {
+            disk_taus(&order, tau, channels)
         };
         let inline = if k == 0 && quant.is_none() {
             slot_spheres(&slot_particle, &particles)
@@ -1833,11 +1880,11 @@ fn merge_sparse_classes(
 /// slanted column, a noise density or a Houdini sim covers a fraction of its bounding box; sized by the
 /// box, its occupied cells would hold several times the intended particles each (a column around the
 /// default scene's beam: ~40 instead of ~8 per cell, 1.1 us per ray instead of 0.4 in the render).
-fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
-    let (lo, hi) = bounding_box(positions);
+fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync) -> f64 {
+    let (lo, hi) = bounding_box_by(n, &at);
     let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12));
     let mut volume = ext[0] * ext[1] * ext[2];
-    let target = (positions.len() as f64 / OCCUPANCY_PARTICLES_PER_CELL).clamp(1.0, MAX_CELLS);
+    let target = (n as f64 / OCCUPANCY_PARTICLES_PER_CELL).clamp(1.0, MAX_CELLS);
     for _ in 0..2 {
         let cell = (volume / target).cbrt();
         let dims = ext.map(|e| ((e / cell).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS));
@@ -1846,7 +1893,7 @@ fn occupied_volume(positions: &[[f64; 3]]) -> f64 {
             break;
         }
         let mut occupied = vec![0u64; n_cells.div_ceil(64)];
-        for p in positions {
+        for p in (0..n).map(&at) {
             let c = [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1));
             let i = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
             occupied[i / 64] |= 1 << (i % 64);
@@ -1958,73 +2005,50 @@ impl ParticleGrid {
         channels: usize,
         settings: &GridSettings,
     ) -> Self {
+        Self::from_particles(
+            &Particles {
+                positions,
+                ids: None,
+                radius: &|i| radius[i],
+                c_ext: &|i, ch| c_ext[i * channels + ch],
+                channels,
+            },
+            settings,
+        )
+    }
+
+    /// [`Self::from_checked`] over the particles `p` (checked inputs), read through its columns: a
+    /// grid of a subset of a medium's particles, reporting their indices, with no copies (the class
+    /// lists aside: four bytes a particle).
+    pub(crate) fn from_particles(p: &Particles, settings: &GridSettings) -> Self {
         let GridSettings {
             query_radius,
             cells_per_particle,
             ..
         } = *settings;
-        let n = positions.len();
-        let reach_max = radius.iter().fold(0.0f64, |a, &r| a.max(query_radius + r));
+        let n = p.len();
+        let reach_of = |i: &u32| query_radius + (p.radius)(*i as usize);
+        let reach_max = (0..n)
+            .into_par_iter()
+            .map(|j| query_radius + (p.radius)(p.id(j)))
+            .reduce(|| 0.0, f64::max);
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
-        for i in 0..n {
-            members[size_class(reach_max, query_radius + radius[i])].push(i as u32);
+        for j in 0..n {
+            let i = p.id(j) as u32;
+            members[size_class(reach_max, reach_of(&i))].push(i);
         }
         // Volume the centres occupy, shared by the classes as the density reference.
-        let volume = occupied_volume(positions);
-        let reach_of = |i: &u32| query_radius + radius[*i as usize];
+        let volume = occupied_volume_by(n, |j| p.positions[p.id(j)]);
         let members = merge_sparse_classes(members, reach_of, volume, cells_per_particle);
         let mut classes = Vec::new();
         for ids in members {
-            if ids.len() == n && ids.iter().enumerate().all(|(j, &i)| i as usize == j) {
-                // One class of every particle, in order: no copies of the columns.
-                classes.push(SubGrid::build_class(
-                    positions,
-                    radius,
-                    c_ext,
-                    &ids,
-                    channels,
-                    settings,
-                    Some(volume),
-                ));
-                continue;
-            }
-            let pos: Vec<[f64; 3]> = ids.iter().map(|&i| positions[i as usize]).collect();
-            let rad: Vec<f64> = ids.iter().map(|&i| radius[i as usize]).collect();
-            let ce: Vec<f64> = ids
-                .iter()
-                .flat_map(|&i| {
-                    c_ext[i as usize * channels..(i as usize + 1) * channels]
-                        .iter()
-                        .copied()
-                })
-                .collect();
-            classes.push(SubGrid::build_class(
-                &pos,
-                &rad,
-                &ce,
-                &ids,
-                channels,
-                settings,
-                Some(volume),
-            ));
+            classes.push(SubGrid::build_class(p, &ids, settings, Some(volume)));
         }
         ParticleGrid {
             classes,
-            channels,
+            channels: p.channels,
             n,
         }
-    }
-
-    /// The same grid reporting `ids[i]` for the particle it was built with as index i.
-    pub fn with_indices(mut self, ids: &[u32]) -> Self {
-        for c in &mut self.classes {
-            c.index.iter_mut().for_each(|i| *i = ids[*i as usize]);
-            c.slot_index
-                .iter_mut()
-                .filter(|i| **i != u32::MAX)
-                .for_each(|i| *i = ids[*i as usize]);
-        }
-        self
     }
 
     pub fn len(&self) -> usize {
