@@ -75,6 +75,20 @@ def test_compact_keeps_fewer_bytes():
     assert full.bytes - compact.bytes > 10 * n, (full.bytes, compact.bytes)
 
 
+@pytest.mark.parametrize("median_um, query_radius", [(60.0, 0.01), (30.0, 0.002), (400.0, 0.05)])
+def test_compact_keeps_at_most_16_bytes_per_discrete_grain(median_um, query_radius):
+    """Issue 24.2 with nothing set but what makes every grain discrete (continuous_count = inf): at most 16
+    bytes per particle at render time, for grains small and large against their spacing (100 000 grains
+    in a unit cube: spacing 0.02, inclusion radii 0.002-0.05), wide radius spreads included."""
+    motes.set_variant("scalar_rgb")
+    n = 100_000
+    medium = dict(_grains(None, n), radius_median=median_um, query_radius=query_radius,
+                  continuous_count=float("inf"))
+    data = _medium(mi.load_dict(_env_scene(medium, 4, 1))).data
+    assert data.continuous_particles == 0
+    assert data.core.bytes / n <= 16.0, data.core.bytes / n
+
+
 def test_quantised_radii_stay_within_half_a_level():
     """The disks the core walks: compact storage changes no particle's inclusion radius by more than half
     a radius level of its bin (read back through the largest inclusion radius of each bin's medium)."""

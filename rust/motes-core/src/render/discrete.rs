@@ -667,6 +667,7 @@ fn build_walk(
         (0..n as u32).partition(|&i| keep[i as usize]);
     // The grid reads its particles through the columns and reports their original indices (no
     // copies: a subset of 10^8 particles would be 40 bytes each).
+    let settings = &settings.centred(settings.centre_cells && centre_cells_for(discrete_ids.len()));
     let grid = (!discrete_ids.is_empty()).then(|| {
         ParticleGrid::from_particles(
             &Particles {
@@ -765,6 +766,23 @@ pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -
 /// An on-by-default switch of the environment (comparisons only): off where set to "0".
 fn env_flag(name: &str) -> bool {
     std::env::var(name).map_or(true, |v| v != "0")
+}
+
+/// Discrete grains from which compact storage keeps them by their centres' cells (8 bytes each,
+/// `crate::space::grid`) rather than in overlap slots (~2.5 slots of 12 bytes, a walk up to twice as
+/// fast on sparse grains: BENCHMARKS.md section 24, "Centre cells"). Below it the slots total at most
+/// ~2.5 MB and the medium's fixed costs (its class table, up to 16 × 1024 classes of 17 bytes, and its
+/// cells) dominate its bytes per particle whatever the layout; from it up, at most 16 bytes a grain.
+/// `MOTES_CENTRE_CELLS=1` or `=0` forces one layout (scripts/bench/bench_quantise.py's comparison).
+const CENTRE_CELLS_FROM: usize = 1 << 16;
+
+/// Whether compact storage keeps `discrete` grains by their centres' cells ([`CENTRE_CELLS_FROM`]).
+fn centre_cells_for(discrete: usize) -> bool {
+    match std::env::var("MOTES_CENTRE_CELLS").as_deref() {
+        Ok("1") => true,
+        Ok("0") => false,
+        _ => discrete >= CENTRE_CELLS_FROM,
+    }
 }
 
 /// The coincidence window (sites closer than this along a ray are one site) and the box outside
@@ -910,11 +928,11 @@ impl DiscreteMedium {
             &grid_radius,
             &grid_c,
             &p_c,
-            // MOTES_QUANTISE=0 keeps spheres (scripts/bench/bench_quantise.py's comparison) and
-            // MOTES_CENTRE_CELLS=0 the sparse classes' overlap slots (bench_storage.py's).
+            // MOTES_QUANTISE=0 keeps spheres (scripts/bench/bench_quantise.py's comparison); centre
+            // cells from CENTRE_CELLS_FROM discrete grains (`build_walk`).
             &GridSettings::new(query_radius, cells_per_particle)
                 .quantised(storage == Storage::Compact && env_flag("MOTES_QUANTISE"))
-                .centred(storage == Storage::Compact && env_flag("MOTES_CENTRE_CELLS")),
+                .centred(storage == Storage::Compact),
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),
         );

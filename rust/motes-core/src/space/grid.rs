@@ -1636,9 +1636,21 @@ impl SubGrid {
         // at t has t in the interval and its layers within R_max of the coordinates there: none is
         // dropped).
         let (mut t0, mut t1) = (ray.t0, ray.t1);
-        let mut slab_axis = 3;
+        // The layers near the segment along `a` over [t0, t1], within `range[a]` (None: none). A
+        // layer m is near where [m, m + 1) meets the coordinate's span grown by R_max (in cells).
+        let layers = |a: usize, t0: f64, t1: f64, r: [usize; 2]| -> Option<[usize; 2]> {
+            let (p, q) = (
+                near.at[a] + t0 * near.per_t[a],
+                near.at[a] + t1 * near.per_t[a],
+            );
+            let from = (fmin(p, q) - near.cells[a]).floor() as i64;
+            let to = (fmax(p, q) + near.cells[a]).floor() as i64;
+            let (m0, m1) = ((r[0] as i64).max(from), (r[1] as i64).min(to));
+            (m0 <= m1).then_some([m0 as usize, m1 as usize])
+        };
         if let Some(p) = prev {
-            let a = (0..3).find(|&a| p[a] != c[a]).unwrap_or(0);
+            // The axis the step moved along (exactly one differs), without a branch per axis.
+            let a = usize::from(p[1] != c[1]) + 2 * usize::from(p[2] != c[2]);
             let far = if c[a] > p[a] {
                 c[a] + 1
             } else {
@@ -1647,10 +1659,18 @@ impl SubGrid {
             if far >= dims[a] {
                 return 0; // the slab lies outside the grid
             }
-            range[a] = [far, far];
-            slab_axis = a;
             t0 = fmax(t0, near.enter[a] + far as f64 * near.step[a]);
             t1 = fmin(t1, near.exit[a] + far as f64 * near.step[a]);
+            if t0 > t1 {
+                return 0;
+            }
+            range[a] = [far, far];
+            for b in [(a + 1) % 3, (a + 2) % 3] {
+                match layers(b, t0, t1, range[b]) {
+                    Some(r) => range[b] = r,
+                    None => return 0,
+                }
+            }
         } else {
             for a in 0..3 {
                 let [m0, m1] = range[a];
@@ -1662,35 +1682,15 @@ impl SubGrid {
                 t0 = fmax(t0, near.enter[a] + first as f64 * near.step[a]);
                 t1 = fmin(t1, near.exit[a] + last as f64 * near.step[a]);
             }
-        }
-        if t0 > t1 {
-            return 0;
-        }
-        for a in 0..3 {
-            if a == slab_axis {
-                continue;
-            }
-            // The coordinate in cells from the grid's corner at both ends, grown by R_max: layer m is
-            // near where [m, m + 1) meets [from, to] (comparisons only: the candidates are c ± 1).
-            let (p, q) = (
-                near.at[a] + t0 * near.per_t[a],
-                near.at[a] + t1 * near.per_t[a],
-            );
-            let (from, to) = (fmin(p, q) - near.cells[a], fmax(p, q) + near.cells[a]);
-            let [mut m0, mut m1] = range[a];
-            while m0 <= m1 && ((m0 + 1) as f64) <= from {
-                m0 += 1;
-            }
-            while m1 >= m0 && (m1 as f64) > to {
-                if m1 == 0 {
-                    return 0;
-                }
-                m1 -= 1;
-            }
-            if m0 > m1 {
+            if t0 > t1 {
                 return 0;
             }
-            range[a] = [m0, m1];
+            for a in 0..3 {
+                match layers(a, t0, t1, range[a]) {
+                    Some(r) => range[a] = r,
+                    None => return 0,
+                }
+            }
         }
         let mut n = 0;
         let (first, last) = (range[0][0], range[0][1]);
