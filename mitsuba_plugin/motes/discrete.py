@@ -44,7 +44,8 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
 ``storage``                 ``compact`` (default): each particle is a class of its optics bin and one of
                             1024 radius levels per bin (radii move by at most half a level, 2e-4 for a
                             bin 1.5 wide), stored once, by its centre's grid cell, its centre on a
-                            lattice of 6e-5 of a cell (11-14 bytes per discrete grain in all), and the
+                            lattice of 6e-5 of a cell (from 65536 discrete grains up: 11-14 bytes per
+                            discrete grain in all), and the
                             per-particle arrays below are not kept; ``full``: every particle's radius
                             as given, and ``positions``, ``radii_um``, ``species_index``,
                             ``particle_bin``, ``c_ext_scene`` kept for inspection

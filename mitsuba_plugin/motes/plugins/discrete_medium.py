@@ -51,8 +51,9 @@ Parameter               Type       Meaning (default)
                                    from surfaces walk the grains)
 ``storage``             string     ``compact``: each particle is a class (its optics bin and one of 1024
                                    radius levels per bin; radii move by at most half a level), stored
-                                   once in its centre's grid cell at 6e-5 of a cell: 11-14 bytes per
-                                   discrete grain, 4-5 per continuous one; ``full``: radii and
+                                   once in its centre's grid cell at 6e-5 of a cell from 65536
+                                   discrete grains up: 11-14 bytes per discrete grain, 4-5 per
+                                   continuous one; ``full``: radii and
                                    positions as given, 60-75 bytes per discrete grain;
                                    ``procedural``: generated particles are never stored, each brick of
                                    the cloud generated from ``seed`` when a ray first needs it (``count``

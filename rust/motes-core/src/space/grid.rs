@@ -18,14 +18,16 @@
 //! Each particle's data is stored once, in the order of its centre's cell (counting sort, O(N)); each
 //! cell keeps references to particles. Two layouts of a class of similar sizes:
 //!
-//! * **Overlap slots** (k = 0; sparse classes of full storage): where inclusion balls (radius R_i)
+//! * **Overlap slots** (k = 0; sparse classes of full storage, and of compact storage below 2^16
+//!   discrete grains, `DiscreteMedium`): where inclusion balls (radius R_i)
 //!   are narrower than the cells, a cell references every particle whose ball overlaps it, and a
 //!   traversal (3D-DDA, Amanatides & Woo) tests only the particles referenced by the cells the ray
 //!   itself crosses: the projection p_i = o + t_i d of a contributing particle lies within R_i of its
 //!   centre, hence in a cell that references it. A particle counts in the DDA step whose t-interval
 //!   holds t_i. Costs (1 + 2R/L)³ references a particle, padded to blocks (~2.5–3).
-//! * **Centre cells** (k = 1; every class of compact storage, and classes whose balls are wider than
-//!   the particle spacing): cells at least R_max wide hold the particles whose centres they contain,
+//! * **Centre cells** (k = 1; every class of compact storage from 2^16 discrete grains, and classes
+//!   whose balls are wider than the particle spacing): cells at least R_max wide hold the particles
+//!   whose centres they contain,
 //!   once each. A traversal tests, per DDA step, the cells of the 3×3×3 block around the ray's cell
 //!   that no earlier step tested (the first step the whole block, each later one the 3×3 slab its move
 //!   adds) and that the ray comes within R_max of (`SubGrid::step_rows`): every particle near the ray
