@@ -544,7 +544,8 @@ impl PyDiscreteMedium {
         self.medium.set_surface_footprint(on)
     }
 
-    /// Remember an event of the given particles at `p` (tests and tools).
+    /// Remember an event of the given particles at `p` (tests and tools). Particles are named as the
+    /// medium names them: by index (full storage) or by position in its grid (compact storage).
     fn insert_event(&self, p: (f32, f32, f32), particles: Vec<u32>) -> PyResult<()> {
         self.medium
             .insert_event([p.0, p.1, p.2], &particles)

@@ -11,12 +11,12 @@
 //!   C_t,i follows as π r² Q̄_ext of the bin (every particle of a bin has its bin's mean efficiency,
 //!   `motes.DiscreteMedium`), so a class is what a particle of that radius is, not an average. The grid,
 //!   the continuous fields and the optics all see the class's values: the free flight is exact for the
-//!   particles as stored. Four bytes per particle instead of seventeen. From 2^16 discrete grains
-//!   (`render::discrete`, `CENTRE_CELLS_FROM`) the grid stores every class by its centres' cells with
-//!   quantised centres (`crate::space::grid`, "Quantised slots": a lattice of
-//!   2^14 steps per cell edge, radii and τ by code; 8 bytes a particle) and names its particles by
-//!   their position in it, so a particle walked one by one keeps its slot and a 16-bit class code by
-//!   position (this table's `codes`; the continuous ones are named by class in their field and keep
+//!   particles as stored. Four bytes per particle instead of seventeen. The grid quantises its
+//!   centres (`crate::space::grid`, "Quantised slots": a lattice of 2^14 steps per cell edge, radii
+//!   and τ by code) and names its particles by their position in it (`ParticleGrid::positional`);
+//!   from 2^16 discrete grains (`render::discrete`, `CENTRE_CELLS_FROM`) it stores every class by its
+//!   centres' cells, 8 bytes a particle, so a particle walked one by one keeps its slot and a 16-bit
+//!   class code by position (this table's `codes`; the continuous ones are named by class in their field and keep
 //!   nothing), and the grains' continuous equivalent only its cells' pick tables: 11–14 bytes per
 //!   discrete particle (`scripts/bench/bench_storage.py`; 60–69 with spheres and overlap slots, 34–44
 //!   with quantised overlap slots).

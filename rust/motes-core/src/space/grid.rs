@@ -165,9 +165,10 @@ struct Segment {
     c1: usize,
     t_enter: f64,
     t_exit: f64,
-    /// The cell of a k = 0 step (whose quantised slots are relative to it).
+    /// The cell of a k = 0 step, or the first cell of a k = 1 row (quantised slots are read relative
+    /// to it).
     cell: [usize; 3],
-    /// Quantised slots: the cell's slot origin across the ray (`RayFrame::offsets`), set when the
+    /// Quantised slots: the cell's slot origin across the ray (`Cursor::offsets`), set when the
     /// step is tested.
     off: [f32; 2],
     /// Quantised slots: the slot origin's lattice coordinates modulo 2^16 (`QSlots::origin_bits`).
@@ -272,7 +273,8 @@ struct QBlock {
     code: [u16; LANES],
 }
 
-/// The slots of a k = 0 class in compact storage: centres on a lattice of step `step` (the cell edge
+/// The slots of a class in compact storage (overlap slots or centre cells): centres on a lattice of
+/// step `step` (the cell edge
 /// / [`LATTICE_PER_CELL`], 6·10⁻⁵ of a cell), radii and optical depths by code. The lattice point is
 /// the particle *as stored*: every slot of a particle decodes to the same double-precision centre, the
 /// cells that reference it were chosen from that centre, and the free flight is exact for it. Code 0
@@ -664,8 +666,8 @@ pub struct SubGrid {
     /// hit on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
     slot_tau: Vec<f32>,
     slot_index: Vec<u32>,
-    /// A k = 0 class's slots quantised (compact storage, [`GridSettings::quantise`]): in place of
-    /// `inline` and `slot_tau`.
+    /// The class's slots quantised (compact storage, [`GridSettings::quantise`]): in place of
+    /// `inline` and `slot_tau` (k = 0), or of `particles` and `tau` (k = 1).
     quant: Option<QSlots>,
     /// The cells (cubes) as a DDA walks them.
     frame: GridFrame,
@@ -860,9 +862,19 @@ fn build_qslots(
                     let g = lattice_point(position(order[j as usize] as usize), lo, step);
                     // The coordinates modulo 2^16 (`LATTICE_PER_CELL`), read relative to a corner
                     // within four cells below.
+                    // From the slot's cell's corner: [L, 2L) for a centre cell (its own centre),
+                    // [0, 2^16) for an overlap slot (a ball that reaches into the cell).
                     let q = [0, 1, 2].map(|a| {
                         let rel = g[a] - origin[a];
-                        debug_assert!((0..=u16::MAX as i64).contains(&rel), "lattice offset {rel}");
+                        let own = LATTICE_PER_CELL..2 * LATTICE_PER_CELL;
+                        debug_assert!(
+                            if slot_particle.is_none() {
+                                own.contains(&rel)
+                            } else {
+                                (0..=u16::MAX as i64).contains(&rel)
+                            },
+                            "lattice offset {rel}"
+                        );
                         g[a] as u16
                     });
                     let (b, l) = (&mut blocks[s / LANES], s % LANES);
@@ -1009,10 +1021,23 @@ impl SubGrid {
         let cell_of = |p: &[f64; 3]| {
             cell_index([0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1)))
         };
-        // The storage order: particles sorted by the cell of their centre.
+        // The storage order: particles sorted by the cell of their centre. A quantised centre's cell
+        // comes from its lattice coordinates, in integers: a lattice point on a cell face must be in
+        // the cell whose corner its slots are read from (in floating point (lo + g h − lo) / L can
+        // round below the face, and the wrapped offset from a row's corner 3 cells down would read
+        // 2^16 as 0: the centre 4 cells away).
         let cells: Vec<u32> = (0..n)
             .into_par_iter()
-            .map(|i| cell_of(&at(i)) as u32)
+            .map(|i| {
+                if quantise {
+                    let g = lattice_point(position(i), lo, step);
+                    cell_index([0, 1, 2].map(|a| {
+                        (g[a].div_euclid(LATTICE_PER_CELL).max(0) as usize).min(dims[a] - 1)
+                    })) as u32
+                } else {
+                    cell_of(&at(i)) as u32
+                }
+            })
             .collect();
         let (centre_start, mut order) = counting_sort(&cells, n_cells);
         drop(cells);
@@ -1174,14 +1199,6 @@ impl SubGrid {
             + self.start.len() * 4
     }
 
-    /// Does stored particle j contribute to the ray (|d| = 1; the segment's t range aside), and where
-    /// (t of its projection)?
-    #[inline]
-    #[cfg(test)]
-    fn contribution(&self, j: usize, ray: &RaySegment) -> Option<f64> {
-        sphere_contribution(self.particles.get(j), ray)
-    }
-
     /// The slots' spheres.
     #[inline(always)]
     fn slots(&self) -> &Spheres {
@@ -1237,7 +1254,12 @@ impl SubGrid {
             near.cells[a] = reach / edge[a];
             near.at[a] = (ray.o[a] - lo[a]) / edge[a];
             near.per_t[a] = ray.d[a] / edge[a];
-            let d = if ray.d[a] == 0.0 { 1e-200 } else { ray.d[a] };
+            // (Also below 1e-200: a subnormal d would make the step infinite, and 0 × ∞ NaN.)
+            let d = if ray.d[a].abs() < 1e-200 {
+                1e-200f64.copysign(ray.d[a])
+            } else {
+                ray.d[a]
+            };
             let inv = 1.0 / d;
             let (x0, x1) = (lo[a] - reach - ray.o[a], lo[a] + edge[a] + reach - ray.o[a]);
             let (t0, t1) = (x0 * inv, x1 * inv);
@@ -1793,8 +1815,8 @@ pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 pub struct GridSettings {
     pub query_radius: f64,
     pub cells_per_particle: f64,
-    /// Quantise the slots of sparse (k = 0) classes ([`QSlots`]: centres on a lattice of 2^14 steps
-    /// per cell, radii and τ by code): compact storage's 12 bytes per slot instead of 24.
+    /// Quantise every class's slots ([`QSlots`]: centres on a lattice of 2^14 steps per cell, radii
+    /// and τ by code): 8 bytes a slot (12 with an overlap slot's index) instead of 24.
     pub quantise: bool,
     /// Store every class by its centres' cells (k = 1: each particle once, the walk scanning the
     /// cells around the ray) instead of referencing sparse classes' balls from every cell they
@@ -2098,7 +2120,8 @@ impl ParticleGrid {
     }
 
     /// Visit every contributing particle with t in the segment, over all classes, in increasing t, as
-    /// `visit(t, τ per channel, original index)`; `visit` returns false to stop. Each class advances
+    /// `visit(t, τ per channel, original index)` (a positional grid's: the position,
+    /// [`Self::positional`]); `visit` returns false to stop. Each class advances
     /// its own traversal a batch at a time (the class furthest behind first); a hit is passed on once
     /// every class has reported everything before it, so a walk that stops early costs only the
     /// batches it reached, and no traversal restarts.
@@ -2264,7 +2287,8 @@ impl ParticleGrid {
         (found, acc)
     }
 
-    /// Original indices of the particles whose inclusion ball (radius R_i = r_c + r_i) contains `p`:
+    /// Original indices (a positional grid's: positions) of the particles whose inclusion ball
+    /// (radius R_i = r_c + r_i) contains `p`:
     /// the query sphere of Eq. 24 (a particle is in the sphere of radius r_c around `p` when it overlaps it).
     pub fn containing(&self, p: [f64; 3]) -> Vec<u32> {
         let mut out = Vec::new();
@@ -2272,6 +2296,16 @@ impl ParticleGrid {
             c.containing(p, |s| out.push(c.hit_index(s)));
         }
         out
+    }
+
+    /// The same grid walking every class in prefetched batches (`SubGrid::advance`), the path of
+    /// classes whose slots outgrow the cache, for tests of that path on small grids.
+    #[cfg(test)]
+    fn batched(mut self) -> Self {
+        self.classes
+            .iter_mut()
+            .for_each(|c| c.prefetch_slots = true);
+        self
     }
 
     /// The same by a loop over every particle (test oracle).
@@ -2580,6 +2614,84 @@ mod tests {
                 assert_eq!(g.tau_of(i, 1), r.tau_of(i, 1));
             }
         }
+    }
+
+    /// Centre-cell classes walked in prefetched batches (the path of clouds whose slots outgrow the
+    /// cache) report what the O(N) loop finds, as the cached walk does.
+    #[test]
+    fn batched_centre_cell_walks_equal_brute_force() {
+        let mut s = 19u64;
+        let (pos, rad, cext) = two_channel_particles(&mut s);
+        let layouts = [
+            (0.01, 1.0, true, true),
+            (0.2, 5.0, true, true),
+            (0.0, 20.0, false, true),
+        ];
+        for ((rc, ..), g) in grids_of(&pos, &rad, &cext, &layouts) {
+            let g = g.batched();
+            let frame = &g.classes[0].frame;
+            for ray in &test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]) {
+                assert_queries_match_brute(&g, ray, rc);
+            }
+        }
+    }
+
+    /// Quantised centres on cell faces: each is stored in the cell its lattice coordinates give, so
+    /// its slots read the same centre from the corners of every row that holds its cell (the first,
+    /// second or third cell of a row), and the walk finds what the O(N) loop finds. (Cells chosen in
+    /// floating point put ~8 % of such centres one cell low, read 4 cells away from a row's corner.)
+    #[test]
+    fn centres_on_cell_faces_stay_in_their_cells() {
+        let mut s = 23u64;
+        let settings = GridSettings::new(0.01, 1.0).quantised(true).centred(true);
+        let mut checked = 0;
+        // Clouds of their own (each face rounds its own way), every particle but the box's extremes
+        // moved onto the nearest face of the grid's cells along x, then y (the box, hence the grid,
+        // stays the same).
+        for axis in [0, 1, 0, 1, 0, 1] {
+            let (mut pos, rad, cext) = two_channel_particles(&mut s);
+            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
+            let frame = g.classes[0].frame;
+            let (lo, hi) = bounding_box(&pos);
+            for p in pos.iter_mut() {
+                if (0..3).all(|a| p[a] > lo[a] && p[a] < hi[a]) {
+                    let k = ((p[axis] - frame.bounds.lo[axis]) / frame.cell[axis]).round();
+                    p[axis] =
+                        (frame.bounds.lo[axis] + k * frame.cell[axis]).clamp(lo[axis], hi[axis]);
+                }
+            }
+            let g = ParticleGrid::build(&pos, &rad, &cext, 2, &settings).unwrap();
+            assert_eq!(g.classes.len(), 1);
+            let c = &g.classes[0];
+            assert_eq!(
+                (c.frame.bounds.lo, c.frame.cell),
+                (frame.bounds.lo, frame.cell)
+            );
+            let q = c.quant.as_ref().expect("quantised");
+            let dims = c.frame.dims;
+            for z in 0..dims[2] {
+                for y in 0..dims[1] {
+                    for x in 0..dims[0] {
+                        let i = (z * dims[1] + y) * dims[0] + x;
+                        for sl in c.start[i] as usize..c.start[i + 1] as usize {
+                            let own = q.lattice(sl, [x, y, z]);
+                            for first in x.saturating_sub(2)..=x {
+                                assert_eq!(q.lattice(sl, [first, y, z]), own, "cell {x} {y} {z}");
+                            }
+                            checked += 1;
+                        }
+                    }
+                }
+            }
+            let batched = ParticleGrid::build(&pos, &rad, &cext, 2, &settings)
+                .unwrap()
+                .batched();
+            for ray in &test_rays(&mut s, frame.bounds.lo[0], frame.cell[0]) {
+                assert_queries_match_brute(&g, ray, 0.01);
+                assert_queries_match_brute(&batched, ray, 0.01);
+            }
+        }
+        assert_eq!(checked, 6 * 3000);
     }
 
     /// A positional grid (`ParticleGrid::positional`) reports the same particles in the same order,
