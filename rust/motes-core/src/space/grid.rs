@@ -1275,7 +1275,8 @@ impl SubGrid {
         let dda = Dda::new_in(&self.frame, ray, inv_d);
         // A ray that misses the grid tests nothing: no frame for it (in a room with a cloud in it,
         // most shadow rays).
-        let frame = if dda.finished() {
+        let misses = dda.finished();
+        let frame = if misses {
             RayFrame::UNUSED
         } else {
             let scale = (0..3)
@@ -1293,17 +1294,27 @@ impl SubGrid {
             first: true,
             ahead: None,
             prev: None,
-            corners: if self.quant.is_some() {
+            corners: if self.quant.is_some() && !misses {
                 frame.corner_offsets(b.lo, self.frame.cell, ray.o)
             } else {
                 [[0.0; 4]; 2]
             },
-            near: if self.k == 1 {
+            near: if self.k == 1 && !misses {
                 self.near(ray)
             } else {
                 Near::default()
             },
             frame,
+        }
+    }
+
+    /// Where a segment's quantised slots lie across the ray (`Segment::off`, `Segment::base`): once per
+    /// segment, before its slots are tested (spheres need nothing).
+    #[inline(always)]
+    fn locate(&self, sg: &mut Segment, cur: &Cursor) {
+        if self.quant.is_some() {
+            sg.off = cur.offsets(sg.cell);
+            sg.base = QSlots::origin_bits(sg.cell);
         }
     }
 
@@ -1368,10 +1379,7 @@ impl SubGrid {
         let slots = self.slots();
         for sg in batch.iter_mut() {
             (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
-            if self.quant.is_some() {
-                sg.off = cur.offsets(sg.cell);
-                sg.base = QSlots::origin_bits(sg.cell);
-            }
+            self.locate(sg, cur);
             if self.prefetch_slots {
                 for blk in sg.c0 / LANES..sg.c1.div_ceil(LANES) {
                     match &self.quant {
@@ -1543,10 +1551,7 @@ impl SubGrid {
                 cell: step.cell,
                 ..Segment::default()
             };
-            if self.quant.is_some() {
-                sg.off = cur.offsets(sg.cell);
-                sg.base = QSlots::origin_bits(sg.cell);
-            }
+            self.locate(&mut sg, cur);
             cur.first = false;
             // Whole blocks (padded cells): every lane is tested.
             for blk in sg.c0 / LANES..sg.c1 / LANES {
@@ -1595,10 +1600,7 @@ impl SubGrid {
                 if sg.c0 == sg.c1 {
                     continue;
                 }
-                if self.quant.is_some() {
-                    sg.off = cur.offsets(sg.cell);
-                    sg.base = QSlots::origin_bits(sg.cell);
-                }
+                self.locate(sg, cur);
                 if !self.test_slots::<WIDE>(slots, sg, cur, found) {
                     return None;
                 }
