@@ -2,13 +2,15 @@
 //! `scripts/bench/bench_native.py`: `sparse` (the default scene's dust: 60 000 grains in a box of 20 units,
 //! query radius 0.064) and `dense` (haze: 1e6 grains, R ~ 0.07). Rays start inside the box in random
 //! directions and run 40 units (out of it): a full walk (every contributing particle), the grey optical
-//! depth, and free flights to the first site (`sample_site`, what the renderer calls).
+//! depth, and free flights to the first site (`sample_site`, what the renderer calls). `large`: the
+//! Cornell box's 10^5 grains of 2 mm scaled to the box (reach ~ a tenth of a centre cell: every ray
+//! comes near many cells; issue 25).
 //!
 //! Each layout (cells per particle, the default first; spheres, quantised slots (`q`), and quantised
 //! centre cells (`qc`, compact storage's)) is timed in interleaved rounds and the median round is
 //! reported, so a busy machine shifts all columns alike.
 //!
-//!     cargo bench -p motes-core --bench traverse [-- sparse|dense]
+//!     cargo bench -p motes-core --bench traverse [-- sparse|dense|large]
 use motes_core::space::grid::{GridSettings, ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
 use motes_core::space::ray::RaySegment;
 use std::time::Instant;
@@ -61,6 +63,8 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
         (d, "q"),
         (d, "qc"),
         (4.0 * d, "qc"),
+        (0.25 * d, "qc"),
+        (0.1 * d, "qc"),
         (1.0, ""),
         (0.25, ""),
         (0.0625, ""),
@@ -127,10 +131,14 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
 
 fn main() {
     let only = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    if only.as_deref() != Some("dense") {
+    let wanted = |name: &str| only.as_deref().is_none_or(|o| o == name);
+    if wanted("sparse") {
         run("sparse", 60_000, 0.0005, 0.004, 0.064);
     }
-    if only.as_deref() != Some("sparse") {
+    if wanted("dense") {
         run("dense", 1_000_000, 0.008, 0.004, 0.06);
+    }
+    if wanted("large") {
+        run("large", 100_000, 0.07, 0.0, 0.076);
     }
 }

@@ -122,6 +122,29 @@ fn bounding_box_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync) -> ([f64; 3]
 /// DDA steps a traversal batch covers before its loads (see `SubGrid::advance`): more steps keep more
 /// cache misses in flight on dense clouds, fewer waste less on a free flight that stops early.
 const SEGMENTS_PER_BATCH: usize = 36;
+/// DDA steps of a cached walk's first batch (`SubGrid::advance_cached_sparse`, `advance_cached_near`):
+/// each batch after it twice as many, up to [`SEGMENTS_PER_BATCH`]. A free flight that stops after a
+/// few cells (in a dense cloud, most) then walks few past its site, while a long walk still sorts its
+/// hits once per large batch.
+const FIRST_CACHED_BATCH: usize = 4;
+thread_local! {
+    /// The buffer of `ParticleGrid::walk_lanes`'s pending hits between walks on this thread.
+    static WALK_PENDING: std::cell::Cell<Vec<(f64, u32, u32)>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+/// A walk's pending hits, given back to [`WALK_PENDING`] when the walk ends (however it returns).
+struct PendingHits(Vec<(f64, u32, u32)>);
+
+impl Drop for PendingHits {
+    fn drop(&mut self) {
+        let v = std::mem::take(&mut self.0);
+        // Keep a modest buffer only: a walk past huge numbers of hits should not pin its memory.
+        if v.capacity() <= 1 << 16 {
+            WALK_PENDING.with(|b| b.set(v));
+        }
+    }
+}
+
 /// Row segments one DDA step can add (the 3×3 rows of a k = 1 step).
 const ROWS_PER_STEP: usize = 9;
 /// Relative slack of the single-precision pre-test against the exact (f64) inclusion test, in units of
@@ -592,6 +615,8 @@ pub(crate) struct Cursor {
     prev: Option<[usize; 3]>,
     /// Which cells the ray comes near (k = 1).
     near: Near,
+    /// DDA steps of the next cached batch ([`FIRST_CACHED_BATCH`], doubling).
+    batch: usize,
     frame: RayFrame,
     /// Quantised slots: where their origins lie across the ray (`RayFrame::corner_offsets`).
     corners: [[f64; 4]; 2],
@@ -1294,6 +1319,7 @@ impl SubGrid {
             first: true,
             ahead: None,
             prev: None,
+            batch: FIRST_CACHED_BATCH,
             corners: if self.quant.is_some() && !misses {
                 frame.corner_offsets(b.lo, self.frame.cell, ray.o)
             } else {
@@ -1522,7 +1548,9 @@ impl SubGrid {
             Some(a) => Some(a),
             None => take(cur),
         };
-        for _ in 0..SEGMENTS_PER_BATCH {
+        let steps = cur.batch;
+        cur.batch = (2 * steps).min(SEGMENTS_PER_BATCH);
+        for _ in 0..steps {
             let Some((step, last)) = this else {
                 return Some(f64::INFINITY);
             };
@@ -1583,7 +1611,9 @@ impl SubGrid {
         let slots = self.slots();
         let mut rows = [Segment::default(); ROWS_PER_STEP];
         let mut frontier = cur.ray.t0;
-        for _ in 0..SEGMENTS_PER_BATCH {
+        let steps = cur.batch;
+        cur.batch = (2 * steps).min(SEGMENTS_PER_BATCH);
+        for _ in 0..steps {
             let Some(step) = cur.dda.next() else {
                 return Some(f64::INFINITY);
             };
@@ -2157,7 +2187,11 @@ impl ParticleGrid {
             let j = j as usize;
             visit(t, c.hit_tau(j), c.hit_index(j))
         };
-        let mut pending: Vec<(f64, u32, u32)> = Vec::new();
+        // Hits waiting for their batch's frontier, in a buffer kept per thread (an allocation and its
+        // growth per walk were 1 % of a dense render); a nested walk takes a fresh one.
+        let mut buffer = PendingHits(WALK_PENDING.with(|b| b.take()));
+        buffer.0.clear();
+        let pending = &mut buffer.0;
         if let [c] = &self.classes[..] {
             // One class: each batch is complete up to its frontier, in t order once sorted (a k = 1
             // batch may also find contributions past its frontier: they wait for the next).
@@ -2188,14 +2222,11 @@ impl ParticleGrid {
             .iter()
             .map(|c| (c.cursor(ray, inv_d), ray.t0))
             .collect();
-        loop {
-            // Advance the class furthest behind.
-            let Some(ci) = (0..cursors.len())
-                .filter(|&i| cursors[i].1 < f64::INFINITY)
-                .min_by(|&a, &b| cursors[a].1.total_cmp(&cursors[b].1))
-            else {
-                break;
-            };
+        // Advance the class furthest behind.
+        while let Some(ci) = (0..cursors.len())
+            .filter(|&i| cursors[i].1 < f64::INFINITY)
+            .min_by(|&a, &b| cursors[a].1.total_cmp(&cursors[b].1))
+        {
             let (cur, frontier) = &mut cursors[ci];
             *frontier = self.classes[ci]
                 .advance::<WIDE>(cur, &mut |t, j| {
@@ -2214,7 +2245,7 @@ impl ParticleGrid {
             }
             pending.drain(..n);
         }
-        for h in &pending {
+        for h in pending.iter() {
             if !emit(h) {
                 return;
             }
