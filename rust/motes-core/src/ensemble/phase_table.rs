@@ -165,10 +165,28 @@ impl PhaseTable {
 
     /// f(μ) in sr⁻¹ (also the pdf of sampled directions per unit solid angle).
     pub fn eval(&self, mu: f64) -> f64 {
+        self.eval_at(self.locate(mu))
+    }
+
+    /// Where μ lies among the nodes: its segment and the fraction along it. Tables on the same nodes
+    /// ([`Self::same_nodes`]: a bin's tables at each wavelength) share it, so that a renderer evaluating
+    /// every channel at one μ searches once.
+    #[inline]
+    pub fn locate(&self, mu: f64) -> (usize, f64) {
         let mu = mu.clamp(-1.0, 1.0);
         let i = self.segment(mu);
-        let t = (mu - self.mu[i]) / (self.mu[i + 1] - self.mu[i]);
+        (i, (mu - self.mu[i]) / (self.mu[i + 1] - self.mu[i]))
+    }
+
+    /// f at a location from [`Self::locate`] of this table or of one on the same nodes.
+    #[inline]
+    pub fn eval_at(&self, (i, t): (usize, f64)) -> f64 {
         self.f[i] + t * (self.f[i + 1] - self.f[i])
+    }
+
+    /// Whether `other` has exactly these nodes (then a [`Self::locate`] of either serves both).
+    pub fn same_nodes(&self, other: &PhaseTable) -> bool {
+        self.mu == other.mu
     }
 
     /// μ with P(μ' ≤ μ) = u: the segment by binary search on the CDF, then the quadratic CDF inverted.
@@ -308,6 +326,32 @@ mod tests {
                 })
                 .sum();
             assert!((cdf - u).abs() < 1e-6, "u={u}: {cdf}");
+        }
+    }
+
+    /// Tables on the same nodes share a location: `eval_at` of one `locate` equals each table's own
+    /// `eval`, bit for bit; other nodes are told apart.
+    #[test]
+    fn tables_on_the_same_nodes_share_a_location() {
+        let theta: Vec<f64> = (0..=300).map(|i| PI * (i as f64 / 300.0).powi(3)).collect();
+        let a = PhaseTable::new(
+            &theta,
+            &theta.iter().map(|t| (-4.0 * t).exp()).collect::<Vec<_>>(),
+        )
+        .unwrap();
+        let b = PhaseTable::new(
+            &theta,
+            &theta.iter().map(|t| 1.0 + t.cos()).collect::<Vec<_>>(),
+        )
+        .unwrap();
+        let other: Vec<f64> = (0..=300).map(|i| PI * (i as f64 / 300.0).powi(2)).collect();
+        let c = PhaseTable::new(&other, &vec![1.0; other.len()]).unwrap();
+        assert!(a.same_nodes(&b) && !a.same_nodes(&c));
+        for k in 0..=10_000 {
+            let mu = -1.0 + 2.0 * k as f64 / 10_000.0;
+            let at = a.locate(mu);
+            assert_eq!(a.eval_at(at).to_bits(), a.eval(mu).to_bits());
+            assert_eq!(b.eval_at(at).to_bits(), b.eval(mu).to_bits());
         }
     }
 

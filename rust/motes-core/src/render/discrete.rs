@@ -391,6 +391,17 @@ fn bin_phase(b: &BinOptics, l: (usize, usize, f64), mu: f64) -> f64 {
     }
 }
 
+/// [`bin_phase`] at a location of μ in the bin's tables, all on the same nodes ([`PhaseTable::locate`]).
+#[inline(always)]
+fn bin_phase_at(b: &BinOptics, l: (usize, usize, f64), at: (usize, f64)) -> f64 {
+    let lo = b.phase[l.0].eval_at(at);
+    if l.2 == 0.0 {
+        lo
+    } else {
+        (1.0 - l.2) * lo + l.2 * b.phase[l.1].eval_at(at)
+    }
+}
+
 /// A mixture of particles as a phase function sees it (module docs): particle j of `members` weighs
 /// `scale(j)` × its albedo in each channel; `ls` are the channels' wavelength brackets (from
 /// `DiscreteMedium::bracket`) and `pi` the probabilities of sampling each channel.
@@ -422,6 +433,33 @@ fn unzip_samples(res: Vec<Sample>) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
 fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     (l.is_finite() && l > 0.0).then(|| v.map(|x| x / l))
+}
+
+/// A ray's walk through the grains still to do (`DiscreteMedium::lane_plan`).
+struct GrainWalk {
+    /// The whole ray, [0, t_max].
+    ray: RaySegment,
+    /// The continuous field's interaction (the walk stops there) and the field's optical depth.
+    hit: Option<FieldHit>,
+    tau_field: f64,
+    u: f64,
+    /// The particles of the event the ray starts at (skipped).
+    parent: Site,
+    from: Parent,
+}
+
+impl GrainWalk {
+    /// The segment whose grains the walk visits: up to the field's interaction.
+    fn grains(&self) -> RaySegment {
+        self.ray.between(0.0, self.hit.map_or(self.ray.t1, |h| h.t))
+    }
+}
+
+/// A ray's free flight as far as `DiscreteMedium::lane_plan` takes it.
+enum Plan {
+    /// Its site, the optical depth before it, what it takes from its parent event.
+    Done(Option<Site>, f64, Parent),
+    Walk(GrainWalk),
 }
 
 /// A lane of the last `sample_sites` call awaiting `commit_events`: its site, whether to remember it,
@@ -511,6 +549,8 @@ pub struct DiscreteMedium {
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
     widened: usize,
     bins: Vec<BinOptics>,
+    /// Per bin: are its phase tables all on the same nodes (one search serves every channel)?
+    shared_nodes: Vec<bool>,
     /// Tabulated wavelengths, increasing (any unit; the caller's channel wavelengths use the same).
     lambda: Vec<f64>,
     /// Projections closer than this along a ray form one site (scene units).
@@ -1044,6 +1084,10 @@ impl DiscreteMedium {
             widened: w.widened,
             coincide: w.coincide,
             event_box: w.event_box,
+            shared_nodes: bins
+                .iter()
+                .map(|b| b.phase.iter().all(|t| t.same_nodes(&b.phase[0])))
+                .collect(),
             bins,
             lambda,
             events: RwLock::new(EventMap::new(EVENTS_PER_GENERATION)),
@@ -1324,11 +1368,37 @@ impl DiscreteMedium {
         u: f64,
         want_tau: bool,
     ) -> (Option<Site>, f64, Parent) {
+        match self.lane_plan(events, view, surface, o, d, t_max, u, want_tau) {
+            Plan::Done(site, tau, from) => (site, tau, from),
+            Plan::Walk(w) => {
+                let found = match &self.grid {
+                    Some(g) => g.sample_site(&w.grains(), &w.parent, u, self.coincide),
+                    None => (None, 0.0),
+                };
+                self.finish_walk(&w, found, want_tau)
+            }
+        }
+    }
+
+    /// What a ray's free flight takes: the answer where no grain needs walking (no ray, the grains'
+    /// continuous equivalent), or else the walk through the grains still to do (module docs).
+    #[allow(clippy::too_many_arguments)]
+    fn lane_plan(
+        &self,
+        events: &EventMap,
+        view: &View,
+        surface: &mut SurfaceTally,
+        o: [f32; 3],
+        d: [f32; 3],
+        t_max: f64,
+        u: f64,
+        want_tau: bool,
+    ) -> Plan {
         let (Some(dir), true) = (
             normalise(d.map(|x| x as f64)),
             o.iter().all(|x| x.is_finite()),
         ) else {
-            return (None, 0.0, Parent::default());
+            return Plan::Done(None, 0.0, Parent::default());
         };
         let may_be_event = self.events_anywhere.load(Ordering::Relaxed)
             || (0..3).all(|a| {
@@ -1349,7 +1419,7 @@ impl DiscreteMedium {
             .or_else(|| self.surface_field(&parent, &ray, view, surface));
         if let Some(all) = all {
             let (site, tau) = field_free_flight(all, &ray, u, want_tau);
-            return (site, tau, from);
+            return Plan::Done(site, tau, from);
         }
         // The continuous field first, then the particles up to its distance: the nearer of two
         // independent processes' interactions (crate::render::continuous).
@@ -1357,21 +1427,34 @@ impl DiscreteMedium {
             Some(f) => field_hit(f, &ray, u, want_tau),
             None => (None, 0.0),
         };
-        let t_end = hit.map_or(t_max, |h| h.t);
-        let (site, tau) = match &self.grid {
-            Some(g) => g.sample_site(&ray.between(0.0, t_end), &parent.site, u, self.coincide),
-            None => (None, 0.0),
-        };
-        let site = site.or_else(|| field_site(self.field.as_ref()?, hit?, u));
+        Plan::Walk(GrainWalk {
+            ray,
+            hit,
+            tau_field,
+            u,
+            parent: parent.site,
+            from,
+        })
+    }
+
+    /// A ray's free flight from its walk through the grains (`found`: the site and optical depth
+    /// walked to it up to the continuous field's interaction).
+    fn finish_walk(
+        &self,
+        w: &GrainWalk,
+        (site, tau): (Option<Site>, f64),
+        want_tau: bool,
+    ) -> (Option<Site>, f64, Parent) {
+        let site = site.or_else(|| field_site(self.field.as_ref()?, w.hit?, w.u));
         // Before a discrete site nearer than the field's interaction, the field's depth counts only up to
         // the site: walked again when a caller asks for it (the packet interface does not).
         let tau_field = match (&self.field, site) {
-            (Some(f), Some(s)) if want_tau && hit.is_none_or(|h| s.t < h.t) => {
-                f.optical_depth(&ray.between(0.0, s.t))
+            (Some(f), Some(s)) if want_tau && w.hit.is_none_or(|h| s.t < h.t) => {
+                f.optical_depth(&w.ray.between(0.0, s.t))
             }
-            _ => tau_field,
+            _ => w.tau_field,
         };
-        (site, tau + tau_field, from)
+        (site, tau + tau_field, w.from)
     }
 
     /// The continuous equivalent of all particles when a ray leaving `parent` is to see it rather than
@@ -1562,16 +1645,16 @@ impl DiscreteMedium {
         let mut pdf = 0.0;
         if let [j] = m.members {
             // One particle (most events): its own phase function in every channel where it scatters,
-            // its bin looked up once (the weights below cancel: 5 % of a dense render).
-            let (b, w) = (
-                &self.bins[self.optics.bin(*j)],
-                (m.scale)(*j) * self.albedo_scale(),
-            );
+            // its bin looked up once (the weights below cancel: 5 % of a dense render), μ located
+            // once for all its tables where they share their nodes.
+            let bin = self.optics.bin(*j);
+            let (b, w) = (&self.bins[bin], (m.scale)(*j) * self.albedo_scale());
+            let at = self.shared_nodes[bin].then(|| b.phase[0].locate(mu));
             for (c, &l) in m.ls.iter().enumerate() {
-                values[c] = if w * bin_albedo(b, l) > 0.0 {
-                    bin_phase(b, l, mu)
-                } else {
-                    0.0
+                values[c] = match (w * bin_albedo(b, l) > 0.0, at) {
+                    (false, _) => 0.0,
+                    (true, Some(at)) => bin_phase_at(b, l, at),
+                    (true, None) => bin_phase(b, l, mu),
                 };
                 pdf += m.pi[c] * values[c];
             }
@@ -2095,31 +2178,73 @@ impl DiscreteMedium {
                 st.view_epoch = epoch;
             }
             let view = &*st.view;
-            let mut sites = 0;
+            // Lanes that walk stored grains from no event: walked together where they make a beam
+            // (`ParticleGrid::sample_sites_beam`: a pixel's camera rays, their shadow rays).
+            let mut walks: [Option<GrainWalk>; PACKET_LANES] = [const { None }; PACKET_LANES];
+            let mut beam = [0usize; PACKET_LANES];
+            let mut in_beam = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 st.pending[i] = PendingLane::default();
                 t[i] = None;
                 let Some((o, d, t_max)) = *ray else { continue };
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
-                let (site, _, parent) = self.lane_free_flight(
-                    &st.events,
-                    view,
-                    &mut surface,
-                    o,
-                    d,
-                    t_max as f64,
-                    u,
-                    false,
-                );
-                st.pending[i] = PendingLane { site, parent };
-                t[i] = site.map(|s| s.t);
-                sites += site.is_some() as u64;
+                match self.lane_plan(&st.events, view, &mut surface, o, d, t_max as f64, u, false) {
+                    Plan::Done(site, _, parent) => st.pending[i] = PendingLane { site, parent },
+                    Plan::Walk(w) => {
+                        if w.parent.len == 0 && matches!(self.grid, Some(Grains::Stored(_))) {
+                            beam[in_beam] = i;
+                            in_beam += 1;
+                        }
+                        walks[i] = Some(w);
+                    }
+                }
+            }
+            let mut found: [Option<(Option<Site>, f64)>; PACKET_LANES] = [None; PACKET_LANES];
+            if let (Some(Grains::Stored(g)), 2..) = (&self.grid, in_beam) {
+                self.beam_walks(g, &walks, &beam[..in_beam], &mut found);
+            }
+            let mut sites = 0;
+            for i in 0..rays.len().min(PACKET_LANES) {
+                if let Some(w) = &walks[i] {
+                    let walked = found[i].unwrap_or_else(|| match &self.grid {
+                        Some(g) => g.sample_site(&w.grains(), &w.parent, w.u, self.coincide),
+                        None => (None, 0.0),
+                    });
+                    let (site, _, parent) = self.finish_walk(w, walked, false);
+                    st.pending[i] = PendingLane { site, parent };
+                }
+                t[i] = st.pending[i].site.map(|s| s.t);
+                sites += st.pending[i].site.is_some() as u64;
             }
             sites
         });
         self.packet_counts.add(n_rays, sites);
         if surface.checked > 0 {
             self.surface_counts.add(surface.checked, surface.saw_field);
+        }
+    }
+
+    /// The walks of a packet's `lanes` (at least two, none starting at an event) as one beam where they
+    /// make one (`ParticleGrid::sample_sites_beam`): each lane's site and optical depth into `found`.
+    fn beam_walks(
+        &self,
+        g: &ParticleGrid,
+        walks: &[Option<GrainWalk>],
+        lanes: &[usize],
+        found: &mut [Option<(Option<Site>, f64)>],
+    ) {
+        let mut segs = [RaySegment::new([0.0; 3], [0.0, 0.0, 1.0], 0.0, 0.0); PACKET_LANES];
+        let mut us = [0.0; PACKET_LANES];
+        for (k, &i) in lanes.iter().enumerate() {
+            let w = walks[i].as_ref().expect("a walking lane");
+            (segs[k], us[k]) = (w.grains(), w.u);
+        }
+        let n = lanes.len();
+        let mut out = [(None, 0.0); PACKET_LANES];
+        if g.sample_sites_beam(&segs[..n], &us[..n], self.coincide, &mut out) {
+            for (k, &i) in lanes.iter().enumerate() {
+                found[i] = Some(out[k]);
+            }
         }
     }
 
@@ -2486,6 +2611,89 @@ mod tests {
                 None => assert!(distinct(&seen) < 100, "{}", distinct(&seen)), // exact: no field at all
             }
         }
+    }
+
+    /// A packet's rays that start at no event and walk the grains together as a beam (a pixel's camera
+    /// rays in compact storage's centre cells) find the sites each finds alone, also beside lanes that
+    /// start at an event and inactive lanes.
+    #[test]
+    fn packets_walked_as_beams_find_each_rays_own_site() {
+        let mut s = 41u64;
+        let mut r = || crate::test_rng::lcg(&mut s);
+        let n = 70_000; // compact storage's centre cells (from 2^16 discrete grains)
+        let pos: Vec<[f64; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
+        let rad: Vec<f64> = (0..n).map(|_| 0.002 + 0.0015 * r()).collect();
+        let c: Vec<f64> = rad.iter().map(|x| 2.0 * PI * x * x).collect();
+        let bins = vec![BinOptics {
+            albedo: vec![0.9, 0.8],
+            phase: vec![table(0.3), table(0.5)],
+        }];
+        let m = DiscreteMedium::build(
+            &pos,
+            &rad,
+            1.0,
+            &|i| c[i],
+            &vec![0; n],
+            bins,
+            vec![500.0, 600.0],
+            0.004,
+            DEFAULT_TAU_MAX,
+            1.0,
+            f64::INFINITY,
+            7,
+            Storage::Compact,
+        )
+        .unwrap();
+        let Some(Grains::Stored(g)) = &m.grid else {
+            panic!("stored grains")
+        };
+        // An event for one lane to start at (it skips its particles: no beam for it).
+        let o = [[0.5f32, 0.5, -0.2]];
+        let t = (0..100)
+            .find_map(|_| m.sample_sites(&o, &[[0.0, 0.0, 1.0]], &[f64::INFINITY], &[true])[0].t)
+            .unwrap();
+        let event = [0.5f32, 0.5, (-0.2 + t) as f32];
+        m.commit_events(&[event], &[true], &[500.0, 600.0], 2)
+            .unwrap();
+        let (mut beams, mut sites) = (0, 0);
+        for k in 0..60 {
+            let eye = [0.2 + 0.6 * r(), 0.2 + 0.6 * r(), -2.0];
+            let aim = [0.2 + 0.6 * r(), 0.2 + 0.6 * r(), 0.5];
+            let rays: Vec<Option<PacketRay>> = (0..PACKET_LANES)
+                .map(|i| {
+                    if i == 3 && k % 2 == 0 {
+                        return None;
+                    }
+                    if i == 5 && k % 3 == 0 {
+                        return Some((event, [0.1, 0.0, 0.995], 5.0));
+                    }
+                    let a = aim.map(|x| x + 0.003 * (r() - 0.5));
+                    let d = [0, 1, 2].map(|j| a[j] - eye[j]);
+                    let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                    Some((eye.map(|x| x as f32), d.map(|x| (x / l) as f32), 10.0f32))
+                })
+                .collect();
+            let mut together = [None; PACKET_LANES];
+            m.packet_free_flights(&rays, &mut together);
+            for (i, ray) in rays.iter().enumerate() {
+                let mut alone = [None];
+                m.packet_free_flights(&[*ray], &mut alone);
+                assert_eq!(together[i], alone[0], "packet {k}, lane {i}");
+                sites += alone[0].is_some() as usize;
+            }
+            let segs: Vec<RaySegment> = rays
+                .iter()
+                .flatten()
+                .filter(|r| r.0 != event)
+                .map(|&(o, d, t)| {
+                    RaySegment::new(o.map(|x| x as f64), d.map(|x| x as f64), 0.0, t as f64)
+                })
+                .collect();
+            let mut out = vec![(None, 0.0); segs.len()];
+            beams +=
+                g.sample_sites_beam(&segs, &vec![0.5; segs.len()], m.coincide, &mut out) as usize;
+        }
+        assert!(beams > 50 && sites > 300, "{beams} beams, {sites} sites");
     }
 
     /// After an event is committed, a ray starting at its position skips the event's particles; the

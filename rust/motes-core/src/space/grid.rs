@@ -122,8 +122,8 @@ fn bounding_box_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync) -> ([f64; 3]
 /// DDA steps a traversal batch covers before its loads (see `SubGrid::advance`): more steps keep more
 /// cache misses in flight on dense clouds, fewer waste less on a free flight that stops early.
 const SEGMENTS_PER_BATCH: usize = 36;
-/// DDA steps of a cached walk's first batch (`SubGrid::advance_cached_sparse`, `advance_cached_near`):
-/// each batch after it twice as many, up to [`SEGMENTS_PER_BATCH`]. A free flight that stops after a
+/// DDA steps of a walk's first batch (`SubGrid::advance` and its cached variants): each batch after it
+/// twice as many, up to [`SEGMENTS_PER_BATCH`] (and the rows a prefetched batch holds). A free flight that stops after a
 /// few cells (in a dense cloud, most) then walks few past its site, while a long walk still sorts its
 /// hits once per large batch.
 const FIRST_CACHED_BATCH: usize = 4;
@@ -604,8 +604,8 @@ unsafe fn qblock_pretest_avx2(
 /// A traversal of one [`SubGrid`] in progress: the DDA and what the pre-test needs.
 pub(crate) struct Cursor {
     dda: Dda,
-    /// The segment walked, |d| = 1 (the exact test's double precision).
-    ray: RaySegment,
+    /// The ray as the tests see it.
+    probe: Probe,
     first: bool,
     /// The cached sparse walk's next step (and whether it is the last), taken from the DDA one step
     /// early so that its blocks are on their way while the current step is tested.
@@ -617,12 +617,19 @@ pub(crate) struct Cursor {
     near: Near,
     /// DDA steps of the next cached batch ([`FIRST_CACHED_BATCH`], doubling).
     batch: usize,
+}
+
+/// A ray as a class's slot tests see it: the segment (|d| = 1, the exact test's double precision),
+/// its pre-test frame and, for quantised slots, where their origins lie across it.
+#[derive(Clone, Copy)]
+struct Probe {
+    ray: RaySegment,
     frame: RayFrame,
     /// Quantised slots: where their origins lie across the ray (`RayFrame::corner_offsets`).
     corners: [[f64; 4]; 2],
 }
 
-impl Cursor {
+impl Probe {
     /// A quantised step's offsets: (corner − o)·e1 and (corner − o)·e2 of the slot origin of `cell`, in
     /// single precision (rounded once from double: within the pre-test's slack).
     #[inline(always)]
@@ -647,6 +654,22 @@ struct Near {
     /// The ray's coordinates in cells from the grid's corner: `at + t per_t`.
     at: [f64; 3],
     per_t: [f64; 3],
+}
+
+impl Near {
+    /// The layers along axis `a` within `r` that the segment comes near over [t0, t1] (None: none).
+    /// A layer m is near where [m, m + 1) meets the coordinate's span grown by R_max (in cells).
+    #[inline(always)]
+    fn layers(&self, a: usize, t0: f64, t1: f64, r: [i64; 2]) -> Option<[i64; 2]> {
+        let (p, q) = (
+            self.at[a] + t0 * self.per_t[a],
+            self.at[a] + t1 * self.per_t[a],
+        );
+        let from = (fmin(p, q) - self.cells[a]).floor() as i64;
+        let to = (fmax(p, q) + self.cells[a]).floor() as i64;
+        let (m0, m1) = (r[0].max(from), r[1].min(to));
+        (m0 <= m1).then_some([m0, m1])
+    }
 }
 
 /// The larger of two numbers that are never NaN (plain comparisons: `f64::max`'s NaN rule costs a
@@ -708,6 +731,111 @@ pub struct SubGrid {
     /// Positional identities ([`ParticleGrid::positional`]): a k = 1 class with no `index` reports
     /// stored particle j as `first_id + j`.
     first_id: u32,
+}
+
+/// Rays a beam walks together at most ([`ParticleGrid::sample_sites_beam`]: a packet's lanes).
+pub const BEAM_RAYS: usize = 16;
+
+/// Rays make a beam while they stay within this many R_max of their representative ray (δ): wider,
+/// the blocks within R_max + δ of it hold few particles near any one ray, and every ray pre-tests them.
+/// Measured (llvm_ad_rgb, seconds per render with beams / without, alternating): the dense haze of
+/// `scripts/bench/render_seconds.py dense --res 256 --spp 64` 4.08–4.26 / 4.42–4.43 with any
+/// spread, no gain below 1; the Cornell box with 10^5 grains of 2 mm at 96 px (δ up to several R_max)
+/// 0.71 with 2, 0.73 without a bound, 0.71 without beams.
+const BEAM_SPREAD: f64 = 2.0;
+
+/// A free flight over its ray's contributions in t order ([`ParticleGrid::sample_site`]): contributions
+/// closer than `coincide` along the ray form one site, and the flight interacts at the first site where
+/// the optical depth walked passes −ln(1 − u).
+#[derive(Clone)]
+struct Flight<'a> {
+    exclude: &'a [u32],
+    coincide: f64,
+    target: f64,
+    acc: f64,
+    group: Site,
+    group_tau: f64,
+    last_t: f64,
+    found: Option<Site>,
+}
+
+impl<'a> Flight<'a> {
+    fn new(exclude: &'a [u32], u: f64, coincide: f64) -> Self {
+        Flight {
+            exclude,
+            coincide,
+            target: -(1.0 - u).ln(),
+            acc: 0.0,
+            group: Site::default(),
+            group_tau: 0.0,
+            last_t: f64::NEG_INFINITY,
+            found: None,
+        }
+    }
+
+    /// The next contribution (at t, optical depth `tau`, particle `i`); false once the site is found.
+    #[inline(always)]
+    fn visit(&mut self, t: f64, tau: f32, i: u32) -> bool {
+        if self.exclude.contains(&i) {
+            return true;
+        }
+        if self.group.len > 0 && t > self.last_t + self.coincide {
+            // The group is complete: does the path interact there?
+            if self.acc + self.group_tau > self.target {
+                self.found = Some(self.group);
+                return false;
+            }
+            self.acc += self.group_tau;
+            self.group = Site::default();
+            self.group_tau = 0.0;
+        }
+        if self.group.len == 0 {
+            self.group.t = t;
+        }
+        self.group.push(i);
+        self.group_tau += tau as f64;
+        self.last_t = t;
+        true
+    }
+
+    /// The site (None: the ray passed every contribution) and the optical depth walked before it.
+    fn finish(mut self) -> (Option<Site>, f64) {
+        if self.found.is_none() && self.group.len > 0 {
+            if self.acc + self.group_tau > self.target {
+                self.found = Some(self.group);
+            } else {
+                self.acc += self.group_tau;
+            }
+        }
+        (self.found, self.acc)
+    }
+}
+
+/// Rays walked as one beam through a class with centre cells ([`ParticleGrid::sample_sites_beam`]).
+struct Beam {
+    /// The representative ray (segment [s0, s1] covering every ray's projection), its pre-test
+    /// slack grown by δ: the lanes it passes are those any ray's pre-test may pass.
+    rep: Probe,
+    /// Each ray as the tests see it (None: it misses the class's box).
+    probes: [Option<Probe>; BEAM_RAYS],
+    /// The class's cells grown by one layer (a ray's point near the box's face projects on the
+    /// representative ray within δ of it, possibly outside).
+    cells: GridFrame,
+    /// Where the representative ray comes within R_max + δ of the cell layers.
+    near: Near,
+    /// Per ray: (o − o_rep)·d_rep and d·d_rep, its points' projections on the representative ray.
+    proj: [(f64, f64); BEAM_RAYS],
+    /// δ: the farthest any ray's segment in the class's box gets from the representative ray (what the
+    /// walk uses of it is in `rep` and `near`; kept for tests).
+    #[allow(dead_code)]
+    delta: f64,
+}
+
+impl Beam {
+    /// The t on ray `i` whose point projects at `s` on the representative ray.
+    fn frontier(&self, i: usize, s: f64) -> f64 {
+        (s - self.proj[i].0) / self.proj[i].1
+    }
 }
 
 /// One contributing particle of a ray.
@@ -1272,8 +1400,12 @@ impl SubGrid {
 
     /// When `ray` comes near each layer of cells ([`Near`]).
     fn near(&self, ray: &RaySegment) -> Near {
+        self.near_reach(ray, self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1)
+    }
+
+    /// [`Near`] of a ray for balls of radius `reach`.
+    fn near_reach(&self, ray: &RaySegment, reach: f64) -> Near {
         let (lo, edge) = (self.frame.bounds.lo, self.frame.cell);
-        let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1;
         let mut near = Near::default();
         for a in 0..3 {
             near.cells[a] = reach / edge[a];
@@ -1294,6 +1426,130 @@ impl SubGrid {
         near
     }
 
+    /// The pre-test's slack for a ray from `o`: the single-precision rounding of coordinates of that
+    /// magnitude, and of quantised slots' lattice offsets.
+    fn pretest_slack(&self, o: [f64; 3]) -> f64 {
+        let b = &self.frame.bounds;
+        let scale = (0..3)
+            .map(|a| o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
+            .fold(0.0, f64::max);
+        // Quantised slots add the rounding of their lattice offsets' single-precision sums
+        // (up to 4 cells of 2^16 steps, ~1e-6 of a cell): covered ten times over.
+        let step = self.quant.as_ref().map_or(0.0, |q| q.step);
+        PRETEST_SLACK * scale + 1e-5 * step * LATTICE_PER_CELL as f64
+    }
+
+    /// A ray as the slot tests see it, its pre-test's slack grown by `widen`.
+    fn probe(&self, ray: &RaySegment, widen: f64) -> Probe {
+        let step = self.quant.as_ref().map_or(0.0, |q| q.step);
+        let frame = RayFrame::new(ray, (self.pretest_slack(ray.o) + widen) as f32, step);
+        Probe {
+            ray: *ray,
+            corners: if self.quant.is_some() {
+                frame.corner_offsets(self.frame.bounds.lo, self.frame.cell, ray.o)
+            } else {
+                [[0.0; 4]; 2]
+            },
+            frame,
+        }
+    }
+
+    /// The lanes of slot block `blk` that may contribute to a probe's ray (the pre-test alone).
+    #[inline(always)]
+    fn pretest<const WIDE: bool>(
+        &self,
+        slots: &Spheres,
+        blk: usize,
+        sg: &Segment,
+        probe: &Probe,
+    ) -> u32 {
+        match &self.quant {
+            Some(q) => qblock_pretest::<WIDE>(
+                &q.blocks[blk],
+                q.block_reach[blk],
+                &probe.frame,
+                sg.off,
+                sg.base,
+            ),
+            None => block_pretest::<WIDE>(&slots.0[blk], &probe.frame),
+        }
+    }
+
+    /// The beam of `rays` through this class ([`ParticleGrid::sample_sites_beam`]), if they make one:
+    /// directions within ~25° of their mean, and the farthest any ray's segment in the class's box
+    /// gets from the representative ray (their mean direction through their mean entry point), δ,
+    /// small enough that R_max + δ stays within a cell.
+    fn beam(&self, rays: &[RaySegment]) -> Option<Beam> {
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let mut clip = [None; BEAM_RAYS];
+        let (mut sum, mut live) = ([0.0; 3], 0);
+        for (i, r) in rays.iter().enumerate() {
+            clip[i] = self.frame.bounds.clip(r);
+            if clip[i].is_some() {
+                (0..3).for_each(|a| sum[a] += r.d[a]);
+                live += 1;
+            }
+        }
+        let norm = dot(sum, sum).sqrt();
+        let d = (live > 0 && norm > 0.0).then(|| sum.map(|x| x / norm))?;
+        let at = |r: &RaySegment, t: f64| [0, 1, 2].map(|a| r.o[a] + t * r.d[a]);
+        let mut o = [0.0; 3];
+        for (r, c) in rays.iter().zip(&clip) {
+            if let Some((t0, _)) = c {
+                let p = at(r, *t0);
+                (0..3).for_each(|a| o[a] += p[a] / live as f64);
+            }
+        }
+        let (mut delta, mut s0, mut s1) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
+        let mut proj = [(0.0, 1.0); BEAM_RAYS];
+        for (i, (r, c)) in rays.iter().zip(&clip).enumerate() {
+            let Some((t0, t1)) = *c else { continue };
+            let cos = dot(r.d, d);
+            if cos.is_nan() || cos < 0.9 {
+                return None;
+            }
+            let rel = [0, 1, 2].map(|a| r.o[a] - o[a]);
+            proj[i] = (dot(rel, d), cos);
+            for t in [t0, t1] {
+                let p = at(r, t);
+                let v = [0, 1, 2].map(|a| p[a] - o[a]);
+                let s = dot(v, d);
+                let across = [0, 1, 2].map(|a| v[a] - s * d[a]);
+                delta = delta.max(dot(across, across).sqrt());
+                s0 = s0.min(s);
+                s1 = s1.max(s);
+            }
+        }
+        let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
+        let cell = self.frame.cell;
+        if reach.is_nan() || reach > cell[0].min(cell[1]).min(cell[2]) {
+            return None;
+        }
+        if delta > BEAM_SPREAD * self.reach_max {
+            return None;
+        }
+        let rep = RaySegment::new(o, d, s0, s1);
+        let mut probes = [None; BEAM_RAYS];
+        for (i, r) in rays.iter().enumerate() {
+            if clip[i].is_some() {
+                probes[i] = Some(self.probe(r, 0.0));
+            }
+        }
+        let lo = self.frame.bounds.lo;
+        Some(Beam {
+            rep: self.probe(&rep, delta),
+            probes,
+            cells: GridFrame::new(
+                [0, 1, 2].map(|a| lo[a] - cell[a]),
+                cell,
+                self.frame.dims.map(|n| n + 2),
+            ),
+            near: self.near_reach(&rep, reach),
+            proj,
+            delta,
+        })
+    }
+
     /// Start a traversal of a ray segment, |d| = 1, `inv_d` the direction's reciprocals.
     pub(crate) fn cursor(&self, ray: &RaySegment, inv_d: [f64; 3]) -> Cursor {
         let b = &self.frame.bounds;
@@ -1304,42 +1560,38 @@ impl SubGrid {
         let frame = if misses {
             RayFrame::UNUSED
         } else {
-            let scale = (0..3)
-                .map(|a| ray.o[a].abs() + b.lo[a].abs().max(b.hi[a].abs()))
-                .fold(0.0, f64::max);
-            // Quantised slots add the rounding of their lattice offsets' single-precision sums
-            // (up to 4 cells of 2^16 steps, ~1e-6 of a cell): covered ten times over.
             let step = self.quant.as_ref().map_or(0.0, |q| q.step);
-            let slack = PRETEST_SLACK * scale + 1e-5 * step * LATTICE_PER_CELL as f64;
-            RayFrame::new(ray, slack as f32, step)
+            RayFrame::new(ray, self.pretest_slack(ray.o) as f32, step)
         };
         Cursor {
             dda,
-            ray: *ray,
+            probe: Probe {
+                ray: *ray,
+                corners: if self.quant.is_some() && !misses {
+                    frame.corner_offsets(b.lo, self.frame.cell, ray.o)
+                } else {
+                    [[0.0; 4]; 2]
+                },
+                frame,
+            },
             first: true,
             ahead: None,
             prev: None,
             batch: FIRST_CACHED_BATCH,
-            corners: if self.quant.is_some() && !misses {
-                frame.corner_offsets(b.lo, self.frame.cell, ray.o)
-            } else {
-                [[0.0; 4]; 2]
-            },
             near: if self.k == 1 && !misses {
                 self.near(ray)
             } else {
                 Near::default()
             },
-            frame,
         }
     }
 
     /// Where a segment's quantised slots lie across the ray (`Segment::off`, `Segment::base`): once per
     /// segment, before its slots are tested (spheres need nothing).
     #[inline(always)]
-    fn locate(&self, sg: &mut Segment, cur: &Cursor) {
+    fn locate(&self, sg: &mut Segment, probe: &Probe) {
         if self.quant.is_some() {
-            sg.off = cur.offsets(sg.cell);
+            sg.off = probe.offsets(sg.cell);
             sg.base = QSlots::origin_bits(sg.cell);
         }
     }
@@ -1372,20 +1624,29 @@ impl SubGrid {
         let mut frontier = f64::INFINITY;
         // A step adds one row (k = 0) or up to nine (k = 1).
         let rows_per_step = if self.k == 0 { 1 } else { ROWS_PER_STEP };
-        while n + rows_per_step <= SEGMENTS_PER_BATCH {
+        // At most `cur.batch` steps (doubling from batch to batch, as in the cached walks).
+        let steps = cur.batch;
+        cur.batch = (2 * steps).min(SEGMENTS_PER_BATCH);
+        let mut taken = 0;
+        while n + rows_per_step <= SEGMENTS_PER_BATCH && taken < steps {
+            taken += 1;
             let Some(step) = cur.dda.next() else { break };
             // The first step starts at t0 (particles before the box entry are too far from the ray
             // to count), the last ends at t1.
             let last = cur.dda.finished();
-            let t_enter = if cur.first { cur.ray.t0 } else { step.t_enter };
-            let t_exit = if last { cur.ray.t1 } else { step.t_exit };
+            let t_enter = if cur.first {
+                cur.probe.ray.t0
+            } else {
+                step.t_enter
+            };
+            let t_exit = if last { cur.probe.ray.t1 } else { step.t_exit };
             cur.first = false;
             let prev = cur.prev.replace(step.cell);
             n += self.step_rows(
                 step.cell,
                 step.index,
                 prev,
-                &cur.ray,
+                &cur.probe.ray,
                 &cur.near,
                 t_enter,
                 t_exit,
@@ -1405,7 +1666,7 @@ impl SubGrid {
         let slots = self.slots();
         for sg in batch.iter_mut() {
             (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
-            self.locate(sg, cur);
+            self.locate(sg, &cur.probe);
             if self.prefetch_slots {
                 for blk in sg.c0 / LANES..sg.c1.div_ceil(LANES) {
                     match &self.quant {
@@ -1416,7 +1677,7 @@ impl SubGrid {
             }
         }
         for sg in batch.iter() {
-            if !self.test_slots::<WIDE>(slots, sg, cur, found) {
+            if !self.test_slots::<WIDE>(slots, sg, &cur.probe, found) {
                 return None;
             }
         }
@@ -1430,7 +1691,7 @@ impl SubGrid {
         &self,
         slots: &Spheres,
         sg: &Segment,
-        cur: &Cursor,
+        probe: &Probe,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         if sg.c0 == sg.c1 {
@@ -1442,7 +1703,7 @@ impl SubGrid {
             let first = (sg.c0.max(base) - base) as u32;
             let end = (sg.c1.min(base + LANES) - base) as u32;
             let lanes = (ALL_LANES >> (LANES as u32 - end)) & (ALL_LANES << first);
-            if !self.test_block::<WIDE>(slots, blk, lanes, sg, cur, found) {
+            if !self.test_block::<WIDE>(slots, blk, lanes, sg, probe, found) {
                 return false;
             }
         }
@@ -1459,18 +1720,18 @@ impl SubGrid {
         blk: usize,
         lanes: u32,
         sg: &Segment,
-        cur: &Cursor,
+        probe: &Probe,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         if let Some(q) = &self.quant {
-            return self.test_qblock::<WIDE>(q, blk, lanes, sg, cur, found);
+            return self.test_qblock::<WIDE>(q, blk, lanes, sg, probe, found);
         }
-        let mut m = lanes & block_pretest::<WIDE>(&slots.0[blk], &cur.frame);
+        let mut m = lanes & block_pretest::<WIDE>(&slots.0[blk], &probe.frame);
         while m != 0 {
             let s = LANES * blk + m.trailing_zeros() as usize;
             m &= m - 1;
-            if let Some(t) = sphere_contribution(slots.get(s), &cur.ray) {
-                let in_step = t >= sg.t_enter && t < sg.t_exit && cur.ray.contains(t);
+            if let Some(t) = sphere_contribution(slots.get(s), &probe.ray) {
+                let in_step = t >= sg.t_enter && t < sg.t_exit && probe.ray.contains(t);
                 if in_step && self.k == 0 {
                     // A hit's τ and index are read when the batch's hits are merged in t order:
                     // start fetching them now.
@@ -1494,7 +1755,7 @@ impl SubGrid {
         blk: usize,
         lanes: u32,
         sg: &Segment,
-        cur: &Cursor,
+        probe: &Probe,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         let lo = self.frame.bounds.lo;
@@ -1502,7 +1763,7 @@ impl SubGrid {
             & qblock_pretest::<WIDE>(
                 &q.blocks[blk],
                 q.block_reach[blk],
-                &cur.frame,
+                &probe.frame,
                 sg.off,
                 sg.base,
             );
@@ -1510,8 +1771,8 @@ impl SubGrid {
             let s = LANES * blk + m.trailing_zeros() as usize;
             m &= m - 1;
             let (c, r) = q.ball(lo, s, sg.cell);
-            if let Some(t) = ball_contribution(c, r, &cur.ray) {
-                let in_step = t >= sg.t_enter && t < sg.t_exit && cur.ray.contains(t);
+            if let Some(t) = ball_contribution(c, r, &probe.ray) {
+                let in_step = t >= sg.t_enter && t < sg.t_exit && probe.ray.contains(t);
                 if in_step {
                     let index = if self.k == 0 {
                         &self.slot_index
@@ -1543,7 +1804,7 @@ impl SubGrid {
     ) -> Option<f64> {
         let slots = &self.inline;
         let take = |cur: &mut Cursor| cur.dda.next().map(|st| (st, cur.dda.finished()));
-        let mut frontier = cur.ray.t0;
+        let mut frontier = cur.probe.ray.t0;
         let mut this = match cur.ahead.take() {
             Some(a) => Some(a),
             None => take(cur),
@@ -1574,16 +1835,20 @@ impl SubGrid {
             let mut sg = Segment {
                 c0: self.start[c] as usize,
                 c1: self.start[c + 1] as usize,
-                t_enter: if cur.first { cur.ray.t0 } else { step.t_enter },
-                t_exit: if last { cur.ray.t1 } else { step.t_exit },
+                t_enter: if cur.first {
+                    cur.probe.ray.t0
+                } else {
+                    step.t_enter
+                },
+                t_exit: if last { cur.probe.ray.t1 } else { step.t_exit },
                 cell: step.cell,
                 ..Segment::default()
             };
-            self.locate(&mut sg, cur);
+            self.locate(&mut sg, &cur.probe);
             cur.first = false;
             // Whole blocks (padded cells): every lane is tested.
             for blk in sg.c0 / LANES..sg.c1 / LANES {
-                if !self.test_block::<WIDE>(slots, blk, ALL_LANES, &sg, cur, found) {
+                if !self.test_block::<WIDE>(slots, blk, ALL_LANES, &sg, &cur.probe, found) {
                     return None;
                 }
             }
@@ -1610,7 +1875,7 @@ impl SubGrid {
     ) -> Option<f64> {
         let slots = self.slots();
         let mut rows = [Segment::default(); ROWS_PER_STEP];
-        let mut frontier = cur.ray.t0;
+        let mut frontier = cur.probe.ray.t0;
         let steps = cur.batch;
         cur.batch = (2 * steps).min(SEGMENTS_PER_BATCH);
         for _ in 0..steps {
@@ -1618,20 +1883,31 @@ impl SubGrid {
                 return Some(f64::INFINITY);
             };
             let last = cur.dda.finished();
-            let t_enter = if cur.first { cur.ray.t0 } else { step.t_enter };
-            let t_exit = if last { cur.ray.t1 } else { step.t_exit };
+            let t_enter = if cur.first {
+                cur.probe.ray.t0
+            } else {
+                step.t_enter
+            };
+            let t_exit = if last { cur.probe.ray.t1 } else { step.t_exit };
             cur.first = false;
             let prev = cur.prev.replace(step.cell);
             let n = self.step_rows(
-                step.cell, step.index, prev, &cur.ray, &cur.near, t_enter, t_exit, &mut rows,
+                step.cell,
+                step.index,
+                prev,
+                &cur.probe.ray,
+                &cur.near,
+                t_enter,
+                t_exit,
+                &mut rows,
             );
             for sg in rows[..n].iter_mut() {
                 (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
                 if sg.c0 == sg.c1 {
                     continue;
                 }
-                self.locate(sg, cur);
-                if !self.test_slots::<WIDE>(slots, sg, cur, found) {
+                self.locate(sg, &cur.probe);
+                if !self.test_slots::<WIDE>(slots, sg, &cur.probe, found) {
                     return None;
                 }
             }
@@ -1683,36 +1959,46 @@ impl SubGrid {
             };
             return 1;
         }
-        let dims = self.frame.dims;
+        self.near_rows(
+            c.map(|x| x as i64),
+            prev.map(|p| p.map(|x| x as i64)),
+            ray.t0,
+            ray.t1,
+            near,
+            out,
+        )
+    }
+
+    /// The k = 1 rows of [`Self::step_rows`] for DDA cell `c` after cell `prev`, in signed cell
+    /// coordinates (a beam's walk steps through the cells one layer outside the grid too:
+    /// `Self::beam_flights`), for a segment on [t0, t1] whose nearness `near` gives.
+    #[inline(always)]
+    fn near_rows(
+        &self,
+        c: [i64; 3],
+        prev: Option<[i64; 3]>,
+        t0: f64,
+        t1: f64,
+        near: &Near,
+        out: &mut [Segment],
+    ) -> usize {
+        let dims = self.frame.dims.map(|d| d as i64);
         // Cells within one of `c` along axis a (clamped to the grid), or the slab's one coordinate.
-        let mut range = [0, 1, 2].map(|a| [c[a].saturating_sub(1), (c[a] + 1).min(dims[a] - 1)]);
+        let mut range = [0, 1, 2].map(|a| [(c[a] - 1).max(0), (c[a] + 1).min(dims[a] - 1)]);
         // Where the segment comes within R_max of the candidate cells: first a t interval (near the
         // slab's layer, or near the block along every axis), then along each other axis the layers
         // the ray's coordinate comes near over that interval (a cell whose grown box the ray crosses
         // at t has t in the interval and its layers within R_max of the coordinates there: none is
         // dropped).
-        let (mut t0, mut t1) = (ray.t0, ray.t1);
+        let (mut t0, mut t1) = (t0, t1);
         // The layers near the segment along `a` over [t0, t1], within `range[a]` (None: none). A
         // layer m is near where [m, m + 1) meets the coordinate's span grown by R_max (in cells).
-        let layers = |a: usize, t0: f64, t1: f64, r: [usize; 2]| -> Option<[usize; 2]> {
-            let (p, q) = (
-                near.at[a] + t0 * near.per_t[a],
-                near.at[a] + t1 * near.per_t[a],
-            );
-            let from = (fmin(p, q) - near.cells[a]).floor() as i64;
-            let to = (fmax(p, q) + near.cells[a]).floor() as i64;
-            let (m0, m1) = ((r[0] as i64).max(from), (r[1] as i64).min(to));
-            (m0 <= m1).then_some([m0 as usize, m1 as usize])
-        };
+        let layers = |a: usize, t0: f64, t1: f64, r: [i64; 2]| near.layers(a, t0, t1, r);
         if let Some(p) = prev {
             // The axis the step moved along (exactly one differs), without a branch per axis.
             let a = usize::from(p[1] != c[1]) + 2 * usize::from(p[2] != c[2]);
-            let far = if c[a] > p[a] {
-                c[a] + 1
-            } else {
-                c[a].wrapping_sub(1)
-            };
-            if far >= dims[a] {
+            let far = if c[a] > p[a] { c[a] + 1 } else { c[a] - 1 };
+            if far < 0 || far >= dims[a] {
                 return 0; // the slab lies outside the grid
             }
             t0 = fmax(t0, near.enter[a] + far as f64 * near.step[a]);
@@ -1728,6 +2014,9 @@ impl SubGrid {
                 }
             }
         } else {
+            if range.iter().any(|r| r[0] > r[1]) {
+                return 0; // the block lies outside the grid
+            }
             for a in 0..3 {
                 let [m0, m1] = range[a];
                 let (first, last) = if near.step[a] > 0.0 {
@@ -1749,9 +2038,10 @@ impl SubGrid {
             }
         }
         let mut n = 0;
-        let (first, last) = (range[0][0], range[0][1]);
-        for z in range[2][0]..=range[2][1] {
-            for y in range[1][0]..=range[1][1] {
+        let (first, last) = (range[0][0] as usize, range[0][1] as usize);
+        let dims = self.frame.dims;
+        for z in range[2][0] as usize..=range[2][1] as usize {
+            for y in range[1][0] as usize..=range[1][1] as usize {
                 let row = (z * dims[1] + y) * dims[0];
                 out[n] = Segment {
                     c0: row + first,
@@ -2282,42 +2572,173 @@ impl ParticleGrid {
         u: f64,
         coincide: f64,
     ) -> (Option<Site>, f64) {
-        let target = -(1.0 - u).ln();
-        let mut acc = 0.0;
-        let mut group = Site::default();
-        let mut group_tau = 0.0;
-        let mut last_t = f64::NEG_INFINITY;
-        let mut found = None;
-        self.walk(ray, |t, tau, i| {
-            if exclude.contains(&i) {
-                return true;
-            }
-            if group.len > 0 && t > last_t + coincide {
-                // The group is complete: does the path interact there?
-                if acc + group_tau > target {
-                    found = Some(group);
+        let mut flight = Flight::new(exclude, u, coincide);
+        self.walk(ray, |t, tau, i| flight.visit(t, tau[0], i));
+        flight.finish()
+    }
+
+    /// Free flights ([`Self::sample_site`], nothing excluded) of up to [`BEAM_RAYS`] rays walked as one
+    /// beam: the cells around a representative ray (their mean), within R_max + δ of it, δ the
+    /// farthest any ray's segment in the grid gets from it, each cell once; each ray tests those cells'
+    /// particles that come within δ of the representative ray (one pre-test for all) with its own
+    /// pre-test and exact test, so that every ray gets exactly its own contributions, in t order (a
+    /// contribution at t lies within R_max + δ of the representative ray's point nearest the ray's
+    /// point at t, whose block the walk has tested once it is past that point). A pixel's camera rays
+    /// (a packet of Mitsuba's symbolic kernels holds one pixel's samples) and their shadow rays towards a
+    /// point light share their steps and their loads. Writes `out` and returns true, or returns false
+    /// (nothing written) where the rays are no such beam: one size class with centre cells, δ + R_max
+    /// within a cell and δ within [`BEAM_SPREAD`] R_max, directions within ~25° of their mean.
+    pub fn sample_sites_beam(
+        &self,
+        rays: &[RaySegment],
+        us: &[f64],
+        coincide: f64,
+        out: &mut [(Option<Site>, f64)],
+    ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if wide_simd() {
+            // SAFETY: the CPU has AVX2 and FMA (`wide_simd`).
+            return unsafe { self.beam_avx2(rays, us, coincide, out) };
+        }
+        self.beam_lanes::<false>(rays, us, coincide, out)
+    }
+
+    /// [`Self::sample_sites_beam`] compiled for AVX2 + FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn beam_avx2(
+        &self,
+        rays: &[RaySegment],
+        us: &[f64],
+        coincide: f64,
+        out: &mut [(Option<Site>, f64)],
+    ) -> bool {
+        self.beam_lanes::<true>(rays, us, coincide, out)
+    }
+
+    #[inline(always)]
+    fn beam_lanes<const WIDE: bool>(
+        &self,
+        rays: &[RaySegment],
+        us: &[f64],
+        coincide: f64,
+        out: &mut [(Option<Site>, f64)],
+    ) -> bool {
+        let [c] = &self.classes[..] else {
+            return false;
+        };
+        let n = rays.len();
+        if c.k != 1 || !(2..=BEAM_RAYS).contains(&n) || us.len() != n || out.len() < n {
+            return false;
+        }
+        let Some(beam) = c.beam(rays) else {
+            return false;
+        };
+        let mut flights: [Option<Flight>; BEAM_RAYS] = [const { None }; BEAM_RAYS];
+        for i in 0..n {
+            out[i] = (None, 0.0);
+            flights[i] = beam.probes[i].map(|_| Flight::new(&[], us[i], coincide));
+        }
+        let mut pending: [Vec<(f64, u32)>; BEAM_RAYS] = [const { Vec::new() }; BEAM_RAYS];
+        // Ray i's hits before `upto`, in t order, into its flight; false once it found its site.
+        let emit = |upto: f64, pending: &mut Vec<(f64, u32)>, flight: &mut Flight| -> bool {
+            pending.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
+            let k = pending.partition_point(|h| h.0 < upto);
+            for &(t, s) in &pending[..k] {
+                if !flight.visit(t, c.hit_tau(s as usize)[0], c.hit_index(s as usize)) {
                     return false;
                 }
-                acc += group_tau;
-                group = Site::default();
-                group_tau = 0.0;
             }
-            if group.len == 0 {
-                group.t = t;
-            }
-            group.push(i);
-            group_tau += tau[0] as f64;
-            last_t = t;
+            pending.drain(..k);
             true
-        });
-        if found.is_none() && group.len > 0 {
-            if acc + group_tau > target {
-                found = Some(group);
-            } else {
-                acc += group_tau;
+        };
+        let slots = c.slots();
+        let mut rows = [Segment::default(); ROWS_PER_STEP];
+        let mut dda = Dda::new(&beam.cells, &beam.rep.ray);
+        let mut prev: Option<[i64; 3]> = None;
+        let mut flying = flights.iter().filter(|f| f.is_some()).count();
+        while flying > 0 {
+            let Some(step) = dda.next() else { break };
+            let last = dda.finished();
+            // The grown grid's cell, in the class's cell coordinates (−1 and dims: outside).
+            let cell = step.cell.map(|x| x as i64 - 1);
+            let rep = &beam.rep;
+            let m = c.near_rows(
+                cell,
+                prev.replace(cell),
+                rep.ray.t0,
+                rep.ray.t1,
+                &beam.near,
+                &mut rows,
+            );
+            for sg in rows[..m].iter_mut() {
+                (sg.c0, sg.c1) = (c.start[sg.c0] as usize, c.start[sg.c1] as usize);
+                if sg.c0 == sg.c1 {
+                    continue;
+                }
+                c.locate(sg, rep);
+                // Where each ray's pre-test reads the row's slots from (its lattice offsets).
+                let own: [Segment; BEAM_RAYS] = std::array::from_fn(|i| {
+                    let mut own = *sg;
+                    if let (Some(probe), Some(_)) = (&beam.probes[i], &flights[i]) {
+                        c.locate(&mut own, probe);
+                    }
+                    own
+                });
+                for blk in sg.c0 / LANES..=(sg.c1 - 1) / LANES {
+                    let base = LANES * blk;
+                    let first = (sg.c0.max(base) - base) as u32;
+                    let end = (sg.c1.min(base + LANES) - base) as u32;
+                    let lanes = (ALL_LANES >> (LANES as u32 - end)) & (ALL_LANES << first);
+                    // The lanes the representative ray's pre-test passes (within R + δ of it): one
+                    // pre-test for all rays, most blocks of a dense cloud none.
+                    let candidates = lanes & c.pretest::<WIDE>(slots, blk, sg, rep);
+                    if candidates == 0 {
+                        continue;
+                    }
+                    for i in 0..n {
+                        let (Some(probe), Some(_)) = (&beam.probes[i], &flights[i]) else {
+                            continue;
+                        };
+                        let list = &mut pending[i];
+                        c.test_block::<WIDE>(
+                            slots,
+                            blk,
+                            candidates,
+                            &own[i],
+                            probe,
+                            &mut |t, s| {
+                                list.push((t, s as u32));
+                                true
+                            },
+                        );
+                    }
+                }
+            }
+            // Each ray's contributions are known where its points project before this step's exit.
+            for i in 0..n {
+                let Some(f) = &mut flights[i] else { continue };
+                let upto = if last {
+                    f64::INFINITY
+                } else {
+                    beam.frontier(i, step.t_exit)
+                };
+                if !emit(upto, &mut pending[i], f) {
+                    out[i] = flights[i].take().map_or((None, 0.0), Flight::finish);
+                    flying -= 1;
+                }
+            }
+            if last {
+                break;
             }
         }
-        (found, acc)
+        for i in 0..n {
+            if let Some(mut f) = flights[i].take() {
+                emit(f64::INFINITY, &mut pending[i], &mut f);
+                out[i] = f.finish();
+            }
+        }
+        true
     }
 
     /// Original indices (a positional grid's: positions) of the particles whose inclusion ball
@@ -2453,7 +2874,9 @@ impl ParticleGrid {
 mod tests {
     use super::*;
 
-    use crate::test_rng::{assert_escape_rate, lcg, random_direction, random_particles};
+    use crate::test_rng::{
+        assert_escape_rate, lcg, random_direction, random_particles, random_points,
+    };
     use std::f64::consts::PI;
 
     /// Free flights interact at a particle with exactly the probability the transmittance implies:
@@ -2667,6 +3090,120 @@ mod tests {
                 assert_queries_match_brute(&g, ray, rc);
             }
         }
+    }
+
+    /// A beam's free flights equal each ray's own ([`ParticleGrid::sample_site`]): the same sites and
+    /// optical depths, for a pixel's camera rays from outside the grid, shadow rays from nearby
+    /// points converging on a light, rays from inside the grid and rays that miss it, with flights
+    /// that stop at once and flights that pass every particle; in centre cells quantised or not, with
+    /// AVX2 and without. Rays that diverge are no beam.
+    #[test]
+    fn beams_sample_each_rays_own_free_flight() {
+        let mut s = 29u64;
+        let n = 20_000;
+        let pos = random_points(&mut s, n);
+        // One size class (radii within a factor of two).
+        let rad: Vec<f64> = (0..n).map(|_| 0.004 + 0.003 * lcg(&mut s)).collect();
+        let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
+        let (mut beams, mut rays_checked, mut wide) = (0, 0, 0);
+        for (quantise, simd) in [(true, true), (false, true), (true, false)] {
+            let settings = GridSettings::new(0.01, 0.25)
+                .quantised(quantise)
+                .centred(true);
+            let g = ParticleGrid::build(&pos, &rad, &cext, 1, &settings).unwrap();
+            assert_eq!(g.class_count(), 1);
+            let norm = |v: [f64; 3]| {
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                v.map(|x| x / l)
+            };
+            for b in 0..120 {
+                let k = 2 + (lcg(&mut s) * 15.0) as usize;
+                // Spreads from far below the balls' reach to beyond a cell.
+                let spread = 0.002 * 30f64.powf(lcg(&mut s));
+                let target = [0, 1, 2].map(|_| 1.2 * lcg(&mut s) - 0.1);
+                let rays: Vec<RaySegment> = match b % 3 {
+                    // A pixel's camera rays: one eye, directions a few mrad apart.
+                    0 => {
+                        let eye = [0.5 + 0.3 * lcg(&mut s), 0.4, -3.0];
+                        (0..k)
+                            .map(|_| {
+                                let aim = target.map(|x| x + spread * (lcg(&mut s) - 0.5));
+                                let d = norm([0, 1, 2].map(|a| aim[a] - eye[a]));
+                                RaySegment::new(eye, d, 0.0, 10.0)
+                            })
+                            .collect()
+                    }
+                    // Shadow rays from points of a small spot towards a light far away.
+                    1 => {
+                        let light = [3.0, 4.0, 2.0];
+                        (0..k)
+                            .map(|_| {
+                                let o = target.map(|x| x + spread * (lcg(&mut s) - 0.5));
+                                let d = [0, 1, 2].map(|a| light[a] - o[a]);
+                                let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                                RaySegment::new(o, d.map(|x| x / l), 0.0, l)
+                            })
+                            .collect()
+                    }
+                    // Rays leaving the grid's neighbourhood, some missing it.
+                    _ => {
+                        let o = [0.5, 0.5, 0.5].map(|x: f64| x + 0.9 * (lcg(&mut s) - 0.5));
+                        let d0 = norm([lcg(&mut s) - 0.5, lcg(&mut s) - 0.5, lcg(&mut s) - 0.5]);
+                        (0..k)
+                            .map(|i| {
+                                let d = norm(d0.map(|x| x + 0.002 * (lcg(&mut s) - 0.5)));
+                                let o = o.map(|x| x + spread * (lcg(&mut s) - 0.5));
+                                let o = if i % 5 == 4 { o.map(|x| x + 3.0) } else { o };
+                                RaySegment::new(o, d, 0.0, 2.0)
+                            })
+                            .collect()
+                    }
+                };
+                let us: Vec<f64> = (0..k)
+                    .map(|i| match i % 4 {
+                        0 => 0.999_999,
+                        1 => 1e-9,
+                        _ => lcg(&mut s),
+                    })
+                    .collect();
+                let mut out = vec![(None, -1.0); k];
+                let ran = if simd {
+                    g.sample_sites_beam(&rays, &us, 1e-6, &mut out)
+                } else {
+                    g.beam_lanes::<false>(&rays, &us, 1e-6, &mut out)
+                };
+                if !ran {
+                    continue;
+                }
+                beams += 1;
+                let delta = g.classes[0].beam(&rays).unwrap().delta;
+                wide += (delta > 0.5 * g.classes[0].reach_max) as usize;
+                for i in 0..k {
+                    let (site, tau) = g.sample_site(&rays[i], &[], us[i], 1e-6);
+                    assert_eq!(out[i].0, site, "beam {b}, ray {i}");
+                    assert!(
+                        (out[i].1 - tau).abs() <= 1e-12 * tau.max(1.0),
+                        "{} vs {tau}",
+                        out[i].1
+                    );
+                    rays_checked += 1;
+                }
+            }
+            // Rays in all directions are no beam.
+            let spread: Vec<RaySegment> = (0..8)
+                .map(|i| {
+                    let a = i as f64;
+                    RaySegment::new([0.5; 3], norm([a.cos(), a.sin(), 0.3]), 0.0, 2.0)
+                })
+                .collect();
+            let mut out = vec![(None, 0.0); 8];
+            assert!(!g.sample_sites_beam(&spread, &[0.5; 8], 1e-6, &mut out));
+        }
+        assert!(
+            beams > 200 && wide > 60,
+            "{beams} beams, {wide} wider than half the reach"
+        );
+        assert!(rays_checked > 1500);
     }
 
     /// Quantised centres on cell faces: each is stored in the cell its lattice coordinates give, so
