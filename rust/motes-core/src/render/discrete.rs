@@ -1327,7 +1327,8 @@ impl DiscreteMedium {
                 // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
                 let u = uniform(self.seed ^ ray_bits(oo, dd), call, lane as u64);
                 let mut surface = SurfaceTally::default();
-                let r = self.lane_free_flight(&events, &view, &mut surface, *oo, *dd, tm, u, true);
+                let plan = self.lane_plan(&events, &view, &mut surface, *oo, *dd, tm, u, true);
+                let r = self.fly(plan, true);
                 if surface.checked > 0 {
                     self.surface_counts.add(surface.checked, surface.saw_field);
                 }
@@ -1354,33 +1355,25 @@ impl DiscreteMedium {
         out
     }
 
-    /// One ray's free flight to its next site (skipping the particles of the event it starts at), the
-    /// optical depth walked before it and what it takes from that parent event; `u` uniform in [0, 1).
-    #[allow(clippy::too_many_arguments)]
-    fn lane_free_flight(
-        &self,
-        events: &EventMap,
-        view: &View,
-        surface: &mut SurfaceTally,
-        o: [f32; 3],
-        d: [f32; 3],
-        t_max: f64,
-        u: f64,
-        want_tau: bool,
-    ) -> (Option<Site>, f64, Parent) {
-        match self.lane_plan(events, view, surface, o, d, t_max, u, want_tau) {
+    /// A ray's free flight from its plan (`Self::lane_plan`), its walk through the grains (if any)
+    /// alone: its site, the optical depth walked before it and what it takes from its parent event.
+    fn fly(&self, plan: Plan, want_tau: bool) -> (Option<Site>, f64, Parent) {
+        match plan {
             Plan::Done(site, tau, from) => (site, tau, from),
-            Plan::Walk(w) => {
-                let found = match &self.grid {
-                    Some(g) => g.sample_site(&w.grains(), &w.parent, u, self.coincide),
-                    None => (None, 0.0),
-                };
-                self.finish_walk(&w, found, want_tau)
-            }
+            Plan::Walk(w) => self.finish_walk(&w, self.walk_alone(&w), want_tau),
         }
     }
 
-    /// What a ray's free flight takes: the answer where no grain needs walking (no ray, the grains'
+    /// One ray's walk through the grains (skipping the particles of the event it starts at).
+    fn walk_alone(&self, w: &GrainWalk) -> (Option<Site>, f64) {
+        match &self.grid {
+            Some(g) => g.sample_site(&w.grains(), &w.parent, w.u, self.coincide),
+            None => (None, 0.0),
+        }
+    }
+
+    /// What a ray's free flight (to its next site, skipping the particles of the event it starts at;
+    /// `u` uniform in [0, 1)) takes: the answer where no grain needs walking (no ray, the grains'
     /// continuous equivalent), or else the walk through the grains still to do (module docs).
     #[allow(clippy::too_many_arguments)]
     fn lane_plan(
@@ -2206,10 +2199,7 @@ impl DiscreteMedium {
             let mut sites = 0;
             for i in 0..rays.len().min(PACKET_LANES) {
                 if let Some(w) = &walks[i] {
-                    let walked = found[i].unwrap_or_else(|| match &self.grid {
-                        Some(g) => g.sample_site(&w.grains(), &w.parent, w.u, self.coincide),
-                        None => (None, 0.0),
-                    });
+                    let walked = found[i].unwrap_or_else(|| self.walk_alone(w));
                     let (site, _, parent) = self.finish_walk(w, walked, false);
                     st.pending[i] = PendingLane { site, parent };
                 }

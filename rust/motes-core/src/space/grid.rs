@@ -1630,28 +1630,10 @@ impl SubGrid {
         let mut taken = 0;
         while n + rows_per_step <= SEGMENTS_PER_BATCH && taken < steps {
             taken += 1;
-            let Some(step) = cur.dda.next() else { break };
-            // The first step starts at t0 (particles before the box entry are too far from the ray
-            // to count), the last ends at t1.
-            let last = cur.dda.finished();
-            let t_enter = if cur.first {
-                cur.probe.ray.t0
-            } else {
-                step.t_enter
+            let Some((rows, t_exit, last)) = self.next_rows(cur, &mut segs[n..]) else {
+                break;
             };
-            let t_exit = if last { cur.probe.ray.t1 } else { step.t_exit };
-            cur.first = false;
-            let prev = cur.prev.replace(step.cell);
-            n += self.step_rows(
-                step.cell,
-                step.index,
-                prev,
-                &cur.probe.ray,
-                &cur.near,
-                t_enter,
-                t_exit,
-                &mut segs[n..],
-            );
+            n += rows;
             if last {
                 frontier = f64::INFINITY;
                 break;
@@ -1879,28 +1861,9 @@ impl SubGrid {
         let steps = cur.batch;
         cur.batch = (2 * steps).min(SEGMENTS_PER_BATCH);
         for _ in 0..steps {
-            let Some(step) = cur.dda.next() else {
+            let Some((n, t_exit, last)) = self.next_rows(cur, &mut rows) else {
                 return Some(f64::INFINITY);
             };
-            let last = cur.dda.finished();
-            let t_enter = if cur.first {
-                cur.probe.ray.t0
-            } else {
-                step.t_enter
-            };
-            let t_exit = if last { cur.probe.ray.t1 } else { step.t_exit };
-            cur.first = false;
-            let prev = cur.prev.replace(step.cell);
-            let n = self.step_rows(
-                step.cell,
-                step.index,
-                prev,
-                &cur.probe.ray,
-                &cur.near,
-                t_enter,
-                t_exit,
-                &mut rows,
-            );
             for sg in rows[..n].iter_mut() {
                 (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
                 if sg.c0 == sg.c1 {
@@ -1917,6 +1880,24 @@ impl SubGrid {
             frontier = t_exit;
         }
         Some(frontier)
+    }
+
+    /// The cursor's next DDA step: the rows it scans into `out` (`Self::step_rows`), its exit and
+    /// whether it is the last (None: the walk is over). The first step starts at t0 (particles before
+    /// the box entry are too far from the ray to count), the last ends at t1.
+    #[inline(always)]
+    fn next_rows(&self, cur: &mut Cursor, out: &mut [Segment]) -> Option<(usize, f64, bool)> {
+        let step = cur.dda.next()?;
+        let last = cur.dda.finished();
+        let ray = &cur.probe.ray;
+        let t_enter = if cur.first { ray.t0 } else { step.t_enter };
+        let t_exit = if last { ray.t1 } else { step.t_exit };
+        cur.first = false;
+        let prev = cur.prev.replace(step.cell);
+        let n = self.step_rows(
+            step.cell, step.index, prev, ray, &cur.near, t_enter, t_exit, out,
+        );
+        Some((n, t_exit, last))
     }
 
     /// The rows of cells one DDA step at cell `c` (linear `index`) scans, as segments [first cell,
