@@ -16,6 +16,13 @@ bytes per particle.
 ``--switch MOTES_CENTRE_CELLS`` compares compact storage's centre cells (every class stored once, by its
 centres' cells, eight bytes a particle) against the sparse classes' overlap slots (``=0``) instead.
 
+``--switch MOTES_UNIFORM_MAJORANT`` (issue 25) compares continuous fields of even density sampled against one
+majorant for all their cells with their blocks' majorants (``=0``); ``--switch MOTES_BEAM`` a packet's rays
+from no event walked as beams where they make one with every ray walked alone (``=0``; the same sites, so the
+same images). Scenes: any shipped scene, ``bench_dense.py``'s rows and ``haze`` (``bench_native.py``'s dense
+haze); the image means come with their standard errors over the ``--reps`` seeds and their difference in
+standard errors.
+
 ``--furnace ROW`` (a ``bench_storage.py`` row, e.g. ``1e5x300``) instead: the white furnace (albedo 1, roulette
 off, ``bench_storage.furnace``, 32² px, 64 spp) of ``--clouds`` clouds of that row, quantised and spheres.
 """
@@ -36,7 +43,8 @@ import _common as C  # noqa: E402
 
 DENSE = {"4e5": (400_000, 80.0), "1.6e6": (1_600_000, 80.0)}
 #: What each switch's "1" and "0" mean.
-LABELS = {"MOTES_QUANTISE": ("quantised", "spheres"), "MOTES_CENTRE_CELLS": ("centred", "overlap")}
+LABELS = {"MOTES_QUANTISE": ("quantised", "spheres"), "MOTES_CENTRE_CELLS": ("centred", "overlap"),
+          "MOTES_UNIFORM_MAJORANT": ("one majorant", "blocks"), "MOTES_BEAM": ("beams", "one by one")}
 
 
 def loader(mi, kind: str, res: int, spp: int):
@@ -46,6 +54,10 @@ def loader(mi, kind: str, res: int, spp: int):
     if kind in DENSE:
         n, r = DENSE[kind]
         return lambda: mi.load_dict(BD.scene(mi, BD.discrete(mi, n, r), res, spp, 8))
+    if kind == "haze":
+        import bench_native as BN  # noqa: PLC0415
+
+        return lambda: BN.scenes(C.import_motes(), mi, "dense", res, spp)[1]
     return lambda: mi.load_file(str(P.scene_file(kind)), res=res)
 
 
@@ -108,19 +120,24 @@ def main() -> None:
                 secs[q].append(time.perf_counter() - t)
                 means[q].append(float(img.mean()))
         n = len(data["1"]._core)
+        se = {q: float(np.std(means[q], ddof=1) / np.sqrt(len(means[q]))) if len(means[q]) > 1 else 0.0
+              for q in means}
+        gap = float(np.mean(means["1"]) - np.mean(means["0"]))
         row = {"scene": kind, "quantised_s": min(secs["1"]), "spheres_s": min(secs["0"]),
                "ratio": min(secs["1"]) / min(secs["0"]), "mean_quantised": float(np.mean(means["1"])),
-               "mean_spheres": float(np.mean(means["0"])), "bytes_quantised": data["1"].bytes / n,
-               "bytes_spheres": data["0"].bytes / n}
+               "mean_spheres": float(np.mean(means["0"])), "se_quantised": se["1"], "se_spheres": se["0"],
+               "difference_se": gap / np.hypot(se["1"], se["0"]) if gap else 0.0,
+               "bytes_quantised": data["1"].bytes / n, "bytes_spheres": data["0"].bytes / n}
         print(f"[{args.variant} {kind}] {on} {row['quantised_s']:.3f} s, {off} {row['spheres_s']:.3f} s: "
-              f"{row['ratio']:.3f}x; means {row['mean_quantised']:.4f} / {row['mean_spheres']:.4f}; "
+              f"{row['ratio']:.3f}x; means {row['mean_quantised']:.5g} +- {se['1']:.2g} / "
+              f"{row['mean_spheres']:.5g} +- {se['0']:.2g} ({row['difference_se']:+.1f} SE); "
               f"B/particle {row['bytes_quantised']:.1f} / {row['bytes_spheres']:.1f}", flush=True)
         rows.append(row)
     C.print_table(f"**{args.variant}, {args.res}^2 px, {args.spp} spp: {on} / {off} (best of {args.reps})**",
-                  ["scene", f"{on} (s)", f"{off} (s)", "ratio", f"mean {on}", f"mean {off}",
+                  ["scene", f"{on} (s)", f"{off} (s)", "ratio", f"mean {on}", f"mean {off}", "difference (SE)",
                    f"B/particle {on}", off],
                   [[r["scene"], r["quantised_s"], r["spheres_s"], r["ratio"], r["mean_quantised"], r["mean_spheres"],
-                    r["bytes_quantised"], r["bytes_spheres"]] for r in rows])
+                    f"{r['difference_se']:+.1f}", r["bytes_quantised"], r["bytes_spheres"]] for r in rows])
     C.finish(args, sw, out / f"bench_quantise_{args.switch}_{args.variant}.json", rows=rows)
 
 

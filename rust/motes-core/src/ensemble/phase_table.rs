@@ -8,9 +8,12 @@
 //! interpolant (∫ f dΩ = 1).
 //!
 //! Both searches start from a directory ([`Directory`]): the nodes' segment range per bucket of a
-//! monotone key (sin(θ/2) for μ, the CDF itself for sampling), so that a lookup searches a few nodes
-//! of its bucket instead of the whole table (the renderer evaluates a mixture's tables per channel and
-//! member at every bounce: the search was half of the scalar Cornell box's phase-function time).
+//! monotone key (for μ, sin(θ/2) on a log scale through the forward peak, then linear, then cos(θ/2)
+//! linear towards the back: about one node per bucket on the graded grid, [`ANGLE_BUCKETS`]; for
+//! sampling, the CDF itself), so that a lookup searches a few nodes of its bucket instead of the whole
+//! table (the renderer evaluates a mixture's tables per channel and member at every bounce: the search
+//! was half of the scalar Cornell box's phase-function time). Tables on the same nodes (a bin's at each
+//! wavelength) share one location of μ ([`PhaseTable::locate`]).
 //!
 //! Paper: the tabulated ensemble phase function of Eq. 17 (and a particle's, Eq. 1) as a renderer
 //! evaluates and importance-samples it (Sec. 5.5).
@@ -327,6 +330,47 @@ mod tests {
                 .sum();
             assert!((cdf - u).abs() < 1e-6, "u={u}: {cdf}");
         }
+    }
+
+    /// The evaluation directory's bucket never increases with μ (the directory is exact only then):
+    /// a sweep of μ and the adjacent floats around the runs' joints (μ = ±0, sin(θ/2) = 1/16), the
+    /// log run's bottom and μ → 1.
+    #[test]
+    fn angle_buckets_never_increase_with_mu() {
+        let mut probes: Vec<f64> = (0..=200_000)
+            .map(|i| 1.0 - 2.0 * i as f64 / 200_000.0)
+            .collect();
+        let split = 1.0 - 2.0 * LOG_SPLIT * LOG_SPLIT; // sin(θ/2) = 1/16
+        for centre in [
+            0.0f64,
+            split,
+            1.0 - 2.0 * (LOG_SPLIT * 2f64.powi(-16)).powi(2),
+            1.0,
+        ] {
+            let mut x = centre;
+            for _ in 0..2000 {
+                probes.push(x);
+                x = x.next_down();
+            }
+            let mut x = centre;
+            for _ in 0..2000 {
+                probes.push(x);
+                x = x.next_up();
+            }
+        }
+        probes.extend([-0.0, 1e-300, -1e-300, f64::MIN_POSITIVE, 1.0 - f64::EPSILON]);
+        probes.retain(|m| (-1.0..=1.0).contains(m));
+        probes.sort_by(f64::total_cmp);
+        for w in probes.windows(2) {
+            assert!(
+                angle_bucket(w[0]) >= angle_bucket(w[1]),
+                "{} {}",
+                w[0],
+                w[1]
+            );
+        }
+        assert_eq!(angle_bucket(1.0), 0);
+        assert_eq!(angle_bucket(-1.0), ANGLE_BUCKETS - 1);
     }
 
     /// Tables on the same nodes share a location: `eval_at` of one `locate` equals each table's own

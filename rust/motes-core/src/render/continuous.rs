@@ -213,8 +213,12 @@ pub struct ContinuousField {
 /// a ball in its middle 0.64 / 0.64 (7.8) and 0.615 / 0.675 (16.2).
 const UNIFORM_MAJORANT_RATIO: f64 = 4.0;
 
-/// [`ContinuousField::uniform_majorant`] of block majorants.
+/// [`ContinuousField::uniform_majorant`] of block majorants. `MOTES_UNIFORM_MAJORANT=0` at build keeps
+/// the blocks (`scripts/bench/bench_quantise.py --switch MOTES_UNIFORM_MAJORANT`'s comparison).
 fn uniform_majorant(majorant: &[f32]) -> Option<f64> {
+    if std::env::var("MOTES_UNIFORM_MAJORANT").is_ok_and(|v| v == "0") {
+        return None;
+    }
     let max = majorant.iter().fold(0.0f64, |x, &m| x.max(m as f64));
     let mean = majorant.iter().map(|&m| m as f64).sum::<f64>() / majorant.len().max(1) as f64;
     (max > 0.0 && max <= UNIFORM_MAJORANT_RATIO * mean).then_some(max)

@@ -548,6 +548,10 @@ pub struct DiscreteMedium {
     optics: ParticleOptics,
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
     widened: usize,
+    /// Do a packet's rays from no event walk the grains as beams where they make one
+    /// (`ParticleGrid::sample_sites_beam`)? `MOTES_BEAM=0` at build: one by one (the same sites;
+    /// `scripts/bench/bench_quantise.py --switch MOTES_BEAM`'s comparison).
+    beams: bool,
     bins: Vec<BinOptics>,
     /// Per bin: are its phase tables all on the same nodes (one search serves every channel)?
     shared_nodes: Vec<bool>,
@@ -1084,6 +1088,7 @@ impl DiscreteMedium {
             widened: w.widened,
             coincide: w.coincide,
             event_box: w.event_box,
+            beams: env_flag("MOTES_BEAM"),
             shared_nodes: bins
                 .iter()
                 .map(|b| b.phase.iter().all(|t| t.same_nodes(&b.phase[0])))
@@ -2193,7 +2198,7 @@ impl DiscreteMedium {
                 }
             }
             let mut found: [Option<(Option<Site>, f64)>; PACKET_LANES] = [None; PACKET_LANES];
-            if let (Some(Grains::Stored(g)), 2..) = (&self.grid, in_beam) {
+            if let (Some(Grains::Stored(g)), 2.., true) = (&self.grid, in_beam, self.beams) {
                 self.beam_walks(g, &walks, &beam[..in_beam], &mut found);
             }
             let mut sites = 0;
@@ -2603,6 +2608,37 @@ mod tests {
         }
     }
 
+    /// One particle's mixture (the fast path: its bin's tables, located once) gives what the general
+    /// mixture of the same particle twice gives, in every channel.
+    #[test]
+    fn one_particle_mixtures_equal_the_general_mixture() {
+        let m = medium(4000);
+        let ls: Vec<_> = [480.0, 550.0, 600.0, 700.0].map(|l| m.bracket(l)).to_vec();
+        let pi = [0.1, 0.2, 0.3, 0.4];
+        for j in [0u32, 1, 17, 3999] {
+            for k in 0..=200 {
+                let mu = -1.0 + 2.0 * k as f64 / 200.0;
+                let (mut one, mut two) = ([0.0; 4], [0.0; 4]);
+                let (single, double) = ([j], [j, j]);
+                let mix = |members| Mixture {
+                    members,
+                    scale: |j| m.optics.tau(j),
+                    ls: &ls,
+                    pi: &pi,
+                };
+                let p1 = m.mixture_phase(&mix(&single), mu, &mut one);
+                let p2 = m.mixture_phase(&mix(&double), mu, &mut two);
+                assert!((p1 - p2).abs() <= 1e-12 * p2, "{p1} vs {p2}");
+                for c in 0..4 {
+                    assert!(
+                        (one[c] - two[c]).abs() <= 1e-12 * two[c],
+                        "{one:?} vs {two:?}"
+                    );
+                }
+            }
+        }
+    }
+
     /// A packet's rays that start at no event and walk the grains together as a beam (a pixel's camera
     /// rays in compact storage's centre cells) find the sites each finds alone, also beside lanes that
     /// start at an event and inactive lanes.
@@ -2637,14 +2673,14 @@ mod tests {
         let Some(Grains::Stored(g)) = &m.grid else {
             panic!("stored grains")
         };
-        // An event for one lane to start at (it skips its particles: no beam for it).
-        let o = [[0.5f32, 0.5, -0.2]];
-        let t = (0..100)
-            .find_map(|_| m.sample_sites(&o, &[[0.0, 0.0, 1.0]], &[f64::INFINITY], &[true])[0].t)
-            .unwrap();
-        let event = [0.5f32, 0.5, (-0.2 + t) as f32];
-        m.commit_events(&[event], &[true], &[500.0, 600.0], 2)
-            .unwrap();
+        // An event of this thread's packets for one lane to start at (it skips its particles: no beam
+        // for it).
+        let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
+        let mut first = [None];
+        m.packet_free_flights(&[Some((o, d, 10.0))], &mut first);
+        let event = [0.5f32, 0.5, -0.2 + first[0].expect("a site") as f32];
+        m.packet_commit(&[Some(event)], &[500.0, 600.0], 2, &mut [0.0; 2]);
+        assert!(m.with_packet_state(|st| st.events.get(&key(event)).is_some()));
         let (mut beams, mut sites) = (0, 0);
         for k in 0..60 {
             let eye = [0.2 + 0.6 * r(), 0.2 + 0.6 * r(), -2.0];

@@ -139,8 +139,9 @@ impl Drop for PendingHits {
     fn drop(&mut self) {
         let v = std::mem::take(&mut self.0);
         // Keep a modest buffer only: a walk past huge numbers of hits should not pin its memory.
+        // (A walk during the thread's teardown just drops it.)
         if v.capacity() <= 1 << 16 {
-            WALK_PENDING.with(|b| b.set(v));
+            let _ = WALK_PENDING.try_with(|b| b.set(v));
         }
     }
 }
@@ -191,7 +192,7 @@ struct Segment {
     /// The cell of a k = 0 step, or the first cell of a k = 1 row (quantised slots are read relative
     /// to it).
     cell: [usize; 3],
-    /// Quantised slots: the cell's slot origin across the ray (`Cursor::offsets`), set when the
+    /// Quantised slots: the cell's slot origin across the ray (`Probe::offsets`), set when the
     /// step is tested.
     off: [f32; 2],
     /// Quantised slots: the slot origin's lattice coordinates modulo 2^16 (`QSlots::origin_bits`).
@@ -816,8 +817,6 @@ struct Beam {
     /// The representative ray (segment [s0, s1] covering every ray's projection), its pre-test
     /// slack grown by δ: the lanes it passes are those any ray's pre-test may pass.
     rep: Probe,
-    /// Each ray as the tests see it (None: it misses the class's box).
-    probes: [Option<Probe>; BEAM_RAYS],
     /// The class's cells grown by one layer (a ray's point near the box's face projects on the
     /// representative ray within δ of it, possibly outside).
     cells: GridFrame,
@@ -1479,11 +1478,16 @@ impl SubGrid {
     /// directions within ~25° of their mean, and the farthest any ray's segment in the class's box
     /// gets from the representative ray (their mean direction through their mean entry point), δ,
     /// small enough that R_max + δ stays within a cell.
-    fn beam(&self, rays: &[RaySegment]) -> Option<Beam> {
+    /// Each ray as the tests see it goes to `probes` (None: it misses the class's box).
+    fn beam(&self, rays: &[RaySegment], probes: &mut [Option<Probe>; BEAM_RAYS]) -> Option<Beam> {
         let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
         let mut clip = [None; BEAM_RAYS];
         let (mut sum, mut live) = ([0.0; 3], 0);
         for (i, r) in rays.iter().enumerate() {
+            // (A NaN origin or direction clips to a NaN-free range and would poison the mean.)
+            if !r.o.iter().chain(&r.d).all(|x| x.is_finite()) {
+                return None;
+            }
             clip[i] = self.frame.bounds.clip(r);
             if clip[i].is_some() {
                 (0..3).for_each(|a| sum[a] += r.d[a]);
@@ -1522,23 +1526,20 @@ impl SubGrid {
         }
         let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
         let cell = self.frame.cell;
-        if reach.is_nan() || reach > cell[0].min(cell[1]).min(cell[2]) {
+        let finite = s0.is_finite() && s1.is_finite();
+        if !finite || reach.is_nan() || reach > cell[0].min(cell[1]).min(cell[2]) {
             return None;
         }
         if delta > BEAM_SPREAD * self.reach_max {
             return None;
         }
         let rep = RaySegment::new(o, d, s0, s1);
-        let mut probes = [None; BEAM_RAYS];
         for (i, r) in rays.iter().enumerate() {
-            if clip[i].is_some() {
-                probes[i] = Some(self.probe(r, 0.0));
-            }
+            probes[i] = clip[i].map(|_| self.probe(r, 0.0));
         }
         let lo = self.frame.bounds.lo;
         Some(Beam {
             rep: self.probe(&rep, delta),
-            probes,
             cells: GridFrame::new(
                 [0, 1, 2].map(|a| lo[a] - cell[a]),
                 cell,
@@ -1952,7 +1953,7 @@ impl SubGrid {
 
     /// The k = 1 rows of [`Self::step_rows`] for DDA cell `c` after cell `prev`, in signed cell
     /// coordinates (a beam's walk steps through the cells one layer outside the grid too:
-    /// `Self::beam_flights`), for a segment on [t0, t1] whose nearness `near` gives.
+    /// `ParticleGrid::sample_sites_beam`), for a segment on [t0, t1] whose nearness `near` gives.
     #[inline(always)]
     fn near_rows(
         &self,
@@ -2561,7 +2562,7 @@ impl ParticleGrid {
     /// Free flights ([`Self::sample_site`], nothing excluded) of up to [`BEAM_RAYS`] rays walked as one
     /// beam: the cells around a representative ray (their mean), within R_max + δ of it, δ the
     /// farthest any ray's segment in the grid gets from it, each cell once; each ray tests those cells'
-    /// particles that come within δ of the representative ray (one pre-test for all) with its own
+    /// particles that come within R + δ of the representative ray (one pre-test for all) with its own
     /// pre-test and exact test, so that every ray gets exactly its own contributions, in t order (a
     /// contribution at t lies within R_max + δ of the representative ray's point nearest the ray's
     /// point at t, whose block the walk has tested once it is past that point). A pixel's camera rays
@@ -2612,13 +2613,14 @@ impl ParticleGrid {
         if c.k != 1 || !(2..=BEAM_RAYS).contains(&n) || us.len() != n || out.len() < n {
             return false;
         }
-        let Some(beam) = c.beam(rays) else {
+        let mut probes = [None; BEAM_RAYS];
+        let Some(beam) = c.beam(rays, &mut probes) else {
             return false;
         };
         let mut flights: [Option<Flight>; BEAM_RAYS] = [const { None }; BEAM_RAYS];
         for i in 0..n {
             out[i] = (None, 0.0);
-            flights[i] = beam.probes[i].map(|_| Flight::new(&[], us[i], coincide));
+            flights[i] = probes[i].map(|_| Flight::new(&[], us[i], coincide));
         }
         let mut pending: [Vec<(f64, u32)>; BEAM_RAYS] = [const { Vec::new() }; BEAM_RAYS];
         // Ray i's hits before `upto`, in t order, into its flight; false once it found its site.
@@ -2658,14 +2660,16 @@ impl ParticleGrid {
                     continue;
                 }
                 c.locate(sg, rep);
-                // Where each ray's pre-test reads the row's slots from (its lattice offsets).
-                let own: [Segment; BEAM_RAYS] = std::array::from_fn(|i| {
-                    let mut own = *sg;
-                    if let (Some(probe), Some(_)) = (&beam.probes[i], &flights[i]) {
-                        c.locate(&mut own, probe);
+                // Where each ray's pre-test reads the row's slots from (its lattice offsets; the
+                // rest of the segment is the row's).
+                let mut offs = [[0.0f32; 2]; BEAM_RAYS];
+                if c.quant.is_some() {
+                    for i in 0..n {
+                        if let (Some(probe), Some(_)) = (&probes[i], &flights[i]) {
+                            offs[i] = probe.offsets(sg.cell);
+                        }
                     }
-                    own
-                });
+                }
                 for blk in sg.c0 / LANES..=(sg.c1 - 1) / LANES {
                     let base = LANES * blk;
                     let first = (sg.c0.max(base) - base) as u32;
@@ -2678,21 +2682,18 @@ impl ParticleGrid {
                         continue;
                     }
                     for i in 0..n {
-                        let (Some(probe), Some(_)) = (&beam.probes[i], &flights[i]) else {
+                        let (Some(probe), Some(_)) = (&probes[i], &flights[i]) else {
                             continue;
                         };
+                        let own = Segment {
+                            off: offs[i],
+                            ..*sg
+                        };
                         let list = &mut pending[i];
-                        c.test_block::<WIDE>(
-                            slots,
-                            blk,
-                            candidates,
-                            &own[i],
-                            probe,
-                            &mut |t, s| {
-                                list.push((t, s as u32));
-                                true
-                            },
-                        );
+                        c.test_block::<WIDE>(slots, blk, candidates, &own, probe, &mut |t, s| {
+                            list.push((t, s as u32));
+                            true
+                        });
                     }
                 }
             }
@@ -3126,6 +3127,16 @@ mod tests {
                             })
                             .collect()
                     }
+                    // Axis-aligned rays starting part-way along (t0 > 0).
+                    2 if b % 2 == 0 => {
+                        let o = [target[0], target[1], -1.0];
+                        (0..k)
+                            .map(|_| {
+                                let o = [o[0] + spread * (lcg(&mut s) - 0.5), o[1], o[2]];
+                                RaySegment::new(o, [0.0, 0.0, 1.0], 0.5 + 0.5 * lcg(&mut s), 3.0)
+                            })
+                            .collect()
+                    }
                     // Rays leaving the grid's neighbourhood, some missing it.
                     _ => {
                         let o = [0.5, 0.5, 0.5].map(|x: f64| x + 0.9 * (lcg(&mut s) - 0.5));
@@ -3157,16 +3168,15 @@ mod tests {
                     continue;
                 }
                 beams += 1;
-                let delta = g.classes[0].beam(&rays).unwrap().delta;
+                let delta = g.classes[0]
+                    .beam(&rays, &mut [None; BEAM_RAYS])
+                    .unwrap()
+                    .delta;
                 wide += (delta > 0.5 * g.classes[0].reach_max) as usize;
                 for i in 0..k {
                     let (site, tau) = g.sample_site(&rays[i], &[], us[i], 1e-6);
                     assert_eq!(out[i].0, site, "beam {b}, ray {i}");
-                    assert!(
-                        (out[i].1 - tau).abs() <= 1e-12 * tau.max(1.0),
-                        "{} vs {tau}",
-                        out[i].1
-                    );
+                    assert_eq!(out[i].1, tau, "beam {b}, ray {i}");
                     rays_checked += 1;
                 }
             }
@@ -3179,6 +3189,13 @@ mod tests {
                 .collect();
             let mut out = vec![(None, 0.0); 8];
             assert!(!g.sample_sites_beam(&spread, &[0.5; 8], 1e-6, &mut out));
+            // Nor rays one of which has a NaN origin.
+            let d = norm([0.1, 0.2, 1.0]);
+            let nan = [
+                RaySegment::new([0.4, 0.3, -1.0], d, 0.0, 3.0),
+                RaySegment::new([f64::NAN, 0.3, -1.0], d, 0.0, 3.0),
+            ];
+            assert!(!g.sample_sites_beam(&nan, &[0.5; 2], 1e-6, &mut out));
         }
         assert!(
             beams > 200 && wide > 60,
