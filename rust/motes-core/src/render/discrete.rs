@@ -2137,7 +2137,9 @@ pub type PacketRay = ([f32; 3], [f32; 3], f32);
 /// mode, where a wavefront's kernels may run a lane on different threads: there the batch interface
 /// ([`Self::sample_sites`] and the rest) is the one to use. Inactive lanes are `None`. The free
 /// flight's random number is a hash of the ray and the seed: a render is a function of the scene, the
-/// sampler's seed and spp, whatever the thread schedule.
+/// sampler's seed and spp, whatever the thread schedule. A packet holds one pixel's samples (Mitsuba
+/// orders a wavefront's lanes pixel by pixel): its rays that start at no event walk the grains as one
+/// beam where they make one (`ParticleGrid::sample_sites_beam`; the same sites as one by one).
 impl DiscreteMedium {
     /// Rays and interactions (sites found: scattering events and blocked shadow rays) of the packet
     /// interface so far. Commits are not counted: Dr.Jit drops a shadow ray's commit from the kernel,
