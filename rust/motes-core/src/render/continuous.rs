@@ -216,7 +216,7 @@ const UNIFORM_MAJORANT_RATIO: f64 = 4.0;
 /// [`ContinuousField::uniform_majorant`] of block majorants. `MOTES_UNIFORM_MAJORANT=0` at build keeps
 /// the blocks (`scripts/bench/bench_quantise.py --switch MOTES_UNIFORM_MAJORANT`'s comparison).
 fn uniform_majorant(majorant: &[f32]) -> Option<f64> {
-    if std::env::var("MOTES_UNIFORM_MAJORANT").is_ok_and(|v| v == "0") {
+    if !crate::render::env_flag("MOTES_UNIFORM_MAJORANT") {
         return None;
     }
     let max = majorant.iter().fold(0.0f64, |x, &m| x.max(m as f64));

@@ -74,6 +74,7 @@
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, Column, ContinuousField, FieldHit, CLASS_FLAG};
+use crate::render::env_flag;
 use crate::render::footprint::{ClassMoments, SurfaceFootprint, View};
 use crate::render::procedural::{build_parts, ProceduralGrains, ProceduralSpec};
 use crate::render::storage::{classes, ParticleOptics, Storage};
@@ -852,11 +853,6 @@ pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -
         (-(-fill).ln_1p()).min(TAU_OPAQUE)
     };
     (reach, tau)
-}
-
-/// An on-by-default switch of the environment (comparisons only): off where set to "0".
-fn env_flag(name: &str) -> bool {
-    std::env::var(name).map_or(true, |v| v != "0")
 }
 
 /// Discrete grains from which compact storage keeps them by their centres' cells (8 bytes each,

@@ -14,3 +14,9 @@ pub mod discrete;
 pub mod footprint;
 pub mod procedural;
 pub mod storage;
+
+/// An on-by-default switch of the environment (side-by-side comparisons only, read when a medium is
+/// built): off where set to "0".
+pub(crate) fn env_flag(name: &str) -> bool {
+    std::env::var(name).map_or(true, |v| v != "0")
+}

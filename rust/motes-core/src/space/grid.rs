@@ -132,6 +132,12 @@ thread_local! {
     static WALK_PENDING: std::cell::Cell<Vec<(f64, u32, u32)>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
+thread_local! {
+    /// The per-ray buffers of `ParticleGrid::sample_sites_beam`'s pending hits between beams.
+    static BEAM_PENDING: std::cell::Cell<[Vec<(f64, u32)>; BEAM_RAYS]> =
+        const { std::cell::Cell::new([const { Vec::new() }; BEAM_RAYS]) };
+}
+
 /// A walk's pending hits, given back to [`WALK_PENDING`] when the walk ends (however it returns).
 struct PendingHits(Vec<(f64, u32, u32)>);
 
@@ -748,7 +754,6 @@ const BEAM_SPREAD: f64 = 2.0;
 /// A free flight over its ray's contributions in t order ([`ParticleGrid::sample_site`]): contributions
 /// closer than `coincide` along the ray form one site, and the flight interacts at the first site where
 /// the optical depth walked passes −ln(1 − u).
-#[derive(Clone)]
 struct Flight<'a> {
     exclude: &'a [u32],
     coincide: f64,
@@ -1706,10 +1711,10 @@ impl SubGrid {
         probe: &Probe,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
+        let mut m = lanes & self.pretest::<WIDE>(slots, blk, sg, probe);
         if let Some(q) = &self.quant {
-            return self.test_qblock::<WIDE>(q, blk, lanes, sg, probe, found);
+            return self.test_qblock(q, blk, m, sg, probe, found);
         }
-        let mut m = lanes & block_pretest::<WIDE>(&slots.0[blk], &probe.frame);
         while m != 0 {
             let s = LANES * blk + m.trailing_zeros() as usize;
             m &= m - 1;
@@ -1729,27 +1734,20 @@ impl SubGrid {
         true
     }
 
-    /// [`Self::test_block`] for quantised slots: the pre-test in the step's cell frame, the exact test
-    /// on the decoded (double-precision) lattice centre.
+    /// [`Self::test_block`] for quantised slots, whose lanes `passed` the pre-test (in the step's cell
+    /// frame): the exact test on the decoded (double-precision) lattice centre.
     #[inline(always)]
-    fn test_qblock<const WIDE: bool>(
+    fn test_qblock(
         &self,
         q: &QSlots,
         blk: usize,
-        lanes: u32,
+        passed: u32,
         sg: &Segment,
         probe: &Probe,
         found: &mut impl FnMut(f64, usize) -> bool,
     ) -> bool {
         let lo = self.frame.bounds.lo;
-        let mut m = lanes
-            & qblock_pretest::<WIDE>(
-                &q.blocks[blk],
-                q.block_reach[blk],
-                &probe.frame,
-                sg.off,
-                sg.base,
-            );
+        let mut m = passed;
         while m != 0 {
             let s = LANES * blk + m.trailing_zeros() as usize;
             m &= m - 1;
@@ -1975,7 +1973,6 @@ impl SubGrid {
         let (mut t0, mut t1) = (t0, t1);
         // The layers near the segment along `a` over [t0, t1], within `range[a]` (None: none). A
         // layer m is near where [m, m + 1) meets the coordinate's span grown by R_max (in cells).
-        let layers = |a: usize, t0: f64, t1: f64, r: [i64; 2]| near.layers(a, t0, t1, r);
         if let Some(p) = prev {
             // The axis the step moved along (exactly one differs), without a branch per axis.
             let a = usize::from(p[1] != c[1]) + 2 * usize::from(p[2] != c[2]);
@@ -1990,7 +1987,7 @@ impl SubGrid {
             }
             range[a] = [far, far];
             for b in [(a + 1) % 3, (a + 2) % 3] {
-                match layers(b, t0, t1, range[b]) {
+                match near.layers(b, t0, t1, range[b]) {
                     Some(r) => range[b] = r,
                     None => return 0,
                 }
@@ -2013,7 +2010,7 @@ impl SubGrid {
                 return 0;
             }
             for a in 0..3 {
-                match layers(a, t0, t1, range[a]) {
+                match near.layers(a, t0, t1, range[a]) {
                     Some(r) => range[a] = r,
                     None => return 0,
                 }
@@ -2622,7 +2619,9 @@ impl ParticleGrid {
             out[i] = (None, 0.0);
             flights[i] = probes[i].map(|_| Flight::new(&[], us[i], coincide));
         }
-        let mut pending: [Vec<(f64, u32)>; BEAM_RAYS] = [const { Vec::new() }; BEAM_RAYS];
+        // Each ray's hits waiting for its frontier, in buffers kept per thread (a beam per packet).
+        let mut pending = BEAM_PENDING.take();
+        pending.iter_mut().for_each(Vec::clear);
         // Ray i's hits before `upto`, in t order, into its flight; false once it found its site.
         let emit = |upto: f64, pending: &mut Vec<(f64, u32)>, flight: &mut Flight| -> bool {
             pending.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
@@ -2720,6 +2719,7 @@ impl ParticleGrid {
                 out[i] = f.finish();
             }
         }
+        BEAM_PENDING.set(pending);
         true
     }
 
