@@ -32,9 +32,13 @@
 //
 // Medium: `intersect_aabb` returns the next particle site as `mint` (Rust samples the free flight
 // exactly), `get_majorant` a huge constant so that Mitsuba's tentative distance lands on the site, and
-// `get_scattering_coefficients` sigma_t = that constant, sigma_n = 0 and sigma_s = albedo * sigma_t (the
-// site is committed as an event there): every tentative collision is real, sigma_t <= majorant.
-// Phase function: `sample` (a direction and pdf from Rust, then the values by `eval_pdf`) and `eval_pdf`.
+// `get_scattering_coefficients` sigma_s = sigma_t = that constant and sigma_n = 0, without a call: every
+// tentative collision is a real scattering event, and the site's albedo is in the phase function's
+// values and weights instead (Rust remembers the site as the path's event where the path's next call
+// starts at it). Mitsuba's volumetric integrators multiply sigma_s / sigma_t and the phase function's
+// value into a path alike, so the path carries the same product; `mei.sigma_s` itself reads as albedo 1.
+// Phase function: `sample` (one call: the direction, its weights and pdf; spectral variants, whose four
+// channels do not fit the record, evaluate the direction with a second call) and `eval_pdf`.
 #include <mitsuba/core/properties.h>
 #include <mitsuba/render/medium.h>
 #include <mitsuba/render/phase.h>
@@ -56,8 +60,8 @@ struct MotesNativeApi {
     void (*release)(const void *medium);
     int32_t (*set_albedo_scale)(const void *medium, double scale, char *message, size_t capacity);
 };
-static constexpr uint32_t MOTES_NATIVE_ABI = 2;
-enum MotesOp : uint32_t { FreeFlight = 0, Commit = 1, PhaseSample = 2, PhaseEval = 3 };
+static constexpr uint32_t MOTES_NATIVE_ABI = 3;
+enum MotesOp : uint32_t { FreeFlight = 0, PhaseSample = 2, PhaseEval = 3 };
 /// sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 static constexpr float MOTES_MAJORANT = 1e20f;
 /// Per-lane wavelengths travel as u16 in units of 1/50 nm (native.rs).
@@ -93,7 +97,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
     std::string description;
 
     /// Everything one native call returns.
-    struct Out { Mask hit; Float t, u, v; UInt32 prim, inst; };
+    struct Out { Mask hit; Float t, u, v; UInt32 prim, geom, inst; };
 
     void init(const Properties &props, const char *who) {
         api = (const MotesNativeApi *) (uintptr_t) props.get<int64_t>("api");
@@ -131,16 +135,25 @@ template <typename Float, typename Spectrum> struct MotesCall {
     }
 
     /// Per-lane wavelengths packed for Rust (spectral variants; zeros in RGB ones).
-    static std::pair<UInt32, UInt32> packed_wavelengths(const MediumInteraction3f &mi) {
+    static std::pair<UInt32, UInt32> packed_wavelengths(const Wavelength &wavelengths) {
         if constexpr (is_spectral_v<Spectrum>) {
             UInt32 w[4];
             for (size_t c = 0; c < 4; ++c)
-                w[c] = c < Channels ? UInt32(dr::round(mi.wavelengths[c] * MOTES_LAMBDA_UNITS_PER_NM)) & 0xFFFFu
+                w[c] = c < Channels ? UInt32(dr::round(wavelengths[c] * MOTES_LAMBDA_UNITS_PER_NM)) & 0xFFFFu
                                     : UInt32(0);
             return { w[0] | (w[1] << 16), w[2] | (w[3] << 16) };
         } else {
             return { UInt32(0), UInt32(0) };
         }
+    }
+
+    /// The unit vector of an octahedral map (rust/motes-py/src/native.rs): the lower hemisphere unfolded.
+    static Vector3f octahedral(const Float &x, const Float &y) {
+        Float z = 1.f - dr::abs(x) - dr::abs(y);
+        Mask lower = z < 0.f;
+        Float ux = dr::select(lower, dr::copysign(1.f - dr::abs(y), x), x),
+              uy = dr::select(lower, dr::copysign(1.f - dr::abs(x), y), y);
+        return dr::normalize(Vector3f(ux, uy, z));
     }
 
     /// One native call of operation `op` on the lanes `active`: the twelve inputs are the record's
@@ -163,8 +176,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
                    payload_v = UInt64::steal(jit_var_pointer(JitBackend::LLVM, &payload[op], 0, 0));
             jit_llvm_ray_trace(func_v.index(), payload_v.index(), 0, in, out);
             Out r{ Mask::steal(out[0]), Float::steal(out[1]), Float::steal(out[2]), Float::steal(out[3]),
-                   UInt32::steal(out[4]), UInt32::steal(out[6]) };
-            jit_var_dec_ref(out[5]);
+                   UInt32::steal(out[4]), UInt32::steal(out[5]), UInt32::steal(out[6]) };
             jit_var_dec_ref(out[7]);
             return r;
         } else if constexpr (!dr::is_jit_v<Float>) {
@@ -180,7 +192,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
             if (active)
                 api->packet(medium, op, 1, nullptr, (uint8_t *) rec, payload[op].lambda, (uint32_t) Channels);
             bool hit = active && rec[18] != (uint32_t) -1;
-            return Out{ hit, hit ? get(8) : dr::Infinity<float>, get(15), get(16), rec[17], rec[19] };
+            return Out{ hit, hit ? get(8) : dr::Infinity<float>, get(15), get(16), rec[17], rec[18], rec[19] };
         } else {
             Throw("motes: the native render path has no CUDA backend");
         }
@@ -211,8 +223,8 @@ public:
 
     std::tuple<Mask, Float, Float> intersect_aabb(const Ray3f &ray) const override {
         Float zero = dr::zeros<Float>();
-        UInt32 z = dr::zeros<UInt32>();
-        auto r = m_call.call(FreeFlight, Mask(true), ray.o, zero, ray.d, zero, Float(ray.maxt), z, z);
+        auto [w0, w1] = Call::packed_wavelengths(ray.wavelengths);
+        auto r = m_call.call(FreeFlight, Mask(true), ray.o, zero, ray.d, zero, Float(ray.maxt), w0, w1);
         return { r.hit, dr::select(r.hit, r.t, dr::Infinity<Float>),
                  dr::select(r.hit, dr::Infinity<Float>, -dr::Infinity<Float>) };
     }
@@ -223,12 +235,10 @@ public:
     }
 
     std::tuple<UnpolarizedSpectrum, UnpolarizedSpectrum, UnpolarizedSpectrum>
-    get_scattering_coefficients(const MediumInteraction3f &mi, Mask active) const override {
-        auto [w0, w1] = Call::packed_wavelengths(mi);
-        Float zero = dr::zeros<Float>();
-        auto r = m_call.call(Commit, active, mi.p, zero, mi.wi, zero, zero, w0, w1);
+    get_scattering_coefficients(const MediumInteraction3f &, Mask active) const override {
+        // Every site scatters; its albedo is in the phase function (see the file's notes).
         UnpolarizedSpectrum sigma_t = dr::select(active, UnpolarizedSpectrum(MOTES_MAJORANT), UnpolarizedSpectrum(0.f));
-        return { Call::channels_of(r) * sigma_t, UnpolarizedSpectrum(0.f), sigma_t };
+        return { sigma_t, UnpolarizedSpectrum(0.f), sigma_t };
     }
 
     void traverse(TraversalCallback *cb) override {
@@ -282,19 +292,31 @@ public:
     std::tuple<Vector3f, Spectrum, Float> sample(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
                                                  Float sample1, const Point2f &sample2,
                                                  Mask active) const override {
-        auto [w0, w1] = Call::packed_wavelengths(mi);
+        auto [w0, w1] = Call::packed_wavelengths(mi.wavelengths);
         auto r = m_call.call(PhaseSample, active, mi.p, sample1, mi.wi, sample2.x(), sample2.y(), w0, w1);
-        Vector3f wo(r.t, r.u, r.v);
-        Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.prim), 0.f);
-        Mask ok = active && r.hit && pdf > 0.f;
-        auto [value, pdf_eval] = eval_pdf(ctx, mi, wo, ok);
-        Spectrum weight = dr::select(ok, Spectrum(value) / dr::select(ok, pdf, 1.f), Spectrum(0.f));
-        return { dr::select(ok, wo, Vector3f(0.f, 0.f, 1.f)), weight, dr::select(ok, pdf, 0.f) };
+        if constexpr (Call::Channels <= 3) {
+            // Direction (octahedral), weights and pdf in one call.
+            Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
+            Mask ok = active && r.hit && pdf > 0.f;
+            UnpolarizedSpectrum weight(0.f);
+            Float w[3] = { r.v, dr::reinterpret_array<Float>(r.prim), dr::reinterpret_array<Float>(r.geom) };
+            for (size_t c = 0; c < Call::Channels; ++c)
+                weight[c] = dr::select(ok, w[c], 0.f);
+            return { dr::select(ok, Call::octahedral(r.t, r.u), Vector3f(0.f, 0.f, 1.f)), Spectrum(weight),
+                     dr::select(ok, pdf, 0.f) };
+        } else {
+            Vector3f wo(r.t, r.u, r.v);
+            Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.prim), 0.f);
+            Mask ok = active && r.hit && pdf > 0.f;
+            auto [value, pdf_eval] = eval_pdf(ctx, mi, wo, ok);
+            Spectrum weight = dr::select(ok, Spectrum(value) / dr::select(ok, pdf, 1.f), Spectrum(0.f));
+            return { dr::select(ok, wo, Vector3f(0.f, 0.f, 1.f)), weight, dr::select(ok, pdf, 0.f) };
+        }
     }
 
     std::pair<Spectrum, Float> eval_pdf(const PhaseFunctionContext &, const MediumInteraction3f &mi,
                                         const Vector3f &wo, Mask active) const override {
-        auto [w0, w1] = Call::packed_wavelengths(mi);
+        auto [w0, w1] = Call::packed_wavelengths(mi.wavelengths);
         auto r = m_call.call(PhaseEval, active, mi.p, wo.x(), mi.wi, wo.y(), wo.z(), w0, w1);
         Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
         return { Spectrum(Call::channels_of(r)), pdf };

@@ -146,7 +146,12 @@ In ``llvm_ad_rgb``, ``llvm_ad_spectral``, ``scalar_rgb`` and ``scalar_spectral``
 validates its parameters and builds the particles and optics, then hands every call to the native C++
 medium and phase function (``motes/native/motes_native.cpp``), which run inside Mitsuba's default symbolic
 kernels: one call into Rust per SIMD packet, events kept per thread, free flights seeded by a hash of the
-ray (a render is a function of scene, seed and spp). In the scalar variants the scene's medium is the
+ray (a render is a function of scene, seed and spp). There ``get_scattering_coefficients`` returns
+``sigma_s = sigma_t`` without a call (every site scatters) and the phase function's values and weights
+carry the site's albedo instead: Mitsuba's ``volpath`` and ``volpathmis`` multiply sigma_s / sigma_t and
+the phase function's value into a path alike, so the image is the same; only ``mei.sigma_s`` read by a
+custom integrator shows albedo 1 (the event is remembered when the path's next call starts at it, so the
+renderer needs no call to place it). In the scalar variants the scene's medium is the
 native medium itself (the plugin's factory returns it, so no call per ray goes through Python); it still
 answers ``.data``, ``.stats``, ``str()`` and ``mi.traverse`` as below. In other variants, without a C++ compiler, with
 ``MOTES_NATIVE=0``, or when Dr.Jit is switched to evaluated mode, the calls go through numpy batches

@@ -12,14 +12,20 @@
 //! | op              | reads                                          | writes                                   |
 //! |-----------------|------------------------------------------------|------------------------------------------|
 //! | `FREE_FLIGHT`   | o, d, tfar = t_max                             | tfar = t of the site (hit lanes only)    |
-//! | `COMMIT`        | o = position of the event                      | albedo per channel in tfar, u, v, prim_id|
-//! | `PHASE_SAMPLE`  | o = p, d = wi, tnear = u1, time, tfar = u2     | tfar, u, v = wo; prim_id = pdf           |
+//! | `PHASE_SAMPLE`  | o = p, d = wi, tnear = u1, time, tfar = u2     | up to 3 channels: tfar, u = wo (octahedral), v, prim_id, geom_id = weights, inst_id = pdf; 4: tfar, u, v = wo, prim_id = pdf |
 //! | `PHASE_EVAL`    | o = p, d = wi, tnear, time, tfar = wo          | values in tfar, u, v, prim_id; inst_id = pdf |
 //!
-//! Floats travel in u32 fields as their bits. Wavelengths: `lambda` (`channels` values shared by all
+//! No operation places an event: a lane's site becomes its event where the lane's next call starts at
+//! it, and the phase function's values and weights carry the site's albedo (`DiscreteMedium`'s
+//! "One packet at a time"). Floats travel in u32 fields as their bits (a weight in geom_id is never
+//! the miss marker 0xFFFFFFFF, a NaN). Wavelengths: `lambda` (`channels` values shared by all
 //! lanes, RGB variants) or, when it is null, per lane in `mask` and `id` as two u16 each in units of
 //! 1/50 nm (spectral variants: 4 channels; the quantisation, 0.01 nm, is far below the tables'
 //! wavelength spacing).
+//!
+//! A sampled direction with up to three channels travels in two floats, the octahedral map of the unit
+//! sphere (Cigolle et al. 2014): x, y of w / |w|_1, the lower hemisphere folded over the diagonals; the
+//! C++ plugin unfolds and normalises it (float32 error about 1e-7 rad).
 
 use motes_core::render::discrete::{
     DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, PACKET_LANES,
@@ -29,11 +35,12 @@ use std::collections::BTreeSet;
 use std::ffi::{c_char, c_void};
 use std::sync::{Arc, Mutex};
 
-/// Version of this interface; the C++ plugin refuses another (2: `set_albedo_scale`).
-pub const NATIVE_ABI: u32 = 2;
+/// Version of this interface; the C++ plugin refuses another (2: `set_albedo_scale`; 3: no commit,
+/// phase samples with their weights).
+pub const NATIVE_ABI: u32 = 3;
 
 pub const FREE_FLIGHT: u32 = 0;
-pub const COMMIT: u32 = 1;
+// 1 was the commit of ABI 2.
 pub const PHASE_SAMPLE: u32 = 2;
 pub const PHASE_EVAL: u32 = 3;
 
@@ -270,10 +277,7 @@ unsafe fn run<const N: usize>(
     });
     let is_active = |i: usize| active >> i & 1 != 0;
     let mut lam = [[0.0f64; 4]; N];
-    // Free flights are grey: only the other operations read wavelengths.
-    let lam: &[f64] = if op == FREE_FLIGHT {
-        &[]
-    } else if lambda.is_null() {
+    let lam: &[f64] = if lambda.is_null() {
         let flat = lam.as_flattened_mut();
         for i in (0..width).filter(|&i| is_active(i)) {
             lane_lambda(&r, i, &mut flat[i * ch..(i + 1) * ch]);
@@ -292,7 +296,6 @@ unsafe fn run<const N: usize>(
     };
     match op {
         FREE_FLIGHT => packet.free_flights(),
-        COMMIT => packet.commit(),
         PHASE_SAMPLE => packet.phase_sample(),
         PHASE_EVAL => packet.phase_eval(),
         _ => {}
@@ -341,7 +344,8 @@ impl<const N: usize> Packet<'_, N> {
             )
         });
         let mut t = [None; N];
-        self.m.packet_free_flights(&rays[..self.width], &mut t);
+        self.m
+            .packet_free_flights(&rays[..self.width], self.lam, self.ch, &mut t);
         for (i, t) in t.iter().enumerate().take(self.width) {
             if let Some(t) = t {
                 self.r.set_f(Field::Tfar, i, *t);
@@ -350,17 +354,7 @@ impl<const N: usize> Packet<'_, N> {
         }
     }
 
-    /// Remember the packet's events where the renderer placed them; each lane's albedo per channel.
-    fn commit(&self) {
-        let p = self.gather(|i| self.r.v3(Field::Ox, i));
-        let mut albedo = [[0.0; 4]; N];
-        let albedo = albedo.as_flattened_mut();
-        self.m
-            .packet_commit(&p[..self.width], self.lam, self.ch, albedo);
-        self.answer(|i| write_channels(self.r, i, &albedo[i * self.ch..(i + 1) * self.ch]));
-    }
-
-    /// Sample the phase functions of the packet's events: direction in (tfar, u, v), pdf in prim_id.
+    /// Sample the phase functions of the packet's events (layout in the module docs).
     fn phase_sample(&self) {
         let l = self.gather(|i| PhaseSampleLane {
             p: self.r.v3(Field::Ox, i),
@@ -371,14 +365,34 @@ impl<const N: usize> Packet<'_, N> {
                 self.r.f(Field::Tfar, i) as f64,
             ],
         });
-        let (mut wo, mut pdf) = ([[0.0; 3]; N], [0.0; N]);
-        self.m
-            .packet_phase_sample(&l[..self.width], self.lam, self.ch, &mut wo, &mut pdf);
+        let (mut wo, mut weight, mut pdf) = ([[0.0; 3]; N], [[0.0; 4]; N], [0.0; N]);
+        let weight = weight.as_flattened_mut();
+        self.m.packet_phase_sample(
+            &l[..self.width],
+            self.lam,
+            self.ch,
+            &mut wo,
+            &mut weight[..self.width * self.ch],
+            &mut pdf,
+        );
+        let ch = self.ch;
         self.answer(|i| {
-            self.r.set_f(Field::Tfar, i, wo[i][0]);
-            self.r.set_f(Field::U, i, wo[i][1]);
-            self.r.set_f(Field::V, i, wo[i][2]);
-            self.r.set_f(Field::PrimId, i, pdf[i]);
+            if ch <= 3 {
+                let [x, y] = octahedral(wo[i]);
+                self.r.set_f(Field::Tfar, i, x);
+                self.r.set_f(Field::U, i, y);
+                for (c, f) in [Field::V, Field::PrimId, Field::GeomId].into_iter().enumerate() {
+                    let w = if c < ch { weight[i * ch + c] } else { 0.0 };
+                    // Finite and not negative: never the miss marker in geom_id.
+                    self.r.set_f(f, i, if w.is_finite() { w.max(0.0) } else { 0.0 });
+                }
+                self.r.set_f(Field::InstId, i, pdf[i]);
+            } else {
+                self.r.set_f(Field::Tfar, i, wo[i][0]);
+                self.r.set_f(Field::U, i, wo[i][1]);
+                self.r.set_f(Field::V, i, wo[i][2]);
+                self.r.set_f(Field::PrimId, i, pdf[i]);
+            }
         });
     }
 
@@ -401,6 +415,20 @@ impl<const N: usize> Packet<'_, N> {
             write_channels(self.r, i, &v[i * self.ch..(i + 1) * self.ch]);
             self.r.set_f(Field::InstId, i, pdf[i]);
         });
+    }
+}
+
+/// The octahedral map of a unit vector (module docs): x, y of w / |w|_1, the lower hemisphere folded.
+fn octahedral(w: [f64; 3]) -> [f64; 2] {
+    let n = w[0].abs() + w[1].abs() + w[2].abs();
+    let (x, y) = (w[0] / n, w[1] / n);
+    if w[2] >= 0.0 {
+        [x, y]
+    } else {
+        [
+            (1.0 - y.abs()).copysign(x),
+            (1.0 - x.abs()).copysign(y),
+        ]
     }
 }
 

@@ -127,6 +127,10 @@ struct Event {
     /// event). A ray leaving an event at or past the medium's grain depth sees the grains' continuous
     /// equivalent (module docs, "Grains along a path").
     depth: u32,
+    /// The site's albedo per channel at the wavelengths whose first is `albedo_nm` (0: not known),
+    /// computed when the event was remembered (the packet interface weighs its phase function by it).
+    albedo: [f32; MAX_CHANNELS],
+    albedo_nm: f32,
 }
 
 /// Channel choice probabilities π from a throughput (zeros: uniform), `channels` of them.
@@ -157,7 +161,7 @@ fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
 
 /// The event remembered at a site: the path's channel throughput after the site's albedo `a` (module
 /// docs), from the throughput `parent` of the event the ray started at (zeros: unknown).
-fn event_after(site: Site, parent: &Parent, a: &[f64]) -> Event {
+fn event_after(site: Site, parent: &Parent, a: &[f64], lam: &[f64]) -> Event {
     let (depth, parent) = (parent.depth.saturating_add(1), &parent.t_out);
     let known = parent.iter().any(|&x| x > 0.0);
     let t_in = if a.len() <= MAX_CHANNELS {
@@ -171,11 +175,19 @@ fn event_after(site: Site, parent: &Parent, a: &[f64]) -> Event {
     } else {
         [0.0; MAX_CHANNELS]
     };
+    let mut albedo = [0.0; MAX_CHANNELS];
+    albedo.iter_mut().zip(a).for_each(|(x, &a)| *x = a as f32);
     Event {
         site,
         t_in,
         t_out: t_in,
         depth,
+        albedo,
+        albedo_nm: if a.len() <= MAX_CHANNELS {
+            lam.first().map_or(0.0, |&l| l as f32)
+        } else {
+            0.0
+        },
     }
 }
 
@@ -1608,11 +1620,29 @@ impl DiscreteMedium {
             if let (true, (Some(site), true, parent)) = (active[i], pending[i]) {
                 events.insert(
                     key(p[i]),
-                    event_after(site, &parent, &albedo[i * channels..(i + 1) * channels]),
+                    event_after(
+                        site,
+                        &parent,
+                        &albedo[i * channels..(i + 1) * channels],
+                        lane_wavelengths(lambda, channels, i),
+                    ),
                 );
             }
         }
         Ok(albedo)
+    }
+
+    /// An event's albedo in each channel of `lam` (brackets `ls`): the one remembered with it where it
+    /// was remembered at these wavelengths, else the site's.
+    fn event_albedo(&self, e: &Event, lam: &[f64], ls: &[(usize, usize, f64)]) -> PerChannel<f64> {
+        let known = lam.len() <= MAX_CHANNELS && lam.first().map(|&l| l as f32) == Some(e.albedo_nm);
+        PerChannel::from_fn(lam.len(), |c| {
+            if known {
+                e.albedo[c] as f64
+            } else {
+                self.site_albedo(&e.site, ls[c])
+            }
+        })
     }
 
     /// τ-weighted albedo of a site at one wavelength.
@@ -1891,7 +1921,7 @@ impl DiscreteMedium {
             .map(|i| {
                 let lam = lane_wavelengths(lambda, channels, i);
                 let mut v = vec![0.0; channels];
-                let pdf = self.lane_phase_eval(&*events, &lanes[i], lam, &mut v);
+                let pdf = self.lane_phase_eval(&*events, &lanes[i], lam, &mut v, false);
                 (v, pdf)
             })
             .collect();
@@ -1899,13 +1929,15 @@ impl DiscreteMedium {
         (res.into_iter().flat_map(|r| r.0).collect(), pdf)
     }
 
-    /// One lane of [`Self::phase_eval`]: the values into `v` (one per wavelength of `lam`), the pdf returned.
+    /// One lane of [`Self::phase_eval`]: the values into `v` (one per wavelength of `lam`; times the
+    /// event's albedo with `scattered`), the pdf returned.
     fn lane_phase_eval(
         &self,
         events: &impl Events,
         lane: &PhaseEvalLane,
         lam: &[f64],
         v: &mut [f64],
+        scattered: bool,
     ) -> f64 {
         v.iter_mut().for_each(|x| *x = 0.0);
         let dirs =
@@ -1920,7 +1952,12 @@ impl DiscreteMedium {
         let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
         let pi = event_channels(&e, lam.len());
         let mixture = self.event_mixture(&e, &ls, &pi);
-        self.mixture_phase(&mixture, mu, v)
+        let pdf = self.mixture_phase(&mixture, mu, v);
+        if scattered {
+            let a = self.event_albedo(&e, lam, &ls);
+            v.iter_mut().zip(a.iter()).for_each(|(x, a)| *x *= a);
+        }
+        pdf
     }
 
     /// Sample the phase function of the event at each lane's `p` (module docs): outgoing directions,
@@ -1936,7 +1973,7 @@ impl DiscreteMedium {
             .into_par_iter()
             .map(|i| {
                 let lam = lane_wavelengths(lambda, channels, i);
-                self.lane_phase_sample(&*events, &lanes[i], lam)
+                self.lane_phase_sample(&*events, &lanes[i], lam, false)
             })
             .collect();
         drop(events);
@@ -1950,13 +1987,15 @@ impl DiscreteMedium {
         unzip_samples(res.into_iter().map(|r| r.0).collect())
     }
 
-    /// One lane of [`Self::phase_sample`]: the sample and the path's throughput after it (to store as
-    /// the event's `t_out`).
+    /// One lane of [`Self::phase_sample`]: the sample (its weights times the event's albedo with
+    /// `scattered`) and the path's throughput after it (to store as the event's `t_out`; the albedo is
+    /// in its `t_in` already).
     fn lane_phase_sample(
         &self,
         events: &impl Events,
         lane: &PhaseSampleLane,
         lam: &[f64],
+        scattered: bool,
     ) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
         let channels = lam.len();
         let Some(w_in) = normalise(lane.wi.map(|x| -(x as f64))) else {
@@ -1968,7 +2007,7 @@ impl DiscreteMedium {
         let ls = PerChannel::from_fn(channels, |c| self.bracket(lam[c]));
         let pi = event_channels(&e, channels);
         let mixture = self.event_mixture(&e, &ls, &pi);
-        let sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
+        let mut sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
         // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
         let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0).then(|| {
@@ -1976,6 +2015,10 @@ impl DiscreteMedium {
                 (0..channels).map(|c| if known { e.t_in[c] as f64 } else { 1.0 } * sample.1[c]),
             )
         });
+        if scattered {
+            let a = self.event_albedo(&e, lam, &ls);
+            sample.1.iter_mut().zip(a.iter()).for_each(|(x, a)| *x *= a);
+        }
         (sample, t_out)
     }
 
@@ -2043,11 +2086,22 @@ impl DiscreteMedium {
 /// Lanes of one SIMD packet at most (Dr.Jit's widest LLVM vector; scalar variants use one).
 pub const PACKET_LANES: usize = 16;
 
-/// A lane's site awaiting its commit in the packet interface.
+/// A lane's site of its last free flight in the packet interface, until a call finds the lane there
+/// ([`DiscreteMedium::settle`]) or its next free flight replaces it.
 #[derive(Clone, Copy, Default)]
 struct PendingLane {
     site: Option<Site>,
     parent: Parent,
+    /// Where the renderer puts the site: o + t d in float32 with one rounding (Mitsuba's `Ray3f`).
+    at: [f32; 3],
+}
+
+/// Whether a call's position `p` is a lane's site placed at `at`: the same bits, or within a few
+/// float32 ulps (Mitsuba's tentative distance is the site's t plus E / majorant, below an ulp unless t
+/// is tiny).
+fn at_site(p: [f32; 3], at: [f32; 3]) -> bool {
+    p == at
+        || (0..3).all(|a| (p[a] - at[a]).abs() <= 1e-6 * p[a].abs().max(at[a].abs()) + 1e-15)
 }
 
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
@@ -2172,12 +2226,16 @@ pub type PacketRay = ([f32; 3], [f32; 3], f32);
 
 /// # One packet at a time (the native render path)
 /// Mitsuba's symbolic LLVM kernels call native code once per SIMD packet (up to [`PACKET_LANES`] lanes;
-/// scalar variants once per ray). A packet runs its paths from start to end on one thread, and a
-/// medium's `sample_interaction` calls `intersect_aabb` and then `get_scattering_coefficients` with no
-/// other free flight of that thread in between. So the packet interface keeps its state per thread and
-/// medium, without locks: the sites of the last packet of free flights wait in a slot until
-/// [`Self::packet_commit`] remembers them, and the events live in a per-thread `EventMap` (a path's
-/// events are looked up by its own next rays only). This contract does not hold in Dr.Jit's evaluated
+/// scalar variants once per ray). A packet runs its paths from start to end on one thread, lane i
+/// being one path throughout. So the packet interface keeps its state per thread and medium, without
+/// locks: each lane's site of its last free flight waits in a slot, and becomes the lane's event
+/// ([`Self::settle`]) when the lane's next call starts there (the path scattered at it: its shadow
+/// ray, its phase function, its next free flight); a shadow ray's site is never settled, the next free
+/// flight replaces it. Events live in a per-thread `EventMap` (a path's events are looked up by its
+/// own next rays only), each lane's last one also beside it ([`LaneEvents`]). The renderer needs no
+/// call to place an event: every site scatters (σ_s = σ_t there) and the phase function's values and
+/// weights carry the site's albedo (`scattered` in [`Self::lane_phase_sample`]), which Mitsuba's
+/// volumetric integrators multiply into the path exactly as they would σ_s / σ_t. This contract does not hold in Dr.Jit's evaluated
 /// mode, where a wavefront's kernels may run a lane on different threads: there the batch interface
 /// ([`Self::sample_sites`] and the rest) is the one to use. Inactive lanes are `None`. The free
 /// flight's random number is a hash of the ray and the seed: a render is a function of the scene, the
@@ -2186,8 +2244,7 @@ pub type PacketRay = ([f32; 3], [f32; 3], f32);
 /// beam where they make one (`ParticleGrid::sample_sites_beam`; the same sites as one by one).
 impl DiscreteMedium {
     /// Rays and interactions (sites found: scattering events and blocked shadow rays) of the packet
-    /// interface so far. Commits are not counted: Dr.Jit drops a shadow ray's commit from the kernel,
-    /// whose albedo nobody reads.
+    /// interface so far.
     pub fn packet_counts(&self) -> (u64, u64) {
         self.packet_counts.totals()
     }
@@ -2212,8 +2269,41 @@ impl DiscreteMedium {
         })
     }
 
+    /// Lane `i`'s pending site becomes its event where a call finds the lane at it (`p`, the position
+    /// as the renderer placed it; `lam` the lane's wavelengths): the lane's path scattered there.
+    fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], lam: &[f64]) {
+        self.settle_in(&mut st.pending[i], &mut st.events, &mut st.recent[i], p, lam);
+    }
+
+    /// [`Self::settle`] on the parts of a packet state it changes.
+    fn settle_in(
+        &self,
+        pending: &mut PendingLane,
+        events: &mut EventMap,
+        recent: &mut Option<([u32; 3], Event)>,
+        p: [f32; 3],
+        lam: &[f64],
+    ) {
+        let Some(site) = pending.site.filter(|_| at_site(p, pending.at)) else {
+            return;
+        };
+        let a = PerChannel::from_fn(lam.len(), |c| self.site_albedo(&site, self.bracket(lam[c])));
+        let (k, e) = (key(p), event_after(site, &pending.parent, &a, lam));
+        pending.site = None;
+        events.insert(k, e);
+        *recent = Some((k, e));
+    }
+
     /// Free flights of a packet: the distance to each lane's next site (None: the ray leaves [0, t_max)).
-    pub fn packet_free_flights(&self, rays: &[Option<PacketRay>], t: &mut [Option<f64>]) {
+    /// `lambda` holds the lanes' wavelengths as for [`Self::packet_phase_eval`] (a ray leaving its
+    /// lane's last site settles it there).
+    pub fn packet_free_flights(
+        &self,
+        rays: &[Option<PacketRay>],
+        lambda: &[f64],
+        channels: usize,
+        t: &mut [Option<f64>],
+    ) {
         let n_rays = rays.iter().filter(|r| r.is_some()).count() as u64;
         let mut surface = SurfaceTally::default();
         let sites = self.with_packet_state(|st| {
@@ -2229,6 +2319,11 @@ impl DiscreteMedium {
             let mut beam = [0usize; PACKET_LANES];
             let mut in_beam = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
+                if let Some((o, _, _)) = *ray {
+                    let lam = lane_wavelengths(lambda, channels, i);
+                    let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
+                    self.settle_in(pending, &mut st.events, recent, o, lam);
+                }
                 st.pending[i] = PendingLane::default();
                 t[i] = None;
                 let Some((o, d, t_max)) = *ray else { continue };
@@ -2243,7 +2338,13 @@ impl DiscreteMedium {
                     u,
                     false,
                 ) {
-                    Plan::Done(site, _, parent) => st.pending[i] = PendingLane { site, parent },
+                    Plan::Done(site, _, parent) => {
+                        st.pending[i] = PendingLane {
+                            site,
+                            parent,
+                            ..PendingLane::default()
+                        }
+                    }
                     Plan::Walk(w) => {
                         if w.parent.len == 0 && matches!(self.grid, Some(Grains::Stored(_))) {
                             beam[in_beam] = i;
@@ -2262,10 +2363,19 @@ impl DiscreteMedium {
                 if let Some(w) = &walks[i] {
                     let walked = found[i].unwrap_or_else(|| self.walk_alone(w));
                     let (site, _, parent) = self.finish_walk(w, walked, false);
-                    st.pending[i] = PendingLane { site, parent };
+                    st.pending[i] = PendingLane {
+                        site,
+                        parent,
+                        ..PendingLane::default()
+                    };
                 }
-                t[i] = st.pending[i].site.map(|s| s.t);
-                sites += st.pending[i].site.is_some() as u64;
+                let pending = &mut st.pending[i];
+                t[i] = pending.site.map(|s| s.t);
+                if let (Some(s), Some((o, d, _))) = (pending.site, rays[i]) {
+                    let t = s.t as f32; // as the renderer receives it
+                    pending.at = [0, 1, 2].map(|a| d[a].mul_add(t, o[a]));
+                }
+                sites += pending.site.is_some() as u64;
             }
             sites
         });
@@ -2299,62 +2409,55 @@ impl DiscreteMedium {
         }
     }
 
-    /// Remember the events of this thread's last packet of free flights at the positions the renderer
-    /// placed them (`p`, None for lanes without an event) and write each lane's albedo (`channels` per
-    /// lane into `albedo`) at its wavelengths (`lambda`: `channels` shared, or `channels` per lane).
-    pub fn packet_commit(
-        &self,
-        p: &[Option<[f32; 3]>],
-        lambda: &[f64],
-        channels: usize,
-        albedo: &mut [f64],
-    ) {
+    /// Settle the sites of this thread's last packet of free flights at the positions the renderer
+    /// placed them (`p`, None for lanes without an event; `lambda` as for [`Self::packet_phase_eval`]),
+    /// as the lanes' next calls there do ([`Self::settle`]): for callers that look the events up from
+    /// other lanes (tests).
+    pub fn packet_commit(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize) {
         self.with_packet_state(|st| {
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
-                let a = &mut albedo[i * channels..(i + 1) * channels];
-                a.iter_mut().for_each(|x| *x = 0.0);
-                let (Some(pos), Some(site)) = (*pos, st.pending[i].site) else {
-                    continue;
-                };
-                let lam = lane_wavelengths(lambda, channels, i);
-                for (c, &l) in lam.iter().enumerate() {
-                    a[c] = self.site_albedo(&site, self.bracket(l));
+                if let Some(pos) = *pos {
+                    self.settle(st, i, pos, lane_wavelengths(lambda, channels, i));
                 }
-                let (k, e) = (key(pos), event_after(site, &st.pending[i].parent, a));
-                st.events.insert(k, e);
-                st.recent[i] = Some((k, e));
             }
         })
     }
 
-    /// Sample the phase functions of a packet's events: lanes → `wo` and `pdf` (0 where there is no
-    /// event); the events' throughputs are updated as [`Self::phase_sample`] does.
+    /// Sample the phase functions of a packet's events: lanes → `wo`, `weight` (`channels` per lane:
+    /// value / pdf times the site's albedo, module docs "One packet at a time") and `pdf` (0 where
+    /// there is no event); the events' throughputs are updated as [`Self::phase_sample`] does (in the
+    /// lane's own copy where the event is its last, else in the map).
     pub fn packet_phase_sample(
         &self,
         lanes: &[Option<PhaseSampleLane>],
         lambda: &[f64],
         channels: usize,
         wo: &mut [[f64; 3]],
+        weight: &mut [f64],
         pdf: &mut [f64],
     ) {
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
+                let w = &mut weight[i * channels..(i + 1) * channels];
+                w.iter_mut().for_each(|x| *x = 0.0);
                 st.sampled[i] = None;
                 let Some(lane) = lane else {
                     continue;
                 };
                 let lam = lane_wavelengths(lambda, channels, i);
-                let (sample, t_out) = self.lane_phase_sample(&st.lane(i), lane, lam);
+                self.settle(st, i, lane.p, lam);
+                let (sample, t_out) = self.lane_phase_sample(&st.lane(i), lane, lam, true);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
+                w.copy_from_slice(&sample.1);
                 if let Some(t) = t_out {
                     let k = key(lane.p);
-                    if let Some(e) = st.events.get_mut(&k) {
-                        e.t_out = t;
-                    }
-                    if let Some((at, e)) = &mut st.recent[i] {
-                        if *at == k {
-                            e.t_out = t;
+                    match &mut st.recent[i] {
+                        Some((at, e)) if *at == k => e.t_out = t,
+                        _ => {
+                            if let Some(e) = st.events.get_mut(&k) {
+                                e.t_out = t;
+                            }
                         }
                     }
                 }
@@ -2376,8 +2479,9 @@ impl DiscreteMedium {
         })
     }
 
-    /// Evaluate the phase functions of a packet's events: lanes → `values` (`channels` per lane) and
-    /// `pdf`.
+    /// Evaluate the phase functions of a packet's events: lanes → `values` (`channels` per lane, times
+    /// the site's albedo: module docs "One packet at a time") and `pdf`. `lambda`: `channels`
+    /// wavelengths shared by all lanes, or `channels` per lane.
     pub fn packet_phase_eval(
         &self,
         lanes: &[Option<PhaseEvalLane>],
@@ -2395,6 +2499,7 @@ impl DiscreteMedium {
                     continue;
                 };
                 let lam = lane_wavelengths(lambda, channels, i);
+                self.settle(st, i, lane.p, lam);
                 // The direction this lane's last sample returned, at the same event: its values.
                 let same = |c: &SampledLane| {
                     c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
@@ -2405,7 +2510,7 @@ impl DiscreteMedium {
                     pdf[i] = c.pdf;
                     continue;
                 }
-                pdf[i] = self.lane_phase_eval(&st.lane(i), lane, lam, v);
+                pdf[i] = self.lane_phase_eval(&st.lane(i), lane, lam, v, true);
             }
         })
     }
@@ -2673,38 +2778,82 @@ mod tests {
         }
     }
 
-    /// A packet lane's last committed event is the one its map holds, also after the phase function's
-    /// sample updated its throughput, and the lane's view finds it; other lanes hold none.
+    /// A packet lane's site becomes its event where the lane's next call starts at it (the position as
+    /// the renderer computes it, o + t d in float32): the map holds it, the lane's own copy carries the
+    /// phase sample's throughput, and its phase function's values and weights carry the site's
+    /// albedo. A site no call starts at (a shadow ray's) is never remembered.
     #[test]
-    fn a_lanes_last_event_stays_its_maps_copy() {
+    fn a_lanes_site_is_settled_where_its_path_goes_on() {
         let m = medium(4000);
         let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
         let lambda = [500.0, 600.0];
         for _ in 0..3 {
             let mut t = [None; 2];
-            m.packet_free_flights(&[None, Some((o, d, 10.0))], &mut t);
-            let p = [0.5, 0.5, -0.2 + t[1].expect("a site") as f32];
-            m.packet_commit(&[None, Some(p)], &lambda, 2, &mut [0.0; 4]);
+            m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
+            let t = t[1].expect("a site") as f32;
+            let p = [0, 1, 2].map(|a| d[a].mul_add(t, o[a]));
             let lane = PhaseSampleLane {
                 p,
                 wi: d,
                 u1: 0.3,
                 u2: [0.2, 0.7],
             };
-            let (mut wo, mut pdf) = ([[0.0; 3]; 2], [0.0; 2]);
-            m.packet_phase_sample(&[None, Some(lane)], &lambda, 2, &mut wo, &mut pdf);
+            let (mut wo, mut w, mut pdf) = ([[0.0; 3]; 2], [0.0; 4], [0.0; 2]);
+            m.packet_phase_sample(&[None, Some(lane)], &lambda, 2, &mut wo, &mut w, &mut pdf);
             assert!(pdf[1] > 0.0);
-            m.with_packet_state(|st| {
+            let event = m.with_packet_state(|st| {
                 let (at, e) = st.recent[1].expect("lane 1's event");
                 assert_eq!(at, key(p));
                 let mapped = st.events.get(&at).expect("in the map");
-                assert_eq!(e.t_out, mapped.t_out);
+                assert_eq!(e.t_in, mapped.t_in);
                 assert!(e.t_out.iter().any(|&x| x > 0.0));
-                assert_eq!(st.lane(1).event(&at).map(|e| e.t_out), Some(mapped.t_out));
-                assert_eq!(st.lane(0).event(&at).map(|e| e.t_out), Some(mapped.t_out));
+                assert_eq!(st.lane(1).event(&at).map(|e| e.t_out), Some(e.t_out));
                 assert!(st.recent[0].is_none());
+                e
+            });
+            // The weights are the plain sample's times the albedo.
+            let mut map = EventMap::new(4);
+            map.insert(key(p), event);
+            let ((wo_plain, w_plain, pdf_plain), _) = m.lane_phase_sample(&map, &lane, &lambda, false);
+            assert_eq!(wo[1], wo_plain);
+            assert!((pdf[1] / pdf_plain - 1.0).abs() < 1e-12);
+            for c in 0..2 {
+                let a = m.site_albedo(&event.site, m.bracket(lambda[c]));
+                assert!(a > 0.0 && a < 1.0, "{a}");
+                assert!((w[2 + c] / (w_plain[c] * a) - 1.0).abs() < 1e-6, "{w:?} {w_plain:?} {a}");
+            }
+            // A shadow ray from the event (the first of some directions that meets a grain): its site
+            // is left pending, then replaced.
+            let q = (0..200)
+                .find_map(|k| {
+                    let a = 0.1 * k as f32;
+                    let ds = [a.sin() * 0.6, a.cos() * 0.6, 0.8];
+                    let mut s = [None; 2];
+                    m.packet_free_flights(&[None, Some((p, ds, 10.0))], &lambda, 2, &mut s);
+                    let ts = s[1]? as f32;
+                    Some([0, 1, 2].map(|a| ds[a].mul_add(ts, p[a])))
+                })
+                .expect("a shadow ray that meets a grain");
+            m.with_packet_state(|st| assert!(st.pending[1].site.is_some()));
+            let mut s = [None; 2];
+            m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut s);
+            m.with_packet_state(|st| {
+                assert!(st.events.get(&key(q)).is_none());
+                assert_eq!(st.recent[1].map(|r| r.0), Some(key(p)));
             });
         }
+    }
+
+    /// Positions a few ulps from a lane's site are its site; others are not.
+    #[test]
+    fn sites_are_found_within_a_few_ulps() {
+        let at = [0.25f32, -3.0, 1e-9];
+        assert!(at_site(at, at));
+        let near = [f32::from_bits(at[0].to_bits() + 2), -3.0, 1e-9];
+        assert!(at_site(near, at));
+        assert!(!at_site([0.2501, -3.0, 1e-9], at));
+        assert!(!at_site([0.25, -3.0, 2e-9], at));
+        assert!(!at_site([f32::NAN, -3.0, 1e-9], at));
     }
 
     /// One particle's mixture (the fast path: its bin's tables, located once) gives what the general
@@ -2776,9 +2925,9 @@ mod tests {
         // for it).
         let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
         let mut first = [None];
-        m.packet_free_flights(&[Some((o, d, 10.0))], &mut first);
+        m.packet_free_flights(&[Some((o, d, 10.0))], &[500.0, 600.0], 2, &mut first);
         let event = [0.5f32, 0.5, -0.2 + first[0].expect("a site") as f32];
-        m.packet_commit(&[Some(event)], &[500.0, 600.0], 2, &mut [0.0; 2]);
+        m.packet_commit(&[Some(event)], &[500.0, 600.0], 2);
         assert!(m.with_packet_state(|st| st.events.get(&key(event)).is_some()));
         let (mut beams, mut sites) = (0, 0);
         for k in 0..60 {
@@ -2799,10 +2948,10 @@ mod tests {
                 })
                 .collect();
             let mut together = [None; PACKET_LANES];
-            m.packet_free_flights(&rays, &mut together);
+            m.packet_free_flights(&rays, &[500.0, 600.0], 2, &mut together);
             for (i, ray) in rays.iter().enumerate() {
                 let mut alone = [None];
-                m.packet_free_flights(&[*ray], &mut alone);
+                m.packet_free_flights(&[*ray], &[500.0, 600.0], 2, &mut alone);
                 assert_eq!(together[i], alone[0], "packet {k}, lane {i}");
                 sites += alone[0].is_some() as usize;
             }
