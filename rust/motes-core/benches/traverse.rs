@@ -4,27 +4,19 @@
 //! directions and run 40 units (out of it): a full walk (every contributing particle), the grey optical
 //! depth, and free flights to the first site (`sample_site`, what the renderer calls). `large`: the
 //! Cornell box's 10^5 grains of 2 mm scaled to the box (reach ~ a tenth of a centre cell: every ray
-//! comes near many cells; issue 25).
+//! comes near many cells; issue 25). `denser`: the Cornell box of 3e5 grains of 2 mm (its default
+//! query radius, 0.2 cm) scaled to the box: optical depth ~9 across it.
 //!
 //! Each layout (cells per particle, the default first; spheres, quantised slots (`q`), and quantised
 //! centre cells (`qc`, compact storage's)) is timed in interleaved rounds and the median round is
 //! reported, so a busy machine shifts all columns alike.
 //!
 //!     cargo bench -p motes-core --bench traverse [-- sparse|dense|large]
+mod common;
+use common::Lcg;
 use motes_core::space::grid::{GridSettings, ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};
 use motes_core::space::ray::RaySegment;
 use std::time::Instant;
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64) / (1u64 << 53) as f64
-    }
-}
 
 const ROUNDS: usize = 5;
 
@@ -140,5 +132,8 @@ fn main() {
     }
     if wanted("large") {
         run("large", 100_000, 0.07, 0.0, 0.076);
+    }
+    if wanted("denser") {
+        run("denser", 300_000, 0.074, 0.0, 0.0746);
     }
 }

@@ -381,10 +381,14 @@ impl<const N: usize> Packet<'_, N> {
                 let [x, y] = octahedral(wo[i]);
                 self.r.set_f(Field::Tfar, i, x);
                 self.r.set_f(Field::U, i, y);
-                for (c, f) in [Field::V, Field::PrimId, Field::GeomId].into_iter().enumerate() {
+                for (c, f) in [Field::V, Field::PrimId, Field::GeomId]
+                    .into_iter()
+                    .enumerate()
+                {
                     let w = if c < ch { weight[i * ch + c] } else { 0.0 };
                     // Finite and not negative: never the miss marker in geom_id.
-                    self.r.set_f(f, i, if w.is_finite() { w.max(0.0) } else { 0.0 });
+                    self.r
+                        .set_f(f, i, if w.is_finite() { w.max(0.0) } else { 0.0 });
                 }
                 self.r.set_f(Field::InstId, i, pdf[i]);
             } else {
@@ -425,10 +429,7 @@ fn octahedral(w: [f64; 3]) -> [f64; 2] {
     if w[2] >= 0.0 {
         [x, y]
     } else {
-        [
-            (1.0 - y.abs()).copysign(x),
-            (1.0 - x.abs()).copysign(y),
-        ]
+        [(1.0 - y.abs()).copysign(x), (1.0 - x.abs()).copysign(y)]
     }
 }
 

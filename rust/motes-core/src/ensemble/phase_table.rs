@@ -194,13 +194,20 @@ impl PhaseTable {
 
     /// μ with P(μ' ≤ μ) = u: the segment by binary search on the CDF, then the quadratic CDF inverted.
     pub fn sample(&self, u: f64) -> f64 {
+        self.sample_located(u).0
+    }
+
+    /// [`Self::sample`] and where the sampled μ lies among the nodes, as [`Self::locate`] gives it (the
+    /// segment and the fraction along it), so that its values need no search.
+    pub fn sample_located(&self, u: f64) -> (f64, (usize, f64)) {
         let u = u.clamp(0.0, 1.0);
         let i = self.by_cdf.segment(&self.cdf, cdf_bucket(u), u);
         let (m0, m1) = (self.mu[i], self.mu[i + 1]);
         let dm = m1 - m0;
-        let (a, b) = (self.f[i], self.f[i + 1] - self.f[i]);
-        // 2π dm (a t + b t²/2) = u − cdf[i]
-        let target = (u - self.cdf[i]) / (2.0 * PI * dm);
+        // q (a t + b t²/2) = u − cdf[i] with q = 2π dm, scaled by q so that one division solves it.
+        let q = 2.0 * PI * dm;
+        let (a, b) = (q * self.f[i], q * (self.f[i + 1] - self.f[i]));
+        let target = u - self.cdf[i];
         let t = if b.abs() < 1e-12 * a.abs().max(1e-300) {
             if a > 0.0 {
                 target / a
@@ -212,7 +219,8 @@ impl PhaseTable {
             let disc = (a * a + 2.0 * b * target).max(0.0);
             2.0 * target / (a + disc.sqrt())
         };
-        m0 + t.clamp(0.0, 1.0) * dm
+        let t = t.clamp(0.0, 1.0);
+        (m0 + t * dm, (i, t))
     }
 
     /// P(μ' ≤ μ) of the piecewise-linear table (exact, closed form).

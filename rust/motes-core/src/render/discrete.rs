@@ -133,18 +133,40 @@ struct Event {
     albedo_nm: f32,
 }
 
+/// No event: what a ray that starts at none takes from it.
+const NO_EVENT: Event = Event {
+    site: Site {
+        t: 0.0,
+        particles: [0; Site::CAPACITY],
+        len: 0,
+        keys: [0; Site::CAPACITY],
+    },
+    t_in: [0.0; MAX_CHANNELS],
+    t_out: [0.0; MAX_CHANNELS],
+    depth: 0,
+    albedo: [0.0; MAX_CHANNELS],
+    albedo_nm: 0.0,
+};
+
 /// Channel choice probabilities π from a throughput (zeros: uniform), `channels` of them.
 fn channel_probabilities(t: &[f32; MAX_CHANNELS], channels: usize) -> [f64; MAX_CHANNELS] {
     let mut pi = [0.0; MAX_CHANNELS];
     let c = channels.min(MAX_CHANNELS);
     let total: f64 = t[..c].iter().map(|&x| x as f64).sum();
+    let uniform = 1.0 / c as f64;
+    // One division, not one per channel (these were 4 % of a dense cloud's per-event work).
+    let inv = if total > 0.0 && total.is_finite() {
+        1.0 / total
+    } else {
+        0.0
+    };
     for k in 0..c {
-        let share = if total > 0.0 && total.is_finite() {
-            t[k] as f64 / total
+        let share = if inv > 0.0 {
+            t[k] as f64 * inv
         } else {
-            1.0 / c as f64
+            uniform
         };
-        pi[k] = (1.0 - DEFENSIVE_MIX) * share + DEFENSIVE_MIX / c as f64;
+        pi[k] = (1.0 - DEFENSIVE_MIX) * share + DEFENSIVE_MIX * uniform;
     }
     pi
 }
@@ -324,16 +346,16 @@ impl EventMap {
 /// Where a lane's events are looked up by position: the medium's map (batch interface), or a packet
 /// lane's last event before its thread's map ([`LaneEvents`]).
 trait Events {
-    fn event(&self, k: &[u32; 3]) -> Option<Event>;
+    fn event(&self, k: &[u32; 3]) -> Option<&Event>;
 }
 
 impl Events for EventMap {
-    fn event(&self, k: &[u32; 3]) -> Option<Event> {
-        self.get(k).copied()
+    fn event(&self, k: &[u32; 3]) -> Option<&Event> {
+        self.get(k)
     }
 }
 
-/// A packet lane's events: the last one its path committed, then its thread's map. A packet runs its
+/// A packet lane's events: the last one its path settled, then its thread's map. A packet runs its
 /// paths from start to end, so lane i is one path throughout, and a path's rays start at its last event
 /// (its shadow rays, the phase function's sample and evaluation, its next free flight): one comparison
 /// instead of hashing the position (looked up four times per event, 5–7 % of a dense render).
@@ -343,12 +365,19 @@ struct LaneEvents<'a> {
 }
 
 impl Events for LaneEvents<'_> {
-    fn event(&self, k: &[u32; 3]) -> Option<Event> {
+    fn event(&self, k: &[u32; 3]) -> Option<&Event> {
         match self.recent {
-            Some((at, e)) if at == k => Some(*e),
-            _ => self.map.get(k).copied(),
+            Some((at, e)) if same_key(at, k) => Some(e),
+            _ => self.map.get(k),
         }
     }
+}
+
+/// `a == b`, word by word: the key just built from a position's three floats is compared where it
+/// lies, not reloaded as wider words (a store-forwarding stall in every free flight's set-up).
+#[inline(always)]
+fn same_key(a: &[u32; 3], b: &[u32; 3]) -> bool {
+    (a[0] == b[0]) & (a[1] == b[1]) & (a[2] == b[2])
 }
 
 fn key(p: [f32; 3]) -> [u32; 3] {
@@ -474,7 +503,15 @@ fn unzip_samples(res: Vec<Sample>) -> (Vec<[f64; 3]>, Vec<f64>, Vec<f64>) {
 }
 
 fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    if (n2 - 1.0).abs() < 1e-6 {
+        // A unit vector to float32 rounding (every direction Mitsuba hands over): one Newton step
+        // of 1/√n² from 1 leaves |v| − 1 below 1e-12, without the square root and divisions (half a
+        // dense render's per-ray set-up).
+        let s = 1.5 - 0.5 * n2;
+        return Some(v.map(|x| x * s));
+    }
+    let l = n2.sqrt();
     (l.is_finite() && l > 0.0).then(|| v.map(|x| x / l))
 }
 
@@ -1296,6 +1333,11 @@ impl DiscreteMedium {
         &self.lambda
     }
 
+    /// The [`Self::bracket`] of each wavelength of `lam`.
+    fn brackets(&self, lam: &[f64]) -> PerChannel<(usize, usize, f64)> {
+        PerChannel::from_fn(lam.len(), |c| self.bracket(lam[c]))
+    }
+
     /// Interpolation of the tables at wavelength `l`: (lower index, upper index, weight of the upper);
     /// clamped to the tabulated range.
     fn bracket(&self, l: f64) -> (usize, usize, f64) {
@@ -1441,9 +1483,9 @@ impl DiscreteMedium {
                 (o[a] as f64) >= self.event_box.lo[a] && (o[a] as f64) <= self.event_box.hi[a]
             });
         let parent = if may_be_event {
-            events.event(&key(o)).unwrap_or_default()
+            events.event(&key(o)).unwrap_or(&NO_EVENT)
         } else {
-            Event::default()
+            &NO_EVENT
         };
         let from = Parent {
             t_out: parent.t_out,
@@ -1451,8 +1493,8 @@ impl DiscreteMedium {
         };
         let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
         let all = self
-            .grains_field_from(&parent)
-            .or_else(|| self.surface_field(&parent, &ray, view, surface));
+            .grains_field_from(parent)
+            .or_else(|| self.surface_field(parent, &ray, view, surface));
         if let Some(all) = all {
             let (site, tau) = field_free_flight(all, &ray, u, want_tau);
             return Plan::Done(site, tau, from);
@@ -1635,7 +1677,8 @@ impl DiscreteMedium {
     /// An event's albedo in each channel of `lam` (brackets `ls`): the one remembered with it where it
     /// was remembered at these wavelengths, else the site's.
     fn event_albedo(&self, e: &Event, lam: &[f64], ls: &[(usize, usize, f64)]) -> PerChannel<f64> {
-        let known = lam.len() <= MAX_CHANNELS && lam.first().map(|&l| l as f32) == Some(e.albedo_nm);
+        let known =
+            lam.len() <= MAX_CHANNELS && lam.first().map(|&l| l as f32) == Some(e.albedo_nm);
         PerChannel::from_fn(lam.len(), |c| {
             if known {
                 e.albedo[c] as f64
@@ -1696,14 +1739,27 @@ impl DiscreteMedium {
     /// Phase function of a mixture of particles per channel at μ = cos θ, and the pdf Σ_c π_c f_c of
     /// sampling it (module docs; see [`Mixture`]).
     fn mixture_phase(&self, m: &Mixture<impl Fn(u32) -> f64>, mu: f64, values: &mut [f64]) -> f64 {
+        self.mixture_phase_at(m, mu, None, values)
+    }
+
+    /// [`Self::mixture_phase`] with μ's location in the tables of the one particle's bin where the
+    /// caller knows it (`at`: a sample from one of them, [`PhaseTable::sample_located`]).
+    fn mixture_phase_at(
+        &self,
+        m: &Mixture<impl Fn(u32) -> f64>,
+        mu: f64,
+        at: Option<(usize, f64)>,
+        values: &mut [f64],
+    ) -> f64 {
         let mut pdf = 0.0;
         if let [j] = m.members {
             // One particle (most events): its own phase function in every channel where it scatters,
             // its bin looked up once (the weights below cancel: 5 % of a dense render), μ located
-            // once for all its tables where they share their nodes.
+            // once for all its tables where they share their nodes (or not at all where a sample from
+            // them told where it lies).
             let bin = self.optics.bin(*j);
             let (b, w) = (&self.bins[bin], (m.scale)(*j) * self.albedo_scale());
-            let at = self.shared_nodes[bin].then(|| b.phase[0].locate(mu));
+            let at = self.shared_nodes[bin].then(|| at.unwrap_or_else(|| b.phase[0].locate(mu)));
             for (c, &l) in m.ls.iter().enumerate() {
                 values[c] = match (w * bin_albedo(b, l) > 0.0, at) {
                     (false, _) => 0.0,
@@ -1782,15 +1838,16 @@ impl DiscreteMedium {
             members[pick]
         };
         let table = if u < 1.0 - l.2 { l.0 } else { l.1 };
-        let mu = self.bins[self.optics.bin(j)].phase[table].sample(u2[0]);
+        let (mu, at) = self.bins[self.optics.bin(j)].phase[table].sample_located(u2[0]);
         let phi = 2.0 * PI * u2[1];
         let st = (1.0 - mu * mu).max(0.0).sqrt();
         let (e1, e2) = frame(w_in);
         let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
         let mut v = PerChannel::from_fn(ls.len(), |_| 0.0);
-        let pdf = self.mixture_phase(m, mu, &mut v);
+        let pdf = self.mixture_phase_at(m, mu, Some(at), &mut v);
         if pdf > 0.0 {
-            v.iter_mut().for_each(|x| *x /= pdf);
+            let inv = 1.0 / pdf;
+            v.iter_mut().for_each(|x| *x *= inv);
             (wo, v, pdf)
         } else {
             null_sample(ls.len())
@@ -1921,7 +1978,14 @@ impl DiscreteMedium {
             .map(|i| {
                 let lam = lane_wavelengths(lambda, channels, i);
                 let mut v = vec![0.0; channels];
-                let pdf = self.lane_phase_eval(&*events, &lanes[i], lam, &mut v, false);
+                let pdf = self.lane_phase_eval(
+                    &*events,
+                    &lanes[i],
+                    lam,
+                    &self.brackets(lam),
+                    &mut v,
+                    false,
+                );
                 (v, pdf)
             })
             .collect();
@@ -1931,11 +1995,13 @@ impl DiscreteMedium {
 
     /// One lane of [`Self::phase_eval`]: the values into `v` (one per wavelength of `lam`; times the
     /// event's albedo with `scattered`), the pdf returned.
+    #[allow(clippy::too_many_arguments)]
     fn lane_phase_eval(
         &self,
         events: &impl Events,
         lane: &PhaseEvalLane,
         lam: &[f64],
+        ls: &[(usize, usize, f64)],
         v: &mut [f64],
         scattered: bool,
     ) -> f64 {
@@ -1948,13 +2014,12 @@ impl DiscreteMedium {
         let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return 0.0;
         };
-        let ls = PerChannel::from_fn(lam.len(), |c| self.bracket(lam[c]));
         let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
         let pi = event_channels(&e, lam.len());
-        let mixture = self.event_mixture(&e, &ls, &pi);
+        let mixture = self.event_mixture(&e, ls, &pi);
         let pdf = self.mixture_phase(&mixture, mu, v);
         if scattered {
-            let a = self.event_albedo(&e, lam, &ls);
+            let a = self.event_albedo(&e, lam, ls);
             v.iter_mut().zip(a.iter()).for_each(|(x, a)| *x *= a);
         }
         pdf
@@ -1973,7 +2038,7 @@ impl DiscreteMedium {
             .into_par_iter()
             .map(|i| {
                 let lam = lane_wavelengths(lambda, channels, i);
-                self.lane_phase_sample(&*events, &lanes[i], lam, false)
+                self.lane_phase_sample(&*events, &lanes[i], lam, &self.brackets(lam), false)
             })
             .collect();
         drop(events);
@@ -1995,6 +2060,7 @@ impl DiscreteMedium {
         events: &impl Events,
         lane: &PhaseSampleLane,
         lam: &[f64],
+        ls: &[(usize, usize, f64)],
         scattered: bool,
     ) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
         let channels = lam.len();
@@ -2004,9 +2070,8 @@ impl DiscreteMedium {
         let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return (null_sample(channels), None);
         };
-        let ls = PerChannel::from_fn(channels, |c| self.bracket(lam[c]));
         let pi = event_channels(&e, channels);
-        let mixture = self.event_mixture(&e, &ls, &pi);
+        let mixture = self.event_mixture(&e, ls, &pi);
         let mut sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
         // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
@@ -2016,7 +2081,7 @@ impl DiscreteMedium {
             )
         });
         if scattered {
-            let a = self.event_albedo(&e, lam, &ls);
+            let a = self.event_albedo(&e, lam, ls);
             sample.1.iter_mut().zip(a.iter()).for_each(|(x, a)| *x *= a);
         }
         (sample, t_out)
@@ -2039,18 +2104,21 @@ impl DiscreteMedium {
     }
 
     /// The remembered event at `p`, or else the site found from the geometry (uniform channels).
-    fn event_or_geometry(
+    fn event_or_geometry<'e>(
         &self,
-        events: &impl Events,
+        events: &'e impl Events,
         p: [f32; 3],
         w_in: [f64; 3],
-    ) -> Option<Event> {
-        events.event(&key(p)).or_else(|| {
-            self.site_near(p, w_in).map(|site| Event {
-                site,
-                ..Event::default()
-            })
-        })
+    ) -> Option<std::borrow::Cow<'e, Event>> {
+        match events.event(&key(p)) {
+            Some(e) => Some(std::borrow::Cow::Borrowed(e)),
+            None => self.site_near(p, w_in).map(|site| {
+                std::borrow::Cow::Owned(Event {
+                    site,
+                    ..Event::default()
+                })
+            }),
+        }
     }
 
     /// Remember an event directly (tests and tools: e.g. a chi-square test of a chosen mixture).
@@ -2096,12 +2164,69 @@ struct PendingLane {
     at: [f32; 3],
 }
 
+/// A lane's wavelengths and their tables' brackets ([`DiscreteMedium::bracket`]).
+#[derive(Clone, Copy)]
+struct Waves<'a> {
+    lam: &'a [f64],
+    ls: &'a [(usize, usize, f64)],
+}
+
+/// A packet call's wavelengths: `channels` shared by every lane (their brackets found once per call:
+/// RGB variants) or `channels` per lane.
+struct PacketWaves<'a> {
+    m: &'a DiscreteMedium,
+    lambda: &'a [f64],
+    channels: usize,
+    shared: Option<PerChannel<(usize, usize, f64)>>,
+}
+
+impl<'a> PacketWaves<'a> {
+    fn new(m: &'a DiscreteMedium, lambda: &'a [f64], channels: usize) -> Self {
+        let shared = (lambda.len() == channels).then(|| m.brackets(lambda));
+        PacketWaves {
+            m,
+            lambda,
+            channels,
+            shared,
+        }
+    }
+
+    /// Lane `i`'s wavelengths (`.get()` borrows them as [`Waves`]).
+    fn lane(&self, i: usize) -> LaneWaves<'_> {
+        let lam = lane_wavelengths(self.lambda, self.channels, i);
+        LaneWaves {
+            lam,
+            own: self.shared.is_none().then(|| self.m.brackets(lam)),
+            shared: &self.shared,
+        }
+    }
+}
+
+/// One lane's wavelengths from [`PacketWaves::lane`].
+struct LaneWaves<'a> {
+    lam: &'a [f64],
+    own: Option<PerChannel<(usize, usize, f64)>>,
+    shared: &'a Option<PerChannel<(usize, usize, f64)>>,
+}
+
+impl LaneWaves<'_> {
+    fn get(&self) -> Waves<'_> {
+        Waves {
+            lam: self.lam,
+            ls: self
+                .own
+                .as_deref()
+                .or(self.shared.as_deref())
+                .expect("brackets, shared or the lane's own"),
+        }
+    }
+}
+
 /// Whether a call's position `p` is a lane's site placed at `at`: the same bits, or within a few
 /// float32 ulps (Mitsuba's tentative distance is the site's t plus E / majorant, below an ulp unless t
 /// is tiny).
 fn at_site(p: [f32; 3], at: [f32; 3]) -> bool {
-    p == at
-        || (0..3).all(|a| (p[a] - at[a]).abs() <= 1e-6 * p[a].abs().max(at[a].abs()) + 1e-15)
+    p == at || (0..3).all(|a| (p[a] - at[a]).abs() <= 1e-6 * p[a].abs().max(at[a].abs()) + 1e-15)
 }
 
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
@@ -2231,8 +2356,9 @@ pub type PacketRay = ([f32; 3], [f32; 3], f32);
 /// locks: each lane's site of its last free flight waits in a slot, and becomes the lane's event
 /// ([`Self::settle`]) when the lane's next call starts there (the path scattered at it: its shadow
 /// ray, its phase function, its next free flight); a shadow ray's site is never settled, the next free
-/// flight replaces it. Events live in a per-thread `EventMap` (a path's events are looked up by its
-/// own next rays only), each lane's last one also beside it ([`LaneEvents`]). The renderer needs no
+/// flight replaces it. Each lane's last event lives beside it ([`LaneEvents`]: a path's events are
+/// looked up by its own next rays only); those whose rays walk the grains (skipping the event's
+/// particles) are also kept in a per-thread `EventMap`, the record that does not depend on lanes. The renderer needs no
 /// call to place an event: every site scatters (σ_s = σ_t there) and the phase function's values and
 /// weights carry the site's albedo (`scattered` in [`Self::lane_phase_sample`]), which Mitsuba's
 /// volumetric integrators multiply into the path exactly as they would σ_s / σ_t. This contract does not hold in Dr.Jit's evaluated
@@ -2271,8 +2397,8 @@ impl DiscreteMedium {
 
     /// Lane `i`'s pending site becomes its event where a call finds the lane at it (`p`, the position
     /// as the renderer placed it; `lam` the lane's wavelengths): the lane's path scattered there.
-    fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], lam: &[f64]) {
-        self.settle_in(&mut st.pending[i], &mut st.events, &mut st.recent[i], p, lam);
+    fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], w: Waves) {
+        self.settle_in(&mut st.pending[i], &mut st.events, &mut st.recent[i], p, w);
     }
 
     /// [`Self::settle`] on the parts of a packet state it changes.
@@ -2282,15 +2408,21 @@ impl DiscreteMedium {
         events: &mut EventMap,
         recent: &mut Option<([u32; 3], Event)>,
         p: [f32; 3],
-        lam: &[f64],
+        w: Waves,
     ) {
         let Some(site) = pending.site.filter(|_| at_site(p, pending.at)) else {
             return;
         };
-        let a = PerChannel::from_fn(lam.len(), |c| self.site_albedo(&site, self.bracket(lam[c])));
-        let (k, e) = (key(p), event_after(site, &pending.parent, &a, lam));
+        let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(&site, w.ls[c]));
+        let (k, e) = (key(p), event_after(site, &pending.parent, &a, w.lam));
         pending.site = None;
-        events.insert(k, e);
+        // The map is the record for rays that skip the event's particles (they walk the grains from
+        // it); the path's own next calls find the event beside the lane. Rays from an event that see
+        // the grains' continuous equivalent skip nothing: the lane's copy is all they need (the insert
+        // was 2 % of a dense render).
+        if self.grains_field_from(&e).is_none() {
+            events.insert(k, e);
+        }
         *recent = Some((k, e));
     }
 
@@ -2306,6 +2438,7 @@ impl DiscreteMedium {
     ) {
         let n_rays = rays.iter().filter(|r| r.is_some()).count() as u64;
         let mut surface = SurfaceTally::default();
+        let waves = PacketWaves::new(self, lambda, channels);
         let sites = self.with_packet_state(|st| {
             let epoch = self.view_epoch.load(Ordering::Acquire);
             if st.view_epoch != epoch {
@@ -2320,9 +2453,11 @@ impl DiscreteMedium {
             let mut in_beam = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 if let Some((o, _, _)) = *ray {
-                    let lam = lane_wavelengths(lambda, channels, i);
                     let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
-                    self.settle_in(pending, &mut st.events, recent, o, lam);
+                    if pending.site.is_some() {
+                        let w = waves.lane(i);
+                        self.settle_in(pending, &mut st.events, recent, o, w.get());
+                    }
                 }
                 st.pending[i] = PendingLane::default();
                 t[i] = None;
@@ -2372,8 +2507,10 @@ impl DiscreteMedium {
                 let pending = &mut st.pending[i];
                 t[i] = pending.site.map(|s| s.t);
                 if let (Some(s), Some((o, d, _))) = (pending.site, rays[i]) {
-                    let t = s.t as f32; // as the renderer receives it
-                    pending.at = [0, 1, 2].map(|a| d[a].mul_add(t, o[a]));
+                    // Mitsuba's fma in float32, but in f64 (exact product; `at_site` allows the
+                    // rare double rounding): f32::mul_add is a libm call in this build.
+                    let t = s.t as f32 as f64; // as the renderer receives it
+                    pending.at = [0, 1, 2].map(|a| (d[a] as f64 * t + o[a] as f64) as f32);
                 }
                 sites += pending.site.is_some() as u64;
             }
@@ -2414,10 +2551,11 @@ impl DiscreteMedium {
     /// as the lanes' next calls there do ([`Self::settle`]): for callers that look the events up from
     /// other lanes (tests).
     pub fn packet_commit(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize) {
+        let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
                 if let Some(pos) = *pos {
-                    self.settle(st, i, pos, lane_wavelengths(lambda, channels, i));
+                    self.settle(st, i, pos, waves.lane(i).get());
                 }
             }
         })
@@ -2436,6 +2574,7 @@ impl DiscreteMedium {
         weight: &mut [f64],
         pdf: &mut [f64],
     ) {
+        let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
@@ -2445,15 +2584,17 @@ impl DiscreteMedium {
                 let Some(lane) = lane else {
                     continue;
                 };
-                let lam = lane_wavelengths(lambda, channels, i);
-                self.settle(st, i, lane.p, lam);
-                let (sample, t_out) = self.lane_phase_sample(&st.lane(i), lane, lam, true);
+                let lane_waves = waves.lane(i);
+                let wv = lane_waves.get();
+                let lam = wv.lam;
+                self.settle(st, i, lane.p, wv);
+                let (sample, t_out) = self.lane_phase_sample(&st.lane(i), lane, lam, wv.ls, true);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
                 w.copy_from_slice(&sample.1);
                 if let Some(t) = t_out {
                     let k = key(lane.p);
                     match &mut st.recent[i] {
-                        Some((at, e)) if *at == k => e.t_out = t,
+                        Some((at, e)) if same_key(at, &k) => e.t_out = t,
                         _ => {
                             if let Some(e) = st.events.get_mut(&k) {
                                 e.t_out = t;
@@ -2490,6 +2631,7 @@ impl DiscreteMedium {
         values: &mut [f64],
         pdf: &mut [f64],
     ) {
+        let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 let v = &mut values[i * channels..(i + 1) * channels];
@@ -2498,8 +2640,10 @@ impl DiscreteMedium {
                     v.iter_mut().for_each(|x| *x = 0.0);
                     continue;
                 };
-                let lam = lane_wavelengths(lambda, channels, i);
-                self.settle(st, i, lane.p, lam);
+                let lane_waves = waves.lane(i);
+                let wv = lane_waves.get();
+                let lam = wv.lam;
+                self.settle(st, i, lane.p, wv);
                 // The direction this lane's last sample returned, at the same event: its values.
                 let same = |c: &SampledLane| {
                     c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
@@ -2510,7 +2654,7 @@ impl DiscreteMedium {
                     pdf[i] = c.pdf;
                     continue;
                 }
-                pdf[i] = self.lane_phase_eval(&st.lane(i), lane, lam, v, true);
+                pdf[i] = self.lane_phase_eval(&st.lane(i), lane, lam, wv.ls, v, true);
             }
         })
     }
@@ -2814,13 +2958,18 @@ mod tests {
             // The weights are the plain sample's times the albedo.
             let mut map = EventMap::new(4);
             map.insert(key(p), event);
-            let ((wo_plain, w_plain, pdf_plain), _) = m.lane_phase_sample(&map, &lane, &lambda, false);
+            let ls = m.brackets(&lambda);
+            let ((wo_plain, w_plain, pdf_plain), _) =
+                m.lane_phase_sample(&map, &lane, &lambda, &ls, false);
             assert_eq!(wo[1], wo_plain);
             assert!((pdf[1] / pdf_plain - 1.0).abs() < 1e-12);
             for c in 0..2 {
                 let a = m.site_albedo(&event.site, m.bracket(lambda[c]));
                 assert!(a > 0.0 && a < 1.0, "{a}");
-                assert!((w[2 + c] / (w_plain[c] * a) - 1.0).abs() < 1e-6, "{w:?} {w_plain:?} {a}");
+                assert!(
+                    (w[2 + c] / (w_plain[c] * a) - 1.0).abs() < 1e-6,
+                    "{w:?} {w_plain:?} {a}"
+                );
             }
             // A shadow ray from the event (the first of some directions that meets a grain): its site
             // is left pending, then replaced.

@@ -1,0 +1,14 @@
+//! What the benchmarks share: a small seeded generator (the same numbers on every machine).
+
+/// A 64-bit linear congruential generator (Knuth's MMIX constants): uniform numbers in [0, 1).
+pub struct Lcg(pub u64);
+
+impl Lcg {
+    pub fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64) / (1u64 << 53) as f64
+    }
+}
