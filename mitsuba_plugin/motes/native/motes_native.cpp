@@ -27,7 +27,7 @@
 //   use: inside Mitsuba's default *symbolic* kernels, drjit-core calls `packet<Width>` once per SIMD packet
 //   with Embree's ray/hit record (structure of arrays), which goes unchanged to Rust (`motes_packet`,
 //   rust/motes-py/src/native.rs, documents which fields each operation reads and writes). Outputs come
-//   back as the hit flag, t (= tfar), u, v, prim_id and inst_id.
+//   back as the hit flag (geom_id != -1), t (= tfar), u, v, prim_id, geom_id and inst_id.
 // * Scalar variants: the same Rust function is called directly with a one-lane record.
 //
 // Medium: `intersect_aabb` returns the next particle site as `mint` (Rust samples the free flight

@@ -136,7 +136,8 @@ sigma_t <= majorant everywhere (zero away from sites). A ray that leaves without
 mean of C_ext over the wavelengths); albedo and phase function are per channel. Events are remembered by
 their exact position so that the scattered ray and its shadow rays skip the particle that scattered
 them (every event is remembered: a perspective camera's rays have a finite t_max too, so t_max cannot
-tell scattered rays from shadow rays). Events also carry the path's colour throughput, so that the
+tell scattered rays from shadow rays; the native path remembers a site once the path's next call starts
+there, so a shadow ray's site is never remembered). Events also carry the path's colour throughput, so that the
 phase function picks the channel it samples in proportion to it and colour weights stay bounded over
 hundreds of bounces. Random numbers for the free flights come from the core (counter-based, reproducible).
 

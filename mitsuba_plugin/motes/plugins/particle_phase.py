@@ -19,6 +19,10 @@ Notes
   wavelengths (spectral variants interpolate between the tabulated wavelengths).
 * Every call is one batch to Rust (numpy in, numpy out); in LLVM variants it needs the evaluated
   ("wavefront") mode that ``motes.set_variant`` switches on.
+* On the native render path (``motes/native/motes_native.cpp``, which this plugin hands its calls to in
+  symbolic mode) the values and weights are ``albedo_c f_c`` and ``albedo_c f_c / pdf`` instead, and the
+  medium's sigma_s equals sigma_t at every site: the path carries the same product (``discrete``'s notes,
+  "Render paths").
 """
 
 from __future__ import annotations

@@ -151,7 +151,7 @@ fn main() {
                 [0.0; PACKET_LANES],
             );
             timed(&mut clock.samples, || {
-                m.packet_phase_sample(&samples, &LAMBDA, 3, &mut wo, &mut weight, &mut spdf)
+                m.packet_phase_sample(&samples, &LAMBDA, 3, &mut wo, &mut weight, &mut spdf, false)
             });
             // The scattered rays (the box's walls end them: they leave the medium).
             for i in 0..PACKET_LANES {

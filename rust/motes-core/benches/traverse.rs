@@ -11,7 +11,7 @@
 //! centre cells (`qc`, compact storage's)) is timed in interleaved rounds and the median round is
 //! reported, so a busy machine shifts all columns alike.
 //!
-//!     cargo bench -p motes-core --bench traverse [-- sparse|dense|large]
+//!     cargo bench -p motes-core --bench traverse [-- sparse|dense|large|denser]
 mod common;
 use common::Lcg;
 use motes_core::space::grid::{GridSettings, ParticleGrid, DEFAULT_CELLS_PER_PARTICLE};

@@ -11,7 +11,7 @@
 //!
 //! | op              | reads                                          | writes                                   |
 //! |-----------------|------------------------------------------------|------------------------------------------|
-//! | `FREE_FLIGHT`   | o, d, tfar = t_max                             | tfar = t of the site (hit lanes only)    |
+//! | `FREE_FLIGHT`   | o, d, tfar = t_max; wavelengths (see below)    | tfar = t of the site (hit lanes only)    |
 //! | `PHASE_SAMPLE`  | o = p, d = wi, tnear = u1, time, tfar = u2     | up to 3 channels: tfar, u = wo (octahedral), v, prim_id, geom_id = weights, inst_id = pdf; 4: tfar, u, v = wo, prim_id = pdf |
 //! | `PHASE_EVAL`    | o = p, d = wi, tnear, time, tfar = wo          | values in tfar, u, v, prim_id; inst_id = pdf |
 //!
@@ -24,11 +24,12 @@
 //! wavelength spacing).
 //!
 //! A sampled direction with up to three channels travels in two floats, the octahedral map of the unit
-//! sphere (Cigolle et al. 2014): x, y of w / |w|_1, the lower hemisphere folded over the diagonals; the
-//! C++ plugin unfolds and normalises it (float32 error about 1e-7 rad).
+//! sphere (`motes_core::render::discrete::octahedral`, Cigolle et al. 2014): x, y of w / |w|_1, the
+//! lower hemisphere folded over the diagonals; the C++ plugin unfolds and normalises it (float32 error
+//! about 1e-7 rad).
 
 use motes_core::render::discrete::{
-    DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, PACKET_LANES,
+    octahedral, DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, PACKET_LANES,
 };
 use pyo3::prelude::*;
 use std::collections::BTreeSet;
@@ -374,6 +375,7 @@ impl<const N: usize> Packet<'_, N> {
             &mut wo,
             &mut weight[..self.width * self.ch],
             &mut pdf,
+            self.ch > 3, // four weights do not fit the record: C++ evaluates the direction next
         );
         let ch = self.ch;
         self.answer(|i| {
@@ -419,17 +421,6 @@ impl<const N: usize> Packet<'_, N> {
             write_channels(self.r, i, &v[i * self.ch..(i + 1) * self.ch]);
             self.r.set_f(Field::InstId, i, pdf[i]);
         });
-    }
-}
-
-/// The octahedral map of a unit vector (module docs): x, y of w / |w|_1, the lower hemisphere folded.
-fn octahedral(w: [f64; 3]) -> [f64; 2] {
-    let n = w[0].abs() + w[1].abs() + w[2].abs();
-    let (x, y) = (w[0] / n, w[1] / n);
-    if w[2] >= 0.0 {
-        [x, y]
-    } else {
-        [(1.0 - y.abs()).copysign(x), (1.0 - x.abs()).copysign(y)]
     }
 }
 

@@ -118,7 +118,7 @@ pub const MAX_CHANNELS: usize = 4;
 /// A remembered event: the site's particles and the path's channel throughput (module docs) before
 /// (`t_in`, sampling at this event) and after (`t_out`, for the next event) this event's phase sample.
 /// All-zero throughputs mean "unknown": uniform channel choice.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 struct Event {
     site: Site,
     t_in: [f32; MAX_CHANNELS],
@@ -127,7 +127,7 @@ struct Event {
     /// event). A ray leaving an event at or past the medium's grain depth sees the grains' continuous
     /// equivalent (module docs, "Grains along a path").
     depth: u32,
-    /// The site's albedo per channel at the wavelengths whose first is `albedo_nm` (0: not known),
+    /// The site's albedo per channel at the wavelengths whose first is `albedo_nm` (NaN: not known),
     /// computed when the event was remembered (the packet interface weighs its phase function by it).
     albedo: [f32; MAX_CHANNELS],
     albedo_nm: f32,
@@ -145,8 +145,14 @@ const NO_EVENT: Event = Event {
     t_out: [0.0; MAX_CHANNELS],
     depth: 0,
     albedo: [0.0; MAX_CHANNELS],
-    albedo_nm: 0.0,
+    albedo_nm: f32::NAN,
 };
+
+impl Default for Event {
+    fn default() -> Self {
+        NO_EVENT
+    }
+}
 
 /// Channel choice probabilities π from a throughput (zeros: uniform), `channels` of them.
 fn channel_probabilities(t: &[f32; MAX_CHANNELS], channels: usize) -> [f64; MAX_CHANNELS] {
@@ -206,9 +212,9 @@ fn event_after(site: Site, parent: &Parent, a: &[f64], lam: &[f64]) -> Event {
         depth,
         albedo,
         albedo_nm: if a.len() <= MAX_CHANNELS {
-            lam.first().map_or(0.0, |&l| l as f32)
+            lam.first().map_or(f32::NAN, |&l| l as f32)
         } else {
-            0.0
+            f32::NAN
         },
     }
 }
@@ -381,7 +387,8 @@ fn same_key(a: &[u32; 3], b: &[u32; 3]) -> bool {
 }
 
 fn key(p: [f32; 3]) -> [u32; 3] {
-    p.map(f32::to_bits)
+    // −0 and +0 are one position (Mitsuba may hand either for the same point).
+    p.map(|x| (x + 0.0).to_bits())
 }
 
 /// The site of an interaction in a continuous field: one particle of the hit cell, picked ∝ its
@@ -1674,18 +1681,18 @@ impl DiscreteMedium {
         Ok(albedo)
     }
 
-    /// An event's albedo in each channel of `lam` (brackets `ls`): the one remembered with it where it
-    /// was remembered at these wavelengths, else the site's.
-    fn event_albedo(&self, e: &Event, lam: &[f64], ls: &[(usize, usize, f64)]) -> PerChannel<f64> {
+    /// `v` (one value per channel of `lam`, brackets `ls`) times the event's albedo: the one remembered
+    /// with it where it was remembered at these wavelengths, else the site's.
+    fn times_albedo(&self, e: &Event, lam: &[f64], ls: &[(usize, usize, f64)], v: &mut [f64]) {
         let known =
             lam.len() <= MAX_CHANNELS && lam.first().map(|&l| l as f32) == Some(e.albedo_nm);
-        PerChannel::from_fn(lam.len(), |c| {
-            if known {
+        for (c, x) in v.iter_mut().enumerate() {
+            *x *= if known {
                 e.albedo[c] as f64
             } else {
                 self.site_albedo(&e.site, ls[c])
-            }
-        })
+            };
+        }
     }
 
     /// τ-weighted albedo of a site at one wavelength.
@@ -2019,8 +2026,7 @@ impl DiscreteMedium {
         let mixture = self.event_mixture(&e, ls, &pi);
         let pdf = self.mixture_phase(&mixture, mu, v);
         if scattered {
-            let a = self.event_albedo(&e, lam, ls);
-            v.iter_mut().zip(a.iter()).for_each(|(x, a)| *x *= a);
+            self.times_albedo(&e, lam, ls, v);
         }
         pdf
     }
@@ -2081,8 +2087,7 @@ impl DiscreteMedium {
             )
         });
         if scattered {
-            let a = self.event_albedo(&e, lam, ls);
-            sample.1.iter_mut().zip(a.iter()).for_each(|(x, a)| *x *= a);
+            self.times_albedo(&e, lam, ls, &mut sample.1);
         }
         (sample, t_out)
     }
@@ -2160,8 +2165,40 @@ pub const PACKET_LANES: usize = 16;
 struct PendingLane {
     site: Option<Site>,
     parent: Parent,
-    /// Where the renderer puts the site: o + t d in float32 with one rounding (Mitsuba's `Ray3f`).
+    /// Where the renderer puts the site ([`site_position`]).
     at: [f32; 3],
+}
+
+impl PendingLane {
+    fn new(site: Option<Site>, parent: Parent) -> Self {
+        PendingLane {
+            site,
+            parent,
+            at: [0.0; 3],
+        }
+    }
+}
+
+/// Where the renderer puts a site at distance `t` along a ray: Mitsuba's `Ray3f` evaluates o + t d as
+/// a float32 fma of the float32 t it received. Here in f64 (the product is exact, the sum rounds twice:
+/// at most an ulp off, which [`at_site`] allows), since f32::mul_add is a libm call in this build.
+fn site_position(o: [f32; 3], d: [f32; 3], t: f64) -> [f32; 3] {
+    let t = t as f32 as f64;
+    [0, 1, 2].map(|a| (d[a] as f64 * t + o[a] as f64) as f32)
+}
+
+/// The octahedral map of a unit vector (Cigolle et al. 2014, "A survey of efficient representations
+/// for independent unit vectors"): x, y of w / |w|_1, the lower hemisphere folded over the diagonals.
+/// How the native plugin's phase samples send a direction in two floats (`rust/motes-py/src/native.rs`;
+/// the C++ plugin unfolds it: test `octahedral_directions_survive_float32`).
+pub fn octahedral(w: [f64; 3]) -> [f64; 2] {
+    let n = w[0].abs() + w[1].abs() + w[2].abs();
+    let (x, y) = (w[0] / n, w[1] / n);
+    if w[2] >= 0.0 {
+        [x, y]
+    } else {
+        [(1.0 - y.abs()).copysign(x), (1.0 - x.abs()).copysign(y)]
+    }
 }
 
 /// A lane's wavelengths and their tables' brackets ([`DiscreteMedium::bracket`]).
@@ -2222,11 +2259,18 @@ impl LaneWaves<'_> {
     }
 }
 
-/// Whether a call's position `p` is a lane's site placed at `at`: the same bits, or within a few
-/// float32 ulps (Mitsuba's tentative distance is the site's t plus E / majorant, below an ulp unless t
-/// is tiny).
+/// Float32 ulps by which a call's position may differ from a lane's predicted site ([`at_site`]).
+const SITE_ULPS: f32 = 4.0;
+
+/// Whether a call's position `p` is a lane's site predicted at `at`: the same bits, or within
+/// [`SITE_ULPS`] × |x| ε per axis (4–8 float32 ulps) (Mitsuba's tentative distance is the site's t plus E / majorant,
+/// below an ulp unless t is tiny; the prediction may be an ulp off).
 fn at_site(p: [f32; 3], at: [f32; 3]) -> bool {
-    p == at || (0..3).all(|a| (p[a] - at[a]).abs() <= 1e-6 * p[a].abs().max(at[a].abs()) + 1e-15)
+    p == at
+        || (0..3).all(|a| {
+            let ulp = p[a].abs().max(at[a].abs()) * f32::EPSILON;
+            (p[a] - at[a]).abs() <= SITE_ULPS * ulp.max(f32::MIN_POSITIVE)
+        })
 }
 
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
@@ -2235,8 +2279,8 @@ const PACKET_EVENT_CAPACITY: usize = 512;
 const PACKET_MEDIA_KEPT: usize = 8;
 
 /// A lane's last phase-function sample, kept for the evaluation that Mitsuba's phase function asks for
-/// next at the same event and direction (the C++ plugin's `sample` calls `eval_pdf`, and only `pdf`
-/// and a direction travel back from a sample): the inputs as their bits, the values and pdf computed
+/// next at the same event and direction where the sample's weights do not travel back with it (the C++
+/// plugin's spectral `sample` calls `eval_pdf`): the inputs as their bits, the values and pdf computed
 /// with the sample.
 #[derive(Clone, Copy, Default)]
 struct SampledLane {
@@ -2396,7 +2440,7 @@ impl DiscreteMedium {
     }
 
     /// Lane `i`'s pending site becomes its event where a call finds the lane at it (`p`, the position
-    /// as the renderer placed it; `lam` the lane's wavelengths): the lane's path scattered there.
+    /// as the renderer placed it; `w` the lane's wavelengths): the lane's path scattered there.
     fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], w: Waves) {
         self.settle_in(&mut st.pending[i], &mut st.events, &mut st.recent[i], p, w);
     }
@@ -2413,6 +2457,11 @@ impl DiscreteMedium {
         let Some(site) = pending.site.filter(|_| at_site(p, pending.at)) else {
             return;
         };
+        if recent.is_some_and(|(k, _)| same_key(&k, &key(p))) {
+            // The lane's event is here already: the pending site (a shadow ray's, a few ulps from
+            // it) is not where the path goes on.
+            return;
+        }
         let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(&site, w.ls[c]));
         let (k, e) = (key(p), event_after(site, &pending.parent, &a, w.lam));
         pending.site = None;
@@ -2452,16 +2501,15 @@ impl DiscreteMedium {
             let mut beam = [0usize; PACKET_LANES];
             let mut in_beam = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
-                if let Some((o, _, _)) = *ray {
-                    let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
-                    if pending.site.is_some() {
-                        let w = waves.lane(i);
-                        self.settle_in(pending, &mut st.events, recent, o, w.get());
-                    }
+                t[i] = None;
+                // A lane inactive in this call keeps its site: the lane's path has not moved on.
+                let Some((o, d, t_max)) = *ray else { continue };
+                let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
+                if pending.site.is_some() {
+                    let w = waves.lane(i);
+                    self.settle_in(pending, &mut st.events, recent, o, w.get());
                 }
                 st.pending[i] = PendingLane::default();
-                t[i] = None;
-                let Some((o, d, t_max)) = *ray else { continue };
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
                 match self.lane_plan(
                     &st.lane(i),
@@ -2473,13 +2521,7 @@ impl DiscreteMedium {
                     u,
                     false,
                 ) {
-                    Plan::Done(site, _, parent) => {
-                        st.pending[i] = PendingLane {
-                            site,
-                            parent,
-                            ..PendingLane::default()
-                        }
-                    }
+                    Plan::Done(site, _, parent) => st.pending[i] = PendingLane::new(site, parent),
                     Plan::Walk(w) => {
                         if w.parent.len == 0 && matches!(self.grid, Some(Grains::Stored(_))) {
                             beam[in_beam] = i;
@@ -2495,22 +2537,16 @@ impl DiscreteMedium {
             }
             let mut sites = 0;
             for i in 0..rays.len().min(PACKET_LANES) {
+                let Some((o, d, _)) = rays[i] else { continue };
                 if let Some(w) = &walks[i] {
                     let walked = found[i].unwrap_or_else(|| self.walk_alone(w));
                     let (site, _, parent) = self.finish_walk(w, walked, false);
-                    st.pending[i] = PendingLane {
-                        site,
-                        parent,
-                        ..PendingLane::default()
-                    };
+                    st.pending[i] = PendingLane::new(site, parent);
                 }
                 let pending = &mut st.pending[i];
                 t[i] = pending.site.map(|s| s.t);
-                if let (Some(s), Some((o, d, _))) = (pending.site, rays[i]) {
-                    // Mitsuba's fma in float32, but in f64 (exact product; `at_site` allows the
-                    // rare double rounding): f32::mul_add is a libm call in this build.
-                    let t = s.t as f32 as f64; // as the renderer receives it
-                    pending.at = [0, 1, 2].map(|a| (d[a] as f64 * t + o[a] as f64) as f32);
+                if let Some(s) = pending.site {
+                    pending.at = site_position(o, d, s.t);
                 }
                 sites += pending.site.is_some() as u64;
             }
@@ -2548,9 +2584,10 @@ impl DiscreteMedium {
 
     /// Settle the sites of this thread's last packet of free flights at the positions the renderer
     /// placed them (`p`, None for lanes without an event; `lambda` as for [`Self::packet_phase_eval`]),
-    /// as the lanes' next calls there do ([`Self::settle`]): for callers that look the events up from
-    /// other lanes (tests).
-    pub fn packet_commit(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize) {
+    /// as the lanes' next calls there do ([`Self::settle`]): for tests that look the events up from
+    /// other lanes.
+    #[cfg(test)]
+    fn packet_settle(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize) {
         let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
@@ -2564,7 +2601,10 @@ impl DiscreteMedium {
     /// Sample the phase functions of a packet's events: lanes → `wo`, `weight` (`channels` per lane:
     /// value / pdf times the site's albedo, module docs "One packet at a time") and `pdf` (0 where
     /// there is no event); the events' throughputs are updated as [`Self::phase_sample`] does (in the
-    /// lane's own copy where the event is its last, else in the map).
+    /// lane's own copy where the event is its last, else in the map). `evaluated_next`: the caller
+    /// evaluates each sampled direction next (the C++ plugin's spectral variants, whose record has no
+    /// room for four weights), which the sample's own values then answer ([`SampledLane`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn packet_phase_sample(
         &self,
         lanes: &[Option<PhaseSampleLane>],
@@ -2573,6 +2613,7 @@ impl DiscreteMedium {
         wo: &mut [[f64; 3]],
         weight: &mut [f64],
         pdf: &mut [f64],
+        evaluated_next: bool,
     ) {
         let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
@@ -2602,7 +2643,7 @@ impl DiscreteMedium {
                         }
                     }
                 }
-                if sample.2 > 0.0 && lam.len() <= MAX_CHANNELS {
+                if evaluated_next && sample.2 > 0.0 && lam.len() <= MAX_CHANNELS {
                     // What the evaluation at the direction as it travels back (f32) would give.
                     let mut values = [0.0; MAX_CHANNELS];
                     values
@@ -2943,7 +2984,15 @@ mod tests {
                 u2: [0.2, 0.7],
             };
             let (mut wo, mut w, mut pdf) = ([[0.0; 3]; 2], [0.0; 4], [0.0; 2]);
-            m.packet_phase_sample(&[None, Some(lane)], &lambda, 2, &mut wo, &mut w, &mut pdf);
+            m.packet_phase_sample(
+                &[None, Some(lane)],
+                &lambda,
+                2,
+                &mut wo,
+                &mut w,
+                &mut pdf,
+                false,
+            );
             assert!(pdf[1] > 0.0);
             let event = m.with_packet_state(|st| {
                 let (at, e) = st.recent[1].expect("lane 1's event");
@@ -2998,11 +3047,145 @@ mod tests {
     fn sites_are_found_within_a_few_ulps() {
         let at = [0.25f32, -3.0, 1e-9];
         assert!(at_site(at, at));
-        let near = [f32::from_bits(at[0].to_bits() + 2), -3.0, 1e-9];
-        assert!(at_site(near, at));
+        let up = |x: f32, n: i32| f32::from_bits((x.to_bits() as i32 + n) as u32);
+        assert!(at_site([up(0.25, 4), up(-3.0, -4), up(1e-9, 3)], at));
+        assert!(!at_site([up(0.25, 9), -3.0, 1e-9], at)); // |x| ε is one to two ulps
+        assert!(!at_site([0.25, up(-3.0, 9), 1e-9], at));
         assert!(!at_site([0.2501, -3.0, 1e-9], at));
         assert!(!at_site([0.25, -3.0, 2e-9], at));
         assert!(!at_site([f32::NAN, -3.0, 1e-9], at));
+        // −0 and +0: one position, one key.
+        assert!(at_site([0.0, -3.0, 1e-9], [-0.0, -3.0, 1e-9]));
+        assert_eq!(key([-0.0, 1.0, 2.0]), key([0.0, 1.0, 2.0]));
+    }
+
+    /// Octahedral directions (how the native plugin's phase samples travel) unfolded as the C++ plugin
+    /// does, in float32, come back within float32 precision: axes, signed zeros, the equator, the
+    /// poles and random directions.
+    #[test]
+    fn octahedral_directions_survive_float32() {
+        // motes_native.cpp's `octahedral`, in float32.
+        let decode = |x: f32, y: f32| {
+            let z = 1.0 - x.abs() - y.abs();
+            let (ux, uy) = if z < 0.0 {
+                ((1.0 - y.abs()).copysign(x), (1.0 - x.abs()).copysign(y))
+            } else {
+                (x, y)
+            };
+            let n = (ux * ux + uy * uy + z * z).sqrt();
+            [ux / n, uy / n, z / n].map(|c| c as f64)
+        };
+        let mut s = 17u64;
+        let mut r = || crate::test_rng::lcg(&mut s);
+        let mut dirs: Vec<[f64; 3]> = vec![
+            [1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [-0.0, -0.0, -1.0],
+            [0.6, -0.8, 0.0],
+            [0.6, -0.8, -0.0],
+            [1e-9, 0.0, -1.0],
+        ];
+        for _ in 0..20000 {
+            let z: f64 = 2.0 * r() - 1.0;
+            let phi = 2.0 * PI * r();
+            let st = (1.0 - z * z).sqrt();
+            dirs.push([st * phi.cos(), st * phi.sin(), z]);
+        }
+        for w in dirs {
+            let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+            let w = w.map(|c| c / l);
+            let [x, y] = octahedral(w);
+            let v = decode(x as f32, y as f32);
+            let err =
+                ((v[0] - w[0]).powi(2) + (v[1] - w[1]).powi(2) + (v[2] - w[2]).powi(2)).sqrt();
+            assert!(err < 1e-6, "{w:?} -> {v:?}: {err}");
+        }
+    }
+
+    /// A lane inactive in a packet's free flights keeps the site of its own last one: its path has
+    /// not moved on, and its phase function finds the event there.
+    #[test]
+    fn inactive_lanes_keep_their_site() {
+        let m = medium(4000);
+        let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
+        let lambda = [500.0, 600.0];
+        let mut t = [None; 2];
+        m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
+        let p = site_position(o, d, t[1].expect("a site"));
+        // Another lane's free flight (lane 1 inactive), as a shadow ray of lane 0's path.
+        let mut t0 = [None; 2];
+        m.packet_free_flights(
+            &[Some((o, [0.0, 1.0, 0.0], 10.0)), None],
+            &lambda,
+            2,
+            &mut t0,
+        );
+        assert_eq!(t0[1], None);
+        let lane = PhaseEvalLane {
+            p,
+            wi: d.map(|x| -x),
+            wo: [0.0, 0.6, 0.8],
+        };
+        let (mut v, mut pdf) = ([0.0; 4], [0.0; 2]);
+        m.packet_phase_eval(&[None, Some(lane)], &lambda, 2, &mut v, &mut pdf);
+        assert!(pdf[1] > 0.0);
+        m.with_packet_state(|st| assert_eq!(st.recent[1].map(|r| r.0), Some(key(p))));
+    }
+
+    /// Events whose rays see the grains' continuous equivalent live beside their lane only (they
+    /// skip no particles: the map is the record of those that do), and the lane's next free flight
+    /// from one sees the field; a pending site a few ulps from the lane's event (a shadow ray's) does
+    /// not replace it.
+    #[test]
+    fn field_events_live_beside_their_lane() {
+        let m = medium_with(20000, 1.0);
+        assert!(m
+            .grains_field_from(&Event {
+                depth: 1,
+                ..NO_EVENT
+            })
+            .is_some());
+        let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
+        let lambda = [500.0, 600.0];
+        let mut t = [None; 1];
+        m.packet_free_flights(&[Some((o, d, 10.0))], &lambda, 2, &mut t);
+        let p = site_position(o, d, t[0].expect("a site"));
+        let next = |m: &DiscreteMedium| {
+            let mut t = [None; 1];
+            m.packet_free_flights(&[Some((p, [0.6, 0.0, 0.8], 10.0))], &lambda, 2, &mut t);
+            t[0]
+        };
+        next(&m);
+        m.with_packet_state(|st| {
+            let (k, e) = st.recent[0].expect("the lane's event");
+            assert_eq!(k, key(p));
+            assert_eq!(e.depth, 1);
+            assert!(st.events.get(&k).is_none(), "not in the map");
+            // A pending site an ulp from the event.
+            let near = [p[0], p[1], f32::from_bits(p[2].to_bits() + 1)];
+            st.pending[0] = PendingLane {
+                site: Some(Site::default()),
+                parent: Parent::default(),
+                at: near,
+            };
+        });
+        let lane = PhaseEvalLane {
+            p,
+            wi: d.map(|x| -x),
+            wo: [0.0, 0.6, 0.8],
+        };
+        let (mut v, mut pdf) = ([0.0; 2], [0.0; 1]);
+        m.packet_phase_eval(&[Some(lane)], &lambda, 2, &mut v, &mut pdf);
+        assert!(pdf[0] > 0.0);
+        m.with_packet_state(|st| {
+            let (k, e) = st.recent[0].expect("the lane's event");
+            assert_eq!((k, e.depth), (key(p), 1));
+            assert!(st.pending[0].site.is_some(), "left pending");
+        });
     }
 
     /// One particle's mixture (the fast path: its bin's tables, located once) gives what the general
@@ -3076,7 +3259,7 @@ mod tests {
         let mut first = [None];
         m.packet_free_flights(&[Some((o, d, 10.0))], &[500.0, 600.0], 2, &mut first);
         let event = [0.5f32, 0.5, -0.2 + first[0].expect("a site") as f32];
-        m.packet_commit(&[Some(event)], &[500.0, 600.0], 2);
+        m.packet_settle(&[Some(event)], &[500.0, 600.0], 2);
         assert!(m.with_packet_state(|st| st.events.get(&key(event)).is_some()));
         let (mut beams, mut sites) = (0, 0);
         for k in 0..60 {
