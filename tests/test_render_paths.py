@@ -5,7 +5,7 @@ function's values and weights (motes_native.cpp); the evaluated-mode path return
 and an unweighted phase function. Mitsuba's volpath and volpathmis multiply both into a path alike, so
 their image means agree within the noise in every colour channel: in RGB variants (a phase sample's
 direction, weights and pdf in one call; scalar_rgb with its own one-lane record) and spectral ones (four
-channels: the sample's values from a second call). The grains absorb more at short wavelengths (a channel
+channels: the sample's values from a second call; scalar_spectral too). The grains absorb more at short wavelengths (a channel
 mix-up moves the channels apart), the camera and the light are off the cloud's axes (a mirrored direction
 moves the image), and ignoring the albedo would move the mean by many standard errors (checked against the
 same cloud of clear grains).
@@ -75,6 +75,7 @@ def _mean_se(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ("llvm_ad_rgb", "volpath", "llvm_ad_rgb"),
     ("llvm_ad_spectral", "volpath", "llvm_ad_spectral"),
     ("scalar_rgb", "volpath", "llvm_ad_rgb"),
+    ("scalar_spectral", "volpath", "llvm_ad_spectral"),
     ("llvm_ad_rgb", "volpathmis", "llvm_ad_rgb"),
 ])
 def test_native_and_evaluated_paths_agree_on_absorbing_grains(variant, integrator, reference):
