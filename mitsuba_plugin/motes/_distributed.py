@@ -21,6 +21,11 @@ def _client(args):
         from dask.distributed import Client, LocalCluster  # noqa: PLC0415
     except ImportError:
         raise RuntimeError("--workers / --scheduler need dask and distributed: pip install 'motes[cluster]'") from None
+    # distributed registers its numpy serialisers (importing numpy.ma) the first time it sends an array, on
+    # its communication thread; under CPython 3.11.7 that import's ast.parse there can fail with "AST
+    # constructor recursion depth mismatch" (CPython gh-106905; seen once in the test suite). Here it runs
+    # on the calling thread.
+    import distributed.protocol.numpy  # noqa: F401, PLC0415
     if args.scheduler:
         return Client(args.scheduler, timeout="30s"), None
     # Each worker process gets its share of the cores for Dr.Jit's and rayon's thread pools.
