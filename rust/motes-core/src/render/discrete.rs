@@ -2440,19 +2440,28 @@ impl DiscreteMedium {
     }
 
     /// Lane `i`'s pending site becomes its event where a call finds the lane at it (`p`, the position
-    /// as the renderer placed it; `w` the lane's wavelengths): the lane's path scattered there.
-    fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], w: Waves) {
-        self.settle_in(&mut st.pending[i], &mut st.events, &mut st.recent[i], p, w);
+    /// as the renderer placed it; `waves` the call's wavelengths): the lane's path scattered there.
+    fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], waves: &PacketWaves) {
+        self.settle_in(
+            &mut st.pending[i],
+            &mut st.events,
+            &mut st.recent[i],
+            p,
+            waves,
+            i,
+        );
     }
 
-    /// [`Self::settle`] on the parts of a packet state it changes.
+    /// [`Self::settle`] on the parts of a packet state it changes (lane `i`'s wavelengths read only
+    /// where it settles: a spectral lane's brackets cost a search per channel).
     fn settle_in(
         &self,
         pending: &mut PendingLane,
         events: &mut EventMap,
         recent: &mut Option<([u32; 3], Event)>,
         p: [f32; 3],
-        w: Waves,
+        waves: &PacketWaves,
+        i: usize,
     ) {
         let Some(site) = pending.site.filter(|_| at_site(p, pending.at)) else {
             return;
@@ -2462,6 +2471,8 @@ impl DiscreteMedium {
             // it) is not where the path goes on.
             return;
         }
+        let lane_waves = waves.lane(i);
+        let w = lane_waves.get();
         let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(&site, w.ls[c]));
         let (k, e) = (key(p), event_after(site, &pending.parent, &a, w.lam));
         pending.site = None;
@@ -2505,10 +2516,7 @@ impl DiscreteMedium {
                 // A lane inactive in this call keeps its site: the lane's path has not moved on.
                 let Some((o, d, t_max)) = *ray else { continue };
                 let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
-                if pending.site.is_some() {
-                    let w = waves.lane(i);
-                    self.settle_in(pending, &mut st.events, recent, o, w.get());
-                }
+                self.settle_in(pending, &mut st.events, recent, o, &waves, i);
                 st.pending[i] = PendingLane::default();
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
                 match self.lane_plan(
@@ -2592,7 +2600,7 @@ impl DiscreteMedium {
         self.with_packet_state(|st| {
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
                 if let Some(pos) = *pos {
-                    self.settle(st, i, pos, waves.lane(i).get());
+                    self.settle(st, i, pos, &waves);
                 }
             }
         })
@@ -2628,7 +2636,7 @@ impl DiscreteMedium {
                 let lane_waves = waves.lane(i);
                 let wv = lane_waves.get();
                 let lam = wv.lam;
-                self.settle(st, i, lane.p, wv);
+                self.settle(st, i, lane.p, &waves);
                 let (sample, t_out) = self.lane_phase_sample(&st.lane(i), lane, lam, wv.ls, true);
                 (wo[i], pdf[i]) = (sample.0, sample.2);
                 w.copy_from_slice(&sample.1);
@@ -2684,7 +2692,7 @@ impl DiscreteMedium {
                 let lane_waves = waves.lane(i);
                 let wv = lane_waves.get();
                 let lam = wv.lam;
-                self.settle(st, i, lane.p, wv);
+                self.settle(st, i, lane.p, &waves);
                 // The direction this lane's last sample returned, at the same event: its values.
                 let same = |c: &SampledLane| {
                     c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
