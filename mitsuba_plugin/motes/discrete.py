@@ -293,6 +293,28 @@ class DiscreteMedium:
                                  "(nx, ny, nz)) or (..., (ax, ay, az), cos_cutoff) tuples") from None
         self._core.set_cameras(cams, lights, bool(diffuse_surfaces))
 
+    def set_enclosure(self, meshes=(), balls=()) -> int:
+        """The convex shapes that hold the medium, inside which no surface lets a shadow ray through: ``meshes`` as
+        (vertices (n, 3), faces (m, 3)) pairs, ``balls`` as ((x, y, z), radius) pairs, in scene units. A phase
+        evaluation towards the direction of a path's last free flight, from its origin, is then zero where that flight
+        ended at a site inside the region holding its origin: next-event estimation multiplies it by the light the
+        blocked shadow ray does not see (Mitsuba's ``volpath`` and ``volpathmis``; ``motes.plugins.enclosure`` sets
+        this only for them). Open or non-convex meshes hold nothing. Returns the number of regions set; no arguments:
+        none (every evaluation computed, the default)."""
+        try:
+            mesh_arrays = [(np.ascontiguousarray(v, dtype=np.float64).reshape(-1),
+                            np.ascontiguousarray(f, dtype=np.uint32).reshape(-1)) for v, f in meshes]
+            ball_tuples = [((float(c[0]), float(c[1]), float(c[2])), float(r)) for c, r in balls]
+        except (TypeError, ValueError, IndexError):
+            raise ValueError("meshes must be (vertices (n, 3), faces (m, 3)) pairs and balls ((x, y, z), radius) "
+                             "pairs") from None
+        return self._core.set_enclosure(mesh_arrays, ball_tuples)
+
+    @property
+    def enclosure_regions(self) -> int:
+        """The number of convex regions set by ``set_enclosure``."""
+        return self._core.enclosure_regions
+
     @property
     def diffuse_surfaces(self) -> bool:
         """Whether the scene's surfaces were set as diffuse only (``set_cameras``)."""

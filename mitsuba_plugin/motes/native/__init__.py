@@ -117,6 +117,8 @@ def build(force: bool = False, verbose: bool = False) -> pathlib.Path:
                                "delete it or call motes.native.build(force=True)")
     library.motes_native_medium_handle.restype = ctypes.c_void_p
     library.motes_native_medium_handle.argtypes = [ctypes.c_void_p]
+    library.motes_native_set_clips_rays.restype = ctypes.c_int
+    library.motes_native_set_clips_rays.argtypes = [ctypes.c_void_p, ctypes.c_int]
     _library = library
     return folder
 
@@ -145,6 +147,16 @@ def medium_handle(obj) -> int | None:
         return None
     ptr = obj.ptr
     return _library.motes_native_medium_handle(ptr) or None
+
+
+def set_clips_rays(obj, on: bool) -> bool:
+    """Let Mitsuba's integrators clip a ray at the site a native ``discrete`` medium object returns (its
+    ``is_homogeneous`` flag; ``motes.plugins.enclosure``): True if ``obj`` is one (else nothing changes)."""
+    import mitsuba as mi
+
+    if _library is None or not isinstance(obj, mi.Object):
+        return False
+    return bool(_library.motes_native_set_clips_rays(obj.ptr, int(bool(on))))
 
 
 def simd() -> str:

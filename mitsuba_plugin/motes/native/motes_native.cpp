@@ -37,6 +37,10 @@
 // values and weights instead (Rust remembers the site as the path's event where the path's next call
 // starts at it). Mitsuba's volumetric integrators multiply sigma_s / sigma_t and the phase function's
 // value into a path alike, so the path carries the same product; `mei.sigma_s` itself reads as albedo 1.
+// `is_homogeneous` (false as built) is set by `motes_native_set_clips_rays` (Python:
+// motes.plugins.enclosure, for `volpath` and `volpathmis` only): those integrators then trace a ray that
+// has a site only up to it, which is what their flag does there and nothing else, since this medium
+// has no null collisions (Embree stops at the site: a dense cloud's rays no longer reach its walls).
 // Phase function: `sample` (one call: the direction, its weights and pdf; spectral variants, whose four
 // channels do not fit the record, evaluate the direction with a second call) and `eval_pdf`.
 #include <mitsuba/core/properties.h>
@@ -267,6 +271,8 @@ public:
     std::string to_string() const override { return m_call.description; }
     /// The core medium handle (motes_native_medium_handle).
     const void *handle() const { return m_call.medium; }
+    /// Let integrators clip a ray at its site (motes_native_set_clips_rays).
+    void set_clips_rays(bool on) { m_is_homogeneous = on; }
     MI_DECLARE_CLASS(MotesDiscreteNative)
 
 private:
@@ -369,6 +375,21 @@ extern "C" MI_EXPORT const void *motes_native_medium_handle(const Object *obj) {
     if (auto m = dynamic_cast<const MotesDiscreteNative<LF, Spectrum<LF, 4>> *>(obj))
         return m->handle();
     return nullptr;
+}
+
+/// Set whether a `motes_discrete_native` object lets integrators clip a ray at its site (Mitsuba's
+/// `is_homogeneous` flag; see the file's notes): 1 if `obj` is one, else 0 (nothing changed).
+extern "C" MI_EXPORT int motes_native_set_clips_rays(Object *obj, int on) {
+    using LF = dr::DiffArray<JitBackend::LLVM, float>;
+    if (auto m = dynamic_cast<MotesDiscreteNative<float, Color<float, 3>> *>(obj))
+        return m->set_clips_rays(on != 0), 1;
+    if (auto m = dynamic_cast<MotesDiscreteNative<float, Spectrum<float, 4>> *>(obj))
+        return m->set_clips_rays(on != 0), 1;
+    if (auto m = dynamic_cast<MotesDiscreteNative<LF, Color<LF, 3>> *>(obj))
+        return m->set_clips_rays(on != 0), 1;
+    if (auto m = dynamic_cast<MotesDiscreteNative<LF, Spectrum<LF, 4>> *>(obj))
+        return m->set_clips_rays(on != 0), 1;
+    return 0;
 }
 
 /// The Mitsuba version this library was compiled against (checked by motes/native/__init__.py).

@@ -79,7 +79,7 @@ def register() -> None:
     from .scene_checks import wrap_loaders
 
     wrap_loaders()  # a medium outside its shape warns at load; cameras set (cameras.py)
-    wrap_render()  # mi.render sets the cameras again (a camera moved through mi.traverse)
+    wrap_render()  # mi.render sets the cameras again (a camera moved through mi.traverse), and enclosure.py's skips
     if variant in _registered:
         return
     from . import discrete_medium, particle_phase

@@ -237,12 +237,16 @@ def discrete_media(scene) -> list:
     return list(found.values())
 
 
-def attach(scene, sensor=None) -> None:
-    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media."""
+def attach(scene, sensor=None, integrator=None) -> None:
+    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media, and the
+    shapes that hold each (``motes.plugins.enclosure``, for ``integrator``: default the scene's)."""
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
         return
     media = discrete_media(scene)
     if media:
+        from .enclosure import set_enclosures
+
+        set_enclosures(scene, integrator)
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
         # A light the rule cannot place may be small and sharp: no blur then.
         diffuse = lights is not None and diffuse_only(scene) and uniform_distant_light(scene)
@@ -264,7 +268,9 @@ def _wrapped_render(render):
         import mitsuba as mi
 
         sensor = kwargs.get("sensor", args[1] if len(args) > 1 else 0)
-        attach(scene, sensor if isinstance(sensor, mi.Sensor) else None)
+        integrator = kwargs.get("integrator", args[2] if len(args) > 2 else None)
+        attach(scene, sensor if isinstance(sensor, mi.Sensor) else None,
+               integrator if isinstance(integrator, mi.Integrator) else None)
         return render(scene, *args, **kwargs)
 
     render_with_cameras._motes_cameras = True

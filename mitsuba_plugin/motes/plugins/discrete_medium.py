@@ -157,6 +157,14 @@ native medium itself (the plugin's factory returns it, so no call per ray goes t
 answers ``.data``, ``.stats``, ``str()`` and ``mi.traverse`` as below. In other variants, without a C++ compiler, with
 ``MOTES_NATIVE=0``, or when Dr.Jit is switched to evaluated mode, the calls go through numpy batches
 instead (the evaluated-mode path below).
+
+Under ``volpath`` and ``volpathmis`` (the integrator given to ``mi.render``, or the scene's) two things are skipped,
+exactly (the images are the same; ``motes/plugins/enclosure.py``): a ray with a site is traced through the scene only
+up to it (Mitsuba's ``is_homogeneous`` flag, set for those two integrators: this medium has no null collisions), and
+next-event estimation's phase evaluation towards a light whose shadow ray ended at a site inside the convex shape
+(a ``cube``, a convex mesh, a ``sphere``) that holds the medium answers zero without computing it (the light it
+multiplies is zero). A caller that renders through ``Integrator.render`` directly with another integrator than the
+scene's calls ``motes.plugins.cameras.attach(scene, integrator=...)`` first.
 """
 
 from __future__ import annotations

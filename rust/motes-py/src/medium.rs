@@ -4,6 +4,7 @@
 use crate::convert::*;
 use crate::native;
 use motes_core::render::discrete::{PhaseEvalLane, PhaseSampleLane};
+use motes_core::render::enclosure::{Enclosure, Region};
 use motes_core::render::footprint::{Camera, Light, View};
 use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
@@ -517,6 +518,48 @@ impl PyDiscreteMedium {
             diffuse_surfaces,
         });
         Ok(())
+    }
+
+    /// Set the convex shapes that hold the medium, inside which no surface lets a shadow ray through:
+    /// `meshes` as (vertices (flat n*3 float64), faces (flat m*3 uint32)) pairs, `balls` as (centre,
+    /// radius) pairs. A phase evaluation towards the direction of a lane's last free flight, from its
+    /// origin, is then zero where that flight ended at a site inside the region holding its origin
+    /// (next-event estimation multiplies it by the light it does not see; only for integrators that do
+    /// so: the renderer decides). Meshes that are open or not convex hold nothing. Returns the number
+    /// of regions set; no arguments: none (every evaluation computed).
+    #[pyo3(signature = (meshes = Vec::new(), balls = Vec::new()))]
+    fn set_enclosure(
+        &self,
+        meshes: Vec<(F64In<'_>, PyReadonlyArray1<'_, u32>)>,
+        balls: Vec<((f64, f64, f64), f64)>,
+    ) -> PyResult<usize> {
+        let mut regions = Vec::new();
+        for (vertices, faces) in &meshes {
+            let faces = faces.as_slice()?;
+            if faces.len() % 3 != 0 {
+                return Err(invalid(
+                    "faces",
+                    faces.len(),
+                    "faces must have shape (m, 3)".into(),
+                ));
+            }
+            let faces: Vec<[u32; 3]> = faces.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+            if let Some(r) = Region::convex_mesh(&points(vertices)?, &faces).map_err(to_py)? {
+                regions.push(r);
+            }
+        }
+        for (c, r) in balls {
+            regions.push(Region::ball([c.0, c.1, c.2], r).map_err(to_py)?);
+        }
+        let n = regions.len();
+        self.medium.set_enclosure(Enclosure { regions });
+        Ok(n)
+    }
+
+    /// The number of convex regions set by `set_enclosure`.
+    #[getter]
+    fn enclosure_regions(&self) -> usize {
+        self.medium.enclosure().regions.len()
     }
 
     /// Whether the scene's surfaces were set as diffuse only (`set_cameras`).

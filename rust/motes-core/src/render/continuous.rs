@@ -481,7 +481,9 @@ impl ContinuousField {
         ray: &RaySegment,
         mut next_u: impl FnMut() -> f64,
     ) -> Option<FieldHit> {
-        let exponential = |u: f64| -(1.0 - u).ln();
+        // A unit exponential in single precision: a distance 6e-8 off relatively, where f64's libm
+        // logarithm was 4 % of a dense cloud's events (`field_events` bench).
+        let exponential = |u: f64| -((1.0 - u) as f32).ln() as f64;
         if let Some(m) = self.uniform_majorant {
             // One majorant for the whole field: no block walk at all.
             let (t0, t1) = self.frame.bounds.clip(ray)?;

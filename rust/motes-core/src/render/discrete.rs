@@ -74,6 +74,7 @@
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{resolvable, Column, ContinuousField, FieldHit, CLASS_FLAG};
+use crate::render::enclosure::Enclosure;
 use crate::render::env_flag;
 use crate::render::footprint::{ClassMoments, SurfaceFootprint, View};
 use crate::render::procedural::{build_parts, ProceduralGrains, ProceduralSpec};
@@ -227,11 +228,15 @@ struct Parent {
     depth: u32,
 }
 
-/// Bits of a ray's origin and direction, mixed (FNV-style): the ray's share of its random numbers.
+/// Bits of a ray's origin and direction, mixed: the ray's share of its random numbers (the caller's
+/// SplitMix64 finaliser spreads them). Three words multiplied side by side by odd constants and
+/// rotated apart, not one FNV chain of six dependent multiplies (3 % of a dense cloud's events).
 fn ray_bits(o: &[f32; 3], d: &[f32; 3]) -> u64 {
-    o.iter().chain(d.iter()).fold(0u64, |h, x| {
-        (h ^ x.to_bits() as u64).wrapping_mul(0x100_0000_01B3)
-    })
+    let word = |a: f32, b: f32| a.to_bits() as u64 | (b.to_bits() as u64) << 32;
+    let x = word(o[0], o[1]).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    let y = word(o[2], d[0]).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let z = word(d[1], d[2]).wrapping_mul(0x1656_67B1_9E37_79F9);
+    x ^ y.rotate_left(21) ^ z.rotate_left(42)
 }
 
 /// Lane `i`'s wavelengths in `lambda`: all of it when its `channels` wavelengths are shared by
@@ -679,6 +684,10 @@ pub struct DiscreteMedium {
     /// takes the lock only when this changed (a shared lock per packet made two threads fight over its
     /// cache line: 8 % of a scalar render, where a packet is one ray).
     view_epoch: AtomicU64,
+    /// The convex shapes that hold the medium, where the renderer vouches that a site inside one blocks
+    /// a shadow ray from inside it (`set_enclosure`, `crate::render::enclosure`; empty: unknown). Read
+    /// by the packet path with the view (`view_epoch`).
+    enclosure: RwLock<Arc<Enclosure>>,
     /// Whether the footprint rule applies (`set_surface_footprint`).
     surface_footprint: std::sync::atomic::AtomicBool,
     /// Rays checked against the rule, and those that saw the field (statistics).
@@ -1164,6 +1173,7 @@ impl DiscreteMedium {
             footprint: w.footprint,
             view: RwLock::new(Arc::new(View::default())),
             view_epoch: AtomicU64::new(0),
+            enclosure: RwLock::new(Arc::new(Enclosure::default())),
             surface_footprint: std::sync::atomic::AtomicBool::new(true),
             surface_counts: ShardedCounts::default(),
             optics: w.optics,
@@ -1468,6 +1478,7 @@ impl DiscreteMedium {
     /// `u` uniform in [0, 1)) takes: the answer where no grain needs walking (no ray, the grains'
     /// continuous equivalent), or else the walk through the grains still to do (module docs).
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn lane_plan(
         &self,
         events: &impl Events,
@@ -1590,6 +1601,22 @@ impl DiscreteMedium {
     pub fn set_view(&self, view: View) {
         *self.view.write().unwrap() = Arc::new(view);
         self.view_epoch.fetch_add(1, Ordering::Release);
+    }
+
+    /// The convex regions that hold the medium and inside which no surface lets a shadow ray through
+    /// (`crate::render::enclosure`): the packet path then answers a phase evaluation towards the
+    /// direction of the lane's last free flight, from its origin, with zero where that flight ended at a
+    /// site inside the region that holds its origin (the ray is blocked, and Mitsuba's `volpath` and
+    /// `volpathmis` multiply that evaluation by the light they then do not see). Set by the renderer
+    /// only for those integrators; empty (the default): every evaluation is computed.
+    pub fn set_enclosure(&self, enclosure: Enclosure) {
+        *self.enclosure.write().unwrap() = Arc::new(enclosure);
+        self.view_epoch.fetch_add(1, Ordering::Release);
+    }
+
+    /// What [`Self::set_enclosure`] set.
+    pub fn enclosure(&self) -> Enclosure {
+        Enclosure::clone(&self.enclosure.read().unwrap())
     }
 
     /// What [`Self::set_view`] set.
@@ -1849,7 +1876,10 @@ impl DiscreteMedium {
         let phi = 2.0 * PI * u2[1];
         let st = (1.0 - mu * mu).max(0.0).sqrt();
         let (e1, e2) = frame(w_in);
-        let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (phi.cos() * e1[a] + phi.sin() * e2[a]));
+        // φ in single precision: the direction goes to the renderer as float32 anyway.
+        let (sin_phi, cos_phi) = (phi as f32).sin_cos();
+        let (sin_phi, cos_phi) = (sin_phi as f64, cos_phi as f64);
+        let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (cos_phi * e1[a] + sin_phi * e2[a]));
         let mut v = PerChannel::from_fn(ls.len(), |_| 0.0);
         let pdf = self.mixture_phase_at(m, mu, Some(at), &mut v);
         if pdf > 0.0 {
@@ -2273,6 +2303,22 @@ fn at_site(p: [f32; 3], at: [f32; 3]) -> bool {
         })
 }
 
+/// Are two directions the same up to single-precision rounding (|a| = |b| = 1 within it)? The
+/// shadow ray's direction and the light's direction that Mitsuba evaluates the phase function at are
+/// the same difference of positions, normalised alike.
+fn same_direction(a: [f32; 3], b: [f32; 3]) -> bool {
+    let (a, b) = (a.map(|x| x as f64), b.map(|x| x as f64));
+    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let cross = [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ];
+    let (aa, bb) = (a.iter().map(|x| x * x).sum::<f64>(), b.iter().map(|x| x * x).sum::<f64>());
+    // Within 1e-6 rad: single precision rounds a unit vector's direction by ~1e-7.
+    dot > 0.0 && cross.iter().map(|x| x * x).sum::<f64>() <= 1e-12 * aa * bb
+}
+
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
 const PACKET_EVENT_CAPACITY: usize = 512;
 /// Media whose per-thread state a thread keeps before it forgets all but the one in use.
@@ -2309,10 +2355,16 @@ struct PacketState {
     /// Each lane's last committed event ([`LaneEvents`]).
     recent: [Option<([u32; 3], Event)>; PACKET_LANES],
     sampled: [Option<SampledLane>; PACKET_LANES],
+    /// Each lane's last free flight (origin, direction, where its site lies) where it ended at a site
+    /// (whether that blocks it for certain, [`DiscreteMedium::set_enclosure`], is asked only where an
+    /// evaluation towards it follows).
+    blocked: [Option<([f32; 3], [f32; 3], [f32; 3])>; PACKET_LANES],
     /// The medium's `optics_epoch` when these events were made (older ones carry stale albedos).
     epoch: u64,
     /// The medium's view as of its `view_epoch` (u64::MAX: not read yet).
     view: Arc<View>,
+    /// The medium's enclosure as of its `view_epoch`.
+    enclosure: Arc<Enclosure>,
     view_epoch: u64,
 }
 
@@ -2333,8 +2385,10 @@ impl Default for PacketState {
             events: EventMap::new(PACKET_EVENT_CAPACITY),
             recent: [None; PACKET_LANES],
             sampled: [None; PACKET_LANES],
+            blocked: [None; PACKET_LANES],
             epoch: 0,
             view: Arc::new(View::default()),
+            enclosure: Arc::new(Enclosure::default()),
             view_epoch: u64::MAX,
         }
     }
@@ -2503,6 +2557,7 @@ impl DiscreteMedium {
             let epoch = self.view_epoch.load(Ordering::Acquire);
             if st.view_epoch != epoch {
                 st.view = Arc::clone(&self.view.read().unwrap());
+                st.enclosure = Arc::clone(&self.enclosure.read().unwrap());
                 st.view_epoch = epoch;
             }
             let view = &*st.view;
@@ -2553,8 +2608,10 @@ impl DiscreteMedium {
                 }
                 let pending = &mut st.pending[i];
                 t[i] = pending.site.map(|s| s.t);
+                st.blocked[i] = None;
                 if let Some(s) = pending.site {
                     pending.at = site_position(o, d, s.t);
+                    st.blocked[i] = Some((o, d, pending.at));
                 }
                 sites += pending.site.is_some() as u64;
             }
@@ -2693,6 +2750,17 @@ impl DiscreteMedium {
                 let wv = lane_waves.get();
                 let lam = wv.lam;
                 self.settle(st, i, lane.p, &waves);
+                // Towards a light whose shadow ray the lane's last free flight found blocked inside
+                // the medium's enclosure: the light's zero multiplies this (`Self::set_enclosure`).
+                let widen = |p: [f32; 3]| p.map(|x| x as f64);
+                if st.blocked[i].is_some_and(|(o, d, at)| {
+                    at_site(lane.p, o)
+                        && same_direction(d, lane.wo)
+                        && st.enclosure.holds_segment(widen(o), widen(at))
+                }) {
+                    v.iter_mut().for_each(|x| *x = 0.0);
+                    continue;
+                }
                 // The direction this lane's last sample returned, at the same event: its values.
                 let same = |c: &SampledLane| {
                     c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
@@ -2971,6 +3039,22 @@ mod tests {
         }
     }
 
+    /// A ray along +z through the test medium whose free flight (lane 1 of a packet) meets a site in
+    /// the cube's lower half (rays from it cross much of the cube): the first of a row of origins
+    /// (which one depends on the free flights' random numbers).
+    fn ray_with_site(m: &DiscreteMedium, lambda: &[f64]) -> ([f32; 3], [f32; 3]) {
+        let d = [0.0f32, 0.0, 1.0];
+        (0..400)
+            .map(|k| [0.3 + 0.001 * k as f32, 0.5, -0.2])
+            .find(|&o| {
+                let mut t = [None; 2];
+                m.packet_free_flights(&[None, Some((o, d, 10.0))], lambda, 2, &mut t);
+                t[1].is_some_and(|t| t < 0.7)
+            })
+            .map(|o| (o, d))
+            .expect("a ray that meets a site")
+    }
+
     /// A packet lane's site becomes its event where the lane's next call starts at it (the position as
     /// the renderer computes it, o + t d in float32): the map holds it, the lane's own copy carries the
     /// phase sample's throughput, and its phase function's values and weights carry the site's
@@ -2978,8 +3062,8 @@ mod tests {
     #[test]
     fn a_lanes_site_is_settled_where_its_path_goes_on() {
         let m = medium(4000);
-        let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
         let lambda = [500.0, 600.0];
+        let (o, d) = ray_with_site(&m, &lambda);
         for _ in 0..3 {
             let mut t = [None; 2];
             m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
@@ -3020,9 +3104,12 @@ mod tests {
                 m.lane_phase_sample(&map, &lane, &lambda, &ls, false);
             assert_eq!(wo[1], wo_plain);
             assert!((pdf[1] / pdf_plain - 1.0).abs() < 1e-12);
+            let albedo = [0, 1].map(|c| m.site_albedo(&event.site, m.bracket(lambda[c])));
+            // Every particle of the test medium has an albedo below 1 in some channel.
+            assert!(albedo.iter().any(|&a| a < 1.0), "{albedo:?}");
             for c in 0..2 {
-                let a = m.site_albedo(&event.site, m.bracket(lambda[c]));
-                assert!(a > 0.0 && a < 1.0, "{a}");
+                let a = albedo[c];
+                assert!(a > 0.0 && a <= 1.0, "{a}");
                 assert!(
                     (w[2 + c] / (w_plain[c] * a) - 1.0).abs() < 1e-6,
                     "{w:?} {w_plain:?} {a}"
@@ -3039,7 +3126,7 @@ mod tests {
                     let ts = s[1]? as f32;
                     Some([0, 1, 2].map(|a| ds[a].mul_add(ts, p[a])))
                 })
-                .expect("a shadow ray that meets a grain");
+                .unwrap_or_else(|| panic!("a shadow ray that meets a grain from {p:?} (o {o:?})"));
             m.with_packet_state(|st| assert!(st.pending[1].site.is_some()));
             let mut s = [None; 2];
             m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut s);
@@ -3119,8 +3206,8 @@ mod tests {
     #[test]
     fn inactive_lanes_keep_their_site() {
         let m = medium(4000);
-        let (o, d) = ([0.5f32, 0.5, -0.2], [0.0f32, 0.0, 1.0]);
         let lambda = [500.0, 600.0];
+        let (o, d) = ray_with_site(&m, &lambda);
         let mut t = [None; 2];
         m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
         let p = site_position(o, d, t[1].expect("a site"));

@@ -11,6 +11,7 @@
 
 pub mod continuous;
 pub mod discrete;
+pub mod enclosure;
 pub mod footprint;
 pub mod procedural;
 pub mod storage;
