@@ -216,6 +216,14 @@ pub struct ContinuousField {
 /// a ball in its middle 0.64 / 0.64 (7.8) and 0.615 / 0.675 (16.2).
 const UNIFORM_MAJORANT_RATIO: f64 = 4.0;
 
+/// A unit exponential from the upper 32 of `bits`, −ln((k + 1/2) / 2^32) in single precision (a distance
+/// 6e-8 off relatively; f64's libm logarithm was 4 % of a dense cloud's events, `field_events` bench).
+#[inline(always)]
+fn exponential(bits: u64) -> f64 {
+    let u = ((bits >> 32) as f64 + 0.5) * (1.0 / 4294967296.0);
+    -(u as f32).ln() as f64
+}
+
 /// [`ContinuousField::uniform_majorant`] of block majorants. `MOTES_UNIFORM_MAJORANT=0` at build keeps
 /// the blocks (`scripts/bench/bench_quantise.py --switch MOTES_UNIFORM_MAJORANT`'s comparison).
 fn uniform_majorant(majorant: &[f32]) -> Option<f64> {
@@ -475,25 +483,26 @@ impl ContinuousField {
     /// tracking; pbrt-v4's majorant grid): tentative collisions at the rate of each block's majorant
     /// (or of the whole field's, [`UNIFORM_MAJORANT_RATIO`]), accepted with probability σ_t / majorant.
     /// Costs one σ_t lookup per tentative collision instead of one exponential per cell crossed, but
-    /// gives no optical depth. `next_u` supplies uniforms in [0, 1).
+    /// gives no optical depth. `next_bits` supplies 64 random bits per tentative collision: the upper 32
+    /// draw its distance, the lower 32 its acceptance (one hash where two uniforms were 2 % of a dense
+    /// render; the distance's exponential is then cut off at 22.9 mean free paths, probability 1.2e-10).
     pub fn sample_free_flight(
         &self,
         ray: &RaySegment,
-        mut next_u: impl FnMut() -> f64,
+        mut next_bits: impl FnMut() -> u64,
     ) -> Option<FieldHit> {
-        // A unit exponential in single precision: a distance 6e-8 off relatively, where f64's libm
-        // logarithm was 4 % of a dense cloud's events (`field_events` bench).
-        let exponential = |u: f64| -((1.0 - u) as f32).ln() as f64;
         if let Some(m) = self.uniform_majorant {
             // One majorant for the whole field: no block walk at all.
             let (t0, t1) = self.frame.bounds.clip(ray)?;
+            let inv_m = 1.0 / m;
             let mut t = t0;
             loop {
-                t += exponential(next_u()) / m;
+                let bits = next_bits();
+                t += exponential(bits) * inv_m;
                 if t >= t1 {
                     return None;
                 }
-                if let Some(hit) = self.tentative(ray, t, m, &mut next_u) {
+                if let Some(hit) = self.tentative(ray, t, m, bits) {
                     return Some(hit);
                 }
             }
@@ -505,11 +514,12 @@ impl ContinuousField {
             }
             let mut t = b.t_enter;
             loop {
-                t += exponential(next_u()) / m;
+                let bits = next_bits();
+                t += exponential(bits) / m;
                 if t >= b.t_exit {
                     break;
                 }
-                if let Some(hit) = self.tentative(ray, t, m, &mut next_u) {
+                if let Some(hit) = self.tentative(ray, t, m, bits) {
                     return Some(hit);
                 }
             }
@@ -517,20 +527,16 @@ impl ContinuousField {
         None
     }
 
-    /// A tentative collision at `t` against majorant `m`: real with probability σ_t / m.
+    /// A tentative collision at `t` against majorant `m`: real with probability σ_t / m (by the lower
+    /// 32 of `bits`).
     #[inline(always)]
-    fn tentative(
-        &self,
-        ray: &RaySegment,
-        t: f64,
-        m: f64,
-        next_u: &mut impl FnMut() -> f64,
-    ) -> Option<FieldHit> {
+    fn tentative(&self, ray: &RaySegment, t: f64, m: f64, bits: u64) -> Option<FieldHit> {
         let p = [0, 1, 2].map(|a| ray.o[a] + t * ray.d[a]);
         // Outside the field's box (blocks reach past it; rounding at its faces): σ_t = 0, a null
         // collision.
         let cell = self.cell_near(p)?;
-        (next_u() * m < self.sigma[cell] as f64).then_some(FieldHit { t, cell })
+        let u = (bits as u32) as f64 * (1.0 / 4294967296.0);
+        (u * m < self.sigma[cell] as f64).then_some(FieldHit { t, cell })
     }
 
     /// Exact free flight over a ray segment (|d| = 1): the first t where the optical depth walked
@@ -812,7 +818,7 @@ mod tests {
                 let mut seed = (lcg(s) * 2f64.powi(52)) as u64;
                 let hit = f.sample_free_flight(&ray, || {
                     seed = seed.wrapping_add(crate::rng::GOLDEN_GAMMA);
-                    crate::rng::unit_f64(crate::rng::splitmix64_finalise(seed))
+                    crate::rng::splitmix64_finalise(seed)
                 });
                 if let Some(h) = hit {
                     assert!(f.sigma[h.cell] > 0.0 && h.t >= ray.t0 && h.t <= ray.t1);

@@ -185,7 +185,8 @@ fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
         out[k] = if x.is_finite() && x > 0.0 { x } else { 0.0 };
     }
     let total: f64 = out.iter().sum();
-    out.map(|x| if total > 0.0 { (x / total) as f32 } else { 0.0 })
+    let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
+    out.map(|x| (x * inv) as f32)
 }
 
 /// The event remembered at a site: the path's channel throughput after the site's albedo `a` (module
@@ -435,7 +436,7 @@ fn field_hit(
     let mut k = 0u64;
     let hit = f.sample_free_flight(ray, || {
         k += 1;
-        uniform(u.to_bits(), FIELD_STREAM, 1 + k)
+        random_bits(u.to_bits(), FIELD_STREAM, 1 + k)
     });
     (hit, 0.0)
 }
@@ -443,8 +444,13 @@ fn field_hit(
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
 /// renders are reproducible whatever the thread schedule.
 fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
+    unit_f64(random_bits(seed, call, lane))
+}
+
+/// The 64 random bits behind [`uniform`].
+fn random_bits(seed: u64, call: u64, lane: u64) -> u64 {
     let z = seed ^ call.wrapping_mul(GOLDEN_GAMMA) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
-    unit_f64(splitmix64_finalise(z))
+    splitmix64_finalise(z)
 }
 
 /// Unit vector and two perpendicular ones (Duff et al. 2017 branchless frame).
@@ -1355,6 +1361,33 @@ impl DiscreteMedium {
         PerChannel::from_fn(lam.len(), |c| self.bracket(lam[c]))
     }
 
+    /// [`Self::brackets`] of the wavelengths a packet's lanes share, kept per thread for the last
+    /// medium and wavelengths asked (an RGB render asks for the same three in every call: their
+    /// searches were 1.5 % of a dense render).
+    fn brackets_cached(&self, lam: &[f64]) -> PerChannel<(usize, usize, f64)> {
+        type Key = (u64, [u64; MAX_CHANNELS], usize);
+        thread_local! {
+            static LAST: std::cell::Cell<Option<(Key, [(usize, usize, f64); MAX_CHANNELS])>> =
+                const { std::cell::Cell::new(None) };
+        }
+        if lam.len() > MAX_CHANNELS {
+            return self.brackets(lam);
+        }
+        let mut bits = [0u64; MAX_CHANNELS];
+        bits.iter_mut().zip(lam).for_each(|(b, l)| *b = l.to_bits());
+        let key = (self.id, bits, lam.len());
+        if let Some((k, ls)) = LAST.get() {
+            if k == key {
+                return PerChannel::Inline(ls, lam.len());
+            }
+        }
+        let ls = self.brackets(lam);
+        let mut flat = [(0, 0, 0.0); MAX_CHANNELS];
+        flat.iter_mut().zip(ls.iter()).for_each(|(f, l)| *f = *l);
+        LAST.set(Some((key, flat)));
+        ls
+    }
+
     /// Interpolation of the tables at wavelength `l`: (lower index, upper index, weight of the upper);
     /// clamped to the tabulated range.
     fn bracket(&self, l: f64) -> (usize, usize, f64) {
@@ -1724,6 +1757,10 @@ impl DiscreteMedium {
 
     /// τ-weighted albedo of a site at one wavelength.
     fn site_albedo(&self, s: &Site, l: (usize, usize, f64)) -> f64 {
+        if let [j] = s.members() {
+            // One particle (most sites): its own albedo, no weights to divide out.
+            return self.albedo_at(*j, l);
+        }
         let (mut num, mut den) = (0.0, 0.0);
         for &j in s.members() {
             let t = self.optics.tau(j);
@@ -2249,7 +2286,7 @@ struct PacketWaves<'a> {
 
 impl<'a> PacketWaves<'a> {
     fn new(m: &'a DiscreteMedium, lambda: &'a [f64], channels: usize) -> Self {
-        let shared = (lambda.len() == channels).then(|| m.brackets(lambda));
+        let shared = (lambda.len() == channels).then(|| m.brackets_cached(lambda));
         PacketWaves {
             m,
             lambda,
