@@ -216,6 +216,14 @@ pub struct ContinuousField {
 /// a ball in its middle 0.64 / 0.64 (7.8) and 0.615 / 0.675 (16.2).
 const UNIFORM_MAJORANT_RATIO: f64 = 4.0;
 
+/// What a tentative collision of delta tracking turns out to be.
+enum Tentative {
+    Real(FieldHit),
+    Null,
+    /// Outside the field's box (σ_t = 0 there: a null collision).
+    Outside,
+}
+
 /// A unit exponential from the upper 32 of `bits`, −ln((k + 1/2) / 2^32) in single precision (a distance
 /// 6e-8 off relatively; f64's libm logarithm was 4 % of a dense cloud's events, `field_events` bench).
 #[inline(always)]
@@ -492,8 +500,17 @@ impl ContinuousField {
         mut next_bits: impl FnMut() -> u64,
     ) -> Option<FieldHit> {
         if let Some(m) = self.uniform_majorant {
-            // One majorant for the whole field: no block walk at all.
-            let (t0, t1) = self.frame.bounds.clip(ray)?;
+            // One majorant for the whole field: no block walk at all. A ray that starts inside the
+            // field's box needs no clip (three divisions): its first tentative collision outside the
+            // box is past its exit (a convex box is left once), where it ends.
+            let bounds = &self.frame.bounds;
+            let start = [0, 1, 2].map(|a| ray.o[a] + ray.t0 * ray.d[a]);
+            let inside = (0..3).all(|a| start[a] > bounds.lo[a] && start[a] < bounds.hi[a]);
+            let (t0, t1) = if inside {
+                (ray.t0, ray.t1)
+            } else {
+                bounds.clip(ray)?
+            };
             let inv_m = 1.0 / m;
             let mut t = t0;
             loop {
@@ -502,8 +519,10 @@ impl ContinuousField {
                 if t >= t1 {
                     return None;
                 }
-                if let Some(hit) = self.tentative(ray, t, m, bits) {
-                    return Some(hit);
+                match self.tentative_in_box(ray, t, m, bits) {
+                    Tentative::Real(hit) => return Some(hit),
+                    Tentative::Outside if inside => return None,
+                    _ => {}
                 }
             }
         }
@@ -525,6 +544,21 @@ impl ContinuousField {
             }
         }
         None
+    }
+
+    /// [`Self::tentative`], telling a null collision inside the field's box from a point outside it.
+    #[inline(always)]
+    fn tentative_in_box(&self, ray: &RaySegment, t: f64, m: f64, bits: u64) -> Tentative {
+        let p = [0, 1, 2].map(|a| ray.o[a] + t * ray.d[a]);
+        let Some(cell) = self.cell_near(p) else {
+            return Tentative::Outside;
+        };
+        let u = (bits as u32) as f64 * (1.0 / 4294967296.0);
+        if u * m < self.sigma[cell] as f64 {
+            Tentative::Real(FieldHit { t, cell })
+        } else {
+            Tentative::Null
+        }
     }
 
     /// A tentative collision at `t` against majorant `m`: real with probability σ_t / m (by the lower
