@@ -78,3 +78,55 @@ def test_local_scattering_errors(medium):
         medium.local_scattering(np.zeros((3, 2)), 0.0)
     with pytest.raises(ValueError, match="cos_theta"):
         medium.local_scattering(np.zeros((3, 3)), 1.5)
+
+
+def _box_mesh(lo, hi, rotate=0.0):
+    """A closed box [lo, hi]^3 as Mitsuba's cube gives it (24 vertices, 12 triangles), turned by ``rotate``
+    radians about z."""
+    v, f = [], []
+    for axis in range(3):
+        for side in (lo, hi):
+            base = len(v)
+            u, w = (axis + 1) % 3, (axis + 2) % 3
+            for a, b in ((lo, lo), (hi, lo), (hi, hi), (lo, hi)):
+                p = [0.0, 0.0, 0.0]
+                p[axis], p[u], p[w] = side, a, b
+                v.append(p)
+            f += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    v = np.array(v)
+    c, s = np.cos(rotate), np.sin(rotate)
+    v = v @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    return v, np.array(f, dtype=np.uint32)
+
+
+@settings(max_examples=40, deadline=None)
+@given(lo=st.floats(-1e6, 1e6), size=st.floats(1e-6, 1e6), rotate=st.floats(0.0, 2 * np.pi),
+       radius=st.floats(1e-9, 1e9))
+def test_set_enclosure_takes_boxes_and_balls(medium, lo, size, rotate, radius):
+    """Closed boxes (any size, position and turn) and balls are regions; no arguments clears them."""
+    hi = lo + size
+    if not hi > lo:  # size lost in lo's rounding
+        return
+    v, f = _box_mesh(lo, hi, rotate)
+    assert medium.set_enclosure([(v, f)], [((lo, 0.0, 0.0), radius)]) == 2
+    assert medium.enclosure_regions == 2
+    assert medium.set_enclosure() == 0 and medium.enclosure_regions == 0
+
+
+def test_set_enclosure_rejects_bad_input_by_name(medium):
+    v, f = _box_mesh(-1.0, 1.0)
+    open_box = (v, f[:8])  # the z faces missing
+    flat = (np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), np.array([[0, 1, 2], [0, 2, 3], [0, 2, 1],
+                                                                                        [0, 3, 2]], np.uint32))
+    assert medium.set_enclosure([open_box, flat]) == 0  # not closed, no volume: hold nothing
+    bad = v.copy()
+    bad[5, 1] = np.nan
+    for meshes, balls, name in (([(bad, f)], [], "vertex"), ([(v, np.where(f == 3, 99, f))], [], "face vertex index"),
+                                ([], [((0.0, 0.0, 0.0), 0.0)], "ball radius"),
+                                ([], [((np.inf, 0.0, 0.0), 1.0)], "ball centre"),
+                                ([(v, f.ravel()[:-1])], [], "faces")):
+        with pytest.raises(motes.MotesError) as e:
+            medium.set_enclosure(meshes, balls)
+        assert e.value.argument == name, (name, str(e.value))
+    with pytest.raises(ValueError, match="pairs"):
+        medium.set_enclosure([(v,)])
