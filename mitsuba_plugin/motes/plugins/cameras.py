@@ -238,8 +238,8 @@ def discrete_media(scene) -> list:
 
 
 def attach(scene, sensor=None, integrator=None) -> None:
-    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media, and the
-    shapes that hold each (``motes.plugins.enclosure``, for ``integrator``: default the scene's)."""
+    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media, and what
+    ``integrator`` may skip around them (``motes.plugins.enclosure``; None: nothing)."""
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
         return
     media = discrete_media(scene)
@@ -269,9 +269,16 @@ def _wrapped_render(render):
 
         sensor = kwargs.get("sensor", args[1] if len(args) > 1 else 0)
         integrator = kwargs.get("integrator", args[2] if len(args) > 2 else None)
-        attach(scene, sensor if isinstance(sensor, mi.Sensor) else None,
-               integrator if isinstance(integrator, mi.Integrator) else None)
-        return render(scene, *args, **kwargs)
+        if not isinstance(integrator, mi.Integrator):
+            integrator = scene.integrator() if hasattr(scene, "integrator") else None
+        attach(scene, sensor if isinstance(sensor, mi.Sensor) else None, integrator)
+        try:
+            return render(scene, *args, **kwargs)
+        finally:
+            if _made[0] and hasattr(scene, "shapes"):
+                from .enclosure import clear_clips
+
+                clear_clips(scene)
 
     render_with_cameras._motes_cameras = True
     return render_with_cameras

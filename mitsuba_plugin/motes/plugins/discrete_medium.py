@@ -163,8 +163,8 @@ exactly (the images are the same; ``motes/plugins/enclosure.py``): a ray with a 
 up to it (Mitsuba's ``is_homogeneous`` flag, set for those two integrators: this medium has no null collisions), and
 next-event estimation's phase evaluation towards a light whose shadow ray ended at a site inside the convex shape
 (a ``cube``, a convex mesh, a ``sphere``) that holds the medium answers zero without computing it (the light it
-multiplies is zero). A caller that renders through ``Integrator.render`` directly with another integrator than the
-scene's calls ``motes.plugins.cameras.attach(scene, integrator=...)`` first.
+multiplies is zero). ``Integrator.render`` called directly skips neither unless
+``motes.plugins.cameras.attach(scene, integrator=...)`` names that integrator first.
 """
 
 from __future__ import annotations

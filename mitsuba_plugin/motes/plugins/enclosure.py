@@ -16,7 +16,7 @@ That is exact for any medium without null collisions, and a ``discrete`` medium 
 scatters), so ``set_enclosures`` sets it for those two integrators and clears it for any other (``prbvolpath``
 computes a homogeneous medium's transmittance in closed form instead, which this medium does not have).
 
-``set_enclosures(scene, integrator)`` gives each ``discrete`` medium of the scene the shapes that hold it:
+``set_enclosures(scene, integrator)`` (None: neither skip) gives each ``discrete`` medium of the scene the shapes that hold it:
 ``cube`` shapes and any other closed convex triangle mesh of at most ``MAX_FACES`` triangles (their face planes;
 the core rejects open or non-convex meshes), and ``sphere`` shapes (a ball, where its bounding box is a cube). It
 gives none (every evaluation computed, the default) where
@@ -24,11 +24,18 @@ gives none (every evaluation computed, the default) where
 * the integrator is not ``volpath`` or ``volpathmis`` (another may evaluate the phase function for another use:
   ``prbvolpath``'s adjoint pass replays its evaluations);
 * the scene holds instances (their shapes are not visible here);
-* a shape that lets shadow rays through (``BSDFFlags.Null``), other than the medium's own holders, reaches into the
-  bounding box of any of them.
+* for one holder: another shape that lets shadow rays through (``BSDFFlags.Null``), the medium's other holders
+  included, reaches into its bounding box (a ray that crosses it leaves the holder's medium or enters another).
 
-``motes.plugins.cameras.attach`` calls it with the cameras and lights: after every load and before every
-``mi.render`` (with the integrator given to it, or the scene's).
+The core answers one evaluation per blocked free flight (the light's), and a phase sample never returns pdf 0 at a
+site (a site that scatters nothing gives a zero weight with pdf 1): volpath keeps a path whose sample has pdf 0 on
+its old ray, which the flag has cut at the site.
+
+The wrapped ``mi.render`` (``motes.plugins.cameras``) sets both for the integrator given to it, or the scene's, and
+clears the flag when the call returns (its kernels are traced by then; the enclosure stays, for kernels that run
+later, until the next ``mi.render`` sets it again). After a load both are off, so that ``Integrator.render`` called
+directly, with any integrator, computes everything; ``motes.plugins.cameras.attach(scene, integrator=...)`` turns
+them on for a direct call with ``volpath`` or ``volpathmis``.
 """
 
 from __future__ import annotations
@@ -85,9 +92,30 @@ def _set_clips_rays(medium, on: bool) -> None:
         medium.m_is_homogeneous = bool(on)
 
 
+def _discrete_media(scene) -> list:
+    """The ``discrete`` medium objects of the scene's shapes and sensors, each once."""
+    from .discrete_medium import native_data
+    from .scene_checks import _discrete_data
+
+    media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
+    media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
+    found = {}
+    for m in media:
+        if m is not None and (_discrete_data(m) or native_data(m)) is not None:
+            found[id(m)] = m
+    return list(found.values())
+
+
+def clear_clips(scene) -> None:
+    """Let no integrator clip rays at the sites of the scene's ``discrete`` media (the flag as built): what
+    ``mi.render`` leaves behind, once the render it set the flag for has traced its kernels."""
+    for m in _discrete_media(scene):
+        _set_clips_rays(m, False)
+
+
 def set_enclosures(scene, integrator=None) -> None:
-    """Set the shapes that hold each ``discrete`` medium of ``scene`` on it, and whether integrators may clip its rays
-    at their sites (module docs); ``integrator``: the one that will render (default: the scene's)."""
+    """Set on each ``discrete`` medium of ``scene`` the shapes that hold it and whether integrators may clip its rays
+    at their sites (module docs), for ``integrator``, the one about to render; None: neither (the default state)."""
     from .discrete_medium import native_data
     from .scene_checks import _discrete_data
 
@@ -95,35 +123,31 @@ def set_enclosures(scene, integrator=None) -> None:
         return None if medium is None else (_discrete_data(medium) or native_data(medium))
 
     shapes = list(scene.shapes())
-    if integrator is None:
-        integrator = scene.integrator()
-    skips = integrator_skips(integrator)
-    media = [m for s in shapes for m in (s.interior_medium(), s.exterior_medium())]
-    media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
-    for m in {id(m): m for m in media if data_of(m) is not None}.values():
+    skips = integrator is not None and integrator_skips(integrator)
+    for m in _discrete_media(scene):
         _set_clips_rays(m, skips)
     holders = {}  # id(data) -> (data, [shape])
     for s in shapes:
         data = data_of(s.interior_medium())
         if data is not None:
             holders.setdefault(id(data), (data, []))[1].append(s)
-    if not holders:
-        return
     usable = skips and not any(s.class_name() in ("Instance", "ShapeGroup") for s in shapes)
+    passing = [s for s in shapes if _lets_shadow_rays_through(s)]
     for data, hs in holders.values():
-        own = {id(h) for h in hs}
-        passing = [s for s in shapes if id(s) not in own and _lets_shadow_rays_through(s)]
         meshes, balls = [], []
-        if usable and not any(_overlaps(p.bbox(), h.bbox()) for p in passing for h in hs):
-            for h in hs:
-                region = _region_of(h)
-                if region is None:
-                    continue
-                if region[0] == "mesh":
-                    meshes.append(region[1:])
-                else:
-                    balls.append(region[1:])
+        for h in hs if usable else ():
+            # Any other surface that lets shadow rays through, the medium's other holders included (a ray
+            # crossing one leaves this holder's medium or enters another's), rules the holder out.
+            if any(p is not h and _overlaps(p.bbox(), h.bbox()) for p in passing):
+                continue
+            region = _region_of(h)
+            if region is None:
+                continue
+            if region[0] == "mesh":
+                meshes.append(region[1:])
+            else:
+                balls.append(region[1:])
         data.set_enclosure(meshes, balls)
 
 
-__all__ = ["MAX_FACES", "SKIPPING_INTEGRATORS", "integrator_skips", "set_enclosures"]
+__all__ = ["MAX_FACES", "SKIPPING_INTEGRATORS", "clear_clips", "integrator_skips", "set_enclosures"]

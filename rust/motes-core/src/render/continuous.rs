@@ -501,8 +501,8 @@ impl ContinuousField {
     ) -> Option<FieldHit> {
         if let Some(m) = self.uniform_majorant {
             // One majorant for the whole field: no block walk at all. A ray that starts inside the
-            // field's box needs no clip (three divisions): its first tentative collision outside the
-            // box is past its exit (a convex box is left once), where it ends.
+            // field's box needs no clip (three divisions) until a tentative collision falls outside
+            // it (past its exit, as a convex box is left once, or at a face by rounding).
             let bounds = &self.frame.bounds;
             let start = [0, 1, 2].map(|a| ray.o[a] + ray.t0 * ray.d[a]);
             let inside = (0..3).all(|a| start[a] > bounds.lo[a] && start[a] < bounds.hi[a]);
@@ -512,7 +512,8 @@ impl ContinuousField {
                 bounds.clip(ray)?
             };
             let inv_m = 1.0 / m;
-            let mut t = t0;
+            let (mut t, mut t1) = (t0, t1);
+            let mut exit_known = !inside;
             loop {
                 let bits = next_bits();
                 t += exponential(bits) * inv_m;
@@ -521,7 +522,14 @@ impl ContinuousField {
                 }
                 match self.tentative_in_box(ray, t, m, bits) {
                     Tentative::Real(hit) => return Some(hit),
-                    Tentative::Outside if inside => return None,
+                    // Outside the box, or at its face by rounding: now its exit is worth a clip.
+                    Tentative::Outside if !exit_known => {
+                        exit_known = true;
+                        t1 = bounds.clip(ray).map_or(t, |(_, exit)| exit.min(t1));
+                        if t >= t1 {
+                            return None;
+                        }
+                    }
                     _ => {}
                 }
             }

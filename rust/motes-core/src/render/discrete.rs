@@ -2731,7 +2731,19 @@ impl DiscreteMedium {
                 let wv = lane_waves.get();
                 let lam = wv.lam;
                 self.settle(st, i, lane.p, &waves);
-                let (sample, t_out) = self.lane_phase_sample(&st.lane(i), lane, lam, wv.ls, true);
+                // A blocked shadow ray answers one evaluation, the light's (not a sample's: spectral
+                // variants evaluate the sampled direction in a second call).
+                st.blocked[i] = None;
+                let (mut sample, t_out) =
+                    self.lane_phase_sample(&st.lane(i), lane, lam, wv.ls, true);
+                if !(sample.2 > 0.0) {
+                    // No direction to sample (the site scatters nothing: black grains, an albedo
+                    // scaled to 0): a direction with zero weight and pdf 1, so that the integrator ends
+                    // the path here. A pdf of 0 would leave the path on its old ray, which Mitsuba has
+                    // cut at this site where the medium lets it (`set_clips_rays`): it would escape.
+                    let back = normalise(lane.wi.map(|x| -(x as f64))).unwrap_or([0.0, 0.0, 1.0]);
+                    sample = (back, PerChannel::from_fn(lam.len(), |_| 0.0), 1.0);
+                }
                 (wo[i], pdf[i]) = (sample.0, sample.2);
                 w.copy_from_slice(&sample.1);
                 if let Some(t) = t_out {
@@ -2787,17 +2799,6 @@ impl DiscreteMedium {
                 let wv = lane_waves.get();
                 let lam = wv.lam;
                 self.settle(st, i, lane.p, &waves);
-                // Towards a light whose shadow ray the lane's last free flight found blocked inside
-                // the medium's enclosure: the light's zero multiplies this (`Self::set_enclosure`).
-                let widen = |p: [f32; 3]| p.map(|x| x as f64);
-                if st.blocked[i].is_some_and(|(o, d, at)| {
-                    at_site(lane.p, o)
-                        && same_direction(d, lane.wo)
-                        && st.enclosure.holds_segment(widen(o), widen(at))
-                }) {
-                    v.iter_mut().for_each(|x| *x = 0.0);
-                    continue;
-                }
                 // The direction this lane's last sample returned, at the same event: its values.
                 let same = |c: &SampledLane| {
                     c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
@@ -2806,6 +2807,18 @@ impl DiscreteMedium {
                 if let Some(c) = st.sampled[i].filter(same) {
                     v.copy_from_slice(&c.values[..lam.len()]);
                     pdf[i] = c.pdf;
+                    continue;
+                }
+                // Towards a light whose shadow ray the lane's last free flight found blocked inside
+                // the medium's enclosure: the light's zero multiplies this (`Self::set_enclosure`).
+                // One evaluation per blocked flight.
+                let widen = |p: [f32; 3]| p.map(|x| x as f64);
+                if st.blocked[i].take().is_some_and(|(o, d, at)| {
+                    at_site(lane.p, o)
+                        && same_direction(d, lane.wo)
+                        && st.enclosure.holds_segment(widen(o), widen(at))
+                }) {
+                    v.iter_mut().for_each(|x| *x = 0.0);
                     continue;
                 }
                 pdf[i] = self.lane_phase_eval(&st.lane(i), lane, lam, wv.ls, v, true);
@@ -3266,6 +3279,100 @@ mod tests {
         m.packet_phase_eval(&[None, Some(lane)], &lambda, 2, &mut v, &mut pdf);
         assert!(pdf[1] > 0.0);
         m.with_packet_state(|st| assert_eq!(st.recent[1].map(|r| r.0), Some(key(p))));
+    }
+
+    /// A phase evaluation from a lane's last free-flight origin towards its direction, where that flight
+    /// ended at a site inside the medium's enclosure, is zero (next-event estimation multiplies it by
+    /// the light the blocked shadow ray does not see), once; any other is computed: no enclosure, an
+    /// enclosure that does not hold the site, another direction, a second evaluation.
+    #[test]
+    fn an_evaluation_behind_a_blocked_shadow_ray_is_zero_inside_the_enclosure() {
+        use crate::render::enclosure::{Enclosure, Region};
+        let m = medium(4000);
+        let lambda = [500.0, 600.0];
+        let (o, d) = ray_with_site(&m, &lambda);
+        let mut t = [None; 2];
+        m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
+        let p = site_position(o, d, t[1].expect("a site"));
+        // A shadow ray from the event that meets a site (the first of some directions; its flight
+        // settles the event). The same ray always meets the same site (its numbers come from the ray).
+        let flight = |m: &DiscreteMedium, ds: [f32; 3]| {
+            let mut s = [None; 2];
+            m.packet_free_flights(&[None, Some((p, ds, 10.0))], &lambda, 2, &mut s);
+            s[1]
+        };
+        let ds = (0..200)
+            .map(|k| {
+                let a = 0.1 * k as f32;
+                [a.sin() * 0.6, a.cos() * 0.6, 0.8]
+            })
+            .find(|&ds| flight(&m, ds).is_some_and(|t| t > 1e-3))
+            .expect("a shadow ray that meets a grain");
+        let eval = |m: &DiscreteMedium, wo: [f32; 3]| {
+            let lane = PhaseEvalLane {
+                p,
+                wi: d.map(|x| -x),
+                wo,
+            };
+            let (mut v, mut pdf) = ([0.0; 4], [0.0; 2]);
+            m.packet_phase_eval(&[None, Some(lane)], &lambda, 2, &mut v, &mut pdf);
+            (v[2] + v[3], pdf[1])
+        };
+        let computed = eval(&m, ds);
+        assert!(computed.0 > 0.0 && computed.1 > 0.0, "{computed:?}");
+        m.set_enclosure(Enclosure {
+            regions: vec![Region::ball([0.5; 3], 10.0).unwrap()],
+        });
+        flight(&m, ds);
+        assert_eq!(eval(&m, ds), (0.0, 0.0));
+        assert_eq!(eval(&m, ds), computed, "one evaluation per blocked flight");
+        flight(&m, ds);
+        let other = [ds[0], ds[1] + 2e-3, ds[2]];
+        assert!(eval(&m, other).0 > 0.0, "another direction");
+        // A region that holds the event but not the site.
+        m.set_enclosure(Enclosure {
+            regions: vec![Region::ball(p.map(|x| x as f64), 5e-4).unwrap()],
+        });
+        flight(&m, ds);
+        assert_eq!(eval(&m, ds), computed);
+        m.set_enclosure(Enclosure::default());
+        flight(&m, ds);
+        assert_eq!(eval(&m, ds), computed);
+    }
+
+    /// A site that scatters nothing (every albedo scaled to 0) gives a phase sample of zero weight and
+    /// pdf 1, not pdf 0: the integrator ends the path there (with pdf 0 it would leave the path on the
+    /// ray Mitsuba cut at the site).
+    #[test]
+    fn black_grains_end_the_path_with_a_zero_weight() {
+        let m = medium(4000);
+        let lambda = [500.0, 600.0];
+        m.set_albedo_scale(0.0).unwrap();
+        let (o, d) = ray_with_site(&m, &lambda);
+        let mut t = [None; 2];
+        m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
+        let p = site_position(o, d, t[1].expect("a site"));
+        let lane = PhaseSampleLane {
+            p,
+            wi: d,
+            u1: 0.3,
+            u2: [0.2, 0.7],
+        };
+        let (mut wo, mut w, mut pdf) = ([[0.0; 3]; 2], [1.0; 4], [0.0; 2]);
+        m.packet_phase_sample(&[None, Some(lane)], &lambda, 2, &mut wo, &mut w, &mut pdf, true);
+        assert_eq!(pdf[1], 1.0);
+        assert_eq!(&w[2..], &[0.0, 0.0]);
+        let n: f64 = wo[1].iter().map(|x| x * x).sum();
+        assert!((n - 1.0).abs() < 1e-12, "{:?}", wo[1]);
+        // The spectral variants' second call, at the sampled direction, agrees.
+        let e = PhaseEvalLane {
+            p,
+            wi: d,
+            wo: wo[1].map(|x| x as f32),
+        };
+        let (mut v, mut pe) = ([1.0; 4], [0.0; 2]);
+        m.packet_phase_eval(&[None, Some(e)], &lambda, 2, &mut v, &mut pe);
+        assert_eq!((&v[2..], pe[1]), (&[0.0, 0.0][..], 1.0));
     }
 
     /// Events whose rays see the grains' continuous equivalent live beside their lane only (they
