@@ -1366,9 +1366,9 @@ impl DiscreteMedium {
     /// searches were 1.5 % of a dense render).
     fn brackets_cached(&self, lam: &[f64]) -> PerChannel<(usize, usize, f64)> {
         type Key = (u64, [u64; MAX_CHANNELS], usize);
+        type Brackets = [(usize, usize, f64); MAX_CHANNELS];
         thread_local! {
-            static LAST: std::cell::Cell<Option<(Key, [(usize, usize, f64); MAX_CHANNELS])>> =
-                const { std::cell::Cell::new(None) };
+            static LAST: std::cell::Cell<Option<(Key, Brackets)>> = const { std::cell::Cell::new(None) };
         }
         if lam.len() > MAX_CHANNELS {
             return self.brackets(lam);
@@ -2351,10 +2351,16 @@ fn same_direction(a: [f32; 3], b: [f32; 3]) -> bool {
         a[2] * b[0] - a[0] * b[2],
         a[0] * b[1] - a[1] * b[0],
     ];
-    let (aa, bb) = (a.iter().map(|x| x * x).sum::<f64>(), b.iter().map(|x| x * x).sum::<f64>());
+    let (aa, bb) = (
+        a.iter().map(|x| x * x).sum::<f64>(),
+        b.iter().map(|x| x * x).sum::<f64>(),
+    );
     // Within 1e-6 rad: single precision rounds a unit vector's direction by ~1e-7.
     dot > 0.0 && cross.iter().map(|x| x * x).sum::<f64>() <= 1e-12 * aa * bb
 }
+
+/// A lane's free flight that ended at a site: its origin, its direction and where the site lies.
+type BlockedFlight = ([f32; 3], [f32; 3], [f32; 3]);
 
 /// Events a thread keeps per packet-interface medium: a path's events never leave its thread there.
 const PACKET_EVENT_CAPACITY: usize = 512;
@@ -2395,7 +2401,7 @@ struct PacketState {
     /// Each lane's last free flight (origin, direction, where its site lies) where it ended at a site
     /// (whether that blocks it for certain, [`DiscreteMedium::set_enclosure`], is asked only where an
     /// evaluation towards it follows).
-    blocked: [Option<([f32; 3], [f32; 3], [f32; 3])>; PACKET_LANES],
+    blocked: [Option<BlockedFlight>; PACKET_LANES],
     /// The medium's `optics_epoch` when these events were made (older ones carry stale albedos).
     epoch: u64,
     /// The medium's view as of its `view_epoch` (u64::MAX: not read yet).
@@ -3105,6 +3111,15 @@ mod tests {
             .expect("a ray that meets a site")
     }
 
+    /// Lane 1's pending site after a free flight along +z ([`ray_with_site`]): the ray's direction and
+    /// where the renderer puts the site.
+    fn pending_site(m: &DiscreteMedium, lambda: &[f64]) -> ([f32; 3], [f32; 3]) {
+        let (o, d) = ray_with_site(m, lambda);
+        let mut t = [None; 2];
+        m.packet_free_flights(&[None, Some((o, d, 10.0))], lambda, 2, &mut t);
+        (d, site_position(o, d, t[1].expect("a site")))
+    }
+
     /// A packet lane's site becomes its event where the lane's next call starts at it (the position as
     /// the renderer computes it, o + t d in float32): the map holds it, the lane's own copy carries the
     /// phase sample's throughput, and its phase function's values and weights carry the site's
@@ -3290,10 +3305,7 @@ mod tests {
         use crate::render::enclosure::{Enclosure, Region};
         let m = medium(4000);
         let lambda = [500.0, 600.0];
-        let (o, d) = ray_with_site(&m, &lambda);
-        let mut t = [None; 2];
-        m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
-        let p = site_position(o, d, t[1].expect("a site"));
+        let (d, p) = pending_site(&m, &lambda);
         // A shadow ray from the event that meets a site (the first of some directions; its flight
         // settles the event). The same ray always meets the same site (its numbers come from the ray).
         let flight = |m: &DiscreteMedium, ds: [f32; 3]| {
@@ -3348,10 +3360,7 @@ mod tests {
         let m = medium(4000);
         let lambda = [500.0, 600.0];
         m.set_albedo_scale(0.0).unwrap();
-        let (o, d) = ray_with_site(&m, &lambda);
-        let mut t = [None; 2];
-        m.packet_free_flights(&[None, Some((o, d, 10.0))], &lambda, 2, &mut t);
-        let p = site_position(o, d, t[1].expect("a site"));
+        let (d, p) = pending_site(&m, &lambda);
         let lane = PhaseSampleLane {
             p,
             wi: d,
@@ -3359,7 +3368,15 @@ mod tests {
             u2: [0.2, 0.7],
         };
         let (mut wo, mut w, mut pdf) = ([[0.0; 3]; 2], [1.0; 4], [0.0; 2]);
-        m.packet_phase_sample(&[None, Some(lane)], &lambda, 2, &mut wo, &mut w, &mut pdf, true);
+        m.packet_phase_sample(
+            &[None, Some(lane)],
+            &lambda,
+            2,
+            &mut wo,
+            &mut w,
+            &mut pdf,
+            true,
+        );
         assert_eq!(pdf[1], 1.0);
         assert_eq!(&w[2..], &[0.0, 0.0]);
         let n: f64 = wo[1].iter().map(|x| x * x).sum();

@@ -62,14 +62,22 @@ impl Region {
     /// gives each face its own), not convex (a vertex in front of a face's plane), has more than
     /// [`MAX_FACES`] distinct face planes or encloses no volume (then no site is certainly inside it).
     /// Faces may wind either way: each plane is oriented away from the vertices' centroid.
-    pub fn convex_mesh(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Result<Option<Self>, OpticsError> {
+    pub fn convex_mesh(
+        vertices: &[[f64; 3]],
+        faces: &[[u32; 3]],
+    ) -> Result<Option<Self>, OpticsError> {
         require(
             "vertices (count)",
             vertices.len() as f64,
             vertices.len() >= 4,
             ">= 4",
         )?;
-        require("faces (count)", faces.len() as f64, faces.len() >= 4, ">= 4")?;
+        require(
+            "faces (count)",
+            faces.len() as f64,
+            faces.len() >= 4,
+            ">= 4",
+        )?;
         for v in vertices {
             for &x in v {
                 require("vertex", x, x.is_finite(), "finite")?;
@@ -92,7 +100,12 @@ impl Region {
         let centroid = [0, 1, 2].map(|a| vertices.iter().map(|v| v[a]).sum::<f64>() / n);
         let (lo, hi) = vertices.iter().fold(
             ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-            |(lo, hi), v| ([0, 1, 2].map(|a| lo[a].min(v[a])), [0, 1, 2].map(|a| hi[a].max(v[a]))),
+            |(lo, hi), v| {
+                (
+                    [0, 1, 2].map(|a| lo[a].min(v[a])),
+                    [0, 1, 2].map(|a| hi[a].max(v[a])),
+                )
+            },
         );
         let size = dot(sub(hi, lo), sub(hi, lo)).sqrt();
         let margin = MARGIN * size;
@@ -185,7 +198,9 @@ fn closed(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> bool {
         .iter()
         .map(|v| {
             let n = by_position.len() as u32;
-            *by_position.entry(v.map(|x| (x + 0.0).to_bits())).or_insert(n)
+            *by_position
+                .entry(v.map(|x| (x + 0.0).to_bits()))
+                .or_insert(n)
         })
         .collect();
     let mut edges: std::collections::HashMap<(u32, u32), u32> = Default::default();
@@ -264,7 +279,10 @@ mod tests {
     fn a_rotated_cube_is_its_own_planes_not_its_box() {
         // 45° about z: the corner of the axis-aligned box around it is outside the cube.
         let (v, f) = cube(-1.0, 1.0);
-        let (c, s) = (std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2);
+        let (c, s) = (
+            std::f64::consts::FRAC_1_SQRT_2,
+            std::f64::consts::FRAC_1_SQRT_2,
+        );
         let v: Vec<[f64; 3]> = v
             .iter()
             .map(|p| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]])
@@ -291,7 +309,12 @@ mod tests {
         let (v, f) = cube(-1.0, 1.0);
         assert_eq!(Region::convex_mesh(&v, &f[..8]).unwrap(), None);
         // Flat: a square twice.
-        let flat = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let flat = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
         let faces = vec![[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]];
         assert_eq!(Region::convex_mesh(&flat, &faces).unwrap(), None);
     }
@@ -303,7 +326,8 @@ mod tests {
         bad[3][1] = f64::NAN;
         let e = Region::convex_mesh(&bad, &f).unwrap_err();
         assert!(e.to_string().contains("vertex"), "{e}");
-        let e = Region::convex_mesh(&v, &[[0, 1, 99], [0, 1, 2], [0, 2, 3], [1, 2, 3]]).unwrap_err();
+        let e =
+            Region::convex_mesh(&v, &[[0, 1, 99], [0, 1, 2], [0, 2, 3], [1, 2, 3]]).unwrap_err();
         assert!(e.to_string().contains("face vertex index"), "{e}");
         assert!(Region::ball([0.0; 3], 0.0).is_err());
         assert!(Region::ball([f64::INFINITY, 0.0, 0.0], 1.0).is_err());
