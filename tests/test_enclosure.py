@@ -2,7 +2,7 @@
 function's evaluation towards a light whose shadow ray a site blocks for certain, and the part of a ray beyond its
 site (Mitsuba's ``is_homogeneous``). Both are exact: images rendered with them equal images rendered without them.
 
-The scene is built where the skip could go wrong: the grains fill a box 1.2 times wider than the null cube that holds
+The scene is built where the skip could go wrong (with a point light; an area light and a sun are checked too): the grains fill a box 1.2 times wider than the null cube that holds
 the medium, and a point light sits between the cube's top face and the grains' top. Shadow rays towards it leave the
 cube, and the core finds sites beyond the cube's face that Mitsuba discards (the ray has left the medium). A skip that
 trusted every site would darken the image: the negative control sets such an enclosure by hand and sees it.
@@ -71,6 +71,20 @@ CODE = textwrap.dedent("""
         E.SKIPPING_INTEGRATORS = skipping
         out["max_rel_diff_" + name] = float(np.abs(on - off).max() / np.abs(off).max())
         out["mean_on"], out["mean_off"] = float(on.mean()), float(off.mean())
+    # Other lights: an area light (a sampled point on it) and a sun (directional: a direction, no point).
+    lights = {"area": {"light": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0.1, 1.1, 0.05])
+                                 @ mi.ScalarTransform4f().rotate([1, 0, 0], 90) @ mi.ScalarTransform4f().scale(0.3),
+                                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 8.0}}}},
+              "sun": {"light": {"type": "directional", "direction": [-0.3, -1.0, -0.2],
+                                "irradiance": {"type": "rgb", "value": 2.0}}}}
+    for name, extra in lights.items():
+        sc5 = scene(extra)
+        on = render(sc5)
+        E.SKIPPING_INTEGRATORS = ()
+        off = render(sc5)
+        E.SKIPPING_INTEGRATORS = skipping
+        out["max_rel_diff_" + name] = float(np.abs(on - off).max() / max(np.abs(off).max(), 1e-30))
+        out["mean_" + name] = float(on.mean())
     # Negative control (volpathmis): an enclosure wider than the cube (every site trusted), set with the
     # renderer's own setting of it switched off.
     import motes.plugins.cameras as C
@@ -137,8 +151,9 @@ def test_skips_leave_the_image_unchanged(results):
     variant, r = results
     # llvm_ad_rgb renders are deterministic; scalar_rgb ones differ by an ulp run to run in a few pixels.
     tol = 0.0 if variant.startswith("llvm") else 1e-5
-    for name in ("volpath", "volpathmis", "volpathmis_rgb_mis"):
+    for name in ("volpath", "volpathmis", "volpathmis_rgb_mis", "area", "sun"):
         assert r["max_rel_diff_" + name] <= tol, r
+    assert r["mean_area"] > 0 and r["mean_sun"] > 0, r
     assert r["regions_off"] == 0 and r["flags_off"] == [False, False], r
 
 
