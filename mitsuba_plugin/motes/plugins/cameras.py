@@ -220,21 +220,24 @@ def diffuse_only(scene) -> bool:
     return True
 
 
-def discrete_media(scene) -> list:
-    """The data (``motes.DiscreteMedium``) of every ``discrete`` medium the scene's shapes and sensors hold."""
+def data_of(medium):
+    """The data (``motes.DiscreteMedium``) of a ``discrete`` medium object (Python or native), or None."""
     from .discrete_medium import native_data
     from .scene_checks import _discrete_data
 
+    return None if medium is None else (_discrete_data(medium) or native_data(medium))
+
+
+def discrete_medium_objects(scene) -> list:
+    """Every ``discrete`` medium object the scene's shapes and sensors hold, each once."""
     media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
     media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
-    found = {}
-    for m in media:
-        if m is None:
-            continue
-        data = _discrete_data(m) or native_data(m)
-        if data is not None:
-            found[id(data)] = data
-    return list(found.values())
+    return list({id(m): m for m in media if data_of(m) is not None}.values())
+
+
+def discrete_media(scene) -> list:
+    """The data (``motes.DiscreteMedium``) of every ``discrete`` medium the scene's shapes and sensors hold."""
+    return list({id(d): d for d in map(data_of, discrete_medium_objects(scene))}.values())
 
 
 def attach(scene, sensor=None, integrator=None) -> None:
@@ -291,5 +294,5 @@ def wrap_render() -> None:
     mi.render = _wrapped_render(mi.render)
 
 
-__all__ = ["attach", "camera_of", "cameras_of", "discrete_media", "diffuse_only", "light_of", "lights_of", "uniform_distant_light",
+__all__ = ["attach", "camera_of", "cameras_of", "data_of", "discrete_media", "discrete_medium_objects", "diffuse_only", "light_of", "lights_of", "uniform_distant_light",
            "wrap_render"]

@@ -92,39 +92,23 @@ def _set_clips_rays(medium, on: bool) -> None:
         medium.m_is_homogeneous = bool(on)
 
 
-def _discrete_media(scene) -> list:
-    """The ``discrete`` medium objects of the scene's shapes and sensors, each once."""
-    from .discrete_medium import native_data
-    from .scene_checks import _discrete_data
-
-    media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
-    media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
-    found = {}
-    for m in media:
-        if m is not None and (_discrete_data(m) or native_data(m)) is not None:
-            found[id(m)] = m
-    return list(found.values())
-
-
 def clear_clips(scene) -> None:
     """Let no integrator clip rays at the sites of the scene's ``discrete`` media (the flag as built): what
     ``mi.render`` leaves behind, once the render it set the flag for has traced its kernels."""
-    for m in _discrete_media(scene):
+    from .cameras import discrete_medium_objects
+
+    for m in discrete_medium_objects(scene):
         _set_clips_rays(m, False)
 
 
 def set_enclosures(scene, integrator=None) -> None:
     """Set on each ``discrete`` medium of ``scene`` the shapes that hold it and whether integrators may clip its rays
     at their sites (module docs), for ``integrator``, the one about to render; None: neither (the default state)."""
-    from .discrete_medium import native_data
-    from .scene_checks import _discrete_data
-
-    def data_of(medium):
-        return None if medium is None else (_discrete_data(medium) or native_data(medium))
+    from .cameras import data_of, discrete_medium_objects
 
     shapes = list(scene.shapes())
     skips = integrator is not None and integrator_skips(integrator)
-    for m in _discrete_media(scene):
+    for m in discrete_medium_objects(scene):
         _set_clips_rays(m, skips)
     holders = {}  # id(data) -> (data, [shape])
     for s in shapes:

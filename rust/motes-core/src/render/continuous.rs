@@ -506,13 +506,12 @@ impl ContinuousField {
             let bounds = &self.frame.bounds;
             let start = [0, 1, 2].map(|a| ray.o[a] + ray.t0 * ray.d[a]);
             let inside = (0..3).all(|a| start[a] > bounds.lo[a] && start[a] < bounds.hi[a]);
-            let (t0, t1) = if inside {
+            let (mut t, mut t1) = if inside {
                 (ray.t0, ray.t1)
             } else {
                 bounds.clip(ray)?
             };
             let inv_m = 1.0 / m;
-            let (mut t, mut t1) = (t0, t1);
             let mut exit_known = !inside;
             loop {
                 let bits = next_bits();
@@ -570,15 +569,14 @@ impl ContinuousField {
     }
 
     /// A tentative collision at `t` against majorant `m`: real with probability σ_t / m (by the lower
-    /// 32 of `bits`).
+    /// 32 of `bits`). Outside the field's box (blocks reach past it; rounding at its faces) σ_t = 0: a
+    /// null collision.
     #[inline(always)]
     fn tentative(&self, ray: &RaySegment, t: f64, m: f64, bits: u64) -> Option<FieldHit> {
-        let p = [0, 1, 2].map(|a| ray.o[a] + t * ray.d[a]);
-        // Outside the field's box (blocks reach past it; rounding at its faces): σ_t = 0, a null
-        // collision.
-        let cell = self.cell_near(p)?;
-        let u = (bits as u32) as f64 * (1.0 / 4294967296.0);
-        (u * m < self.sigma[cell] as f64).then_some(FieldHit { t, cell })
+        match self.tentative_in_box(ray, t, m, bits) {
+            Tentative::Real(hit) => Some(hit),
+            Tentative::Null | Tentative::Outside => None,
+        }
     }
 
     /// Exact free flight over a ray segment (|d| = 1): the first t where the optical depth walked

@@ -85,6 +85,7 @@ use crate::space::grid::{
     bounding_box, check_particles, GridSettings, ParticleGrid, Particles, Site,
 };
 use crate::space::ray::RaySegment;
+use crate::space::vec3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
@@ -2345,18 +2346,9 @@ fn at_site(p: [f32; 3], at: [f32; 3]) -> bool {
 /// the same difference of positions, normalised alike.
 fn same_direction(a: [f32; 3], b: [f32; 3]) -> bool {
     let (a, b) = (a.map(|x| x as f64), b.map(|x| x as f64));
-    let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let cross = [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ];
-    let (aa, bb) = (
-        a.iter().map(|x| x * x).sum::<f64>(),
-        b.iter().map(|x| x * x).sum::<f64>(),
-    );
+    let c = vec3::cross(a, b);
     // Within 1e-6 rad: single precision rounds a unit vector's direction by ~1e-7.
-    dot > 0.0 && cross.iter().map(|x| x * x).sum::<f64>() <= 1e-12 * aa * bb
+    vec3::dot(a, b) > 0.0 && vec3::dot(c, c) <= 1e-12 * vec3::dot(a, a) * vec3::dot(b, b)
 }
 
 /// A lane's free flight that ended at a site: its origin, its direction and where the site lies.
@@ -2747,6 +2739,8 @@ impl DiscreteMedium {
                     // scaled to 0): a direction with zero weight and pdf 1, so that the integrator ends
                     // the path here. A pdf of 0 would leave the path on its old ray, which Mitsuba has
                     // cut at this site where the medium lets it (`set_clips_rays`): it would escape.
+                    // Only here: in `phase_sample` (the evaluated-mode path) the albedo rides on σ_s,
+                    // so such a path's throughput is zero already and volpath ends it anyway.
                     let back = normalise(lane.wi.map(|x| -(x as f64))).unwrap_or([0.0, 0.0, 1.0]);
                     sample = (back, PerChannel::from_fn(lam.len(), |_| 0.0), 1.0);
                 }
@@ -3111,6 +3105,27 @@ mod tests {
             .expect("a ray that meets a site")
     }
 
+    /// A packet phase sample with lane 1 active (two channels): directions, weights and pdfs, every
+    /// output first NaN so that each must be written.
+    fn sample_lane_1(
+        m: &DiscreteMedium,
+        lane: PhaseSampleLane,
+        lambda: &[f64],
+        evaluated_next: bool,
+    ) -> ([[f64; 3]; 2], [f64; 4], [f64; 2]) {
+        let (mut wo, mut w, mut pdf) = ([[f64::NAN; 3]; 2], [f64::NAN; 4], [f64::NAN; 2]);
+        m.packet_phase_sample(
+            &[None, Some(lane)],
+            lambda,
+            2,
+            &mut wo,
+            &mut w,
+            &mut pdf,
+            evaluated_next,
+        );
+        (wo, w, pdf)
+    }
+
     /// Lane 1's pending site after a free flight along +z ([`ray_with_site`]): the ray's direction and
     /// where the renderer puts the site.
     fn pending_site(m: &DiscreteMedium, lambda: &[f64]) -> ([f32; 3], [f32; 3]) {
@@ -3140,16 +3155,7 @@ mod tests {
                 u1: 0.3,
                 u2: [0.2, 0.7],
             };
-            let (mut wo, mut w, mut pdf) = ([[0.0; 3]; 2], [0.0; 4], [0.0; 2]);
-            m.packet_phase_sample(
-                &[None, Some(lane)],
-                &lambda,
-                2,
-                &mut wo,
-                &mut w,
-                &mut pdf,
-                false,
-            );
+            let (wo, w, pdf) = sample_lane_1(&m, lane, &lambda, false);
             assert!(pdf[1] > 0.0);
             let event = m.with_packet_state(|st| {
                 let (at, e) = st.recent[1].expect("lane 1's event");
@@ -3367,16 +3373,7 @@ mod tests {
             u1: 0.3,
             u2: [0.2, 0.7],
         };
-        let (mut wo, mut w, mut pdf) = ([[0.0; 3]; 2], [1.0; 4], [0.0; 2]);
-        m.packet_phase_sample(
-            &[None, Some(lane)],
-            &lambda,
-            2,
-            &mut wo,
-            &mut w,
-            &mut pdf,
-            true,
-        );
+        let (wo, w, pdf) = sample_lane_1(&m, lane, &lambda, true);
         assert_eq!(pdf[1], 1.0);
         assert_eq!(&w[2..], &[0.0, 0.0]);
         let n: f64 = wo[1].iter().map(|x| x * x).sum();

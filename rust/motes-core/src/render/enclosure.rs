@@ -20,6 +20,7 @@
 //! Infrastructure for the renderer's next-event estimation: implements no equation of the paper.
 
 use crate::error::{require, OpticsError};
+use crate::space::vec3::{cross, dot, sub};
 
 /// How far inside its boundary a point must be, as a fraction of the region's size (its bounding
 /// box's diagonal, or a ball's radius): Mitsuba's ray–surface distances and positions carry single
@@ -38,22 +39,6 @@ pub enum Region {
     Box { lo: [f64; 3], hi: [f64; 3] },
     /// Points within `radius` − margin of `centre`.
     Ball { centre: [f64; 3], radius: f64 },
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 impl Region {

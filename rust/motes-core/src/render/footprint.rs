@@ -87,6 +87,7 @@
 use crate::error::{require, OpticsError};
 use crate::space::dda::Bounds3;
 use crate::space::ray::RaySegment;
+use crate::space::vec3;
 use std::f64::consts::PI;
 
 /// A camera as the footprint rule sees it.
@@ -621,11 +622,7 @@ pub fn is_camera_ray(cam: &Camera, o: [f64; 3], d: [f64; 3]) -> bool {
     let vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
     let b = (v[0] * d[0] + v[1] * d[1] + v[2] * d[2]).max(0.0);
     // Distance from the camera to the nearest point o − s d (s = b ≥ 0), from the cross product.
-    let x = [
-        v[1] * d[2] - v[2] * d[1],
-        v[2] * d[0] - v[0] * d[2],
-        v[0] * d[1] - v[1] * d[0],
-    ];
+    let x = vec3::cross(v, d);
     let dist2 = if b > 0.0 {
         x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
     } else {

@@ -45,6 +45,7 @@ use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{size_class, GridSettings, ParticleGrid, Site, SIZE_CLASSES};
 use crate::space::motion::Motion;
 use crate::space::ray::RaySegment;
+use crate::space::vec3::{cross, dot};
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -434,15 +435,7 @@ pub(crate) fn build_parts(
         v[a] = hi[a] - lo[a];
         apply_linear(&spec.transform, v)
     });
-    let cross = |u: [f64; 3], v: [f64; 3]| {
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
-    };
     let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    let dot = |u: [f64; 3], v: [f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
     let volume = dot(e[0], cross(e[1], e[2])).abs();
     let surface =
         2.0 * (norm(cross(e[0], e[1])) + norm(cross(e[1], e[2])) + norm(cross(e[2], e[0])));

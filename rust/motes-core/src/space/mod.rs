@@ -13,3 +13,4 @@ pub mod dda;
 pub mod grid;
 pub mod motion;
 pub mod ray;
+pub mod vec3;
