@@ -10,11 +10,22 @@ pub const GOLDEN_GAMMA: u64 = 0x9E37_79B9_7F4A_7C15;
 
 /// SplitMix64's finaliser: a bijection of 64 bits in which every input bit flips each output bit
 /// with probability close to 1/2.
-#[inline]
+#[inline(always)]
 pub fn splitmix64_finalise(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
+}
+
+/// The odd constant that spreads a stream's index over the state ([`stream_bits`]).
+pub const STREAM_GAMMA: u64 = 0xD1B5_4A32_D192_ED03;
+
+/// The `index`-th 64 random bits of the stream `key`: SplitMix64's finaliser of the key and the index
+/// spread by [`STREAM_GAMMA`]. Counter-based, so that the draws of many streams at one index can be
+/// computed side by side (a packet's free flights, `render::continuous`).
+#[inline(always)]
+pub fn stream_bits(key: u64, index: u64) -> u64 {
+    splitmix64_finalise(key ^ index.wrapping_mul(STREAM_GAMMA))
 }
 
 /// SplitMix64's output for state `z`: the state advanced by [`GOLDEN_GAMMA`], then finalised.

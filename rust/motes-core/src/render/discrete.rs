@@ -79,7 +79,7 @@ use crate::render::env_flag;
 use crate::render::footprint::{ClassMoments, SurfaceFootprint, View};
 use crate::render::procedural::{build_parts, ProceduralGrains, ProceduralSpec};
 use crate::render::storage::{classes, ParticleOptics, Storage};
-use crate::rng::{splitmix64_finalise, unit_f64, GOLDEN_GAMMA};
+use crate::rng::{stream_bits, unit_f64, GOLDEN_GAMMA};
 use crate::space::dda::Bounds3;
 use crate::space::grid::{
     bounding_box, check_particles, GridSettings, ParticleGrid, Particles, Site,
@@ -411,6 +411,7 @@ fn field_site(f: &ContinuousField, hit: FieldHit, u: f64) -> Option<Site> {
 
 /// A free flight through a continuous field alone: the site and the optical depth walked before it
 /// (0 unless `want_tau`).
+#[inline(always)] // its pair came back through memory with a store-forwarding stall (3 % of scalar_rgb)
 fn field_free_flight(
     f: &ContinuousField,
     ray: &RaySegment,
@@ -434,12 +435,18 @@ fn field_hit(
     if want_tau {
         return f.free_flight(ray, -(1.0 - uniform(u.to_bits(), FIELD_STREAM, 0)).ln());
     }
-    let mut k = 0u64;
+    let (key, mut k) = (field_key(u), 0u64);
     let hit = f.sample_free_flight(ray, || {
         k += 1;
-        random_bits(u.to_bits(), FIELD_STREAM, 1 + k)
+        stream_bits(key, 1 + k)
     });
     (hit, 0.0)
+}
+
+/// The stream of a free flight's tentative collisions in a continuous field, from the flight's `u`: its
+/// k-th (k = 1, 2, ...) draws `stream_bits(key, 1 + k)` ([`ContinuousField::sample_free_flights`]).
+fn field_key(u: f64) -> u64 {
+    stream_key(u.to_bits(), FIELD_STREAM)
 }
 
 /// A uniform number in [0, 1) from (seed, call, lane): SplitMix64 finaliser over a mixed counter, so
@@ -450,8 +457,12 @@ fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
 
 /// The 64 random bits behind [`uniform`].
 fn random_bits(seed: u64, call: u64, lane: u64) -> u64 {
-    let z = seed ^ call.wrapping_mul(GOLDEN_GAMMA) ^ lane.wrapping_mul(0xD1B5_4A32_D192_ED03);
-    splitmix64_finalise(z)
+    stream_bits(stream_key(seed, call), lane)
+}
+
+/// The stream of call `call` under `seed` ([`random_bits`] by index).
+fn stream_key(seed: u64, call: u64) -> u64 {
+    seed ^ call.wrapping_mul(GOLDEN_GAMMA)
 }
 
 /// Unit vector and two perpendicular ones (Duff et al. 2017 branchless frame).
@@ -555,10 +566,59 @@ impl GrainWalk {
 }
 
 /// A ray's free flight as far as `DiscreteMedium::lane_plan` takes it.
-enum Plan {
+enum Plan<'a> {
     /// Its site, the optical depth before it, what it takes from its parent event.
     Done(Option<Site>, f64, Parent),
     Walk(GrainWalk),
+    /// A free flight through a continuous field alone, left to the caller (a packet's field flights
+    /// are flown together, [`ContinuousField::sample_free_flights`]): the field, the ray, its `u` and
+    /// what it takes from its parent event.
+    Field(&'a ContinuousField, RaySegment, f64, Parent),
+}
+
+/// A packet's lanes whose free flights go through one continuous field alone ([`Plan::Field`]), flown
+/// together by [`ContinuousField::sample_free_flights`]. Kept in the thread's [`PacketState`] (1.5 kB:
+/// made afresh on the stack, or boxed, per packet it cost what it saved in scalar_rgb and llvm_ad_rgb).
+struct FieldLanes {
+    n: usize,
+    lane: [usize; PACKET_LANES],
+    rays: [RaySegment; PACKET_LANES],
+    keys: [u64; PACKET_LANES],
+    u: [f64; PACKET_LANES],
+    parent: [Parent; PACKET_LANES],
+}
+
+impl Default for FieldLanes {
+    fn default() -> Self {
+        FieldLanes {
+            n: 0,
+            lane: [0; PACKET_LANES],
+            rays: [RaySegment::new([0.0; 3], [0.0, 0.0, 1.0], 0.0, 0.0); PACKET_LANES],
+            keys: [0; PACKET_LANES],
+            u: [0.0; PACKET_LANES],
+            parent: [Parent::default(); PACKET_LANES],
+        }
+    }
+}
+
+impl FieldLanes {
+    /// Add lane `i`'s flight (the caller checks that it goes through the same field as the others).
+    fn push(&mut self, i: usize, ray: RaySegment, u: f64, parent: Parent) {
+        let k = self.n.min(PACKET_LANES - 1);
+        (self.lane[k], self.rays[k], self.keys[k]) = (i, ray, field_key(u));
+        (self.u[k], self.parent[k]) = (u, parent);
+        self.n = k + 1;
+    }
+
+    /// Fly them through `f`: each lane's pending site, picked as [`field_free_flight`] picks it.
+    fn fly(&self, f: &ContinuousField, pending: &mut [PendingLane]) {
+        let mut hits = [None; PACKET_LANES];
+        f.sample_free_flights(&self.rays[..self.n], &self.keys[..self.n], &mut hits);
+        for (k, hit) in hits.iter().enumerate().take(self.n) {
+            let site = hit.and_then(|h| field_site(f, h, self.u[k]));
+            pending[self.lane[k]] = PendingLane::new(site, self.parent[k]);
+        }
+    }
 }
 
 /// A lane of the last `sample_sites` call awaiting `commit_events`: its site, whether to remember it,
@@ -1463,7 +1523,8 @@ impl DiscreteMedium {
                 // Counter and ray bits: distinct for every lane and call (and for concurrent callers).
                 let u = uniform(self.seed ^ ray_bits(oo, dd), call, lane as u64);
                 let mut surface = SurfaceTally::default();
-                let plan = self.lane_plan(&*events, &view, &mut surface, *oo, *dd, tm, u, true);
+                let plan =
+                    self.lane_plan(&*events, &view, &mut surface, *oo, *dd, tm, u, true, false);
                 let r = self.fly(plan, true);
                 if surface.checked > 0 {
                     self.surface_counts.add(surface.checked, surface.saw_field);
@@ -1497,6 +1558,10 @@ impl DiscreteMedium {
         match plan {
             Plan::Done(site, tau, from) => (site, tau, from),
             Plan::Walk(w) => self.finish_walk(&w, self.walk_alone(&w), want_tau),
+            Plan::Field(f, ray, u, from) => {
+                let (site, tau) = field_free_flight(f, &ray, u, want_tau);
+                (site, tau, from)
+            }
         }
     }
 
@@ -1511,6 +1576,8 @@ impl DiscreteMedium {
     /// What a ray's free flight (to its next site, skipping the particles of the event it starts at;
     /// `u` uniform in [0, 1)) takes: the answer where no grain needs walking (no ray, the grains'
     /// continuous equivalent), or else the walk through the grains still to do (module docs).
+    /// `defer_field`: a flight through the continuous equivalent alone is left to the caller where
+    /// the field steps a packet's flights together ([`Plan::Field`]; never with `want_tau`).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn lane_plan(
@@ -1523,7 +1590,8 @@ impl DiscreteMedium {
         t_max: f64,
         u: f64,
         want_tau: bool,
-    ) -> Plan {
+        defer_field: bool,
+    ) -> Plan<'_> {
         let (Some(dir), true) = (
             normalise(d.map(|x| x as f64)),
             o.iter().all(|x| x.is_finite()),
@@ -1548,6 +1616,10 @@ impl DiscreteMedium {
             .grains_field_from(parent)
             .or_else(|| self.surface_field(parent, &ray, view, surface));
         if let Some(all) = all {
+            if defer_field && all.flies_in_lockstep() {
+                // Delta tracking, which the caller does for its lanes together.
+                return Plan::Field(all, ray, u, from);
+            }
             let (site, tau) = field_free_flight(all, &ray, u, want_tau);
             return Plan::Done(site, tau, from);
         }
@@ -2401,6 +2473,8 @@ struct PacketState {
     /// The medium's enclosure as of its `view_epoch`.
     enclosure: Arc<Enclosure>,
     view_epoch: u64,
+    /// The current packet's lanes that fly through the continuous field together.
+    fields: FieldLanes,
 }
 
 impl PacketState {
@@ -2425,6 +2499,7 @@ impl Default for PacketState {
             view: Arc::new(View::default()),
             enclosure: Arc::new(Enclosure::default()),
             view_epoch: u64::MAX,
+            fields: FieldLanes::default(),
         }
     }
 }
@@ -2563,16 +2638,16 @@ impl DiscreteMedium {
         let lane_waves = waves.lane(i);
         let w = lane_waves.get();
         let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(&site, w.ls[c]));
-        let (k, e) = (key(p), event_after(site, &pending.parent, &a, w.lam));
+        // Made where it stays (a copy of the event through the stack was a store-forwarding stall).
+        let (k, e) = recent.insert((key(p), event_after(site, &pending.parent, &a, w.lam)));
         pending.site = None;
         // The map is the record for rays that skip the event's particles (they walk the grains from
         // it); the path's own next calls find the event beside the lane. Rays from an event that see
         // the grains' continuous equivalent skip nothing: the lane's copy is all they need (the insert
         // was 2 % of a dense render).
-        if self.grains_field_from(&e).is_none() {
-            events.insert(k, e);
+        if self.grains_field_from(e).is_none() {
+            events.insert(*k, *e);
         }
-        *recent = Some((k, e));
     }
 
     /// Free flights of a packet: the distance to each lane's next site (None: the ray leaves [0, t_max)).
@@ -2601,6 +2676,9 @@ impl DiscreteMedium {
             let mut walks: [Option<GrainWalk>; PACKET_LANES] = [const { None }; PACKET_LANES];
             let mut beam = [0usize; PACKET_LANES];
             let mut in_beam = 0;
+            // Lanes whose flight is through one continuous field alone: flown together after.
+            let mut field: Option<&ContinuousField> = None;
+            st.fields.n = 0;
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 t[i] = None;
                 // A lane inactive in this call keeps its site: the lane's path has not moved on.
@@ -2618,6 +2696,8 @@ impl DiscreteMedium {
                     t_max as f64,
                     u,
                     false,
+                    // A packet of one ray (scalar variants) flies it here: nothing to step together.
+                    n_rays > 1,
                 ) {
                     Plan::Done(site, _, parent) => st.pending[i] = PendingLane::new(site, parent),
                     Plan::Walk(w) => {
@@ -2627,7 +2707,20 @@ impl DiscreteMedium {
                         }
                         walks[i] = Some(w);
                     }
+                    Plan::Field(f, ray, u, parent) => {
+                        if field.is_none_or(|g| std::ptr::eq(f, g)) {
+                            field = Some(f);
+                            st.fields.push(i, ray, u, parent);
+                        } else {
+                            // Another field than the packet's other field lanes': on its own.
+                            let (site, _) = field_free_flight(f, &ray, u, false);
+                            st.pending[i] = PendingLane::new(site, parent);
+                        }
+                    }
                 }
+            }
+            if let Some(f) = field {
+                st.fields.fly(f, &mut st.pending);
             }
             let mut found: [Option<(Option<Site>, f64)>; PACKET_LANES] = [None; PACKET_LANES];
             if let (Some(Grains::Stored(g)), 2.., true) = (&self.grid, in_beam, self.beams) {
