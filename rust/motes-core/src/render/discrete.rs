@@ -1422,30 +1422,29 @@ impl DiscreteMedium {
         PerChannel::from_fn(lam.len(), |c| self.bracket(lam[c]))
     }
 
-    /// [`Self::brackets`] of the wavelengths a packet's lanes share, kept per thread for the last
-    /// medium and wavelengths asked (an RGB render asks for the same three in every call: their
-    /// searches were 1.5 % of a dense render).
-    fn brackets_cached(&self, lam: &[f64]) -> PerChannel<(usize, usize, f64)> {
-        type Key = (u64, [u64; MAX_CHANNELS], usize);
-        type Brackets = [(usize, usize, f64); MAX_CHANNELS];
-        thread_local! {
-            static LAST: std::cell::Cell<Option<(Key, Brackets)>> = const { std::cell::Cell::new(None) };
-        }
+    /// [`Self::brackets`] of the wavelengths a packet's lanes share, kept in the thread's packet state
+    /// for the last wavelengths asked (an RGB render asks for the same three in every call: their
+    /// searches were 1.5 % of a dense render; a thread-local of its own cost a TLS lookup per call, 5 %
+    /// of a scalar_rgb render's samples in `PacketWaves::new`).
+    fn brackets_cached(
+        &self,
+        lam: &[f64],
+        last: &mut LastBrackets,
+    ) -> PerChannel<(usize, usize, f64)> {
         if lam.len() > MAX_CHANNELS {
             return self.brackets(lam);
         }
         let mut bits = [0u64; MAX_CHANNELS];
         bits.iter_mut().zip(lam).for_each(|(b, l)| *b = l.to_bits());
-        let key = (self.id, bits, lam.len());
-        if let Some((k, ls)) = LAST.get() {
-            if k == key {
-                return PerChannel::Inline(ls, lam.len());
+        if let Some((k, n, ls)) = last {
+            if *k == bits && *n == lam.len() {
+                return PerChannel::Inline(*ls, lam.len());
             }
         }
         let ls = self.brackets(lam);
         let mut flat = [(0, 0, 0.0); MAX_CHANNELS];
         flat.iter_mut().zip(ls.iter()).for_each(|(f, l)| *f = *l);
-        LAST.set(Some((key, flat)));
+        *last = Some((bits, lam.len(), flat));
         ls
     }
 
@@ -2357,9 +2356,21 @@ struct PacketWaves<'a> {
     shared: Option<PerChannel<(usize, usize, f64)>>,
 }
 
+/// The last shared wavelengths' bits and count, and their brackets ([`DiscreteMedium::brackets_cached`]).
+type LastBrackets = Option<(
+    [u64; MAX_CHANNELS],
+    usize,
+    [(usize, usize, f64); MAX_CHANNELS],
+)>;
+
 impl<'a> PacketWaves<'a> {
-    fn new(m: &'a DiscreteMedium, lambda: &'a [f64], channels: usize) -> Self {
-        let shared = (lambda.len() == channels).then(|| m.brackets_cached(lambda));
+    fn new(
+        m: &'a DiscreteMedium,
+        lambda: &'a [f64],
+        channels: usize,
+        last: &mut LastBrackets,
+    ) -> Self {
+        let shared = (lambda.len() == channels).then(|| m.brackets_cached(lambda, last));
         PacketWaves {
             m,
             lambda,
@@ -2475,6 +2486,10 @@ struct PacketState {
     view_epoch: u64,
     /// The current packet's lanes that fly through the continuous field together.
     fields: FieldLanes,
+    /// The brackets of the last wavelengths shared by a packet's lanes.
+    brackets: LastBrackets,
+    /// The thread's shard of the medium's statistics counters ([`ShardedCounts`]).
+    count_shard: usize,
 }
 
 impl PacketState {
@@ -2500,6 +2515,8 @@ impl Default for PacketState {
             enclosure: Arc::new(Enclosure::default()),
             view_epoch: u64::MAX,
             fields: FieldLanes::default(),
+            brackets: None,
+            count_shard: next_count_shard(),
         }
     }
 }
@@ -2527,13 +2544,22 @@ struct ShardedCounts([CountShard; COUNT_SHARDS]);
 
 thread_local! {
     /// This thread's shard of every [`ShardedCounts`].
-    static COUNT_SHARD: usize = NEXT_COUNT_SHARD.fetch_add(1, Ordering::Relaxed) % COUNT_SHARDS;
+    static COUNT_SHARD: usize = next_count_shard();
 }
 static NEXT_COUNT_SHARD: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
 
+/// A shard for a new thread (or its packet state).
+fn next_count_shard() -> usize {
+    NEXT_COUNT_SHARD.fetch_add(1, Ordering::Relaxed) % COUNT_SHARDS
+}
+
 impl ShardedCounts {
     fn add(&self, a: u64, b: u64) {
-        let shard = &self.0[COUNT_SHARD.with(|s| *s)].0;
+        self.add_to(COUNT_SHARD.with(|s| *s), a, b)
+    }
+    /// [`Self::add`] to shard `shard` (a packet state's own: no thread-local lookup per packet).
+    fn add_to(&self, shard: usize, a: u64, b: u64) {
+        let shard = &self.0[shard % COUNT_SHARDS].0;
         shard[0].fetch_add(a, Ordering::Relaxed);
         shard[1].fetch_add(b, Ordering::Relaxed);
     }
@@ -2662,8 +2688,8 @@ impl DiscreteMedium {
     ) {
         let n_rays = rays.iter().filter(|r| r.is_some()).count() as u64;
         let mut surface = SurfaceTally::default();
-        let waves = PacketWaves::new(self, lambda, channels);
         let sites = self.with_packet_state(|st| {
+            let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);
             let epoch = self.view_epoch.load(Ordering::Acquire);
             if st.view_epoch != epoch {
                 st.view = Arc::clone(&self.view.read().unwrap());
@@ -2743,11 +2769,13 @@ impl DiscreteMedium {
                 }
                 sites += pending.site.is_some() as u64;
             }
-            sites
+            (sites, st.count_shard)
         });
-        self.packet_counts.add(n_rays, sites);
+        let (sites, shard) = sites;
+        self.packet_counts.add_to(shard, n_rays, sites);
         if surface.checked > 0 {
-            self.surface_counts.add(surface.checked, surface.saw_field);
+            self.surface_counts
+                .add_to(shard, surface.checked, surface.saw_field);
         }
     }
 
@@ -2781,8 +2809,8 @@ impl DiscreteMedium {
     /// other lanes.
     #[cfg(test)]
     fn packet_settle(&self, p: &[Option<[f32; 3]>], lambda: &[f64], channels: usize) {
-        let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
+            let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);
             for (i, pos) in p.iter().enumerate().take(PACKET_LANES) {
                 if let Some(pos) = *pos {
                     self.settle(st, i, pos, &waves);
@@ -2808,8 +2836,8 @@ impl DiscreteMedium {
         pdf: &mut [f64],
         evaluated_next: bool,
     ) {
-        let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
+            let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
                 let w = &mut weight[i * channels..(i + 1) * channels];
@@ -2879,8 +2907,8 @@ impl DiscreteMedium {
         values: &mut [f64],
         pdf: &mut [f64],
     ) {
-        let waves = PacketWaves::new(self, lambda, channels);
         self.with_packet_state(|st| {
+            let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 let v = &mut values[i * channels..(i + 1) * channels];
                 pdf[i] = 0.0;
