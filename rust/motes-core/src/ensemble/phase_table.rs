@@ -33,6 +33,9 @@ pub struct PhaseTable {
     by_angle: Directory,
     /// Segments by bucket of the CDF (sampling).
     by_cdf: Directory,
+    /// (P(μ' ≤ μ_i), μ_i, f_i) side by side: what a sample reads, from one or two cache lines
+    /// instead of one per array (the three arrays of a bin's channels outgrow the L1 cache).
+    nodes: Vec<[f64; 3]>,
 }
 
 /// Buckets of the sampling [`Directory`] (by CDF value).
@@ -57,36 +60,40 @@ const LOG_SPLIT: f64 = 1.0 / 16.0;
 /// the segment's two ends.
 #[derive(Clone, Debug)]
 struct Directory {
-    first: Vec<u32>,
-    last: Vec<u32>,
+    /// Per bucket its first and last segment, side by side (one cache line per lookup).
+    range: Vec<[u32; 2]>,
 }
 
 impl Directory {
     /// The directory of the segments between consecutive `nodes` under `bucket`.
     fn new(nodes: &[f64], buckets: usize, bucket: impl Fn(f64) -> usize) -> Self {
-        let mut first = vec![u32::MAX; buckets];
-        let mut last = vec![0u32; buckets];
+        let mut range = vec![[u32::MAX, 0u32]; buckets];
         for i in 0..nodes.len() - 1 {
             let (a, b) = (bucket(nodes[i]), bucket(nodes[i + 1]));
-            for k in a.min(b)..=a.max(b) {
-                first[k] = first[k].min(i as u32);
-                last[k] = last[k].max(i as u32);
+            for r in &mut range[a.min(b)..=a.max(b)] {
+                *r = [r[0].min(i as u32), r[1].max(i as u32)];
             }
         }
-        Directory { first, last }
+        Directory { range }
     }
 
     /// The segment i with nodes[i] ≤ x < nodes[i + 1] (clamped to the table), x in bucket `k`.
     #[inline]
     fn segment(&self, nodes: &[f64], k: usize, x: f64) -> usize {
-        let (a, b) = (self.first[k] as usize, self.last[k] as usize);
+        self.segment_by(nodes, |m| *m, k, x)
+    }
+
+    /// [`Self::segment`] over nodes whose key `key` reads (a column of interleaved records).
+    #[inline(always)]
+    fn segment_by<T>(&self, nodes: &[T], key: impl Fn(&T) -> f64, k: usize, x: f64) -> usize {
+        let [a, b] = self.range[k].map(|v| v as usize);
         let within = &nodes[a + 1..=b];
         // Most buckets hold a segment or three: counting the nodes at or below x has no branch to
         // mispredict, where a binary search has one per halving.
         let i = if within.len() <= 8 {
-            within.iter().map(|&m| (m <= x) as usize).sum::<usize>()
+            within.iter().map(|m| (key(m) <= x) as usize).sum::<usize>()
         } else {
-            within.partition_point(|&m| m <= x)
+            within.partition_point(|m| key(m) <= x)
         };
         (a + i).min(nodes.len() - 2)
     }
@@ -160,12 +167,14 @@ impl PhaseTable {
         }
         let by_angle = Directory::new(&mu, ANGLE_BUCKETS, angle_bucket);
         let by_cdf = Directory::new(&cdf, CDF_BUCKETS, cdf_bucket);
+        let nodes = (0..mu.len()).map(|i| [cdf[i], mu[i], fv[i]]).collect();
         Ok(PhaseTable {
             mu,
             f: fv,
             cdf,
             by_angle,
             by_cdf,
+            nodes,
         })
     }
 
@@ -209,14 +218,19 @@ impl PhaseTable {
     /// segment and the fraction along it), so that its values need no search.
     pub fn sample_located(&self, u: f64) -> (f64, (usize, f64)) {
         let u = u.clamp(0.0, 1.0);
-        let i = self.by_cdf.segment(&self.cdf, cdf_bucket(u), u);
-        let (m0, m1) = (self.mu[i], self.mu[i + 1]);
+        let i = self
+            .by_cdf
+            .segment_by(&self.nodes, |n| n[0], cdf_bucket(u), u);
+        let ([c0, m0, f0], [_, m1, f1]) = (self.nodes[i], self.nodes[i + 1]);
         let dm = m1 - m0;
         // q (a t + b t²/2) = u − cdf[i] with q = 2π dm, scaled by q so that one division solves it.
         let q = 2.0 * PI * dm;
-        let (a, b) = (q * self.f[i], q * (self.f[i + 1] - self.f[i]));
-        let target = u - self.cdf[i];
-        let t = if b.abs() < 1e-12 * a.abs().max(1e-300) {
+        let (a, b) = (q * f0, q * (f1 - f0));
+        let target = u - c0;
+        let t = if !(target > 0.0) {
+            // At the segment's start (u on a node whose f is 0 gave 0 / 0 below).
+            0.0
+        } else if b.abs() < 1e-12 * a.abs().max(1e-300) {
             if a > 0.0 {
                 target / a
             } else {
@@ -475,6 +489,12 @@ mod tests {
             for &u in &us {
                 let i = t.by_cdf.segment(&t.cdf, cdf_bucket(u), u);
                 assert_eq!(i, full(&t.cdf, u), "n = {n}, u = {u}");
+                // The interleaved records a sample reads: the same segment and the same μ.
+                let j = t.by_cdf.segment_by(&t.nodes, |x| x[0], cdf_bucket(u), u);
+                assert_eq!(j, i, "n = {n}, u = {u}");
+                let (mu, (k, _)) = t.sample_located(u);
+                assert_eq!(k, i);
+                assert!(mu >= t.mu[i] && mu <= t.mu[i + 1], "n = {n}, u = {u}: {mu}");
             }
         }
     }
