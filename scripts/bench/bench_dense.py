@@ -24,6 +24,10 @@ render's own seed-to-seed RMS difference (1 = at noise level; on all pixels and 
 pixels where the exact render exceeds 2x its median).
 
     .venv/bin/python scripts/bench/bench_dense.py [--quick] [--rows 1e5x80,4e5x80] [--variant scalar_rgb]
+
+A row may also be any ``COUNTxMEDIAN`` (grains x median radius in um, e.g. ``2.56e7x80``); ``--speed-only``
+renders only ``homogeneous`` and ``default`` (no exact render, no accuracy columns: clouds whose exact
+render would take long).
 """
 
 from __future__ import annotations
@@ -101,12 +105,22 @@ def accuracy(a0, a1, e0, e1) -> dict:
             "rms_over_noise_lit": float(rms(lit) / noise(lit)) if lit.any() else float("nan")}
 
 
+def row_spec(name: str) -> tuple[int, float]:
+    """A row's grain count and median radius (um): a named row, or ``COUNTxMEDIAN``."""
+    if name in ROWS:
+        return ROWS[name]
+    count, _, median = name.partition("x")
+    return int(float(count)), float(median)
+
+
 def run_row(motes, mi, name: str, res: int, spp: int, reps: int, depths, max_depth: int, surface: bool = False,
-            seeds: int = 2) -> dict:
-    count, median = ROWS[name]
+            seeds: int = 2, exact: bool = True) -> dict:
+    count, median = row_spec(name)
     media = {"homogeneous": homogeneous(motes, count, median),
              "exact": discrete(mi, count, median, continuous_count=float("inf")),
              "default": discrete(mi, count, median)}
+    if not exact:
+        del media["exact"]
     if surface:
         media["no surface rule"] = discrete(mi, count, median, surface_footprint=False)
     for d in depths:
@@ -119,13 +133,13 @@ def run_row(motes, mi, name: str, res: int, spp: int, reps: int, depths, max_dep
             t, img = render(mi, sc, spp, seed=rep)
             if rep > 0:
                 best[k] = min(best[k], t)
-    for k, sc in scenes.items():  # fixed seeds for the accuracy columns, averaged into two halves
+    for k, sc in scenes.items() if exact else ():  # fixed seeds for the accuracy columns, in two halves
         halves = [[render(mi, sc, spp, seed=100 + s)[1] for s in range(h, seeds, 2)] for h in (0, 1)]
         imgs[k] = [np.mean(h, axis=0) for h in halves]
     row = {"row": name, "count": count, "median_um": median, "res": res, "spp": spp}
     for k in scenes:
         row[k] = {"seconds": best[k], "ratio": best[k] / best["homogeneous"]}
-        if k not in ("homogeneous", "exact"):
+        if exact and k not in ("homogeneous", "exact"):
             row[k].update(accuracy(*imgs[k], *imgs["exact"]))
     cells = "  ".join(f"{k} {v['seconds']:.2f} s ({v['ratio']:.1f}x" +
                       (f", {v['diff_se']:+.1f} SE, rms/noise {v['rms_over_noise']:.2f} lit "
@@ -146,23 +160,33 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--speed-only", action="store_true", help="no exact render and no accuracy columns")
     args = ap.parse_args()
-    names = C.choose_configs(ap, args.rows, ROWS)
+    names = [r.strip() for r in args.rows.split(",") if r.strip()]
+    for r in names:
+        try:
+            count, median = row_spec(r)
+        except ValueError:
+            ap.error(f"row {r!r}: one of {list(ROWS)} or COUNTxMEDIAN (e.g. 2.56e7x80)")
+        if not (count > 0 and median > 0):
+            ap.error(f"row {r!r}: count and median radius must be positive")
     depths = [int(x) for x in args.depths.split(",") if x.strip()]
     out, sw, motes = C.out_dir(args.out), C.Stopwatch(), C.import_motes()
     motes.set_variant(args.variant)
     import mitsuba as mi  # noqa: PLC0415
 
     reps = 1 if args.quick else args.reps
-    rows = [run_row(motes, mi, n, args.res, args.spp, reps, depths, args.max_depth, args.surface, max(2, args.seeds))
+    rows = [run_row(motes, mi, n, args.res, args.spp, reps, depths, args.max_depth, args.surface, max(2, args.seeds),
+                    exact=not args.speed_only)
             for n in names]
     keys = [k for k in rows[0] if isinstance(rows[0][k], dict)]
     C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp: seconds per render / homogeneous",
                   ["row"] + keys, [[r["row"]] + [f"{r[k]['ratio']:.2f}x" for k in keys] for r in rows])
-    acc = [k for k in keys if k not in ("homogeneous", "exact")]
-    C.print_table("against exact: mean difference (SE), per-pixel RMS / noise (all; lit grains)",
-                  ["row"] + acc, [[r["row"]] + [f"{r[k]['diff_se']:+.1f} SE; {r[k]['rms_over_noise']:.2f}; "
-                                                f"{r[k]['rms_over_noise_lit']:.2f}" for k in acc] for r in rows])
+    acc = [k for k in keys if k not in ("homogeneous", "exact")] if not args.speed_only else []
+    if acc:
+        C.print_table("against exact: mean difference (SE), per-pixel RMS / noise (all; lit grains)",
+                      ["row"] + acc, [[r["row"]] + [f"{r[k]['diff_se']:+.1f} SE; {r[k]['rms_over_noise']:.2f}; "
+                                                    f"{r[k]['rms_over_noise_lit']:.2f}" for k in acc] for r in rows])
     C.finish(args, sw, out / f"bench_dense_{args.variant}.json", rows=rows)
 
 

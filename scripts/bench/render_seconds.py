@@ -9,6 +9,11 @@ shared machine, e.g.
     done
 
 (`pip install --no-deps --target /tmp/basepkg <checkout of the other commit>` installs the other build.)
+Or a shipped scene at its defaults with some replaced, in either RGB variant (96 px, 16 spp):
+
+    .venv/bin/python scripts/bench/render_seconds.py --scene cornell --set count=1000000 --set radius=2000 \
+        --variant scalar_rgb --renders 5
+
 Prints the mean of `--renders` renders after a compiling warm-up (and per sample per pixel), and the
 medium's ray and event counts. Under `perf record -e cpu-clock` it shows where a render's time goes.
 """
@@ -23,8 +28,11 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/, which holds _common.py
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "paper"))
+
 import _common as C  # noqa: E402
 import bench_native as B  # noqa: E402
+import bench_surface as BS  # noqa: E402
 
 
 EPT_SCENES = ("lamp", "cornell")
@@ -46,16 +54,31 @@ def ept_scene(mi, name: str, res: int):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("config", choices=(*B.KNOWN, *EPT_SCENES))
-    ap.add_argument("--res", type=int, default=None, help="film width (default 128; EPT scenes 80)")
+    ap.add_argument("config", nargs="?", choices=(*B.KNOWN, *EPT_SCENES))
+    ap.add_argument("--scene", help="a shipped scene (`motes scenes`) instead of a configuration")
+    BS.add_overrides(ap)
+    ap.add_argument("--variant", default="llvm_ad_rgb", help="llvm_ad_rgb, or scalar_rgb with --scene")
+    ap.add_argument("--res", type=int, default=None, help="film width (default 128; EPT scenes 80; --scene 96)")
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--renders", type=int, default=10)
     args = ap.parse_args()
+    if (args.config is None) == (args.scene is None):
+        ap.error("give a configuration or --scene, not both")
+    if args.variant != "llvm_ad_rgb" and args.scene is None:
+        ap.error("--variant: the configurations render in llvm_ad_rgb only")
     motes = C.import_motes()
-    motes.set_variant("llvm_ad_rgb")
+    motes.set_variant(args.variant)
     import mitsuba as mi  # noqa: PLC0415
 
-    if args.config in EPT_SCENES:
+    if args.scene is not None:
+        import _paper as P  # noqa: PLC0415
+
+        overrides: dict[str, str] = {}
+        BS.read_overrides(args, overrides)
+        args.res = args.res or 96
+        args.config = args.scene + "".join(f" {k}={v}" for k, v in overrides.items())
+        scene = mi.load_file(str(P.scene_file(args.scene)), **overrides, spp=str(args.spp), res=str(args.res))
+    elif args.config in EPT_SCENES:
         args.res = args.res or 80
         scene, keep = ept_scene(mi, args.config, args.res)
     else:
