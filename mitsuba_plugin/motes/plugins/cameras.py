@@ -26,6 +26,7 @@ continuous equivalent sooner.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import warnings
 
@@ -222,17 +223,29 @@ def diffuse_only(scene) -> bool:
 
 def data_of(medium):
     """The data (``motes.DiscreteMedium``) of a ``discrete`` medium object (Python or native), or None."""
+    if medium is None:
+        return None
     from .discrete_medium import native_data
     from .scene_checks import _discrete_data
 
-    return None if medium is None else (_discrete_data(medium) or native_data(medium))
+    return _discrete_data(medium) or native_data(medium)
 
 
 def discrete_medium_objects(scene) -> list:
-    """Every ``discrete`` medium object the scene's shapes and sensors hold, each once."""
-    media = [m for s in scene.shapes() for m in (s.interior_medium(), s.exterior_medium())]
-    media += [getattr(s, "medium", lambda: None)() for s in scene.sensors()]
-    return list({id(m): m for m in media if data_of(m) is not None}.values())
+    """Every ``discrete`` medium object the scene's shapes and sensors hold, each once. One pass over the
+    shapes, each medium object looked at once: ``mi.render`` asks for them at every call, and a scene of
+    5·10^5 spheres (explicit path tracing) spent 2.6 s per call in a pass that asked every shape's media
+    for their data."""
+    media, seen = [], set()
+    shape_media = (m for s in scene.shapes() if s.is_medium_transition()
+                   for m in (s.interior_medium(), s.exterior_medium()))
+    sensor_media = (getattr(s, "medium", lambda: None)() for s in scene.sensors())
+    for m in itertools.chain(shape_media, sensor_media):
+        if m is not None and id(m) not in seen:
+            seen.add(id(m))
+            if data_of(m) is not None:
+                media.append(m)
+    return media
 
 
 def discrete_media(scene) -> list:
@@ -240,16 +253,18 @@ def discrete_media(scene) -> list:
     return list({id(d): d for d in map(data_of, discrete_medium_objects(scene))}.values())
 
 
-def attach(scene, sensor=None, integrator=None) -> None:
+def attach(scene, sensor=None, integrator=None) -> list:
     """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media, and what
-    ``integrator`` may skip around them (``motes.plugins.enclosure``; None: nothing)."""
+    ``integrator`` may skip around them (``motes.plugins.enclosure``; None: nothing). Returns the scene's
+    ``discrete`` medium objects (``discrete_medium_objects``)."""
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
-        return
-    media = discrete_media(scene)
+        return []
+    objects = discrete_medium_objects(scene)
+    media = list({id(d): d for d in map(data_of, objects)}.values())
     if media:
         from .enclosure import set_enclosures
 
-        set_enclosures(scene, integrator)
+        set_enclosures(scene, integrator, objects)
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
         # A light the rule cannot place may be small and sharp: no blur then.
         diffuse = lights is not None and diffuse_only(scene) and uniform_distant_light(scene)
@@ -260,6 +275,7 @@ def attach(scene, sensor=None, integrator=None) -> None:
                 warnings.warn(f"motes: the scene's cameras or lights are not usable by the surface-ray rule ({e}); "
                               "rays from surfaces walk the grains", RuntimeWarning, stacklevel=3)
                 data.set_cameras([], None)
+    return objects
 
 
 def _wrapped_render(render):
@@ -274,14 +290,14 @@ def _wrapped_render(render):
         integrator = kwargs.get("integrator", args[2] if len(args) > 2 else None)
         if not isinstance(integrator, mi.Integrator):
             integrator = scene.integrator() if hasattr(scene, "integrator") else None
-        attach(scene, sensor if isinstance(sensor, mi.Sensor) else None, integrator)
+        objects = attach(scene, sensor if isinstance(sensor, mi.Sensor) else None, integrator)
         try:
             return render(scene, *args, **kwargs)
         finally:
-            if _made[0] and hasattr(scene, "shapes"):
+            if objects:  # a scene without discrete media is not scanned twice
                 from .enclosure import clear_clips
 
-                clear_clips(scene)
+                clear_clips(scene, objects)
 
     render_with_cameras._motes_cameras = True
     return render_with_cameras

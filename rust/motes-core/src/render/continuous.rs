@@ -705,7 +705,8 @@ impl ContinuousField {
         }
     }
 
-    /// [`Self::sample_free_flight`] of each ray of `rays` (at most [`FLIGHT_LANES`] are taken), ray i
+    /// [`Self::sample_free_flight`] of each ray of `rays` (in packets of [`FLIGHT_LANES`]; `rays`, `keys`
+    /// and `out` as long as the shortest of them), ray i
     /// drawing its k-th tentative collision (k = 1, 2, ...) from `stream_bits(keys[i], 1 + k)`: the
     /// same hits as one ray at a time, into `out`. Where the field has one majorant (a cloud of even
     /// density) the rays step together, one tentative collision each per step, in SIMD lanes: a dense
@@ -717,7 +718,21 @@ impl ContinuousField {
         keys: &[u64],
         out: &mut [Option<FieldHit>],
     ) {
-        let n = rays.len().min(keys.len()).min(out.len()).min(FLIGHT_LANES);
+        let n = rays.len().min(keys.len()).min(out.len());
+        for a in (0..n).step_by(FLIGHT_LANES) {
+            let b = (a + FLIGHT_LANES).min(n);
+            self.sample_packet_flights(&rays[a..b], &keys[a..b], &mut out[a..b]);
+        }
+    }
+
+    /// [`Self::sample_free_flights`] of at most [`FLIGHT_LANES`] rays.
+    fn sample_packet_flights(
+        &self,
+        rays: &[RaySegment],
+        keys: &[u64],
+        out: &mut [Option<FieldHit>],
+    ) {
+        let n = rays.len().min(FLIGHT_LANES);
         let one_by_one = |i: usize| {
             let mut k = 0u64;
             self.sample_free_flight(&rays[i], || {
@@ -1129,7 +1144,8 @@ mod tests {
         for uniform in [Some(largest), None] {
             f.uniform_majorant = uniform;
             for trial in 0..400 {
-                let n = 1 + trial % FLIGHT_LANES;
+                let n = 1 + trial % (FLIGHT_LANES + 8); // 17 to 24: two packets
+                let in_lockstep = |i: usize| n - i / FLIGHT_LANES * FLIGHT_LANES > 1;
                 let rays: Vec<RaySegment> = (0..n)
                     .map(|k| {
                         let o = match k % 4 {
@@ -1153,8 +1169,9 @@ mod tests {
                     .collect();
                 let mut out = vec![None; n];
                 f.sample_free_flights(&rays, &keys, &mut out);
-                let lockstep = n > 1 && f.flies_in_lockstep();
                 for i in 0..n {
+                    // A packet of one ray (the last of 17) flies it alone.
+                    let lockstep = in_lockstep(i) && f.flies_in_lockstep();
                     let mut k = 0u64;
                     let next = || {
                         k += 1;
