@@ -78,18 +78,19 @@ def _cpu_flags() -> set[str]:
     return {f for line in text.splitlines() if line.startswith("flags") for f in line.split(":", 1)[1].split()}
 
 
-def _render_with_simd(tmp_path, simd: str, medium: str, seed: int = 5, spp: int = 16) -> tuple[np.ndarray, str]:
-    """A cube of grains rendered in a fresh process under MOTES_SIMD=`simd`: the image and the walk it took."""
+def _render_with_simd(tmp_path, simd: str, medium: str, seeds=(5,), spp: int = 16) -> tuple[np.ndarray, str]:
+    """A cube of grains rendered in a fresh process under MOTES_SIMD=`simd`, once per sampler seed: the images
+    (stacked) and the walk the process took."""
     code = textwrap.dedent(f"""
         import numpy as np, motes, mitsuba as mi, sys
         sys.path.insert(0, {str(ROOT / "tests")!r})
         motes.set_variant("llvm_ad_rgb")
         from conftest import cube_scene
         scene = cube_scene({medium}, res=24)
-        np.save(sys.argv[1], np.asarray(mi.render(scene, spp={spp}, seed={seed})))
+        np.save(sys.argv[1], np.stack([np.asarray(mi.render(scene, spp={spp}, seed=s)) for s in {list(seeds)!r}]))
         print(motes.native.simd())
     """)
-    path = tmp_path / f"{simd}-{seed}.npy"
+    path = tmp_path / f"{simd}.npy"
     out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=600,
                          env=dict(os.environ, MOTES_SIMD=simd))
     assert out.returncode == 0, out.stderr[-2000:]
@@ -108,7 +109,7 @@ def test_sse_and_avx2_walks_render_the_same_image(tmp_path):
     for simd in ("sse", "avx2"):
         image, walk = _render_with_simd(tmp_path, simd, medium)
         assert walk == simd
-        images.append(image)
+        images.append(image[0])
     assert images[0].mean() > 0
     assert np.allclose(images[0], images[1], rtol=1e-5, atol=0)
 
@@ -119,21 +120,19 @@ def test_lockstep_field_flights_render_the_same_image_in_distribution(tmp_path):
     `sample_free_flights`; the Rust test `packet_free_flights_match_one_ray_at_a_time` shows the same
     hits ray by ray from the same exponentials). Against one ray at a time (MOTES_SIMD=avx2) the image
     of a cube of grey grains dense enough that paths scatter many times in the field agrees in its mean
-    within 4 SE (paired by seed) over four seeds each."""
+    within 5 SE (paired by seed, eight seeds each: a false alarm once in ~600 runs)."""
     if not {"avx512f", "avx512dq", "avx512vl"} <= _cpu_flags():
         pytest.skip("no AVX-512 F/DQ/VL on this CPU: field flights go one ray at a time")
     # Optical depth ~25 across, grey grains (albedo 0.8): the image depends on how far paths fly.
     medium = ('{"type": "discrete", "count": 40000, "radius_median": 200.0, "radius_sigma_g": 1.2, '
               '"scale_m": 0.01, "albedo": 0.8, "phase": {"type": "particle"}}')
-    means = {}
-    for simd in ("avx2", "auto"):
-        means[simd] = np.array([_render_with_simd(tmp_path, simd, medium, seed=s, spp=32)[0].mean()
-                                for s in range(4)])
+    means = {simd: _render_with_simd(tmp_path, simd, medium, seeds=range(8), spp=32)[0].mean(axis=(1, 2, 3))
+             for simd in ("avx2", "auto")}
     a, b = means["avx2"], means["auto"]
     assert a.mean() > 0 and not np.array_equal(a, b)  # the two modes draw different exponentials
     # Paired by seed (the camera rays' first events are the same in both): the difference's own spread.
     d = b - a
-    assert abs(d.mean()) < 4 * d.std(ddof=1) / np.sqrt(d.size) + 1e-3 * a.mean(), (a, b)
+    assert abs(d.mean()) < 5 * d.std(ddof=1) / np.sqrt(d.size) + 1e-3 * a.mean(), (a, b)
 
 
 def test_evaluated_path_from_a_thread_fails_with_one_sentence():

@@ -227,6 +227,11 @@ pub struct ContinuousField {
 /// a ball in its middle 0.64 / 0.64 (7.8) and 0.615 / 0.675 (16.2).
 const UNIFORM_MAJORANT_RATIO: f64 = 4.0;
 
+/// Lanes of the lockstep that met a tentative collision outside the cells before their end and went on
+/// one ray at a time (the tests check that they are exercised).
+#[cfg(test)]
+static CONTINUED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 /// Rays of one [`ContinuousField::sample_free_flights`] call stepped together.
 pub const FLIGHT_LANES: usize = 16;
 
@@ -732,6 +737,18 @@ impl ContinuousField {
         keys: &[u64],
         out: &mut [Option<FieldHit>],
     ) {
+        self.sample_packet_flights_with(rays, keys, out, self.flies_in_lockstep());
+    }
+
+    /// [`Self::sample_packet_flights`], in lockstep where `lockstep` (and the field has one majorant)
+    /// whatever the CPU (the tests run the lockstep on CPUs without AVX-512 too, lane by lane).
+    fn sample_packet_flights_with(
+        &self,
+        rays: &[RaySegment],
+        keys: &[u64],
+        out: &mut [Option<FieldHit>],
+        lockstep: bool,
+    ) {
         let n = rays.len().min(FLIGHT_LANES);
         let one_by_one = |i: usize| {
             let mut k = 0u64;
@@ -743,10 +760,7 @@ impl ContinuousField {
         // In lockstep only where 64-bit lanes multiply and convert natively (AVX-512 DQ): AVX2 runs
         // the loop lane by lane, each ray stepping as long as the packet's slowest (`field_events`
         // bench: 0.72 us per event against 0.49 one ray at a time).
-        let Some(m) = self
-            .uniform_majorant
-            .filter(|_| n > 1 && self.flies_in_lockstep())
-        else {
+        let Some(m) = self.uniform_majorant.filter(|_| n > 1 && lockstep) else {
             (0..n).for_each(|i| out[i] = one_by_one(i));
             return;
         };
@@ -777,6 +791,8 @@ impl ContinuousField {
                         .clip(ray)
                         .map_or(t, |(_, exit)| exit.min(lanes.t1[i]));
                     let mut k = lanes.k[i];
+                    #[cfg(test)]
+                    CONTINUED.fetch_add((t < t1) as usize, std::sync::atomic::Ordering::Relaxed);
                     (t < t1)
                         .then(|| {
                             self.uniform_flight_from::<true>(ray, m, t, t1, true, || {
@@ -1075,6 +1091,7 @@ mod tests {
 
     use crate::space::vec3;
     use crate::test_rng::{assert_escape_rate, lcg, random_points};
+    use std::sync::atomic::Ordering;
 
     /// The field's optical depth along long rays through a uniform random cloud equals σ_t L (the
     /// particles' summed extinction over the volume), free flights escape with probability e^{−τ},
@@ -1127,8 +1144,11 @@ mod tests {
     }
 
     /// A packet's free flights stepped together give each ray exactly the hit it gets alone (with the
-    /// same exponentials), at every SIMD level the CPU has: rays starting inside, outside and on the box, leaving it, ending
-    /// inside it, along axes, with one field majorant and with blocks, and packets of 1 to 16 rays.
+    /// same exponentials), on every CPU (the lockstep forced, lane by lane without AVX-512) and as the
+    /// CPU runs them: rays starting inside, outside and on the box, leaving it, ending inside it, along
+    /// axes; one field majorant, blocks, and one majorant with cells 5 % too small for the box (tentative
+    /// collisions then fall outside the cells before the box's exit, and those lanes go on one ray at a
+    /// time, which rounding at a face causes only now and then); packets of 1 to 24 rays.
     #[test]
     fn packet_free_flights_match_one_ray_at_a_time() {
         let mut s = 23u64;
@@ -1140,12 +1160,14 @@ mod tests {
             None,
         );
         let largest = f.majorant.iter().fold(0.0f64, |x, &m| x.max(m as f64));
+        let inv_cell = f.inv_cell;
+        let continued_before = CONTINUED.load(Ordering::Relaxed);
         let mut hits = 0;
-        for uniform in [Some(largest), None] {
+        for (uniform, shrink) in [(Some(largest), 1.0), (None, 1.0), (Some(largest), 1.05)] {
             f.uniform_majorant = uniform;
+            f.inv_cell = inv_cell.map(|x| x * shrink);
             for trial in 0..400 {
                 let n = 1 + trial % (FLIGHT_LANES + 8); // 17 to 24: two packets
-                let in_lockstep = |i: usize| n - i / FLIGHT_LANES * FLIGHT_LANES > 1;
                 let rays: Vec<RaySegment> = (0..n)
                     .map(|k| {
                         let o = match k % 4 {
@@ -1167,27 +1189,38 @@ mod tests {
                 let keys: Vec<u64> = (0..n)
                     .map(|_| (lcg(&mut s) * 2f64.powi(62)) as u64)
                     .collect();
-                let mut out = vec![None; n];
-                f.sample_free_flights(&rays, &keys, &mut out);
+                let mut forced = vec![None; n];
+                for a in (0..n).step_by(FLIGHT_LANES) {
+                    let b = (a + FLIGHT_LANES).min(n);
+                    f.sample_packet_flights_with(&rays[a..b], &keys[a..b], &mut forced[a..b], true);
+                }
+                let mut as_run = vec![None; n];
+                f.sample_free_flights(&rays, &keys, &mut as_run);
                 for i in 0..n {
-                    // A packet of one ray (the last of 17) flies it alone.
-                    let lockstep = in_lockstep(i) && f.flies_in_lockstep();
                     let mut k = 0u64;
-                    let next = || {
+                    let mut next = || {
                         k += 1;
                         stream_bits(keys[i], 1 + k)
                     };
+                    // A packet of one ray (the last of 17) flies it alone, libm's way.
+                    let packet = n - i / FLIGHT_LANES * FLIGHT_LANES;
+                    let lockstep = packet > 1 && f.uniform_majorant.is_some();
                     let alone = if lockstep {
-                        f.free_flight_by::<true>(&rays[i], next)
+                        f.free_flight_by::<true>(&rays[i], &mut next)
                     } else {
-                        f.sample_free_flight(&rays[i], next)
+                        f.sample_free_flight(&rays[i], &mut next)
                     };
-                    assert_eq!(out[i], alone, "ray {i} of {n}: {:?}", rays[i]);
+                    assert_eq!(forced[i], alone, "ray {i} of {n}: {:?}", rays[i]);
+                    if f.flies_in_lockstep() || !lockstep {
+                        assert_eq!(as_run[i], alone, "ray {i} of {n}: {:?}", rays[i]);
+                    }
                     hits += alone.is_some() as usize;
                 }
             }
         }
         assert!(hits > 500, "{hits}"); // both outcomes exercised
+        let continued = CONTINUED.load(Ordering::Relaxed) - continued_before;
+        assert!(continued > 20, "{continued}"); // and the continuation one ray at a time
     }
 
     /// The exponential's logarithm against libm's over (0, 1], the ends included.
