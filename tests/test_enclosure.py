@@ -105,26 +105,24 @@ CODE = textwrap.dedent("""
     sc2 = scene({"inner": {"type": "sphere", "radius": 0.3, "bsdf": {"type": "null"}}})
     render(sc2)
     out["regions_nested"] = medium_of(sc2).data.enclosure_regions
+    def small(**shapes):  # a 4 x 4 px volpath scene of these shapes
+        return mi.load_dict({"type": "scene", "integrator": {"type": "volpath"},
+                             "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4},
+                                        "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0],
+                                                                                   up=[0, 1, 0])},
+                             **shapes})
     # Two shapes holding the same medium, one inside the other: a shadow ray may leave the sphere (Mitsuba
     # then drops a site past its face), so neither is a region.
-    d4 = {"type": "scene", "integrator": {"type": "volpath"},
-          "sensor": {"type": "perspective", "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5],
-                                                                                   target=[0, 0, 0], up=[0, 1, 0]),
-                     "film": {"type": "hdrfilm", "width": 4, "height": 4}},
-          "med": {"type": "discrete", "count": 500, "phase": {"type": "particle"}},
+    d4 = {"med": {"type": "discrete", "count": 500, "phase": {"type": "particle"}},
           "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "med"}},
           "ball": {"type": "sphere", "radius": 0.5, "bsdf": {"type": "null"}, "interior": {"type": "ref", "id": "med"}}}
-    sc4 = mi.load_dict(d4)
+    sc4 = small(**d4)
     render(sc4)
     out["regions_two_holders"] = medium_of(sc4).data.enclosure_regions
     # A sphere holding the medium: a ball.
-    d3 = {"type": "scene", "integrator": {"type": "volpath"},
-          "sensor": {"type": "perspective", "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5],
-                                                                                   target=[0, 0, 0], up=[0, 1, 0]),
-                     "film": {"type": "hdrfilm", "width": 4, "height": 4}},
-          "ball": {"type": "sphere", "center": [0.2, 0.0, 0.0], "radius": 1.0, "bsdf": {"type": "null"},
+    d3 = {"ball": {"type": "sphere", "center": [0.2, 0.0, 0.0], "radius": 1.0, "bsdf": {"type": "null"},
                    "interior": {"type": "discrete", "count": 500, "phase": {"type": "particle"}}}}
-    sc3 = mi.load_dict(d3)
+    sc3 = small(**d3)
     render(sc3)
     out["regions_ball"] = medium_of(sc3).data.enclosure_regions
     print(json.dumps(out))

@@ -248,9 +248,11 @@ def discrete_medium_objects(scene) -> list:
     return media
 
 
-def discrete_media(scene) -> list:
-    """The data (``motes.DiscreteMedium``) of every ``discrete`` medium the scene's shapes and sensors hold."""
-    return list({id(d): d for d in map(data_of, discrete_medium_objects(scene))}.values())
+def discrete_media(scene, objects=None) -> list:
+    """The data (``motes.DiscreteMedium``) of every ``discrete`` medium the scene's shapes and sensors hold (of
+    ``objects``, the scene's ``discrete_medium_objects``, where the caller has them), each once."""
+    objects = discrete_medium_objects(scene) if objects is None else objects
+    return list({id(d): d for d in map(data_of, objects)}.values())
 
 
 def attach(scene, sensor=None, integrator=None) -> list:
@@ -260,7 +262,7 @@ def attach(scene, sensor=None, integrator=None) -> list:
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
         return []
     objects = discrete_medium_objects(scene)
-    media = list({id(d): d for d in map(data_of, objects)}.values())
+    media = discrete_media(scene, objects)
     if media:
         from .enclosure import set_enclosures
 

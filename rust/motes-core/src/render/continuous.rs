@@ -237,13 +237,15 @@ pub const FLIGHT_LANES: usize = 16;
 
 /// A lane of [`FlightLanes`]: still tracking, past its end, at its site, or at its first tentative
 /// collision outside the field's box (its end then needs clipping to the box: the caller goes on).
-const LANE_RUNNING: u64 = 0;
-const LANE_NONE: u64 = 1;
+/// (Past its end is 0, so that a default lane is unused.)
+const LANE_NONE: u64 = 0;
+const LANE_RUNNING: u64 = 1;
 const LANE_REAL: u64 = 2;
 const LANE_OUTSIDE: u64 = 3;
 
 /// The state of [`FLIGHT_LANES`] free flights, one array per quantity (SIMD lanes). Unused lanes are
 /// past their end from the start.
+#[derive(Default)]
 struct FlightLanes {
     o: [[f64; FLIGHT_LANES]; 3],
     d: [[f64; FLIGHT_LANES]; 3],
@@ -259,22 +261,6 @@ struct FlightLanes {
     clip_on_exit: [u64; FLIGHT_LANES],
 }
 
-impl Default for FlightLanes {
-    fn default() -> Self {
-        FlightLanes {
-            o: [[0.0; FLIGHT_LANES]; 3],
-            d: [[0.0; FLIGHT_LANES]; 3],
-            t: [0.0; FLIGHT_LANES],
-            t1: [0.0; FLIGHT_LANES],
-            key: [0; FLIGHT_LANES],
-            k: [0; FLIGHT_LANES],
-            cell: [0; FLIGHT_LANES],
-            state: [LANE_NONE; FLIGHT_LANES],
-            clip_on_exit: [0; FLIGHT_LANES],
-        }
-    }
-}
-
 impl FlightLanes {
     /// Lane `i` tracks `ray` from `t` to `t1` with stream `key` (`exit_known`: `t1` is at most the
     /// field's exit).
@@ -288,35 +274,23 @@ impl FlightLanes {
     }
 }
 
-/// The widest SIMD the CPU runs (`MOTES_SIMD=sse` forces the baseline, as for the grid's walks;
-/// `MOTES_SIMD=avx2` stops at AVX2).
-#[derive(Clone, Copy, PartialEq)]
-enum SimdLevel {
-    Baseline,
-    Avx2,
-    Avx512,
-}
-
-fn simd_level() -> SimdLevel {
+/// Whether the CPU has AVX-512 F, DQ and VL, which the lockstep's 64-bit lanes need (their multiplies
+/// and conversions), and the grid's wide walks are on (`crate::space::grid::wide_simd`). No with
+/// `MOTES_SIMD=sse` (the baseline everywhere) or `MOTES_SIMD=avx2` (stop at AVX2).
+fn lockstep_simd() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
-        *LEVEL.get_or_init(|| {
-            if !crate::space::grid::wide_simd() {
-                SimdLevel::Baseline
-            } else if std::env::var("MOTES_SIMD").map_or(true, |v| v != "avx2")
+        static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        *ON.get_or_init(|| {
+            crate::space::grid::wide_simd()
+                && std::env::var("MOTES_SIMD").map_or(true, |v| v != "avx2")
                 && std::arch::is_x86_feature_detected!("avx512f")
                 && std::arch::is_x86_feature_detected!("avx512dq")
                 && std::arch::is_x86_feature_detected!("avx512vl")
-            {
-                SimdLevel::Avx512
-            } else {
-                SimdLevel::Avx2
-            }
         })
     }
     #[cfg(not(target_arch = "x86_64"))]
-    SimdLevel::Baseline
+    false
 }
 
 /// What a tentative collision of delta tracking turns out to be.
@@ -726,22 +700,13 @@ impl ContinuousField {
         let n = rays.len().min(keys.len()).min(out.len());
         for a in (0..n).step_by(FLIGHT_LANES) {
             let b = (a + FLIGHT_LANES).min(n);
-            self.sample_packet_flights(&rays[a..b], &keys[a..b], &mut out[a..b]);
+            let lockstep = self.flies_in_lockstep();
+            self.sample_packet_flights_with(&rays[a..b], &keys[a..b], &mut out[a..b], lockstep);
         }
     }
 
-    /// [`Self::sample_free_flights`] of at most [`FLIGHT_LANES`] rays.
-    fn sample_packet_flights(
-        &self,
-        rays: &[RaySegment],
-        keys: &[u64],
-        out: &mut [Option<FieldHit>],
-    ) {
-        self.sample_packet_flights_with(rays, keys, out, self.flies_in_lockstep());
-    }
-
-    /// [`Self::sample_packet_flights`], in lockstep where `lockstep` (and the field has one majorant)
-    /// whatever the CPU (the tests run the lockstep on CPUs without AVX-512 too, lane by lane).
+    /// [`Self::sample_free_flights`] of at most [`FLIGHT_LANES`] rays, in lockstep where `lockstep` (and
+    /// the field has one majorant) whatever the CPU (the tests run it without AVX-512 too, lane by lane).
     fn sample_packet_flights_with(
         &self,
         rays: &[RaySegment],
@@ -810,7 +775,7 @@ impl ContinuousField {
     /// Whether [`Self::sample_free_flights`] steps its rays together (else it flies them one by one,
     /// as a caller can as well).
     pub fn flies_in_lockstep(&self) -> bool {
-        self.uniform_majorant.is_some() && simd_level() == SimdLevel::Avx512
+        self.uniform_majorant.is_some() && lockstep_simd()
     }
 
     /// The lanes' delta tracking against the majorant `m`, every running lane one tentative collision
@@ -818,8 +783,8 @@ impl ContinuousField {
     /// collision outside the box when its end is not the box's exit: [`FlightLanes`]).
     fn step_lanes(&self, m: f64, lanes: &mut FlightLanes) {
         #[cfg(target_arch = "x86_64")]
-        if simd_level() == SimdLevel::Avx512 {
-            // SAFETY: the CPU has AVX-512 F, DQ and VL (`simd_level`).
+        if lockstep_simd() {
+            // SAFETY: the CPU has AVX-512 F, DQ and VL (`lockstep_simd`).
             return unsafe { self.step_lanes_avx512(m, lanes) };
         }
         self.step_lanes_with(m, lanes)
