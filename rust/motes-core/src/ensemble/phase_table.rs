@@ -21,6 +21,16 @@
 use crate::error::{require, OpticsError};
 use std::f64::consts::{FRAC_1_SQRT_2, PI};
 
+/// A [`PhaseTable`]'s sampling data by address ([`PhaseTable::sampling_view`]): its interleaved nodes
+/// (P(μ' ≤ μ_i), μ_i, f_i), its sampling directory's [first, last] segment per CDF bucket
+/// ([`CDF_BUCKETS`] of them, every one covered) and its node count (at least two).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SamplingView {
+    pub nodes: *const [f64; 3],
+    pub ranges: *const [u32; 2],
+    pub n_nodes: usize,
+}
+
 #[derive(Clone, Debug)]
 pub struct PhaseTable {
     /// Increasing μ nodes from −1 to 1.
@@ -39,7 +49,7 @@ pub struct PhaseTable {
 }
 
 /// Buckets of the sampling [`Directory`] (by CDF value).
-const CDF_BUCKETS: usize = 512;
+pub(crate) const CDF_BUCKETS: usize = 512;
 
 /// The evaluation directory's buckets, three runs of [`ANGLE_RUN`] each in order of increasing θ:
 /// sin(θ/2) below [`LOG_SPLIT`] on a log scale (32 buckets per octave over 16 octaves, read off the
@@ -134,7 +144,7 @@ fn fraction(x: f64, width: f64) -> f64 {
 
 /// Bucket of a CDF value in the sampling directory.
 #[inline]
-fn cdf_bucket(u: f64) -> usize {
+pub(crate) fn cdf_bucket(u: f64) -> usize {
     ((u.max(0.0) * CDF_BUCKETS as f64) as usize).min(CDF_BUCKETS - 1)
 }
 
@@ -254,6 +264,16 @@ impl PhaseTable {
         };
         let t = t.clamp(0.0, 1.0);
         (m0 + t * dm, (i, t))
+    }
+
+    /// The table as [`Self::sample_located`] reads it, for samplers that read many tables side by side
+    /// through their addresses (`crate::render::phase_lanes`). Valid while the table lives.
+    pub(crate) fn sampling_view(&self) -> SamplingView {
+        SamplingView {
+            nodes: self.nodes.as_ptr(),
+            ranges: self.by_cdf.range.as_ptr(),
+            n_nodes: self.nodes.len(),
+        }
     }
 
     /// P(μ' ≤ μ) of the piecewise-linear table (exact, closed form).

@@ -277,7 +277,7 @@ impl FlightLanes {
 /// Whether the CPU has AVX-512 F, DQ and VL, which the lockstep's 64-bit lanes need (their multiplies
 /// and conversions), and the grid's wide walks are on (`crate::space::grid::wide_simd`). No with
 /// `MOTES_SIMD=sse` (the baseline everywhere) or `MOTES_SIMD=avx2` (stop at AVX2).
-fn lockstep_simd() -> bool {
+pub(crate) fn lockstep_simd() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();

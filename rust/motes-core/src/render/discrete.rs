@@ -77,6 +77,7 @@ use crate::render::continuous::{resolvable, Column, ContinuousField, FieldHit, C
 use crate::render::enclosure::Enclosure;
 use crate::render::env_flag;
 use crate::render::footprint::{ClassMoments, SurfaceFootprint, View};
+use crate::render::phase_lanes::PhaseLanes;
 use crate::render::procedural::{build_parts, ProceduralGrains, ProceduralSpec};
 use crate::render::storage::{classes, ParticleOptics, Storage};
 use crate::rng::{stream_bits, unit_f64, GOLDEN_GAMMA};
@@ -463,6 +464,18 @@ fn random_bits(seed: u64, call: u64, lane: u64) -> u64 {
 /// The stream of call `call` under `seed` ([`random_bits`] by index).
 fn stream_key(seed: u64, call: u64) -> u64 {
     seed ^ call.wrapping_mul(GOLDEN_GAMMA)
+}
+
+/// The direction at cos θ = `mu` from `w_in`, at azimuth 2π `u` around it.
+#[inline(always)]
+fn deflect(w_in: [f64; 3], mu: f64, u: f64) -> [f64; 3] {
+    let phi = 2.0 * PI * u;
+    let st = (1.0 - mu * mu).max(0.0).sqrt();
+    let (e1, e2) = frame(w_in);
+    // φ in single precision: the direction goes to the renderer as float32 anyway.
+    let (sin_phi, cos_phi) = (phi as f32).sin_cos();
+    let (sin_phi, cos_phi) = (sin_phi as f64, cos_phi as f64);
+    [0, 1, 2].map(|a| mu * w_in[a] + st * (cos_phi * e1[a] + sin_phi * e2[a]))
 }
 
 /// Unit vector and two perpendicular ones (Duff et al. 2017 branchless frame).
@@ -1151,7 +1164,8 @@ impl DiscreteMedium {
             // cells from CENTRE_CELLS_FROM discrete grains (`build_walk`).
             &GridSettings::new(query_radius, cells_per_particle)
                 .quantised(storage == Storage::Compact && env_flag("MOTES_QUANTISE"))
-                .centred(storage == Storage::Compact),
+                .centred(storage == Storage::Compact)
+                .by_free_path(true),
             continuous_count,
             classes.as_ref().map(|c| &c.codes[..]),
         );
@@ -1982,13 +1996,7 @@ impl DiscreteMedium {
         };
         let table = if u < 1.0 - l.2 { l.0 } else { l.1 };
         let (mu, at) = self.bins[self.optics.bin(j)].phase[table].sample_located(u2[0]);
-        let phi = 2.0 * PI * u2[1];
-        let st = (1.0 - mu * mu).max(0.0).sqrt();
-        let (e1, e2) = frame(w_in);
-        // φ in single precision: the direction goes to the renderer as float32 anyway.
-        let (sin_phi, cos_phi) = (phi as f32).sin_cos();
-        let (sin_phi, cos_phi) = (sin_phi as f64, cos_phi as f64);
-        let wo = [0, 1, 2].map(|a| mu * w_in[a] + st * (cos_phi * e1[a] + sin_phi * e2[a]));
+        let wo = deflect(w_in, mu, u2[1]);
         let mut v = PerChannel::from_fn(ls.len(), |_| 0.0);
         let pdf = self.mixture_phase_at(m, mu, Some(at), &mut v);
         if pdf > 0.0 {
@@ -2215,8 +2223,22 @@ impl DiscreteMedium {
         let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
             return (null_sample(channels), None);
         };
-        let pi = event_channels(&e, channels);
-        let mixture = self.event_mixture(&e, ls, &pi);
+        self.event_phase_sample(&e, w_in, lane, lam, ls, scattered)
+    }
+
+    /// [`Self::lane_phase_sample`] at the lane's event `e`, the path arriving along `w_in`.
+    fn event_phase_sample(
+        &self,
+        e: &Event,
+        w_in: [f64; 3],
+        lane: &PhaseSampleLane,
+        lam: &[f64],
+        ls: &[(usize, usize, f64)],
+        scattered: bool,
+    ) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
+        let channels = lam.len();
+        let pi = event_channels(e, channels);
+        let mixture = self.event_mixture(e, ls, &pi);
         let mut sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
         // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
@@ -2226,9 +2248,55 @@ impl DiscreteMedium {
             )
         });
         if scattered {
-            self.times_albedo(&e, lam, ls, &mut sample.1);
+            self.times_albedo(e, lam, ls, &mut sample.1);
         }
         (sample, t_out)
+    }
+
+    /// Slot `k` of `lanes` ([`PhaseLanes`]) for lane `lane`'s sample at its event `e`, where the event
+    /// is one particle whose tables share their nodes and the wavelengths `ls` are tabulated ones
+    /// (checked by the caller); false where it is not one particle with shared nodes.
+    fn fill_phase_lane(
+        &self,
+        e: &Event,
+        lane: &PhaseSampleLane,
+        lam: &[f64],
+        ls: &[(usize, usize, f64)],
+        lanes: &mut PhaseLanes,
+        k: usize,
+    ) -> bool {
+        let [j] = e.site.members() else {
+            return false;
+        };
+        let bin = self.optics.bin(*j);
+        if !self.shared_nodes[bin] {
+            return false;
+        }
+        let channels = lam.len();
+        let (b, tau, scale) = (&self.bins[bin], self.optics.tau(*j), self.albedo_scale());
+        let pi = channel_probabilities(&e.t_in, channels);
+        let known = e.t_in.iter().any(|&x| x > 0.0);
+        let mut albedo = [1.0; MAX_CHANNELS];
+        self.times_albedo(e, lam, ls, &mut albedo[..channels]);
+        for c in 0..MAX_CHANNELS {
+            let l = ls[c.min(channels - 1)];
+            lanes.set_table(c, k, b.phase[l.0].sampling_view());
+            if c < channels {
+                // As `mixture_sample` (the pick) and `mixture_phase_at` (the values) weigh them.
+                let a = bin_albedo(b, l);
+                lanes.pi[c][k] = pi[c];
+                lanes.pickable[c][k] = (tau * (a * scale) > 0.0) as u64;
+                lanes.scatters[c][k] = (tau * scale * a > 0.0) as u64;
+                lanes.t_in[c][k] = if known { e.t_in[c] as f64 } else { 1.0 };
+                lanes.albedo[c][k] = albedo[c];
+            } else {
+                lanes.pi[c][k] = 0.0;
+                lanes.pickable[c][k] = 0;
+                lanes.scatters[c][k] = 0;
+            }
+        }
+        (lanes.u1[k], lanes.u2[k]) = (lane.u1, lane.u2[0]);
+        true
     }
 
     /// The mixture of an event's particles, each weighing its τ (module docs), at the channels'
@@ -2315,6 +2383,44 @@ impl PendingLane {
             parent,
             at: [0.0; 3],
         }
+    }
+}
+
+/// Lane `i`'s phase sample (direction, weights, pdf, the path's throughput after it) into the packet's
+/// outputs and into its event (the throughput; with `evaluated_next` the values that the evaluation of
+/// the same direction will ask for: [`SampledLane`]).
+fn commit_sample(
+    st: &mut PacketState,
+    i: usize,
+    lane: &PhaseSampleLane,
+    lam: &[f64],
+    (dir, w, p, t_out): ([f64; 3], &[f64], f64, Option<[f32; MAX_CHANNELS]>),
+    evaluated_next: bool,
+    (wo, weight, pdf): (&mut [f64; 3], &mut [f64], &mut f64),
+) {
+    (*wo, *pdf) = (dir, p);
+    weight.copy_from_slice(w);
+    if let Some(t) = t_out {
+        let k = key(lane.p);
+        match &mut st.recent[i] {
+            Some((at, e)) if same_key(at, &k) => e.t_out = t,
+            _ => {
+                if let Some(e) = st.events.get_mut(&k) {
+                    e.t_out = t;
+                }
+            }
+        }
+    }
+    if evaluated_next && p > 0.0 && lam.len() <= MAX_CHANNELS {
+        // What the evaluation at the direction as it travels back (f32) would give.
+        let mut values = [0.0; MAX_CHANNELS];
+        values.iter_mut().zip(w).for_each(|(v, w)| *v = w * p);
+        st.sampled[i] = Some(SampledLane {
+            inputs: SampledLane::inputs(lane.p, lane.wi, dir.map(|x| x as f32)),
+            lambda: SampledLane::lambda(lam),
+            values,
+            pdf: p,
+        });
     }
 }
 
@@ -2486,6 +2592,9 @@ struct PacketState {
     view_epoch: u64,
     /// The current packet's lanes that fly through the continuous field together.
     fields: FieldLanes,
+    /// The current packet's phase samples at one-particle events, taken side by side (made at the
+    /// first such sample: it holds this medium's tables; 4.5 kB, not made afresh per packet).
+    phase: Option<Box<PhaseLanes>>,
     /// The brackets of the last wavelengths shared by a packet's lanes.
     brackets: LastBrackets,
     /// The thread's shard of the medium's statistics counters ([`ShardedCounts`]).
@@ -2515,6 +2624,7 @@ impl Default for PacketState {
             enclosure: Arc::new(Enclosure::default()),
             view_epoch: u64::MAX,
             fields: FieldLanes::default(),
+            phase: None,
             brackets: None,
             count_shard: next_count_shard(),
         }
@@ -2838,23 +2948,102 @@ impl DiscreteMedium {
     ) {
         self.with_packet_state(|st| {
             let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);
+            // Lanes at one-particle events with tabulated wavelengths (RGB) are sampled side by side
+            // (`crate::render::phase_lanes`), the others here one by one, with the same results.
+            let side_by_side = PhaseLanes::available()
+                && channels <= MAX_CHANNELS
+                && waves
+                    .shared
+                    .as_ref()
+                    .is_some_and(|ls| ls.iter().all(|l| l.2 == 0.0));
+            let mut done: [Option<(Sample, Option<[f32; MAX_CHANNELS]>)>; PACKET_LANES] =
+                [const { None }; PACKET_LANES];
+            let (mut slot_lane, mut w_ins, mut m) =
+                ([0usize; PACKET_LANES], [[0.0; 3]; PACKET_LANES], 0);
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
                 (wo[i], pdf[i]) = ([0.0, 0.0, 1.0], 0.0);
-                let w = &mut weight[i * channels..(i + 1) * channels];
-                w.iter_mut().for_each(|x| *x = 0.0);
+                weight[i * channels..(i + 1) * channels]
+                    .iter_mut()
+                    .for_each(|x| *x = 0.0);
                 st.sampled[i] = None;
                 let Some(lane) = lane else {
                     continue;
                 };
                 let lane_waves = waves.lane(i);
                 let wv = lane_waves.get();
-                let lam = wv.lam;
                 self.settle(st, i, lane.p, &waves);
                 // A blocked shadow ray answers one evaluation, the light's (not a sample's: spectral
                 // variants evaluate the sampled direction in a second call).
                 st.blocked[i] = None;
-                let (mut sample, t_out) =
-                    self.lane_phase_sample(&st.lane(i), lane, lam, wv.ls, true);
+                let Some(w_in) = normalise(lane.wi.map(|x| -(x as f64))) else {
+                    done[i] = Some((null_sample(wv.lam.len()), None));
+                    continue;
+                };
+                let events = LaneEvents {
+                    recent: &st.recent[i],
+                    map: &st.events,
+                };
+                let Some(e) = self.event_or_geometry(&events, lane.p, w_in) else {
+                    done[i] = Some((null_sample(wv.lam.len()), None));
+                    continue;
+                };
+                if side_by_side {
+                    let first = || {
+                        let view = self.bins[0].phase[wv.ls[0].0].sampling_view();
+                        Box::new(PhaseLanes::new(channels, view))
+                    };
+                    let side = st.phase.get_or_insert_with(first);
+                    if self.fill_phase_lane(&e, lane, wv.lam, wv.ls, side, m) {
+                        (slot_lane[m], w_ins[i]) = (i, w_in);
+                        m += 1;
+                        continue;
+                    }
+                }
+                done[i] = Some(self.event_phase_sample(&e, w_in, lane, wv.lam, wv.ls, true));
+            }
+            if m > 0 {
+                // Out of the state while its lanes are committed to it (given back below).
+                let mut side = st.phase.take().expect("filled above");
+                (side.n, side.channels) = (m, channels);
+                side.sample(false);
+                for (k, &i) in slot_lane.iter().enumerate().take(m) {
+                    let lane = lanes[i].as_ref().expect("an active lane");
+                    if side.long[k] != 0 {
+                        // A bucket of many nodes (the phase function's flat back): searched here.
+                        let wv = waves.lane(i);
+                        let wv = wv.get();
+                        let events = LaneEvents {
+                            recent: &st.recent[i],
+                            map: &st.events,
+                        };
+                        done[i] = Some(self.lane_phase_sample(&events, lane, wv.lam, wv.ls, true));
+                    } else if side.ok[k] != 0 {
+                        // Straight to the outputs (through `done` the sample was copied twice).
+                        let mut w = [0.0; MAX_CHANNELS];
+                        let mut t = [0.0f32; MAX_CHANNELS];
+                        for c in 0..MAX_CHANNELS {
+                            (w[c], t[c]) = (side.weight[c][k], side.t_out[c][k] as f32);
+                        }
+                        let dir = deflect(w_ins[i], side.mu[k], lane.u2[1]);
+                        let lam = lane_wavelengths(lambda, channels, i);
+                        let sample = (dir, &w[..channels], side.pdf[k], Some(t));
+                        let out = (
+                            &mut wo[i],
+                            &mut weight[i * channels..(i + 1) * channels],
+                            &mut pdf[i],
+                        );
+                        commit_sample(st, i, lane, lam, sample, evaluated_next, out);
+                    } else {
+                        done[i] = Some((null_sample(channels), None));
+                    }
+                }
+                st.phase = Some(side);
+            }
+            for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
+                let (Some(lane), Some((mut sample, t_out))) = (lane, done[i].take()) else {
+                    continue;
+                };
+                let lam = lane_wavelengths(lambda, channels, i);
                 if !(sample.2 > 0.0) {
                     // No direction to sample (the site scatters nothing: black grains, an albedo
                     // scaled to 0): a direction with zero weight and pdf 1, so that the integrator ends
@@ -2865,33 +3054,13 @@ impl DiscreteMedium {
                     let back = normalise(lane.wi.map(|x| -(x as f64))).unwrap_or([0.0, 0.0, 1.0]);
                     sample = (back, PerChannel::from_fn(lam.len(), |_| 0.0), 1.0);
                 }
-                (wo[i], pdf[i]) = (sample.0, sample.2);
-                w.copy_from_slice(&sample.1);
-                if let Some(t) = t_out {
-                    let k = key(lane.p);
-                    match &mut st.recent[i] {
-                        Some((at, e)) if same_key(at, &k) => e.t_out = t,
-                        _ => {
-                            if let Some(e) = st.events.get_mut(&k) {
-                                e.t_out = t;
-                            }
-                        }
-                    }
-                }
-                if evaluated_next && sample.2 > 0.0 && lam.len() <= MAX_CHANNELS {
-                    // What the evaluation at the direction as it travels back (f32) would give.
-                    let mut values = [0.0; MAX_CHANNELS];
-                    values
-                        .iter_mut()
-                        .zip(sample.1.iter())
-                        .for_each(|(v, w)| *v = w * sample.2);
-                    st.sampled[i] = Some(SampledLane {
-                        inputs: SampledLane::inputs(lane.p, lane.wi, sample.0.map(|x| x as f32)),
-                        lambda: SampledLane::lambda(lam),
-                        values,
-                        pdf: sample.2,
-                    });
-                }
+                let out = (
+                    &mut wo[i],
+                    &mut weight[i * channels..(i + 1) * channels],
+                    &mut pdf[i],
+                );
+                let sample = (sample.0, &sample.1[..], sample.2, t_out);
+                commit_sample(st, i, lane, lam, sample, evaluated_next, out);
             }
         })
     }
@@ -2951,6 +3120,89 @@ impl DiscreteMedium {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A packet's phase samples side by side (`crate::render::phase_lanes`), in AVX-512 where the CPU
+    /// has it and in the scalar lane loop everywhere, give every lane exactly what one lane at a time
+    /// gives (`event_phase_sample`): direction, weights, pdf and the throughput after the bounce, bit
+    /// for bit. Packets of 1 to 16 lanes, one to three channels, known and unknown throughputs, draws
+    /// at the ends of [0, 1), samples in long directory buckets (left to the caller) and in short
+    /// ones, and an albedo scaled to 0 (every sample null).
+    #[test]
+    fn phase_lanes_match_one_lane_at_a_time() {
+        let m = medium(400);
+        let mut s = 11u64;
+        let mut r = || crate::test_rng::lcg(&mut s);
+        let (mut long, mut short) = (0, 0);
+        for scale in [1.0, 0.0] {
+            m.set_albedo_scale(scale).unwrap();
+            for lam in [vec![500.0, 600.0], vec![600.0, 500.0, 500.0], vec![500.0]] {
+                let ls = m.brackets(&lam);
+                for round in 0..60 {
+                    let n = 1 + round % PACKET_LANES;
+                    let first = m.bins[0].phase[ls[0].0].sampling_view();
+                    let mut side = PhaseLanes::new(lam.len(), first);
+                    let mut lanes = Vec::new();
+                    for k in 0..n {
+                        let mut site = Site::default();
+                        site.push((r() * 400.0) as u32 % 400);
+                        let t_in = if r() < 0.3 {
+                            [0.0; MAX_CHANNELS]
+                        } else {
+                            normalised_throughput((0..lam.len()).map(|_| r()))
+                        };
+                        let e = Event {
+                            site,
+                            t_in,
+                            t_out: t_in,
+                            depth: 1,
+                            ..NO_EVENT
+                        };
+                        let w_in = normalise([r() - 0.5, r() - 0.5, r() - 0.5]).unwrap();
+                        let edge = |x: f64| match k % 5 {
+                            0 => 0.0,
+                            1 => 1.0 - f64::EPSILON,
+                            _ => x,
+                        };
+                        let lane = PhaseSampleLane {
+                            p: [0.0; 3],
+                            wi: [0.0; 3],
+                            u1: edge(r()),
+                            u2: [edge(r()), r()],
+                        };
+                        assert!(m.fill_phase_lane(&e, &lane, &lam, &ls, &mut side, k));
+                        lanes.push((e, w_in, lane));
+                    }
+                    (side.n, side.channels) = (n, lam.len());
+                    for force_scalar in [true, false] {
+                        let mut got = side;
+                        got.sample(force_scalar);
+                        for (k, (e, w_in, lane)) in lanes.iter().enumerate() {
+                            let (want, t_want) =
+                                m.event_phase_sample(e, *w_in, lane, &lam, &ls, true);
+                            if got.long[k] != 0 {
+                                long += 1;
+                                continue;
+                            }
+                            short += 1;
+                            if got.ok[k] == 0 {
+                                assert!(!(want.2 > 0.0), "{lam:?} lane {k}: null, want {want:?}");
+                                continue;
+                            }
+                            let at = format!("{lam:?} lane {k} of {n}, scalar {force_scalar}");
+                            assert_eq!(got.pdf[k], want.2, "{at}");
+                            assert_eq!(deflect(*w_in, got.mu[k], lane.u2[1]), want.0, "{at}");
+                            for c in 0..lam.len() {
+                                assert_eq!(got.weight[c][k], want.1[c], "{at}: channel {c}");
+                                assert_eq!(got.t_out[c][k] as f32, t_want.unwrap()[c], "{at}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        m.set_albedo_scale(1.0).unwrap();
+        assert!(long > 100 && short > 1000, "long {long}, short {short}");
+    }
 
     /// Each disk removes exactly C from a beam: π R² (1 − e^{−τ}) = C, whatever r_c (issue 9.0), and
     /// τ ≤ τ_max; with r_c = 0 and Q = 2 the paper's τ = C / (π R²) would be 2 (43 % of C removed).

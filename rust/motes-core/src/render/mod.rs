@@ -13,6 +13,7 @@ pub mod continuous;
 pub mod discrete;
 pub mod enclosure;
 pub mod footprint;
+mod phase_lanes;
 pub mod procedural;
 pub mod storage;
 
