@@ -194,6 +194,15 @@ fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
 /// The event remembered at a site: the path's channel throughput after the site's albedo `a` (module
 /// docs), from the throughput `parent` of the event the ray started at (zeros: unknown).
 fn event_after(site: Site, parent: &Parent, a: &[f64], lam: &[f64]) -> Event {
+    let mut e = NO_EVENT;
+    event_after_into(&mut e, &site, parent, a, lam);
+    e
+}
+
+/// [`event_after`] written into `e` where it stays: an event built on the stack and moved there was
+/// read back in wider words than it was written in (a store-forwarding stall per event).
+#[inline(always)]
+fn event_after_into(e: &mut Event, site: &Site, parent: &Parent, a: &[f64], lam: &[f64]) {
     let (depth, parent) = (parent.depth.saturating_add(1), &parent.t_out);
     let known = parent.iter().any(|&x| x > 0.0);
     let t_in = if a.len() <= MAX_CHANNELS {
@@ -209,18 +218,13 @@ fn event_after(site: Site, parent: &Parent, a: &[f64], lam: &[f64]) -> Event {
     };
     let mut albedo = [0.0; MAX_CHANNELS];
     albedo.iter_mut().zip(a).for_each(|(x, &a)| *x = a as f32);
-    Event {
-        site,
-        t_in,
-        t_out: t_in,
-        depth,
-        albedo,
-        albedo_nm: if a.len() <= MAX_CHANNELS {
-            lam.first().map_or(f32::NAN, |&l| l as f32)
-        } else {
-            f32::NAN
-        },
-    }
+    e.site = *site;
+    (e.t_in, e.t_out, e.depth, e.albedo) = (t_in, t_in, depth, albedo);
+    e.albedo_nm = if a.len() <= MAX_CHANNELS {
+        lam.first().map_or(f32::NAN, |&l| l as f32)
+    } else {
+        f32::NAN
+    };
 }
 
 /// What a ray takes from the event it starts at for the event it may lead to: the path's throughput
@@ -628,8 +632,17 @@ impl FieldLanes {
         let mut hits = [None; PACKET_LANES];
         f.sample_free_flights(&self.rays[..self.n], &self.keys[..self.n], &mut hits);
         for (k, hit) in hits.iter().enumerate().take(self.n) {
-            let site = hit.and_then(|h| field_site(f, h, self.u[k]));
-            pending[self.lane[k]] = PendingLane::new(site, self.parent[k]);
+            // Field by field where the lane keeps it (a site built on the stack and moved there was
+            // read back in wider words than it was written in).
+            let lane = &mut pending[self.lane[k]];
+            (lane.parent, lane.at, lane.site) = (self.parent[k], [0.0; 3], None);
+            if let Some(h) = hit {
+                if let Some(j) = f.pick(h.cell, uniform(self.u[k].to_bits(), FIELD_STREAM, 1)) {
+                    let s = lane.site.insert(Site::default());
+                    s.t = h.t;
+                    s.push(j);
+                }
+            }
         }
     }
 }
@@ -2763,19 +2776,26 @@ impl DiscreteMedium {
         waves: &PacketWaves,
         i: usize,
     ) {
-        let Some(site) = pending.site.filter(|_| at_site(p, pending.at)) else {
+        // The site read where it lies, not copied out (it was read back in wider words than the
+        // copy had written: a store-forwarding stall per call).
+        let Some(site) = pending.site.as_ref() else {
             return;
         };
-        if recent.is_some_and(|(k, _)| same_key(&k, &key(p))) {
+        if !at_site(p, pending.at) {
+            return;
+        }
+        let k = key(p);
+        if recent.as_ref().is_some_and(|(at, _)| same_key(at, &k)) {
             // The lane's event is here already: the pending site (a shadow ray's, a few ulps from
             // it) is not where the path goes on.
             return;
         }
         let lane_waves = waves.lane(i);
         let w = lane_waves.get();
-        let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(&site, w.ls[c]));
+        let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(site, w.ls[c]));
         // Made where it stays (a copy of the event through the stack was a store-forwarding stall).
-        let (k, e) = recent.insert((key(p), event_after(site, &pending.parent, &a, w.lam)));
+        let (k, e) = recent.insert((k, NO_EVENT));
+        event_after_into(e, site, &pending.parent, &a, w.lam);
         pending.site = None;
         // The map is the record for rays that skip the event's particles (they walk the grains from
         // it); the path's own next calls find the event beside the lane. Rays from an event that see
@@ -2871,13 +2891,15 @@ impl DiscreteMedium {
                     st.pending[i] = PendingLane::new(site, parent);
                 }
                 let pending = &mut st.pending[i];
-                t[i] = pending.site.map(|s| s.t);
+                // The site's distance read where it lies (not the whole site copied out for it).
+                let at = pending.site.as_ref().map(|s| s.t);
+                t[i] = at;
                 st.blocked[i] = None;
-                if let Some(s) = pending.site {
-                    pending.at = site_position(o, d, s.t);
+                if let Some(t) = at {
+                    pending.at = site_position(o, d, t);
                     st.blocked[i] = Some((o, d, pending.at));
                 }
-                sites += pending.site.is_some() as u64;
+                sites += at.is_some() as u64;
             }
             (sites, st.count_shard)
         });
