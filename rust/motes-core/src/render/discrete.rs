@@ -587,10 +587,9 @@ enum Plan<'a> {
     /// Its site, the optical depth before it, what it takes from its parent event.
     Done(Option<Site>, f64, Parent),
     Walk(GrainWalk),
-    /// A free flight through a continuous field alone, left to the caller (a packet's field flights
-    /// are flown together, [`ContinuousField::sample_free_flights`]): the field, the ray, its `u` and
-    /// what it takes from its parent event.
-    Field(&'a ContinuousField, RaySegment, f64, Parent),
+    /// A free flight through a continuous field alone, queued in the caller's [`FieldLanes`] (a
+    /// packet's field flights are flown together, [`ContinuousField::sample_free_flights`]).
+    Deferred(&'a ContinuousField),
 }
 
 /// A packet's lanes whose free flights go through one continuous field alone ([`Plan::Field`]), flown
@@ -598,6 +597,8 @@ enum Plan<'a> {
 /// made afresh on the stack, or boxed, per packet it cost what it saved in scalar_rgb and llvm_ad_rgb).
 struct FieldLanes {
     n: usize,
+    /// The address of the field they fly through (0: none yet): a packet's lanes fly through one.
+    field: usize,
     lane: [usize; PACKET_LANES],
     rays: [RaySegment; PACKET_LANES],
     keys: [u64; PACKET_LANES],
@@ -609,6 +610,7 @@ impl Default for FieldLanes {
     fn default() -> Self {
         FieldLanes {
             n: 0,
+            field: 0,
             lane: [0; PACKET_LANES],
             rays: [RaySegment::new([0.0; 3], [0.0, 0.0, 1.0], 0.0, 0.0); PACKET_LANES],
             keys: [0; PACKET_LANES],
@@ -620,6 +622,11 @@ impl Default for FieldLanes {
 
 impl FieldLanes {
     /// Add lane `i`'s flight (the caller checks that it goes through the same field as the others).
+    /// Whether lanes through `f` can join (the packet's other field lanes fly through it too).
+    fn accepts(&self, f: &ContinuousField) -> bool {
+        self.field == 0 || self.field == f as *const ContinuousField as usize
+    }
+
     fn push(&mut self, i: usize, ray: RaySegment, u: f64, parent: Parent) {
         let k = self.n.min(PACKET_LANES - 1);
         (self.lane[k], self.rays[k], self.keys[k]) = (i, ray, field_key(u));
@@ -1550,7 +1557,7 @@ impl DiscreteMedium {
                 let u = uniform(self.seed ^ ray_bits(oo, dd), call, lane as u64);
                 let mut surface = SurfaceTally::default();
                 let plan =
-                    self.lane_plan(&*events, &view, &mut surface, *oo, *dd, tm, u, true, false);
+                    self.lane_plan(&*events, &view, &mut surface, *oo, *dd, tm, u, true, None);
                 let r = self.fly(plan, true);
                 if surface.checked > 0 {
                     self.surface_counts.add(surface.checked, surface.saw_field);
@@ -1584,10 +1591,7 @@ impl DiscreteMedium {
         match plan {
             Plan::Done(site, tau, from) => (site, tau, from),
             Plan::Walk(w) => self.finish_walk(&w, self.walk_alone(&w), want_tau),
-            Plan::Field(f, ray, u, from) => {
-                let (site, tau) = field_free_flight(f, &ray, u, want_tau);
-                (site, tau, from)
-            }
+            Plan::Deferred(_) => unreachable!("a plan is deferred only into a caller's FieldLanes"),
         }
     }
 
@@ -1602,8 +1606,9 @@ impl DiscreteMedium {
     /// What a ray's free flight (to its next site, skipping the particles of the event it starts at;
     /// `u` uniform in [0, 1)) takes: the answer where no grain needs walking (no ray, the grains'
     /// continuous equivalent), or else the walk through the grains still to do (module docs).
-    /// `defer_field`: a flight through the continuous equivalent alone is left to the caller where
-    /// the field steps a packet's flights together ([`Plan::Field`]; never with `want_tau`).
+    /// `defer`: a flight through the continuous equivalent alone is queued as lane `i` of the caller's
+    /// field lanes where the field steps a packet's flights together ([`Plan::Deferred`]; never with
+    /// `want_tau`). Queued in place: through the returned plan the ray was copied twice.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn lane_plan(
@@ -1616,7 +1621,7 @@ impl DiscreteMedium {
         t_max: f64,
         u: f64,
         want_tau: bool,
-        defer_field: bool,
+        defer: Option<(&mut FieldLanes, usize)>,
     ) -> Plan<'_> {
         let (Some(dir), true) = (
             normalise(d.map(|x| x as f64)),
@@ -1642,9 +1647,13 @@ impl DiscreteMedium {
             .grains_field_from(parent)
             .or_else(|| self.surface_field(parent, &ray, view, surface));
         if let Some(all) = all {
-            if defer_field && all.flies_in_lockstep() {
+            if let Some((lanes, i)) =
+                defer.filter(|(l, _)| all.flies_in_lockstep() && l.accepts(all))
+            {
                 // Delta tracking, which the caller does for its lanes together.
-                return Plan::Field(all, ray, u, from);
+                lanes.field = all as *const ContinuousField as usize;
+                lanes.push(i, ray, u, from);
+                return Plan::Deferred(all);
             }
             let (site, tau) = field_free_flight(all, &ray, u, want_tau);
             return Plan::Done(site, tau, from);
@@ -2834,7 +2843,7 @@ impl DiscreteMedium {
             let mut in_beam = 0;
             // Lanes whose flight is through one continuous field alone: flown together after.
             let mut field: Option<&ContinuousField> = None;
-            st.fields.n = 0;
+            (st.fields.n, st.fields.field) = (0, 0);
             for (i, ray) in rays.iter().enumerate().take(PACKET_LANES) {
                 t[i] = None;
                 // A lane inactive in this call keeps its site: the lane's path has not moved on.
@@ -2843,8 +2852,14 @@ impl DiscreteMedium {
                 self.settle_in(pending, &mut st.events, recent, o, &waves, i);
                 st.pending[i] = PendingLane::default();
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
+                let events = LaneEvents {
+                    recent: &st.recent[i],
+                    map: &st.events,
+                };
+                // A packet of one ray (scalar variants) flies it here: nothing to step together.
+                let defer = (n_rays > 1).then_some((&mut st.fields, i));
                 match self.lane_plan(
-                    &st.lane(i),
+                    &events,
                     view,
                     &mut surface,
                     o,
@@ -2852,8 +2867,7 @@ impl DiscreteMedium {
                     t_max as f64,
                     u,
                     false,
-                    // A packet of one ray (scalar variants) flies it here: nothing to step together.
-                    n_rays > 1,
+                    defer,
                 ) {
                     Plan::Done(site, _, parent) => st.pending[i] = PendingLane::new(site, parent),
                     Plan::Walk(w) => {
@@ -2863,16 +2877,8 @@ impl DiscreteMedium {
                         }
                         walks[i] = Some(w);
                     }
-                    Plan::Field(f, ray, u, parent) => {
-                        if field.is_none_or(|g| std::ptr::eq(f, g)) {
-                            field = Some(f);
-                            st.fields.push(i, ray, u, parent);
-                        } else {
-                            // Another field than the packet's other field lanes': on its own.
-                            let (site, _) = field_free_flight(f, &ray, u, false);
-                            st.pending[i] = PendingLane::new(site, parent);
-                        }
-                    }
+                    // (A lane through another field than the packet's others' flew on its own.)
+                    Plan::Deferred(f) => field = Some(f),
                 }
             }
             if let Some(f) = field {
