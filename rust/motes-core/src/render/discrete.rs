@@ -2411,6 +2411,7 @@ impl PendingLane {
 /// Lane `i`'s phase sample (direction, weights, pdf, the path's throughput after it) into the packet's
 /// outputs and into its event (the throughput; with `evaluated_next` the values that the evaluation of
 /// the same direction will ask for: [`SampledLane`]).
+#[inline(always)]
 fn commit_sample(
     st: &mut PacketState,
     i: usize,
@@ -2801,7 +2802,14 @@ impl DiscreteMedium {
         }
         let lane_waves = waves.lane(i);
         let w = lane_waves.get();
-        let a = PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(site, w.ls[c]));
+        let a = match site.members() {
+            // One particle (most sites): its bin and the albedo scale read once for every channel.
+            [j] => {
+                let (b, scale) = (&self.bins[self.optics.bin(*j)], self.albedo_scale());
+                PerChannel::from_fn(w.lam.len(), |c| bin_albedo(b, w.ls[c]) * scale)
+            }
+            _ => PerChannel::from_fn(w.lam.len(), |c| self.site_albedo(site, w.ls[c])),
+        };
         // Made where it stays (a copy of the event through the stack was a store-forwarding stall).
         let (k, e) = recent.insert((k, NO_EVENT));
         event_after_into(e, site, &pending.parent, &a, w.lam);
@@ -2850,7 +2858,7 @@ impl DiscreteMedium {
                 let Some((o, d, t_max)) = *ray else { continue };
                 let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
                 self.settle_in(pending, &mut st.events, recent, o, &waves, i);
-                st.pending[i] = PendingLane::default();
+                // (Every plan below sets the lane's pending site: deferred ones when they fly.)
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
                 let events = LaneEvents {
                     recent: &st.recent[i],
@@ -3122,7 +3130,7 @@ impl DiscreteMedium {
                     c.inputs == SampledLane::inputs(lane.p, lane.wi, lane.wo)
                         && c.lambda == SampledLane::lambda(lam)
                 };
-                if let Some(c) = st.sampled[i].filter(same) {
+                if let Some(c) = st.sampled[i].as_ref().filter(|c| same(c)) {
                     v.copy_from_slice(&c.values[..lam.len()]);
                     pdf[i] = c.pdf;
                     continue;
