@@ -2408,6 +2408,44 @@ impl PendingLane {
     }
 }
 
+/// [`commit_sample`] of a sample from one lane at a time (`mixture_sample`'s, or a null one). A null
+/// sample (the site scatters nothing: black grains, an albedo scaled to 0) becomes a direction with zero
+/// weight and pdf 1, so that the integrator ends the path here. A pdf of 0 would leave the path on its
+/// old ray, which Mitsuba has cut at this site where the medium lets it (`set_clips_rays`): it would
+/// escape. Only here: in `phase_sample` (the evaluated-mode path) the albedo rides on σ_s, so such a
+/// path's throughput is zero already and volpath ends it anyway.
+#[inline(always)]
+fn commit_lane(
+    st: &mut PacketState,
+    i: usize,
+    lane: &PhaseSampleLane,
+    lam: &[f64],
+    (sample, t_out): (Sample, Option<[f32; MAX_CHANNELS]>),
+    evaluated_next: bool,
+    out: (&mut [f64; 3], &mut [f64], &mut f64),
+) {
+    if sample.2 > 0.0 {
+        commit_sample(
+            st,
+            i,
+            lane,
+            lam,
+            (sample.0, &sample.1, sample.2, t_out),
+            evaluated_next,
+            out,
+        );
+    } else {
+        let back = normalise(lane.wi.map(|x| -(x as f64))).unwrap_or([0.0, 0.0, 1.0]);
+        let zeros = [0.0; MAX_CHANNELS];
+        let w: &[f64] = if lam.len() <= MAX_CHANNELS {
+            &zeros[..lam.len()]
+        } else {
+            &vec![0.0; lam.len()]
+        };
+        commit_sample(st, i, lane, lam, (back, w, 1.0, t_out), evaluated_next, out);
+    }
+}
+
 /// Lane `i`'s phase sample (direction, weights, pdf, the path's throughput after it) into the packet's
 /// outputs and into its event (the throughput; with `evaluated_next` the values that the evaluation of
 /// the same direction will ask for: [`SampledLane`]).
@@ -2986,14 +3024,14 @@ impl DiscreteMedium {
             let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);
             // Lanes at one-particle events with tabulated wavelengths (RGB) are sampled side by side
             // (`crate::render::phase_lanes`), the others here one by one, with the same results.
+            // (Packets of one lane, the scalar variants', sample it alone: 5 % faster there.)
             let side_by_side = PhaseLanes::available()
+                && lanes.iter().filter(|l| l.is_some()).count() > 1
                 && channels <= MAX_CHANNELS
                 && waves
                     .shared
                     .as_ref()
                     .is_some_and(|ls| ls.iter().all(|l| l.2 == 0.0));
-            let mut done: [Option<(Sample, Option<[f32; MAX_CHANNELS]>)>; PACKET_LANES] =
-                [const { None }; PACKET_LANES];
             let (mut slot_lane, mut w_ins, mut m) =
                 ([0usize; PACKET_LANES], [[0.0; 3]; PACKET_LANES], 0);
             for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
@@ -3011,8 +3049,14 @@ impl DiscreteMedium {
                 // A blocked shadow ray answers one evaluation, the light's (not a sample's: spectral
                 // variants evaluate the sampled direction in a second call).
                 st.blocked[i] = None;
+                let out = (
+                    &mut wo[i],
+                    &mut weight[i * channels..(i + 1) * channels],
+                    &mut pdf[i],
+                );
                 let Some(w_in) = normalise(lane.wi.map(|x| -(x as f64))) else {
-                    done[i] = Some((null_sample(wv.lam.len()), None));
+                    let null = (null_sample(wv.lam.len()), None);
+                    commit_lane(st, i, lane, wv.lam, null, evaluated_next, out);
                     continue;
                 };
                 let events = LaneEvents {
@@ -3020,7 +3064,8 @@ impl DiscreteMedium {
                     map: &st.events,
                 };
                 let Some(e) = self.event_or_geometry(&events, lane.p, w_in) else {
-                    done[i] = Some((null_sample(wv.lam.len()), None));
+                    let null = (null_sample(wv.lam.len()), None);
+                    commit_lane(st, i, lane, wv.lam, null, evaluated_next, out);
                     continue;
                 };
                 if side_by_side {
@@ -3035,7 +3080,8 @@ impl DiscreteMedium {
                         continue;
                     }
                 }
-                done[i] = Some(self.event_phase_sample(&e, w_in, lane, wv.lam, wv.ls, true));
+                let one = self.event_phase_sample(&e, w_in, lane, wv.lam, wv.ls, true);
+                commit_lane(st, i, lane, wv.lam, one, evaluated_next, out);
             }
             if m > 0 {
                 // Out of the state while its lanes are committed to it (given back below).
@@ -3044,7 +3090,24 @@ impl DiscreteMedium {
                 side.sample(false);
                 for (k, &i) in slot_lane.iter().enumerate().take(m) {
                     let lane = lanes[i].as_ref().expect("an active lane");
-                    if side.long[k] != 0 {
+                    let lam = lane_wavelengths(lambda, channels, i);
+                    let out = (
+                        &mut wo[i],
+                        &mut weight[i * channels..(i + 1) * channels],
+                        &mut pdf[i],
+                    );
+                    if side.ok[k] != 0 && side.long[k] == 0 {
+                        let mut w = [0.0; MAX_CHANNELS];
+                        let mut t = [0.0f32; MAX_CHANNELS];
+                        for c in 0..MAX_CHANNELS {
+                            (w[c], t[c]) = (side.weight[c][k], side.t_out[c][k] as f32);
+                        }
+                        let dir = deflect(w_ins[i], side.mu[k], lane.u2[1]);
+                        let sample = (dir, &w[..channels], side.pdf[k], Some(t));
+                        commit_sample(st, i, lane, lam, sample, evaluated_next, out);
+                        continue;
+                    }
+                    let one = if side.long[k] != 0 {
                         // A bucket of many nodes (the phase function's flat back): searched here.
                         let wv = waves.lane(i);
                         let wv = wv.get();
@@ -3052,51 +3115,13 @@ impl DiscreteMedium {
                             recent: &st.recent[i],
                             map: &st.events,
                         };
-                        done[i] = Some(self.lane_phase_sample(&events, lane, wv.lam, wv.ls, true));
-                    } else if side.ok[k] != 0 {
-                        // Straight to the outputs (through `done` the sample was copied twice).
-                        let mut w = [0.0; MAX_CHANNELS];
-                        let mut t = [0.0f32; MAX_CHANNELS];
-                        for c in 0..MAX_CHANNELS {
-                            (w[c], t[c]) = (side.weight[c][k], side.t_out[c][k] as f32);
-                        }
-                        let dir = deflect(w_ins[i], side.mu[k], lane.u2[1]);
-                        let lam = lane_wavelengths(lambda, channels, i);
-                        let sample = (dir, &w[..channels], side.pdf[k], Some(t));
-                        let out = (
-                            &mut wo[i],
-                            &mut weight[i * channels..(i + 1) * channels],
-                            &mut pdf[i],
-                        );
-                        commit_sample(st, i, lane, lam, sample, evaluated_next, out);
+                        self.lane_phase_sample(&events, lane, wv.lam, wv.ls, true)
                     } else {
-                        done[i] = Some((null_sample(channels), None));
-                    }
+                        (null_sample(channels), None)
+                    };
+                    commit_lane(st, i, lane, lam, one, evaluated_next, out);
                 }
                 st.phase = Some(side);
-            }
-            for (i, lane) in lanes.iter().enumerate().take(PACKET_LANES) {
-                let (Some(lane), Some((mut sample, t_out))) = (lane, done[i].take()) else {
-                    continue;
-                };
-                let lam = lane_wavelengths(lambda, channels, i);
-                if !(sample.2 > 0.0) {
-                    // No direction to sample (the site scatters nothing: black grains, an albedo
-                    // scaled to 0): a direction with zero weight and pdf 1, so that the integrator ends
-                    // the path here. A pdf of 0 would leave the path on its old ray, which Mitsuba has
-                    // cut at this site where the medium lets it (`set_clips_rays`): it would escape.
-                    // Only here: in `phase_sample` (the evaluated-mode path) the albedo rides on σ_s,
-                    // so such a path's throughput is zero already and volpath ends it anyway.
-                    let back = normalise(lane.wi.map(|x| -(x as f64))).unwrap_or([0.0, 0.0, 1.0]);
-                    sample = (back, PerChannel::from_fn(lam.len(), |_| 0.0), 1.0);
-                }
-                let out = (
-                    &mut wo[i],
-                    &mut weight[i * channels..(i + 1) * channels],
-                    &mut pdf[i],
-                );
-                let sample = (sample.0, &sample.1[..], sample.2, t_out);
-                commit_sample(st, i, lane, lam, sample, evaluated_next, out);
             }
         })
     }
