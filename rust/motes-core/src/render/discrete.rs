@@ -3074,7 +3074,12 @@ impl DiscreteMedium {
                         Box::new(PhaseLanes::new(channels, view))
                     };
                     let side = st.phase.get_or_insert_with(first);
-                    if self.fill_phase_lane(&e, lane, wv.lam, wv.ls, side, m) {
+                    // (A sample in a long bucket is taken here, with the event at hand.)
+                    // SAFETY (`is_long`, `sample`): the lanes' tables are this medium's, which live
+                    // as long as it does (its packet state is its own: `with_packet_state`).
+                    if self.fill_phase_lane(&e, lane, wv.lam, wv.ls, side, m)
+                        && !unsafe { side.is_long(m) }
+                    {
                         (slot_lane[m], w_ins[i]) = (i, w_in);
                         m += 1;
                         continue;
@@ -3087,7 +3092,8 @@ impl DiscreteMedium {
                 // Out of the state while its lanes are committed to it (given back below).
                 let mut side = st.phase.take().expect("filled above");
                 (side.n, side.channels) = (m, channels);
-                side.sample(false);
+                // SAFETY: as for `is_long` above.
+                unsafe { side.sample(false) };
                 for (k, &i) in slot_lane.iter().enumerate().take(m) {
                     let lane = lanes[i].as_ref().expect("an active lane");
                     let lam = lane_wavelengths(lambda, channels, i);
@@ -3108,7 +3114,7 @@ impl DiscreteMedium {
                         continue;
                     }
                     let one = if side.long[k] != 0 {
-                        // A bucket of many nodes (the phase function's flat back): searched here.
+                        // (Not reached: `is_long` kept such lanes back. Kept as the safe answer.)
                         let wv = waves.lane(i);
                         let wv = wv.get();
                         let events = LaneEvents {
@@ -3186,8 +3192,9 @@ mod tests {
     /// has it and in the scalar lane loop everywhere, give every lane exactly what one lane at a time
     /// gives (`event_phase_sample`): direction, weights, pdf and the throughput after the bounce, bit
     /// for bit. Packets of 1 to 16 lanes, one to three channels, known and unknown throughputs, draws
-    /// at the ends of [0, 1), samples in long directory buckets (left to the caller) and in short
-    /// ones, and an albedo scaled to 0 (every sample null).
+    /// at the ends of [0, 1), samples in long directory buckets (left to the caller, and foretold by
+    /// `is_long`) and in short ones, events with and without their own albedo, slots left over from
+    /// the previous packet, and an albedo scaled to 0 (every sample null).
     #[test]
     fn phase_lanes_match_one_lane_at_a_time() {
         let m = medium(400);
@@ -3198,10 +3205,10 @@ mod tests {
             m.set_albedo_scale(scale).unwrap();
             for lam in [vec![500.0, 600.0], vec![600.0, 500.0, 500.0], vec![500.0]] {
                 let ls = m.brackets(&lam);
+                let first = m.bins[0].phase[ls[0].0].sampling_view();
+                let mut side = PhaseLanes::new(lam.len(), first);
                 for round in 0..60 {
                     let n = 1 + round % PACKET_LANES;
-                    let first = m.bins[0].phase[ls[0].0].sampling_view();
-                    let mut side = PhaseLanes::new(lam.len(), first);
                     let mut lanes = Vec::new();
                     for k in 0..n {
                         let mut site = Site::default();
@@ -3211,13 +3218,18 @@ mod tests {
                         } else {
                             normalised_throughput((0..lam.len()).map(|_| r()))
                         };
-                        let e = Event {
+                        let mut e = Event {
                             site,
                             t_in,
                             t_out: t_in,
                             depth: 1,
                             ..NO_EVENT
                         };
+                        if k % 3 == 1 {
+                            // The event's own albedo (remembered at these wavelengths).
+                            e.albedo = [0.9, 0.7, 0.5, 0.3];
+                            e.albedo_nm = lam[0] as f32;
+                        }
                         let w_in = normalise([r() - 0.5, r() - 0.5, r() - 0.5]).unwrap();
                         let edge = |x: f64| match k % 5 {
                             0 => 0.0,
@@ -3236,10 +3248,13 @@ mod tests {
                     (side.n, side.channels) = (n, lam.len());
                     for force_scalar in [true, false] {
                         let mut got = side;
-                        got.sample(force_scalar);
+                        // SAFETY: the tables are `m`'s, alive throughout.
+                        unsafe { got.sample(force_scalar) };
                         for (k, (e, w_in, lane)) in lanes.iter().enumerate() {
                             let (want, t_want) =
                                 m.event_phase_sample(e, *w_in, lane, &lam, &ls, true);
+                            // SAFETY: as above.
+                            assert_eq!(got.long[k] != 0, unsafe { side.is_long(k) }, "lane {k}");
                             if got.long[k] != 0 {
                                 long += 1;
                                 continue;
@@ -3250,11 +3265,15 @@ mod tests {
                                 continue;
                             }
                             let at = format!("{lam:?} lane {k} of {n}, scalar {force_scalar}");
-                            assert_eq!(got.pdf[k], want.2, "{at}");
-                            assert_eq!(deflect(*w_in, got.mu[k], lane.u2[1]), want.0, "{at}");
+                            let bits = |v: [f64; 3]| v.map(f64::to_bits);
+                            assert_eq!(got.pdf[k].to_bits(), want.2.to_bits(), "{at}");
+                            let dir = deflect(*w_in, got.mu[k], lane.u2[1]);
+                            assert_eq!(bits(dir), bits(want.0), "{at}");
                             for c in 0..lam.len() {
-                                assert_eq!(got.weight[c][k], want.1[c], "{at}: channel {c}");
-                                assert_eq!(got.t_out[c][k] as f32, t_want.unwrap()[c], "{at}");
+                                let w = (got.weight[c][k].to_bits(), want.1[c].to_bits());
+                                assert_eq!(w.0, w.1, "{at}: channel {c}");
+                                let t = (got.t_out[c][k] as f32).to_bits();
+                                assert_eq!(t, t_want.unwrap()[c].to_bits(), "{at}");
                             }
                         }
                     }

@@ -100,13 +100,19 @@ impl PhaseLanes {
     }
 
     /// Sample lanes `0..n` (`force_scalar`: the lane loop in scalar code, for tests).
-    pub fn sample(&mut self, force_scalar: bool) {
+    ///
+    /// # Safety
+    /// Every lane's tables (all `LANES` lanes and `CHANNELS` channels, used or not) are alive: set by
+    /// [`Self::new`] and [`Self::set_table`] from tables that outlive this call, each lane's channels
+    /// on the same nodes (the one `last` per lane).
+    pub unsafe fn sample(&mut self, force_scalar: bool) {
         #[cfg(target_arch = "x86_64")]
         if !force_scalar && Self::available() {
-            // SAFETY: the CPU has AVX-512 F/DQ/VL (`lockstep_simd`); every lane's tables are valid.
+            // SAFETY: the CPU has AVX-512 F/DQ/VL (`lockstep_simd`); the tables: the caller's.
             return unsafe { self.sample_avx512() };
         }
-        self.sample_with();
+        // SAFETY: the caller's.
+        unsafe { self.sample_with() };
     }
 
     /// [`Self::sample_with`] in AVX-512, eight lanes a vector: the same operations in the same order
@@ -191,7 +197,9 @@ impl PhaseLanes {
                 | _mm512_cmpgt_epu64_mask(
                     _mm512_sub_epi64(b, a),
                     _mm512_set1_epi64(SEARCH_SPAN as i64),
-                );
+                )
+                | _mm512_cmp_pd_mask::<_CMP_UNORD_Q>(f!(self.u1), f!(self.u1))
+                | _mm512_cmp_pd_mask::<_CMP_UNORD_Q>(f!(self.u2), f!(self.u2));
             let seg = _mm512_min_epu64(
                 _mm512_add_epi64(_mm512_min_epu64(a, last), count),
                 _mm512_sub_epi64(last, ione),
@@ -289,11 +297,41 @@ impl PhaseLanes {
         }
     }
 
+    /// Whether slot `k`'s sample will be searched in a long bucket (or its draws are not numbers), so
+    /// that the caller samples it on its own at once: the channel and the bucket's range as
+    /// [`Self::sample_with`] finds them.
+    ///
+    /// # Safety
+    /// As [`Self::sample`], for slot `k`.
+    pub unsafe fn is_long(&self, k: usize) -> bool {
+        if self.u1[k].is_nan() || self.u2[k].is_nan() {
+            return true;
+        }
+        let n_ch = self.channels.clamp(1, CHANNELS);
+        let u = self.u1[k].clamp(0.0, 1.0 - f64::EPSILON);
+        let (mut acc, mut below) = (0.0, 0usize);
+        for c in 0..CHANNELS {
+            acc += self.pi[c][k];
+            below += ((acc <= u) & (c < n_ch)) as usize;
+        }
+        let c = below.min(n_ch - 1);
+        let bucket =
+            ((self.u2[k].clamp(0.0, 1.0) * CDF_BUCKETS as f64) as usize).min(CDF_BUCKETS - 1);
+        // SAFETY: the caller's; the directory has CDF_BUCKETS entries.
+        let ab = unsafe { self.ranges[c][k].add(bucket).read_unaligned() };
+        let (a, b) = (ab & 0xFFFF_FFFF, ab >> 32);
+        b < a || b - a > SEARCH_SPAN as u64
+    }
+
     /// The loop over the lanes. Every read is in bounds for every lane: the bucket is clamped to the
-    /// directory, the counted nodes to the last node, the segment to the last but one.
+    /// directory, the counted nodes to the last node, the segment to the last but one. A lane whose
+    /// draws are not numbers is `long` (the one-lane path decides what they give).
+    ///
+    /// # Safety
+    /// As [`Self::sample`].
     #[inline(always)]
     #[allow(clippy::needless_range_loop)] // lane by lane, channel by channel: the SIMD layout
-    fn sample_with(&mut self) {
+    unsafe fn sample_with(&mut self) {
         let n_ch = self.channels.clamp(1, CHANNELS) as u64;
         for i in 0..LANES {
             // The channel (`discrete::pick_channel`): those whose interval ends at or below u.
@@ -323,11 +361,10 @@ impl PhaseLanes {
             let last = self.last[i];
             // The table's inverse CDF (`PhaseTable::sample_located`).
             let v = self.u2[i].clamp(0.0, 1.0);
-            // `cdf_bucket`, converted unchecked (v ∈ [0, 1]: a saturating cast is not vectorised).
-            let bucket = unsafe { (v * CDF_BUCKETS as f64).to_int_unchecked::<u64>() }
-                .min(CDF_BUCKETS as u64 - 1);
+            let bucket = ((v * CDF_BUCKETS as f64) as u64).min(CDF_BUCKETS as u64 - 1);
             // SAFETY (reads): bucket < CDF_BUCKETS, the directory's length; nodes up to `last`.
-            let ab = unsafe { *ranges.add(bucket as usize) };
+            // (A directory entry is two u32: 4-byte aligned.)
+            let ab = unsafe { ranges.add(bucket as usize).read_unaligned() };
             let (a, b) = (ab & 0xFFFF_FFFF, ab >> 32);
             let node = |at: *const f64, k: u64, field: u64| unsafe {
                 *at.add((3 * k.min(last) + field) as usize)
@@ -336,7 +373,10 @@ impl PhaseLanes {
             for j in 1..=SEARCH_SPAN as u64 {
                 count += ((a + j <= b) & (node(nodes, a + j, 0) <= v)) as u64;
             }
-            let long = (b < a) | (b.wrapping_sub(a) > SEARCH_SPAN as u64);
+            let long = (b < a)
+                | (b.wrapping_sub(a) > SEARCH_SPAN as u64)
+                | self.u1[i].is_nan()
+                | self.u2[i].is_nan();
             let seg = (a.min(last) + count).min(last - 1);
             let (c0, m0, f0) = (
                 node(nodes, seg, 0),
