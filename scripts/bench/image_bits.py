@@ -1,0 +1,69 @@
+"""Bitwise A/B of two builds' images: render a few shipped scenes (small, fixed seed) into an .npz, then
+compare two such files pixel for pixel. The check behind "images bitwise unchanged" in BENCHMARKS.md:
+
+    PYTHONPATH=/tmp/basepkg .venv/bin/python scripts/bench/image_bits.py render llvm_ad_rgb /tmp/base.npz
+    .venv/bin/python scripts/bench/image_bits.py render llvm_ad_rgb /tmp/new.npz
+    .venv/bin/python scripts/bench/image_bits.py compare /tmp/base.npz /tmp/new.npz
+
+(`pip install --no-deps --target /tmp/basepkg <checkout of the other commit>` installs the other build.)
+Two renders of one build can differ in the last bits on a few per cent of pixels (the film's accumulation
+order): render twice before reading a difference as the build's.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+#: (name, scene file, overrides): the default Cornell box, the densest one, the staircase, the dust box.
+SCENES = (
+    ("cornell_dense", "cornell", {"count": "1000000", "radius": "2000"}),
+    ("cornell", "cornell", {}),
+    ("staircase", "staircase", {}),
+    ("dust_box", "dust_box", {}),
+)
+
+
+def render(variant: str, out: str) -> None:
+    import motes  # noqa: PLC0415
+
+    motes.set_variant(variant)
+    import mitsuba as mi  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    images = {}
+    for name, scene, overrides in SCENES:
+        xml = Path(motes.__file__).parent / "scenes" / f"{scene}.xml"
+        sc = mi.load_file(str(xml), res="48", spp="8", **overrides)
+        images[name] = np.asarray(mi.render(sc, spp=8, seed=3))
+    np.savez(out, **images)
+    print(f"{motes.__file__}: wrote {out}")
+
+
+def compare(a_file: str, b_file: str) -> int:
+    import numpy as np  # noqa: PLC0415
+
+    a, b = np.load(a_file), np.load(b_file)
+    differ = 0
+    for k in a.files:
+        x, y = a[k], b[k]
+        d = np.abs(x - y)
+        rel = d / np.maximum(np.abs(x), 1e-12)
+        same = bool(np.array_equal(x, y))
+        differ += not same
+        print(f"{k}: identical={same} max_rel={rel.max():.3g} pixels_differing={np.mean(d > 0):.4f} "
+              f"means {x.mean():.6g} {y.mean():.6g}")
+    return differ
+
+
+def main() -> None:
+    if len(sys.argv) == 4 and sys.argv[1] == "render":
+        render(sys.argv[2], sys.argv[3])
+    elif len(sys.argv) == 4 and sys.argv[1] == "compare":
+        sys.exit(1 if compare(sys.argv[2], sys.argv[3]) else 0)
+    else:
+        sys.exit(__doc__)
+
+
+if __name__ == "__main__":
+    main()
