@@ -3197,12 +3197,15 @@ mod tests {
     /// the previous packet, and an albedo scaled to 0 (every sample null).
     #[test]
     fn phase_lanes_match_one_lane_at_a_time() {
-        let m = medium(400);
         let mut s = 11u64;
         let mut r = || crate::test_rng::lcg(&mut s);
         let (mut long, mut short) = (0, 0);
-        for scale in [1.0, 0.0] {
-            m.set_albedo_scale(scale).unwrap();
+        // The albedo scaled to 0 (every sample null), and one bin black at 500 nm (that channel neither
+        // picked nor valued there).
+        let media = [(medium(400), 1.0), (medium(400), 0.0)];
+        let black = (medium_with_albedo(400, f64::INFINITY, [0.0, 0.7]), 1.0);
+        for (m, scale) in media.iter().chain([&black]) {
+            m.set_albedo_scale(*scale).unwrap();
             for lam in [vec![500.0, 600.0], vec![600.0, 500.0, 500.0], vec![500.0]] {
                 let ls = m.brackets(&lam);
                 let first = m.bins[0].phase[ls[0].0].sampling_view();
@@ -3280,7 +3283,6 @@ mod tests {
                 }
             }
         }
-        m.set_albedo_scale(1.0).unwrap();
         assert!(long > 100 && short > 1000, "long {long}, short {short}");
     }
 
@@ -3370,6 +3372,11 @@ mod tests {
     /// The test medium with a `continuous_count` (1: its one size class, 1.7 particles per cylinder,
     /// is continuous).
     fn medium_with(n: usize, continuous_count: f64) -> DiscreteMedium {
+        medium_with_albedo(n, continuous_count, [0.5, 0.7])
+    }
+
+    /// [`medium_with`], its second bin's albedo at 500 and 600 nm given.
+    fn medium_with_albedo(n: usize, continuous_count: f64, albedo: [f64; 2]) -> DiscreteMedium {
         let mut s = 3u64;
         let mut r = || crate::test_rng::lcg(&mut s);
         let pos: Vec<[f64; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
@@ -3381,7 +3388,7 @@ mod tests {
                 phase: vec![table(0.3), table(0.5)],
             },
             BinOptics {
-                albedo: vec![0.5, 0.7],
+                albedo: albedo.to_vec(),
                 phase: vec![table(-0.2), table(0.8)],
             },
         ];
