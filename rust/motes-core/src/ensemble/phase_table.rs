@@ -144,7 +144,7 @@ fn fraction(x: f64, width: f64) -> f64 {
 
 /// Bucket of a CDF value in the sampling directory.
 #[inline]
-pub(crate) fn cdf_bucket(u: f64) -> usize {
+fn cdf_bucket(u: f64) -> usize {
     ((u.max(0.0) * CDF_BUCKETS as f64) as usize).min(CDF_BUCKETS - 1)
 }
 

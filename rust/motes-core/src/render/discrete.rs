@@ -406,12 +406,21 @@ fn key(p: [f32; 3]) -> [u32; 3] {
 /// The site of an interaction in a continuous field: one particle of the hit cell, picked ∝ its
 /// extinction by the free flight's own stream.
 fn field_site(f: &ContinuousField, hit: FieldHit, u: f64) -> Option<Site> {
-    let mut s = Site {
-        t: hit.t,
-        ..Site::default()
-    };
-    s.push(f.pick(hit.cell, uniform(u.to_bits(), FIELD_STREAM, 1))?);
-    Some(s)
+    let mut site = None;
+    field_site_into(&mut site, f, hit, u);
+    site
+}
+
+/// [`field_site`] written field by field into `slot` (a packet lane's: a site built on the stack and
+/// moved there was read back in wider words than it was written in).
+#[inline(always)]
+fn field_site_into(slot: &mut Option<Site>, f: &ContinuousField, hit: FieldHit, u: f64) {
+    *slot = None;
+    if let Some(j) = f.pick(hit.cell, uniform(u.to_bits(), FIELD_STREAM, 1)) {
+        let s = slot.insert(Site::default());
+        s.t = hit.t;
+        s.push(j);
+    }
 }
 
 /// A free flight through a continuous field alone: the site and the optical depth walked before it
@@ -592,7 +601,7 @@ enum Plan<'a> {
     Deferred(&'a ContinuousField),
 }
 
-/// A packet's lanes whose free flights go through one continuous field alone ([`Plan::Field`]), flown
+/// A packet's lanes whose free flights go through one continuous field alone ([`Plan::Deferred`]), flown
 /// together by [`ContinuousField::sample_free_flights`]. Kept in the thread's [`PacketState`] (1.5 kB:
 /// made afresh on the stack, or boxed, per packet it cost what it saved in scalar_rgb and llvm_ad_rgb).
 struct FieldLanes {
@@ -621,12 +630,12 @@ impl Default for FieldLanes {
 }
 
 impl FieldLanes {
-    /// Add lane `i`'s flight (the caller checks that it goes through the same field as the others).
     /// Whether lanes through `f` can join (the packet's other field lanes fly through it too).
     fn accepts(&self, f: &ContinuousField) -> bool {
         self.field == 0 || self.field == f as *const ContinuousField as usize
     }
 
+    /// Add lane `i`'s flight (the caller checks that the lanes accept its field).
     fn push(&mut self, i: usize, ray: RaySegment, u: f64, parent: Parent) {
         let k = self.n.min(PACKET_LANES - 1);
         (self.lane[k], self.rays[k], self.keys[k]) = (i, ray, field_key(u));
@@ -639,16 +648,10 @@ impl FieldLanes {
         let mut hits = [None; PACKET_LANES];
         f.sample_free_flights(&self.rays[..self.n], &self.keys[..self.n], &mut hits);
         for (k, hit) in hits.iter().enumerate().take(self.n) {
-            // Field by field where the lane keeps it (a site built on the stack and moved there was
-            // read back in wider words than it was written in).
             let lane = &mut pending[self.lane[k]];
             (lane.parent, lane.at, lane.site) = (self.parent[k], [0.0; 3], None);
             if let Some(h) = hit {
-                if let Some(j) = f.pick(h.cell, uniform(self.u[k].to_bits(), FIELD_STREAM, 1)) {
-                    let s = lane.site.insert(Site::default());
-                    s.t = h.t;
-                    s.push(j);
-                }
+                field_site_into(&mut lane.site, f, *h, self.u[k]);
             }
         }
     }
@@ -2238,14 +2241,21 @@ impl DiscreteMedium {
         ls: &[(usize, usize, f64)],
         scattered: bool,
     ) -> (Sample, Option<[f32; MAX_CHANNELS]>) {
-        let channels = lam.len();
-        let Some(w_in) = normalise(lane.wi.map(|x| -(x as f64))) else {
-            return (null_sample(channels), None);
-        };
-        let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
-            return (null_sample(channels), None);
-        };
-        self.event_phase_sample(&e, w_in, lane, lam, ls, scattered)
+        match self.sample_event(events, lane) {
+            Some((w_in, e)) => self.event_phase_sample(&e, w_in, lane, lam, ls, scattered),
+            None => (null_sample(lam.len()), None),
+        }
+    }
+
+    /// A phase sample's incident direction (the path's, reversed back) and its event (None: no
+    /// direction, or no event there).
+    fn sample_event<'e>(
+        &self,
+        events: &'e impl Events,
+        lane: &PhaseSampleLane,
+    ) -> Option<([f64; 3], std::borrow::Cow<'e, Event>)> {
+        let w_in = normalise(lane.wi.map(|x| -(x as f64)))?;
+        Some((w_in, self.event_or_geometry(events, lane.p, w_in)?))
     }
 
     /// [`Self::lane_phase_sample`] at the lane's event `e`, the path arriving along `w_in`.
@@ -3054,16 +3064,11 @@ impl DiscreteMedium {
                     &mut weight[i * channels..(i + 1) * channels],
                     &mut pdf[i],
                 );
-                let Some(w_in) = normalise(lane.wi.map(|x| -(x as f64))) else {
-                    let null = (null_sample(wv.lam.len()), None);
-                    commit_lane(st, i, lane, wv.lam, null, evaluated_next, out);
-                    continue;
-                };
                 let events = LaneEvents {
                     recent: &st.recent[i],
                     map: &st.events,
                 };
-                let Some(e) = self.event_or_geometry(&events, lane.p, w_in) else {
+                let Some((w_in, e)) = self.sample_event(&events, lane) else {
                     let null = (null_sample(wv.lam.len()), None);
                     commit_lane(st, i, lane, wv.lam, null, evaluated_next, out);
                     continue;

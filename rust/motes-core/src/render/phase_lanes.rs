@@ -4,15 +4,16 @@
 //! the channels' wavelengths share their nodes, and an RGB render asks at exactly the tabulated
 //! wavelengths. For those lanes the whole sample, from the channel choice through the table's inverse
 //! CDF to the weights and the throughput after the bounce, is the same arithmetic on per-lane data:
-//! here it runs as one straight-line loop over the packet's lanes (no call, no early exit), which the
-//! compiler turns into SIMD code with gathers where the CPU has AVX-512 (`ContinuousField`'s lockstep
-//! flights do the same). One lane at a time the sample was a chain of dependent loads, a square root
-//! and four divisions per lane; side by side, 15 % of a dense Cornell box's render.
+//! here it runs eight lanes a vector in AVX-512 intrinsics, the tables read by gathers at each lane's
+//! own addresses (the compiler did not vectorise the same loop written lane by lane, which stays as
+//! the reference the tests hold the SIMD to). One lane at a time the sample was a chain of dependent
+//! loads, a square root and four divisions per lane: 15 % of a dense Cornell box's render.
 //!
 //! Each lane computes exactly what `DiscreteMedium::mixture_sample` and the weights after it compute
 //! for the same inputs, bit for bit (the same operations in the same order; no fused multiply-add).
 //! Lanes whose sample falls in a directory bucket of more than [`SEARCH_SPAN`] nodes (the phase
-//! function's flat back half) are marked `long` and sampled one by one by the caller. The direction
+//! function's flat back half) are foretold by [`PhaseLanes::is_long`] and sampled one by one by the
+//! caller. The direction
 //! itself (a sine and cosine in single precision) stays with the caller.
 
 use crate::ensemble::phase_table::{SamplingView, CDF_BUCKETS};
@@ -26,8 +27,8 @@ pub(crate) const CHANNELS: usize = 4;
 /// too, and binary-searches longer buckets).
 const SEARCH_SPAN: usize = 8;
 
-/// The lanes' inputs and results, one array per quantity (structure of arrays; every column 64-bit,
-/// addresses as integers: so the loop over the lanes vectorises). Lanes `n..LANES` and channels
+/// The lanes' inputs and results, one array per quantity (structure of arrays, every column 64-bit:
+/// a vector load per column). Lanes `n..LANES` and channels
 /// `channels..CHANNELS` must hold valid tables too (copies of a used one): the loop reads every
 /// lane's tables.
 #[derive(Clone, Copy)]
@@ -307,6 +308,13 @@ impl PhaseLanes {
         if self.u1[k].is_nan() || self.u2[k].is_nan() {
             return true;
         }
+        // SAFETY: the caller's.
+        let (a, b) = unsafe { self.bucket_range(self.channel(k), k) };
+        b < a || b - a > SEARCH_SPAN as u64
+    }
+
+    /// Slot `k`'s channel (`discrete::pick_channel`): those whose interval ends at or below u.
+    fn channel(&self, k: usize) -> usize {
         let n_ch = self.channels.clamp(1, CHANNELS);
         let u = self.u1[k].clamp(0.0, 1.0 - f64::EPSILON);
         let (mut acc, mut below) = (0.0, 0usize);
@@ -314,58 +322,39 @@ impl PhaseLanes {
             acc += self.pi[c][k];
             below += ((acc <= u) & (c < n_ch)) as usize;
         }
-        let c = below.min(n_ch - 1);
-        let bucket =
-            ((self.u2[k].clamp(0.0, 1.0) * CDF_BUCKETS as f64) as usize).min(CDF_BUCKETS - 1);
-        // SAFETY: the caller's; the directory has CDF_BUCKETS entries.
-        let ab = unsafe { self.ranges[c][k].add(bucket).read_unaligned() };
-        let (a, b) = (ab & 0xFFFF_FFFF, ab >> 32);
-        b < a || b - a > SEARCH_SPAN as u64
+        below.min(n_ch - 1)
     }
 
-    /// The loop over the lanes. Every read is in bounds for every lane: the bucket is clamped to the
-    /// directory, the counted nodes to the last node, the segment to the last but one. A lane whose
-    /// draws are not numbers is `long` (the one-lane path decides what they give).
+    /// The first and last segment of the directory bucket of slot `k`'s draw for μ in channel `c`'s
+    /// table (`PhaseTable::sample_located`).
+    ///
+    /// # Safety
+    /// As [`Self::sample`], for slot `k`.
+    unsafe fn bucket_range(&self, c: usize, k: usize) -> (u64, u64) {
+        let v = self.u2[k].clamp(0.0, 1.0);
+        let bucket = ((v * CDF_BUCKETS as f64) as usize).min(CDF_BUCKETS - 1);
+        // SAFETY: the caller's; the directory has CDF_BUCKETS entries of two u32 (4-byte aligned).
+        let ab = unsafe { self.ranges[c][k].add(bucket).read_unaligned() };
+        (ab & 0xFFFF_FFFF, ab >> 32)
+    }
+
+    /// The loop over the lanes, one at a time: what [`Self::sample_avx512`] does eight lanes a vector
+    /// (the reference the tests hold it to; no caller samples this way). Every read is in bounds for
+    /// every lane: the bucket is clamped to the directory, the counted nodes to the last node, the
+    /// segment to the last but one. A lane whose draws are not numbers is `long` (the one-lane path
+    /// decides what they give).
     ///
     /// # Safety
     /// As [`Self::sample`].
-    #[inline(always)]
     #[allow(clippy::needless_range_loop)] // lane by lane, channel by channel: the SIMD layout
     unsafe fn sample_with(&mut self) {
         let n_ch = self.channels.clamp(1, CHANNELS) as u64;
         for i in 0..LANES {
-            // The channel (`discrete::pick_channel`): those whose interval ends at or below u.
-            let u = self.u1[i].clamp(0.0, 1.0 - f64::EPSILON);
-            let mut acc = 0.0;
-            let mut below = 0u64;
-            for c in 0..CHANNELS {
-                acc += self.pi[c][i];
-                below += ((acc <= u) & ((c as u64) < n_ch)) as u64;
-            }
-            let c = below.min(n_ch - 1);
-            fn of<T: Copy>(col: &[[T; LANES]; CHANNELS], c: u64, i: usize) -> T {
-                let (x0, x1, x2, x3) = (col[0][i], col[1][i], col[2][i], col[3][i]);
-                let x01 = if c == 0 { x0 } else { x1 };
-                let x23 = if c == 2 { x2 } else { x3 };
-                if c < 2 {
-                    x01
-                } else {
-                    x23
-                }
-            }
-            let (pickable, nodes, ranges) = (
-                of(&self.pickable, c, i),
-                of(&self.nodes, c, i),
-                of(&self.ranges, c, i),
-            );
-            let last = self.last[i];
-            // The table's inverse CDF (`PhaseTable::sample_located`).
+            let c = self.channel(i);
+            let (pickable, nodes, last) = (self.pickable[c][i], self.nodes[c][i], self.last[i]);
             let v = self.u2[i].clamp(0.0, 1.0);
-            let bucket = ((v * CDF_BUCKETS as f64) as u64).min(CDF_BUCKETS as u64 - 1);
-            // SAFETY (reads): bucket < CDF_BUCKETS, the directory's length; nodes up to `last`.
-            // (A directory entry is two u32: 4-byte aligned.)
-            let ab = unsafe { ranges.add(bucket as usize).read_unaligned() };
-            let (a, b) = (ab & 0xFFFF_FFFF, ab >> 32);
+            // SAFETY (reads): the caller's; nodes up to `last`.
+            let (a, b) = unsafe { self.bucket_range(c, i) };
             let node = |at: *const f64, k: u64, field: u64| unsafe {
                 *at.add((3 * k.min(last) + field) as usize)
             };

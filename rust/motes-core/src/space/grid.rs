@@ -2168,8 +2168,8 @@ impl GridSettings {
 /// Cell edge in mean free paths where [`GridSettings::free_path_cells`] sizes the cells by it. A free
 /// flight ends about one mean free path into the cloud; a centre-cell walk scans the cells around
 /// the ray's, so cells much wider than that path test grains far beyond the interaction, and much
-/// narrower ones cost DDA steps. Measured on dense Cornell boxes (llvm_ad_rgb, 96 px, 16 spp; BENCHMARKS
-/// 25, session 12).
+/// narrower ones cost DDA steps. Chosen by sweeps of 0.75–3 on dense Cornell boxes with a temporary
+/// switch (a few per cent on grains of 4 mm, noise on 2 mm; BENCHMARKS 25, session 12).
 pub const FREE_PATHS_PER_CELL: f64 = 1.5;
 /// The finest cells [`GridSettings::free_path_cells`] makes, in cells per particle (four particles a
 /// cell: the cell index then costs a byte per particle).
