@@ -57,6 +57,7 @@
 use crate::error::{require, require_len, OpticsError};
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
 use crate::space::ray::RaySegment;
+use crate::space::ray_lanes::RayLanes;
 use rayon::prelude::*;
 
 /// A per-particle value, by the caller's particle index: a column need not exist as an array (10^8
@@ -742,6 +743,7 @@ pub struct SubGrid {
 
 /// Rays a beam walks together at most ([`ParticleGrid::sample_sites_beam`]: a packet's lanes).
 pub const BEAM_RAYS: usize = 16;
+const _: () = assert!(BEAM_RAYS == crate::space::ray_lanes::RAYS);
 
 /// Rays make a beam while they stay within this many R_max of their representative ray (δ): wider,
 /// the blocks within R_max + δ of it hold few particles near any one ray, and every ray pre-tests them.
@@ -2701,6 +2703,14 @@ impl ParticleGrid {
             true
         };
         let slots = c.slots();
+        // Each candidate particle against every ray at once where the CPU can (`RayLanes`), else
+        // each ray's own pre-test and exact test, block by block.
+        let side_by_side = WIDE && RayLanes::available();
+        let lanes_of_rays = RayLanes::new(probes.iter().map(|p| p.as_ref().map(|p| &p.ray)));
+        let mut alive = (0..n).fold(0u32, |m, i| {
+            m | ((probes[i].is_some() && flights[i].is_some()) as u32) << i
+        });
+        let mut ts = [0.0; BEAM_RAYS];
         let mut rows = [Segment::default(); ROWS_PER_STEP];
         let mut dda = Dda::new(&beam.cells, &beam.rep.ray);
         let mut prev: Option<[i64; 3]> = None;
@@ -2728,7 +2738,7 @@ impl ParticleGrid {
                 // Where each ray's pre-test reads the row's slots from (its lattice offsets; the
                 // rest of the segment is the row's).
                 let mut offs = [[0.0f32; 2]; BEAM_RAYS];
-                if c.quant.is_some() {
+                if c.quant.is_some() && !side_by_side {
                     for i in 0..n {
                         if let (Some(probe), Some(_)) = (&probes[i], &flights[i]) {
                             offs[i] = probe.offsets(sg.cell);
@@ -2744,6 +2754,23 @@ impl ParticleGrid {
                     // pre-test for all rays, most blocks of a dense cloud none.
                     let candidates = lanes & c.pretest::<WIDE>(slots, blk, sg, rep);
                     if candidates == 0 {
+                        continue;
+                    }
+                    if side_by_side {
+                        // (A row's contributions count anywhere on a ray's segment: `near_rows`.)
+                        debug_assert!(sg.t_enter == f64::NEG_INFINITY && sg.t_exit == f64::INFINITY);
+                        let mut m = candidates;
+                        while m != 0 {
+                            let s = base + m.trailing_zeros() as usize;
+                            m &= m - 1;
+                            let ball = c.slot_ball(s, sg.cell);
+                            let mut hit = lanes_of_rays.contributions(ball, alive, &mut ts, false);
+                            while hit != 0 {
+                                let i = hit.trailing_zeros() as usize;
+                                hit &= hit - 1;
+                                pending[i].push((ts[i], s as u32));
+                            }
+                        }
                         continue;
                     }
                     for i in 0..n {
@@ -2772,6 +2799,7 @@ impl ParticleGrid {
                 };
                 if !emit(upto, &mut pending[i], f) {
                     out[i] = flights[i].take().map_or((None, 0.0), Flight::finish);
+                    alive &= !(1 << i);
                     flying -= 1;
                 }
             }

@@ -6,6 +6,7 @@
 //!   grid (Amanatides & Woo).
 //! * [`grid`]: a uniform grid over particle centres; optical depth along a query cylinder (Eq. 18),
 //!   the local density in a query sphere (Eq. 24) and exact free flights (Sec. 5.2–5.3).
+//! * `ray_lanes`: a beam's rays tested against one particle side by side (AVX-512).
 //! * [`motion`]: moving generated grains: a uniform velocity plus a divergence-free turbulent drift.
 
 pub mod cloud;
@@ -13,4 +14,5 @@ pub mod dda;
 pub mod grid;
 pub mod motion;
 pub mod ray;
+pub(crate) mod ray_lanes;
 pub mod vec3;
