@@ -126,8 +126,10 @@ const SEGMENTS_PER_BATCH: usize = 36;
 /// DDA steps of a walk's first batch (`SubGrid::advance` and its cached variants): each batch after it
 /// twice as many, up to [`SEGMENTS_PER_BATCH`] (and the rows a prefetched batch holds). A free flight that stops after a
 /// few cells (in a dense cloud, most) then walks few past its site, while a long walk still sorts its
-/// hits once per large batch.
-const FIRST_CACHED_BATCH: usize = 4;
+/// hits once per large batch. Two, not four: a ray from a wall into a cloud whose cells hold about
+/// a free path finds its site in the first step or two (the dense Cornell box, 10^6 x 2 mm, 1.2 %
+/// faster; the default box 1.4 %; the sparse dust box unchanged; one step was no faster than two).
+const FIRST_CACHED_BATCH: usize = 2;
 thread_local! {
     /// The buffer of `ParticleGrid::walk_lanes`'s pending hits between walks on this thread.
     static WALK_PENDING: std::cell::Cell<Vec<(f64, u32, u32)>> = const { std::cell::Cell::new(Vec::new()) };
