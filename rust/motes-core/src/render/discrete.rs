@@ -3114,12 +3114,8 @@ impl DiscreteMedium {
                         Box::new(PhaseLanes::new(channels, view))
                     };
                     let side = st.phase.get_or_insert_with(first);
-                    // (A sample in a long bucket is taken here, with the event at hand.)
-                    // SAFETY (`is_long`, `sample`): the lanes' tables are this medium's, which live
-                    // as long as it does (its packet state is its own: `with_packet_state`).
-                    if self.fill_phase_lane(&e, lane, wv.lam, wv.ls, side, m)
-                        && !unsafe { side.is_long(m) }
-                    {
+                    // (A sample whose draws are not numbers is taken here, with the event at hand.)
+                    if self.fill_phase_lane(&e, lane, wv.lam, wv.ls, side, m) && !side.is_alone(m) {
                         (slot_lane[m], w_ins[i]) = (i, w_in);
                         m += 1;
                         continue;
@@ -3132,7 +3128,8 @@ impl DiscreteMedium {
                 // Out of the state while its lanes are committed to it (given back below).
                 let mut side = st.phase.take().expect("filled above");
                 (side.n, side.channels) = (m, channels);
-                // SAFETY: as for `is_long` above.
+                // SAFETY: the lanes' tables are this medium's, which live as long as it does (its
+                // packet state is its own: `with_packet_state`).
                 unsafe { side.sample(false) };
                 for (k, &i) in slot_lane.iter().enumerate().take(m) {
                     let lane = lanes[i].as_ref().expect("an active lane");
@@ -3142,7 +3139,7 @@ impl DiscreteMedium {
                         &mut weight[i * channels..(i + 1) * channels],
                         &mut pdf[i],
                     );
-                    if side.ok[k] != 0 && side.long[k] == 0 {
+                    if side.ok[k] != 0 && side.alone[k] == 0 {
                         let mut w = [0.0; MAX_CHANNELS];
                         let mut t = [0.0f32; MAX_CHANNELS];
                         for c in 0..MAX_CHANNELS {
@@ -3153,8 +3150,8 @@ impl DiscreteMedium {
                         commit_sample(st, i, lane, lam, sample, evaluated_next, out);
                         continue;
                     }
-                    let one = if side.long[k] != 0 {
-                        // (Not reached: `is_long` kept such lanes back. Kept as the safe answer.)
+                    let one = if side.alone[k] != 0 {
+                        // (Not reached: `is_alone` kept such lanes back. Kept as the safe answer.)
                         let wv = waves.lane(i);
                         let wv = wv.get();
                         let events = LaneEvents {
@@ -3232,8 +3229,8 @@ mod tests {
     /// has it and in the scalar lane loop everywhere, give every lane exactly what one lane at a time
     /// gives (`event_phase_sample`): direction, weights, pdf and the throughput after the bounce, bit
     /// for bit. Packets of 1 to 16 lanes, one to three channels, known and unknown throughputs, draws
-    /// at the ends of [0, 1), samples in long directory buckets (left to the caller, and foretold by
-    /// `is_long`) and in short ones, events with and without their own albedo, slots left over from
+    /// at the ends of [0, 1), samples in long directory buckets (halved before they are searched) and
+    /// in short ones, events with and without their own albedo, slots left over from
     /// the previous packet, and an albedo scaled to 0 (every sample null).
     #[test]
     fn phase_lanes_match_one_lane_at_a_time() {
@@ -3296,13 +3293,13 @@ mod tests {
                         for (k, (e, w_in, lane)) in lanes.iter().enumerate() {
                             let (want, t_want) =
                                 m.event_phase_sample(e, *w_in, lane, &lam, &ls, true);
+                            assert_eq!(got.alone[k], 0, "lane {k}: its draws are numbers");
                             // SAFETY: as above.
-                            assert_eq!(got.long[k] != 0, unsafe { side.is_long(k) }, "lane {k}");
-                            if got.long[k] != 0 {
+                            if unsafe { side.in_long_bucket(k) } {
                                 long += 1;
-                                continue;
+                            } else {
+                                short += 1;
                             }
-                            short += 1;
                             if got.ok[k] == 0 {
                                 assert!(!(want.2 > 0.0), "{lam:?} lane {k}: null, want {want:?}");
                                 continue;

@@ -11,10 +11,11 @@
 //!
 //! Each lane computes exactly what `DiscreteMedium::mixture_sample` and the weights after it compute
 //! for the same inputs, bit for bit (the same operations in the same order; no fused multiply-add).
-//! Lanes whose sample falls in a directory bucket of more than [`SEARCH_SPAN`] nodes (the phase
-//! function's flat back half) are foretold by [`PhaseLanes::is_long`] and sampled one by one by the
-//! caller. The direction
-//! itself (a sine and cosine in single precision) stays with the caller.
+//! A sample that falls in a directory bucket of more than [`SEARCH_SPAN`] nodes (the phase function's
+//! flat back half) halves the bucket first, a gather per halving, where the one-lane path
+//! binary-searches it: the same segment, the one the draw lies in. Only lanes whose draws are not
+//! numbers ([`PhaseLanes::is_alone`]) are left to the caller. The direction itself (a sine and cosine
+//! in single precision) stays with the caller.
 
 use crate::ensemble::phase_table::{SamplingView, CDF_BUCKETS};
 use std::f64::consts::PI;
@@ -24,7 +25,7 @@ pub(crate) const LANES: usize = 16;
 /// Channels a lane can carry (`crate::render::discrete::MAX_CHANNELS`).
 pub(crate) const CHANNELS: usize = 4;
 /// Nodes of a directory bucket the straight-line search counts (the scalar search counts up to eight
-/// too, and binary-searches longer buckets).
+/// too, and binary-searches longer buckets; here they are halved down to this first).
 const SEARCH_SPAN: usize = 8;
 
 /// The lanes' inputs and results, one array per quantity (structure of arrays, every column 64-bit:
@@ -53,13 +54,13 @@ pub(crate) struct PhaseLanes {
     pub t_in: [[f64; LANES]; CHANNELS],
     pub albedo: [[f64; LANES]; CHANNELS],
     /// Results: μ, the weights (value / pdf times the albedo), the pdf, the throughput after the
-    /// bounce; `ok` 0 for a null sample; `long` 1 for a lane the caller samples on its own.
+    /// bounce; `ok` 0 for a null sample; `alone` 1 for a lane the caller samples on its own.
     pub mu: [f64; LANES],
     pub weight: [[f64; LANES]; CHANNELS],
     pub pdf: [f64; LANES],
     pub t_out: [[f64; LANES]; CHANNELS],
     pub ok: [u64; LANES],
-    pub long: [u64; LANES],
+    pub alone: [u64; LANES],
 }
 
 impl PhaseLanes {
@@ -83,7 +84,7 @@ impl PhaseLanes {
             pdf: [0.0; LANES],
             t_out: [[0.0; LANES]; CHANNELS],
             ok: [0; LANES],
-            long: [0; LANES],
+            alone: [0; LANES],
         }
     }
 
@@ -186,20 +187,33 @@ impl PhaseLanes {
             );
             let a = _mm512_and_si512(ab, _mm512_set1_epi64(0xFFFF_FFFF));
             let b = _mm512_srli_epi64::<32>(ab);
-            let mut count = izero;
-            for j in 1..=SEARCH_SPAN as i64 {
-                let k = _mm512_add_epi64(a, _mm512_set1_epi64(j));
-                let valid = _mm512_cmple_epu64_mask(k, b);
-                let cdf = at!(_mm512_add_epi64(nodes, times24(_mm512_min_epu64(k, last))));
-                let le = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(cdf, v);
+            let cdf_at =
+                |k: __m512i| at!(_mm512_add_epi64(nodes, times24(_mm512_min_epu64(k, last))));
+            // The bucket's nodes a + 1 ..= b: a long bucket halved until at most SEARCH_SPAN are
+            // left (the nodes before `lo` are at or below v, those from lo + len on above it).
+            let mut lo = _mm512_add_epi64(a, ione);
+            let mut len = _mm512_maskz_sub_epi64(_mm512_cmpge_epu64_mask(b, a), b, a);
+            let span = _mm512_set1_epi64(SEARCH_SPAN as i64);
+            loop {
+                let long = _mm512_cmpgt_epu64_mask(len, span);
+                if long == 0 {
+                    break;
+                }
+                let half = _mm512_srli_epi64::<1>(len);
+                let mid = _mm512_add_epi64(lo, half);
+                let le = long & _mm512_cmp_pd_mask::<_CMP_LE_OQ>(cdf_at(mid), v);
+                lo = _mm512_mask_add_epi64(lo, le, mid, ione);
+                len = _mm512_mask_sub_epi64(len, le, len, _mm512_add_epi64(half, ione));
+                len = _mm512_mask_mov_epi64(len, long & !le, half);
+            }
+            let mut count = _mm512_sub_epi64(lo, _mm512_add_epi64(a, ione));
+            for j in 0..SEARCH_SPAN as i64 {
+                let valid = _mm512_cmpgt_epu64_mask(len, _mm512_set1_epi64(j));
+                let k = _mm512_add_epi64(lo, _mm512_set1_epi64(j));
+                let le = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(cdf_at(k), v);
                 count = _mm512_mask_add_epi64(count, valid & le, count, ione);
             }
-            let long = _mm512_cmplt_epu64_mask(b, a)
-                | _mm512_cmpgt_epu64_mask(
-                    _mm512_sub_epi64(b, a),
-                    _mm512_set1_epi64(SEARCH_SPAN as i64),
-                )
-                | _mm512_cmp_pd_mask::<_CMP_UNORD_Q>(f!(self.u1), f!(self.u1))
+            let alone = _mm512_cmp_pd_mask::<_CMP_UNORD_Q>(f!(self.u1), f!(self.u1))
                 | _mm512_cmp_pd_mask::<_CMP_UNORD_Q>(f!(self.u2), f!(self.u2));
             let seg = _mm512_min_epu64(
                 _mm512_add_epi64(_mm512_min_epu64(a, last), count),
@@ -292,22 +306,25 @@ impl PhaseLanes {
                 _mm512_maskz_mov_epi64(ok, ione),
             );
             _mm512_storeu_si512(
-                self.long.as_mut_ptr().add(o).cast(),
-                _mm512_maskz_mov_epi64(long, ione),
+                self.alone.as_mut_ptr().add(o).cast(),
+                _mm512_maskz_mov_epi64(alone, ione),
             );
         }
     }
 
-    /// Whether slot `k`'s sample will be searched in a long bucket (or its draws are not numbers), so
-    /// that the caller samples it on its own at once: the channel and the bucket's range as
-    /// [`Self::sample_with`] finds them.
+    /// Whether slot `k`'s draws are not numbers, so that the caller samples it on its own at once
+    /// (the one-lane path decides what they give).
+    pub fn is_alone(&self, k: usize) -> bool {
+        self.u1[k].is_nan() || self.u2[k].is_nan()
+    }
+
+    /// Whether slot `k`'s draw for μ falls in a directory bucket of more than [`SEARCH_SPAN`] nodes
+    /// (tests: that both kinds are sampled).
     ///
     /// # Safety
     /// As [`Self::sample`], for slot `k`.
-    pub unsafe fn is_long(&self, k: usize) -> bool {
-        if self.u1[k].is_nan() || self.u2[k].is_nan() {
-            return true;
-        }
+    #[cfg(test)]
+    pub unsafe fn in_long_bucket(&self, k: usize) -> bool {
         // SAFETY: the caller's.
         let (a, b) = unsafe { self.bucket_range(self.channel(k), k) };
         b < a || b - a > SEARCH_SPAN as u64
@@ -341,7 +358,7 @@ impl PhaseLanes {
     /// The loop over the lanes, one at a time: what [`Self::sample_avx512`] does eight lanes a vector
     /// (the reference the tests hold it to; no caller samples this way). Every read is in bounds for
     /// every lane: the bucket is clamped to the directory, the counted nodes to the last node, the
-    /// segment to the last but one. A lane whose draws are not numbers is `long` (the one-lane path
+    /// segment to the last but one. A lane whose draws are not numbers is `alone` (the one-lane path
     /// decides what they give).
     ///
     /// # Safety
@@ -358,14 +375,21 @@ impl PhaseLanes {
             let node = |at: *const f64, k: u64, field: u64| unsafe {
                 *at.add((3 * k.min(last) + field) as usize)
             };
-            let mut count = 0u64;
-            for j in 1..=SEARCH_SPAN as u64 {
-                count += ((a + j <= b) & (node(nodes, a + j, 0) <= v)) as u64;
+            // The bucket's nodes a + 1 ..= b, a long bucket halved first (as the vectors do).
+            let (mut lo, mut len) = (a + 1, if b >= a { b - a } else { 0 });
+            while len > SEARCH_SPAN as u64 {
+                let (half, mid) = (len / 2, lo + len / 2);
+                if node(nodes, mid, 0) <= v {
+                    (lo, len) = (mid + 1, len - half - 1);
+                } else {
+                    len = half;
+                }
             }
-            let long = (b < a)
-                | (b.wrapping_sub(a) > SEARCH_SPAN as u64)
-                | self.u1[i].is_nan()
-                | self.u2[i].is_nan();
+            let mut count = lo - (a + 1);
+            for j in 0..SEARCH_SPAN as u64 {
+                count += ((j < len) & (node(nodes, lo + j, 0) <= v)) as u64;
+            }
+            let alone = self.u1[i].is_nan() | self.u2[i].is_nan();
             let seg = (a.min(last) + count).min(last - 1);
             let (c0, m0, f0) = (
                 node(nodes, seg, 0),
@@ -426,7 +450,7 @@ impl PhaseLanes {
             self.mu[i] = mu;
             self.pdf[i] = pdf;
             self.ok[i] = ok as u64;
-            self.long[i] = long as u64;
+            self.alone[i] = alone as u64;
         }
     }
 }
