@@ -2432,6 +2432,14 @@ struct PendingLane {
 }
 
 impl PendingLane {
+    /// Whether a call at `p` finds the lane at its pending site (then `DiscreteMedium::settle_in`).
+    /// Three calls of four do not (no pending site, or one elsewhere: a shadow ray's): told in the
+    /// caller, not in a call (one call for all, with its big frame, was 5 % of a dense render).
+    #[inline(always)]
+    fn settles_at(&self, p: [f32; 3]) -> bool {
+        self.site.is_some() && at_site(p, self.at)
+    }
+
     fn new(site: Option<Site>, parent: Parent) -> Self {
         PendingLane {
             site,
@@ -2836,6 +2844,9 @@ impl DiscreteMedium {
     /// Lane `i`'s pending site becomes its event where a call finds the lane at it (`p`, the position
     /// as the renderer placed it; `waves` the call's wavelengths): the lane's path scattered there.
     fn settle(&self, st: &mut PacketState, i: usize, p: [f32; 3], waves: &PacketWaves) {
+        if !st.pending[i].settles_at(p) {
+            return;
+        }
         self.settle_in(
             &mut st.pending[i],
             &mut st.events,
@@ -2847,7 +2858,9 @@ impl DiscreteMedium {
     }
 
     /// [`Self::settle`] on the parts of a packet state it changes (lane `i`'s wavelengths read only
-    /// where it settles: a spectral lane's brackets cost a search per channel).
+    /// where it settles: a spectral lane's brackets cost a search per channel), where the lane is at
+    /// its pending site ([`PendingLane::settles_at`], asked by the caller first).
+    #[inline(never)]
     fn settle_in(
         &self,
         pending: &mut PendingLane,
@@ -2862,9 +2875,6 @@ impl DiscreteMedium {
         let Some(site) = pending.site.as_ref() else {
             return;
         };
-        if !at_site(p, pending.at) {
-            return;
-        }
         let k = key(p);
         if recent.as_ref().is_some_and(|(at, _)| same_key(at, &k)) {
             // The lane's event is here already: the pending site (a shadow ray's, a few ulps from
@@ -2939,7 +2949,9 @@ impl DiscreteMedium {
                 // A lane inactive in this call keeps its site: the lane's path has not moved on.
                 let Some((o, d, t_max)) = *ray else { continue };
                 let (pending, recent) = (&mut st.pending[i], &mut st.recent[i]);
-                self.settle_in(pending, &mut st.events, recent, o, &waves, i);
+                if pending.settles_at(o) {
+                    self.settle_in(pending, &mut st.events, recent, o, &waves, i);
+                }
                 // (Every plan below sets the lane's pending site: deferred ones when they fly.)
                 let u = uniform(self.seed ^ ray_bits(&o, &d), t_max.to_bits() as u64, 0);
                 let events = LaneEvents {
