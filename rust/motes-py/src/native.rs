@@ -277,9 +277,11 @@ unsafe fn run<const N: usize>(
         m | ((valid.is_null() || *valid.add(i) != 0) as u32) << i
     });
     let is_active = |i: usize| active >> i & 1 != 0;
-    let mut lam = [[0.0f64; 4]; N];
+    // (Made only where the lanes carry their own: zeroed for every call it was a memset per packet.)
+    let mut own: [[f64; 4]; N];
     let lam: &[f64] = if lambda.is_null() {
-        let flat = lam.as_flattened_mut();
+        own = [[0.0f64; 4]; N];
+        let flat = own.as_flattened_mut();
         for i in (0..width).filter(|&i| is_active(i)) {
             lane_lambda(&r, i, &mut flat[i * ch..(i + 1) * ch]);
         }

@@ -2449,6 +2449,20 @@ impl PendingLane {
     }
 }
 
+/// `dst.copy_from_slice(src)` for a lane's channels, a few moves where there are at most
+/// [`MAX_CHANNELS`] (`copy_from_slice` of a length known only at run time is a call to `memcpy`, per
+/// lane per call).
+#[inline(always)]
+fn copy_channels(dst: &mut [f64], src: &[f64]) {
+    match dst.len() {
+        1 => dst[..1].copy_from_slice(&src[..1]),
+        2 => dst[..2].copy_from_slice(&src[..2]),
+        3 => dst[..3].copy_from_slice(&src[..3]),
+        4 => dst[..4].copy_from_slice(&src[..4]),
+        _ => dst.copy_from_slice(src),
+    }
+}
+
 /// [`commit_sample`] of a sample from one lane at a time (`mixture_sample`'s, or a null one). A null
 /// sample (the site scatters nothing: black grains, an albedo scaled to 0) becomes a direction with zero
 /// weight and pdf 1, so that the integrator ends the path here. A pdf of 0 would leave the path on its
@@ -2501,7 +2515,7 @@ fn commit_sample(
     (wo, weight, pdf): (&mut [f64; 3], &mut [f64], &mut f64),
 ) {
     (*wo, *pdf) = (dir, p);
-    weight.copy_from_slice(w);
+    copy_channels(weight, w);
     if let Some(t) = t_out {
         let k = key(lane.p);
         match &mut st.recent[i] {
@@ -2694,6 +2708,10 @@ struct PacketState {
     view_epoch: u64,
     /// The current packet's lanes that fly through the continuous field together.
     fields: FieldLanes,
+    /// The current packet's walks through the grains, and the sites of those walked as a beam (the
+    /// lanes that have them: bits in `packet_free_flights`; kept here, not made empty per packet).
+    walks: [Option<GrainWalk>; PACKET_LANES],
+    found: [(Option<Site>, f64); PACKET_LANES],
     /// The current packet's phase samples at one-particle events, taken side by side (made at the
     /// first such sample: it holds this medium's tables; 4.5 kB, not made afresh per packet).
     phase: Option<Box<PhaseLanes>>,
@@ -2726,6 +2744,8 @@ impl Default for PacketState {
             enclosure: Arc::new(Enclosure::default()),
             view_epoch: u64::MAX,
             fields: FieldLanes::default(),
+            walks: [const { None }; PACKET_LANES],
+            found: [(None, 0.0); PACKET_LANES],
             phase: None,
             brackets: None,
             count_shard: next_count_shard(),
@@ -2938,7 +2958,9 @@ impl DiscreteMedium {
             let view = &*st.view;
             // Lanes that walk stored grains from no event: walked together where they make a beam
             // (`ParticleGrid::sample_sites_beam`: a pixel's camera rays, their shadow rays).
-            let mut walks: [Option<GrainWalk>; PACKET_LANES] = [const { None }; PACKET_LANES];
+            // (Bit i: lane i walks, its walk in the state's `walks[i]`: sixteen empty walks made per
+            // call were 3 kB copied from a constant, 0.7 % of a dense render.)
+            let mut walking = 0u32;
             let mut beam = [0usize; PACKET_LANES];
             let mut in_beam = 0;
             // Lanes whose flight is through one continuous field alone: flown together after.
@@ -2977,7 +2999,8 @@ impl DiscreteMedium {
                             beam[in_beam] = i;
                             in_beam += 1;
                         }
-                        walks[i] = Some(w);
+                        st.walks[i] = Some(w);
+                        walking |= 1 << i;
                     }
                     // (A lane through another field than the packet's others' flew on its own.)
                     Plan::Deferred(f) => field = Some(f),
@@ -2986,15 +3009,20 @@ impl DiscreteMedium {
             if let Some(f) = field {
                 st.fields.fly(f, &mut st.pending);
             }
-            let mut found: [Option<(Option<Site>, f64)>; PACKET_LANES] = [None; PACKET_LANES];
+            // (Bit i: lane i's walk is in the state's `found[i]`.)
+            let mut found = 0u32;
             if let (Some(Grains::Stored(g)), 2.., true) = (&self.grid, in_beam, self.beams) {
-                self.beam_walks(g, &walks, &beam[..in_beam], &mut found);
+                found = self.beam_walks(g, &st.walks, &beam[..in_beam], &mut st.found);
             }
             let mut sites = 0;
             for i in 0..rays.len().min(PACKET_LANES) {
                 let Some((o, d, _)) = rays[i] else { continue };
-                if let Some(w) = &walks[i] {
-                    let walked = found[i].unwrap_or_else(|| self.walk_alone(w));
+                if let Some(w) = st.walks[i].as_ref().filter(|_| walking >> i & 1 != 0) {
+                    let walked = if found >> i & 1 != 0 {
+                        st.found[i]
+                    } else {
+                        self.walk_alone(w)
+                    };
                     let (site, _, parent) = self.finish_walk(w, walked, false);
                     st.pending[i] = PendingLane::new(site, parent);
                 }
@@ -3021,14 +3049,15 @@ impl DiscreteMedium {
     }
 
     /// The walks of a packet's `lanes` (at least two, none starting at an event) as one beam where they
-    /// make one (`ParticleGrid::sample_sites_beam`): each lane's site and optical depth into `found`.
+    /// make one (`ParticleGrid::sample_sites_beam`): each lane's site and optical depth into `found`,
+    /// the lanes found returned as bits (none where they make no beam).
     fn beam_walks(
         &self,
         g: &ParticleGrid,
         walks: &[Option<GrainWalk>],
         lanes: &[usize],
-        found: &mut [Option<(Option<Site>, f64)>],
-    ) {
+        found: &mut [(Option<Site>, f64)],
+    ) -> u32 {
         let mut segs = [RaySegment::new([0.0; 3], [0.0, 0.0, 1.0], 0.0, 0.0); PACKET_LANES];
         let mut us = [0.0; PACKET_LANES];
         for (k, &i) in lanes.iter().enumerate() {
@@ -3037,11 +3066,15 @@ impl DiscreteMedium {
         }
         let n = lanes.len();
         let mut out = [(None, 0.0); PACKET_LANES];
-        if g.sample_sites_beam(&segs[..n], &us[..n], self.coincide, &mut out) {
-            for (k, &i) in lanes.iter().enumerate() {
-                found[i] = Some(out[k]);
-            }
+        if !g.sample_sites_beam(&segs[..n], &us[..n], self.coincide, &mut out) {
+            return 0;
         }
+        let mut bits = 0;
+        for (k, &i) in lanes.iter().enumerate() {
+            found[i] = out[k];
+            bits |= 1 << i;
+        }
+        bits
     }
 
     /// Settle the sites of this thread's last packet of free flights at the positions the renderer
@@ -3211,7 +3244,7 @@ impl DiscreteMedium {
                         && c.lambda == SampledLane::lambda(lam)
                 };
                 if let Some(c) = st.sampled[i].as_ref().filter(|c| same(c)) {
-                    v.copy_from_slice(&c.values[..lam.len()]);
+                    copy_channels(v, &c.values[..lam.len()]);
                     pdf[i] = c.pdf;
                     continue;
                 }
