@@ -209,6 +209,9 @@ impl PhaseLanes {
             let mut count = _mm512_sub_epi64(lo, _mm512_add_epi64(a, ione));
             for j in 0..SEARCH_SPAN as i64 {
                 let valid = _mm512_cmpgt_epu64_mask(len, _mm512_set1_epi64(j));
+                if valid == 0 {
+                    break; // (no lane's bucket holds another node: most buckets hold one to three)
+                }
                 let k = _mm512_add_epi64(lo, _mm512_set1_epi64(j));
                 let le = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(cdf_at(k), v);
                 count = _mm512_mask_add_epi64(count, valid & le, count, ione);

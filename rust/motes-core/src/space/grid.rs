@@ -754,6 +754,9 @@ const _: () = assert!(BEAM_RAYS == crate::space::ray_lanes::RAYS);
 /// spread, no gain below 1; the Cornell box with 10^5 grains of 2 mm at 96 px (δ up to several R_max)
 /// 0.71 with 2, 0.73 without a bound, 0.71 without beams.
 const BEAM_SPREAD: f64 = 2.0;
+/// Halvings of its rays' segments a beam may take to keep within [`BEAM_SPREAD`] (then it covers their
+/// first 1/64 in the box, and each ray walks the rest alone where it finds no site there).
+const BEAM_CUTS: i32 = 6;
 
 /// A free flight over its ray's contributions in t order ([`ParticleGrid::sample_site`]): contributions
 /// closer than `coincide` along the ray form one site, and the flight interacts at the first site where
@@ -833,6 +836,9 @@ struct Beam {
     near: Near,
     /// Per ray: (o − o_rep)·d_rep and d·d_rep, its points' projections on the representative ray.
     proj: [(f64, f64); BEAM_RAYS],
+    /// Per ray: where the beam's part of its segment ends (infinity: at its end), the rest to walk on
+    /// its own.
+    cut: [f64; BEAM_RAYS],
     /// δ: the farthest any ray's segment in the class's box gets from the representative ray (what the
     /// walk uses of it is in `rep` and `near`; kept for tests).
     #[allow(dead_code)]
@@ -1519,41 +1525,63 @@ impl SubGrid {
                 (0..3).for_each(|a| o[a] += p[a] / live as f64);
             }
         }
-        let (mut delta, mut s0, mut s1) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
         let mut proj = [(0.0, 1.0); BEAM_RAYS];
         for (i, (r, c)) in rays.iter().zip(&clip).enumerate() {
-            let Some((t0, t1)) = *c else { continue };
+            if c.is_none() {
+                continue;
+            }
             let cos = dot(r.d, d);
             if cos.is_nan() || cos < 0.9 {
                 return None;
             }
             let rel = [0, 1, 2].map(|a| r.o[a] - o[a]);
             proj[i] = (dot(rel, d), cos);
-            for t in [t0, t1] {
-                let p = at(r, t);
-                let v = [0, 1, 2].map(|a| p[a] - o[a]);
-                let s = dot(v, d);
-                let across = [0, 1, 2].map(|a| v[a] - s * d[a]);
-                delta = delta.max(dot(across, across).sqrt());
-                s0 = s0.min(s);
-                s1 = s1.max(s);
+        }
+        // δ and the representative's range [s0, s1] over the rays' segments in the box, each cut to
+        // its first 1 / 2^k (δ is largest at a segment's ends: a ray's distance from another line
+        // is convex along it).
+        let spread = |k: i32| {
+            let (mut delta, mut s0, mut s1) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
+            for (r, c) in rays.iter().zip(&clip) {
+                let Some((t0, t1)) = *c else { continue };
+                for t in [t0, t0 + (t1 - t0) * 0.5f64.powi(k)] {
+                    let p = at(r, t);
+                    let v = [0, 1, 2].map(|a| p[a] - o[a]);
+                    let s = dot(v, d);
+                    let across = [0, 1, 2].map(|a| v[a] - s * d[a]);
+                    delta = delta.max(dot(across, across).sqrt());
+                    s0 = s0.min(s);
+                    s1 = s1.max(s);
+                }
             }
-        }
-        let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
+            (delta, s0, s1)
+        };
         let cell = self.frame.cell;
-        let finite = s0.is_finite() && s1.is_finite();
-        if !finite || reach.is_nan() || reach > cell[0].min(cell[1]).min(cell[2]) {
-            return None;
-        }
-        if delta > BEAM_SPREAD * self.reach_max {
-            return None;
-        }
+        let fits = |(delta, s0, s1): (f64, f64, f64)| {
+            let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
+            s0.is_finite()
+                && s1.is_finite()
+                && reach <= cell[0].min(cell[1]).min(cell[2])
+                && delta <= BEAM_SPREAD * self.reach_max
+        };
+        // Rays that spread too far over the whole box (a pixel's camera rays through a deep cloud)
+        // make a beam over their first part: most of them find their site there in a dense cloud,
+        // the others go on one by one from where it ends (`ParticleGrid::beam_lanes`).
+        let k = (0..=BEAM_CUTS).find(|&k| fits(spread(k)))?;
+        let (delta, s0, s1) = spread(k);
+        let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
         let rep = RaySegment::new(o, d, s0, s1);
+        let mut cut = [f64::INFINITY; BEAM_RAYS];
         for (i, r) in rays.iter().enumerate() {
-            probes[i] = clip[i].map(|_| self.probe(r, 0.0));
+            let Some((t0, t1)) = clip[i] else { continue };
+            if k > 0 {
+                cut[i] = (t0 + (t1 - t0) * 0.5f64.powi(k)).min(r.t1);
+            }
+            probes[i] = Some(self.probe(&r.between(r.t0, cut[i].min(r.t1)), 0.0));
         }
         let lo = self.frame.bounds.lo;
         Some(Beam {
+            cut,
             rep: self.probe(&rep, delta),
             cells: GridFrame::new(
                 [0, 1, 2].map(|a| lo[a] - cell[a]),
@@ -2811,7 +2839,15 @@ impl ParticleGrid {
         }
         for i in 0..n {
             if let Some(mut f) = flights[i].take() {
-                emit(f64::INFINITY, &mut pending[i], &mut f);
+                let mut going = emit(f64::INFINITY, &mut pending[i], &mut f);
+                let r = &rays[i];
+                if going && beam.cut[i] < r.t1 {
+                    // Past the beam's cut, the ray's own walk (the same flight going on).
+                    self.walk(&r.between(beam.cut[i], r.t1), |t, tau, j| {
+                        going = f.visit(t, tau[0], j);
+                        going
+                    });
+                }
                 out[i] = f.finish();
             }
         }
@@ -3174,7 +3210,8 @@ mod tests {
     /// optical depths, for a pixel's camera rays from outside the grid, shadow rays from nearby
     /// points converging on a light, rays from inside the grid and rays that miss it, with flights
     /// that stop at once and flights that pass every particle; in centre cells quantised or not, with
-    /// AVX2 and without. Rays that diverge are no beam.
+    /// AVX2 and without; beams over the whole segments and beams cut short (their rays walking on
+    /// alone past the cut). Rays that diverge from the start are no beam.
     #[test]
     fn beams_sample_each_rays_own_free_flight() {
         let mut s = 29u64;
@@ -3183,7 +3220,7 @@ mod tests {
         // One size class (radii within a factor of two).
         let rad: Vec<f64> = (0..n).map(|_| 0.004 + 0.003 * lcg(&mut s)).collect();
         let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
-        let (mut beams, mut rays_checked, mut wide) = (0, 0, 0);
+        let (mut beams, mut rays_checked, mut wide, mut cut) = (0, 0, 0, 0);
         for (quantise, simd) in [(true, true), (false, true), (true, false)] {
             let settings = GridSettings::new(0.01, 0.25)
                 .quantised(quantise)
@@ -3200,12 +3237,16 @@ mod tests {
                 let spread = 0.002 * 30f64.powf(lcg(&mut s));
                 let target = [0, 1, 2].map(|_| 1.2 * lcg(&mut s) - 0.1);
                 let rays: Vec<RaySegment> = match b % 3 {
-                    // A pixel's camera rays: one eye, directions a few mrad apart.
+                    // A pixel's camera rays: one eye, directions a few mrad apart (or, from an eye
+                    // at the box, ten times as many: they spread across the box, and make a beam
+                    // over its first part only).
                     0 => {
-                        let eye = [0.5 + 0.3 * lcg(&mut s), 0.4, -3.0];
+                        let (z, wider) = if b % 2 == 0 { (-3.0, 1.0) } else { (-0.05, 4.0) };
+                        let eye = [0.5 + 0.3 * lcg(&mut s), 0.4, z];
                         (0..k)
                             .map(|_| {
-                                let aim = target.map(|x| x + spread * (lcg(&mut s) - 0.5));
+                                let aim =
+                                    target.map(|x| x + wider * spread * (lcg(&mut s) - 0.5));
                                 let d = norm([0, 1, 2].map(|a| aim[a] - eye[a]));
                                 RaySegment::new(eye, d, 0.0, 10.0)
                             })
@@ -3264,11 +3305,9 @@ mod tests {
                     continue;
                 }
                 beams += 1;
-                let delta = g.classes[0]
-                    .beam(&rays, &mut [None; BEAM_RAYS])
-                    .unwrap()
-                    .delta;
-                wide += (delta > 0.5 * g.classes[0].reach_max) as usize;
+                let beam = g.classes[0].beam(&rays, &mut [None; BEAM_RAYS]).unwrap();
+                wide += (beam.delta > 0.5 * g.classes[0].reach_max) as usize;
+                cut += beam.cut.iter().any(|c| c.is_finite()) as usize;
                 for i in 0..k {
                     let (site, tau) = g.sample_site(&rays[i], &[], us[i], 1e-6);
                     assert_eq!(out[i].0, site, "beam {b}, ray {i}");
@@ -3294,8 +3333,8 @@ mod tests {
             assert!(!g.sample_sites_beam(&nan, &[0.5; 2], 1e-6, &mut out));
         }
         assert!(
-            beams > 200 && wide > 60,
-            "{beams} beams, {wide} wider than half the reach"
+            beams > 200 && wide > 60 && cut > 30,
+            "{beams} beams, {wide} wider than half the reach, {cut} cut short"
         );
         assert!(rays_checked > 1500);
     }
