@@ -2650,13 +2650,17 @@ impl ParticleGrid {
     /// beam: the cells around a representative ray (their mean), within R_max + δ of it, δ the
     /// farthest any ray's segment in the grid gets from it, each cell once; each ray tests those cells'
     /// particles that come within R + δ of the representative ray (one pre-test for all) with its own
-    /// pre-test and exact test, so that every ray gets exactly its own contributions, in t order (a
+    /// exact test (all rays at once where the CPU has AVX-512: `RayLanes`; else its own pre-test
+    /// first), so that every ray gets exactly its own contributions, in t order (a
     /// contribution at t lies within R_max + δ of the representative ray's point nearest the ray's
     /// point at t, whose block the walk has tested once it is past that point). A pixel's camera rays
     /// (a packet of Mitsuba's symbolic kernels holds one pixel's samples) and their shadow rays towards a
-    /// point light share their steps and their loads. Writes `out` and returns true, or returns false
-    /// (nothing written) where the rays are no such beam: one size class with centre cells, δ + R_max
-    /// within a cell and δ within [`BEAM_SPREAD`] R_max, directions within ~25° of their mean.
+    /// point light share their steps and their loads. Rays that spread too far over their whole
+    /// segments make a beam over the first 1/2^k of them in the grid (k ≤ [`BEAM_CUTS`]), and a ray that
+    /// finds no site there walks the rest alone, its flight going on. Writes `out` and returns true, or
+    /// returns false (nothing written) where the rays are no such beam: one size class with centre
+    /// cells, δ + R_max within a cell and δ within [`BEAM_SPREAD`] R_max (over the cut segments),
+    /// directions within ~25° of their mean.
     pub fn sample_sites_beam(
         &self,
         rays: &[RaySegment],
