@@ -2454,6 +2454,7 @@ impl PendingLane {
 /// lane per call).
 #[inline(always)]
 fn copy_channels(dst: &mut [f64], src: &[f64]) {
+    debug_assert_eq!(dst.len(), src.len());
     match dst.len() {
         1 => dst[..1].copy_from_slice(&src[..1]),
         2 => dst[..2].copy_from_slice(&src[..2]),
@@ -3281,7 +3282,7 @@ mod tests {
     fn phase_lanes_match_one_lane_at_a_time() {
         let mut s = 11u64;
         let mut r = || crate::test_rng::lcg(&mut s);
-        let (mut long, mut short) = (0, 0);
+        let (mut long, mut short, mut alone) = (0, 0, 0);
         // The albedo scaled to 0 (every sample null), and one bin black at 500 nm (that channel neither
         // picked nor valued there).
         let media = [(medium(400), 1.0), (medium(400), 0.0)];
@@ -3321,11 +3322,13 @@ mod tests {
                             1 => 1.0 - f64::EPSILON,
                             _ => x,
                         };
+                        // Now and then a draw that is not a number: left to the caller.
+                        let nan = (round + k) % 13 == 12;
                         let lane = PhaseSampleLane {
                             p: [0.0; 3],
                             wi: [0.0; 3],
-                            u1: edge(r()),
-                            u2: [edge(r()), r()],
+                            u1: if nan && k % 2 == 0 { f64::NAN } else { edge(r()) },
+                            u2: [if nan && k % 2 == 1 { f64::NAN } else { edge(r()) }, r()],
                         };
                         assert!(m.fill_phase_lane(&e, &lane, &lam, &ls, &mut side, k));
                         lanes.push((e, w_in, lane));
@@ -3338,7 +3341,13 @@ mod tests {
                         for (k, (e, w_in, lane)) in lanes.iter().enumerate() {
                             let (want, t_want) =
                                 m.event_phase_sample(e, *w_in, lane, &lam, &ls, true);
-                            assert_eq!(got.alone[k], 0, "lane {k}: its draws are numbers");
+                            let nan = lane.u1.is_nan() || lane.u2[0].is_nan();
+                            assert_eq!(got.alone[k] != 0, nan, "lane {k}: left alone iff NaN");
+                            assert_eq!(side.is_alone(k), nan, "lane {k}");
+                            if nan {
+                                alone += 1;
+                                continue;
+                            }
                             // SAFETY: as above.
                             if unsafe { side.in_long_bucket(k) } {
                                 long += 1;
@@ -3365,7 +3374,10 @@ mod tests {
                 }
             }
         }
-        assert!(long > 100 && short > 1000, "long {long}, short {short}");
+        assert!(
+            long > 100 && short > 1000 && alone > 20,
+            "long {long}, short {short}, alone {alone}"
+        );
     }
 
     /// Each disk removes exactly C from a beam: π R² (1 − e^{−τ}) = C, whatever r_c (issue 9.0), and

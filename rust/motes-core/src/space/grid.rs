@@ -228,7 +228,7 @@ fn sphere_contribution(p: [f32; 4], ray: &RaySegment) -> Option<f64> {
 
 /// [`sphere_contribution`] of the ball (centre `c`, radius `r`) in double precision.
 #[inline]
-fn ball_contribution(c: [f64; 3], r: f64, ray: &RaySegment) -> Option<f64> {
+pub(crate) fn ball_contribution(c: [f64; 3], r: f64, ray: &RaySegment) -> Option<f64> {
     let (o, d) = (ray.o, ray.d);
     let v = [c[0] - o[0], c[1] - o[1], c[2] - o[2]];
     let t = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
@@ -1509,7 +1509,13 @@ impl SubGrid {
             if !r.o.iter().chain(&r.d).all(|x| x.is_finite()) {
                 return None;
             }
-            clip[i] = self.frame.bounds.clip(r);
+            // (An empty segment, NaN ends included, has no contribution: no probe. The box's clip
+            // drops a NaN end.)
+            clip[i] = if r.is_empty() {
+                None
+            } else {
+                self.frame.bounds.clip(r)
+            };
             if clip[i].is_some() {
                 (0..3).for_each(|a| sum[a] += r.d[a]);
                 live += 1;
@@ -3224,7 +3230,7 @@ mod tests {
         // One size class (radii within a factor of two).
         let rad: Vec<f64> = (0..n).map(|_| 0.004 + 0.003 * lcg(&mut s)).collect();
         let cext: Vec<f64> = rad.iter().map(|r| 2.0 * PI * r * r).collect();
-        let (mut beams, mut rays_checked, mut wide, mut cut) = (0, 0, 0, 0);
+        let (mut beams, mut rays_checked, mut wide, mut cut, mut odd_beams) = (0, 0, 0, 0, 0);
         for (quantise, simd) in [(true, true), (false, true), (true, false)] {
             let settings = GridSettings::new(0.01, 0.25)
                 .quantised(quantise)
@@ -3335,7 +3341,25 @@ mod tests {
                 RaySegment::new([f64::NAN, 0.3, -1.0], d, 0.0, 3.0),
             ];
             assert!(!g.sample_sites_beam(&nan, &[0.5; 2], 1e-6, &mut out));
+            // Rays with a NaN end or an empty segment among others: nothing for them, the others
+            // their own sites (the box's clip drops a NaN end: such a ray must not walk).
+            let odd = [
+                RaySegment::new([0.4, 0.3, -1.0], d, 0.0, 3.0),
+                RaySegment::new([0.4, 0.3, -1.0], d, 0.0, f64::NAN),
+                RaySegment::new([0.4, 0.3, -1.0], d, f64::NAN, 3.0),
+                RaySegment::new([0.4, 0.3, -1.0], d, 2.0, 1.0),
+                RaySegment::new([0.41, 0.3, -1.0], d, 0.0, 3.0),
+            ];
+            let us = [0.999_999, 0.5, 0.5, 0.5, 0.3];
+            let mut out = vec![(None, -1.0); odd.len()];
+            if g.sample_sites_beam(&odd, &us, 1e-6, &mut out) {
+                for i in 0..odd.len() {
+                    assert_eq!(out[i], g.sample_site(&odd[i], &[], us[i], 1e-6), "ray {i}");
+                }
+                odd_beams += 1;
+            }
         }
+        assert!(odd_beams > 0);
         assert!(
             beams > 200 && wide > 60 && cut > 30,
             "{beams} beams, {wide} wider than half the reach, {cut} cut short"
