@@ -1659,31 +1659,25 @@ impl DiscreteMedium {
             t_out: parent.t_out,
             depth: parent.depth,
         };
-        // A ray from an event past the grain depth (most rays of a dense cloud) goes to the field
-        // before its segment is made.
-        let past_depth = self.grains_field_from(parent);
-        let mut defer = defer;
-        if let (Some(all), Some((lanes, i))) = (past_depth, defer.as_mut()) {
-            if all.flies_in_lockstep() && lanes.accepts(all) {
-                // Delta tracking, which the caller does for its lanes together.
-                lanes.field = all as *const ContinuousField as usize;
-                lanes.push(*i, o, dir, t_max, u, &from);
-                return Plan::Deferred(all);
-            }
-        }
-        let ray = RaySegment::new(o.map(|x| x as f64), dir, 0.0, t_max);
-        let all = past_depth.or_else(|| self.surface_field(parent, &ray, view, surface));
+        // (The segment is made only where the ray is not queued: `FieldLanes::push` writes it.)
+        let o64 = o.map(|x| x as f64);
+        let all = self
+            .grains_field_from(parent)
+            .or_else(|| self.surface_field(parent, o64, dir, t_max, view, surface));
         if let Some(all) = all {
             if let Some((lanes, i)) =
                 defer.filter(|(l, _)| all.flies_in_lockstep() && l.accepts(all))
             {
+                // Delta tracking, which the caller does for its lanes together.
                 lanes.field = all as *const ContinuousField as usize;
                 lanes.push(i, o, dir, t_max, u, &from);
                 return Plan::Deferred(all);
             }
+            let ray = RaySegment::new(o64, dir, 0.0, t_max);
             let (site, tau) = field_free_flight(all, &ray, u, want_tau);
             return Plan::Done(site, tau, from);
         }
+        let ray = RaySegment::new(o64, dir, 0.0, t_max);
         // The continuous field first, then the particles up to its distance: the nearer of two
         // independent processes' interactions (crate::render::continuous).
         let (hit, tau_field) = match &self.field {
@@ -1737,12 +1731,14 @@ impl DiscreteMedium {
 
     /// The continuous equivalent of all particles when a ray that starts at no event (a surface, a
     /// boundary, a camera) carries a pixel footprint that holds many grains (an effective count over the
-    /// discrete classes, `crate::render::footprint`): None for camera rays, without cameras, or with
-    /// the rule off.
+    /// discrete classes, `crate::render::footprint`; the ray from `o` along the unit `d` on
+    /// [0, `t_max`)): None for camera rays, without cameras, or with the rule off.
     fn surface_field(
         &self,
         parent: &Event,
-        ray: &RaySegment,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
         view: &View,
         tally: &mut SurfaceTally,
     ) -> Option<&ContinuousField> {
@@ -1750,7 +1746,7 @@ impl DiscreteMedium {
             return None;
         }
         let (rule, all) = (self.footprint.as_ref()?, self.grains_field.as_ref()?);
-        let sees = rule.sees_field(view, ray.o, ray.d, ray.t1);
+        let sees = rule.sees_field(view, o, d, t_max);
         tally.checked += 1;
         tally.saw_field += sees as u64;
         sees.then_some(all)

@@ -1563,19 +1563,18 @@ impl SubGrid {
             (delta, s0, s1)
         };
         let cell = self.frame.cell;
-        let fits = |(delta, s0, s1): (f64, f64, f64)| {
-            let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
+        let reach_with = |delta: f64| self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
+        let fits = |&(_, (delta, s0, s1)): &(i32, (f64, f64, f64))| {
             s0.is_finite()
                 && s1.is_finite()
-                && reach <= cell[0].min(cell[1]).min(cell[2])
+                && reach_with(delta) <= cell[0].min(cell[1]).min(cell[2])
                 && delta <= BEAM_SPREAD * self.reach_max
         };
         // Rays that spread too far over the whole box (a pixel's camera rays through a deep cloud)
         // make a beam over their first part: most of them find their site there in a dense cloud,
         // the others go on one by one from where it ends (`ParticleGrid::beam_lanes`).
-        let k = (0..=BEAM_CUTS).find(|&k| fits(spread(k)))?;
-        let (delta, s0, s1) = spread(k);
-        let reach = self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
+        let (k, (delta, s0, s1)) = (0..=BEAM_CUTS).map(|k| (k, spread(k))).find(fits)?;
+        let reach = reach_with(delta);
         let rep = RaySegment::new(o, d, s0, s1);
         let mut cut = [f64::INFINITY; BEAM_RAYS];
         for (i, r) in rays.iter().enumerate() {
@@ -2745,11 +2744,10 @@ impl ParticleGrid {
         let slots = c.slots();
         // Each candidate particle against every ray at once where the CPU can (`RayLanes`), else
         // each ray's own pre-test and exact test, block by block.
-        let side_by_side = WIDE && RayLanes::available();
         let lanes_of_rays = RayLanes::new(probes.iter().map(|p| p.as_ref().map(|p| &p.ray)));
-        let mut alive = (0..n).fold(0u32, |m, i| {
-            m | ((probes[i].is_some() && flights[i].is_some()) as u32) << i
-        });
+        let side_by_side = WIDE && lanes_of_rays.simd;
+        // (A ray has a flight exactly where it has a probe.)
+        let mut alive = (0..n).fold(0u32, |m, i| m | (flights[i].is_some() as u32) << i);
         let mut ts = [0.0; BEAM_RAYS];
         let mut rows = [Segment::default(); ROWS_PER_STEP];
         let mut dda = Dda::new(&beam.cells, &beam.rep.ray);
@@ -2804,7 +2802,7 @@ impl ParticleGrid {
                             let s = base + m.trailing_zeros() as usize;
                             m &= m - 1;
                             let ball = c.slot_ball(s, sg.cell);
-                            let mut hit = lanes_of_rays.contributions(ball, alive, &mut ts, false);
+                            let mut hit = lanes_of_rays.contributions(ball, alive, &mut ts);
                             while hit != 0 {
                                 let i = hit.trailing_zeros() as usize;
                                 hit &= hit - 1;

@@ -29,6 +29,9 @@ pub(crate) struct RayLanes {
     dz: [f64; RAYS],
     t0: [f64; RAYS],
     t1: [f64; RAYS],
+    /// Whether [`Self::contributions`] runs side by side (the CPU has AVX-512 F, as the field's
+    /// lockstep: asked once per beam, not per particle). Tests clear it for the scalar reference.
+    pub(crate) simd: bool,
 }
 
 impl RayLanes {
@@ -43,6 +46,7 @@ impl RayLanes {
             dz: [0.0; RAYS],
             t0: [0.0; RAYS],
             t1: [0.0; RAYS],
+            simd: crate::render::continuous::lockstep_simd(),
         };
         for (i, r) in rays.take(RAYS).enumerate() {
             let Some(r) = r else { continue };
@@ -53,26 +57,19 @@ impl RayLanes {
         l
     }
 
-    /// Whether [`Self::contributions`] runs side by side here (AVX-512 F, as the field's lockstep).
-    pub(crate) fn available() -> bool {
-        crate::render::continuous::lockstep_simd()
-    }
-
     /// The rays among `alive` (bit i: ray i) that the ball (centre, radius) contributes to within
     /// their segments, as a bit mask, each such ray's t (its projection) in `t`: side by side where
-    /// the CPU can ([`Self::available`]) unless `one_by_one` (the reference the tests hold the
-    /// vectors to).
+    /// [`Self::simd`], else one ray at a time (the reference the tests hold the vectors to).
     #[inline(always)]
     pub(crate) fn contributions(
         &self,
         (c, r): ([f64; 3], f64),
         alive: u32,
         t: &mut [f64; RAYS],
-        one_by_one: bool,
     ) -> u32 {
         #[cfg(target_arch = "x86_64")]
-        if !one_by_one && Self::available() {
-            // SAFETY: the CPU has AVX-512 F (`available`).
+        if self.simd {
+            // SAFETY: `simd` is set only where the CPU has AVX-512 F (`lockstep_simd`).
             return unsafe { self.contributions_avx512(c, r, alive, t) };
         }
         let mut hits = 0;
@@ -178,8 +175,12 @@ mod tests {
             let r = if round % 7 == 0 { 0.0 } else { 1.5 * next() };
             let alive = (next() * 65536.0) as u32;
             let (mut ta, mut tb) = ([0.0; RAYS], [0.0; RAYS]);
-            let a = lanes.contributions((c, r), alive, &mut ta, false);
-            let b = lanes.contributions((c, r), alive, &mut tb, true);
+            let a = lanes.contributions((c, r), alive, &mut ta);
+            let scalar = RayLanes {
+                simd: false,
+                ..lanes
+            };
+            let b = scalar.contributions((c, r), alive, &mut tb);
             assert_eq!(a, b, "round {round}");
             assert_eq!(a & !alive, 0);
             for i in (0..RAYS).filter(|&i| alive >> i & 1 != 0) {
