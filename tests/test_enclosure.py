@@ -183,7 +183,7 @@ def test_render_looks_only_at_shapes_that_hold_media(monkeypatch):
     motes.set_variant("scalar_rgb")
     import mitsuba as mi
 
-    from motes.plugins import cameras
+    from motes.plugins import _scene
 
     T = mi.ScalarTransform4f
     spheres = {f"s{i}": {"type": "sphere", "radius": 0.01, "to_world": T().translate([0.01 * i, 3.0, 0.0])}
@@ -194,15 +194,15 @@ def test_render_looks_only_at_shapes_that_hold_media(monkeypatch):
             **spheres}
     medium = {"type": "discrete", "count": 500, "phase": {"type": "particle"}}
     calls = []
-    real = cameras.data_of
-    monkeypatch.setattr(cameras, "data_of", lambda m: (calls.append(m), real(m))[1])
+    real = _scene.data_of
+    monkeypatch.setattr(_scene, "data_of", lambda m: (calls.append(m), real(m))[1])
     plain = mi.load_dict(base)
     calls.clear()
     mi.render(plain, spp=1)
     assert calls == []  # no shape is a medium transition: no medium looked at, and no second scan
     with_medium = mi.load_dict({**base, "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium}})
     calls.clear()
-    objects = cameras.discrete_medium_objects(with_medium)
+    objects = _scene.discrete_medium_objects(with_medium)
     assert len(objects) == 1 and len(calls) == 1
     calls.clear()
     img = np.asarray(mi.render(with_medium, spp=1))

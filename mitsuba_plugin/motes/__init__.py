@@ -107,7 +107,7 @@ __all__ = [
     "resolve_method",
     "size_parameter",
 ]
-__version__ = "0.1.0"
+from ._version import __version__  # noqa: E402
 
 from .discrete import DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH, DEFAULT_TAU_MAX, DiscreteMedium  # noqa: E402
 from .plugins import native_variants, register, set_evaluated_mode, set_variant  # noqa: E402

@@ -13,7 +13,9 @@ import time
 
 import numpy as np
 
+from . import _env
 from . import cluster as C
+from ._output import progress, write_images
 
 
 def _client(args):
@@ -30,15 +32,13 @@ def _client(args):
         return Client(args.scheduler, timeout="30s"), None
     # Each worker process gets its share of the cores for Dr.Jit's and rayon's thread pools.
     threads = max(1, (os.cpu_count() or 1) // args.workers)
-    env = {"MOTES_WORKER_THREADS": str(threads), "RAYON_NUM_THREADS": str(threads)}
+    env = {_env.WORKER_THREADS: str(threads), "RAYON_NUM_THREADS": str(threads)}
     cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None,
                            env=env, silence_logs=40)
     return Client(cluster), cluster
 
 
 def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> int:
-    from .cli import DEFAULT_FPS, _progress, _write_images  # noqa: PLC0415
-
     scene_arg = str(scene_path.resolve())
     files = C.referenced_files(scene_path, defines) if args.ship_files and not args.frames else None
     spp = args.spp or _scene_spp(mi, scene_path, defines)
@@ -57,7 +57,7 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
             if len(todo) < len(frames):
                 print(f"motes: {len(frames) - len(todo)} of {len(frames)} frames already on disk, skipped "
                       "(--overwrite renders them again)", file=sys.stderr)
-            fps, text = args.fps or DEFAULT_FPS, scene_path.read_text()
+            fps, text = args.fps or C.DEFAULT_FPS, scene_path.read_text()
             futures = []
             for f in todo:
                 d = C.frame_defines(defines, f, fps, text)
@@ -71,9 +71,9 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
 
             for fut in as_completed(futures):
                 f = owner[fut.key]
-                _write_images(mi, outs[f], fut.result(), args.png)
+                write_images(mi, outs[f], fut.result(), args.png)
                 done += 1
-                _progress(done, len(todo), time.perf_counter() - t0, "frames")
+                progress(done, len(todo), time.perf_counter() - t0, "frames")
             sys.stderr.write("\n")
             print(f"motes: {len(todo)} frames in {time.perf_counter() - t0:.1f} s on {n_workers} workers",
                   file=sys.stderr)
@@ -84,7 +84,7 @@ def render(args, mi, variant: str, scene_path: pathlib.Path, defines: dict) -> i
                    for i, (k, s) in enumerate(plan)]
         _gather_passes(futures, plan, t0, results)
         img = C.merge_passes([results[i] for i in range(len(plan))], [k for k, _ in plan])
-        written = _write_images(mi, out, img.astype(np.float32), args.png)
+        written = write_images(mi, out, img.astype(np.float32), args.png)
         print(f"motes: {spp} spp in {len(plan)} passes in {time.perf_counter() - t0:.1f} s on {n_workers} workers; "
               f"seeds {plan[0][1]}..{plan[-1][1]}; wrote {', '.join(written)}", file=sys.stderr)
         return 0
@@ -133,25 +133,21 @@ def _gather_passes(futures, plan, t0, results: dict) -> None:
     already here, even if the workers die with the interrupt."""
     from dask.distributed import as_completed  # noqa: PLC0415
 
-    from .cli import _progress  # noqa: PLC0415
-
     index = {f.key: i for i, f in enumerate(futures)}
     for fut in as_completed(futures):
         results[index[fut.key]] = fut.result()
-        _progress(len(results), len(plan), time.perf_counter() - t0)
+        progress(len(results), len(plan), time.perf_counter() - t0)
     sys.stderr.write("\n")
 
 
 def _keep_finished(mi, args, scene_path, results: dict, plan) -> None:
     """After Ctrl-C: the passes that arrived, merged in pass order, written as the image so far."""
-    from .cli import _write_images  # noqa: PLC0415
-
     done = sorted(results.items())
     if not done:
         print("motes: no pass had finished; nothing written", file=sys.stderr)
         return
     out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
     img = C.merge_passes([r for _, r in done], [plan[i][0] for i, _ in done])
-    written = _write_images(mi, out, img.astype(np.float32), args.png)
+    written = write_images(mi, out, img.astype(np.float32), args.png)
     print(f"motes: kept {sum(plan[i][0] for i, _ in done)} spp from {len(done)} finished passes; wrote "
           f"{', '.join(written)}", file=sys.stderr)

@@ -19,7 +19,6 @@ included), writes the passes done so far and exits with status 130.
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
 import shutil
 import signal
@@ -30,69 +29,9 @@ import warnings
 
 import numpy as np
 
-#: Frames per second of ``motes render --frames`` ($time = frame / fps).
-DEFAULT_FPS = 24.0
-
-
-def _progress(done: int, total: int, elapsed: float, unit: str = "passes") -> None:
-    width = 30
-    filled = int(width * done / max(total, 1))
-    eta = elapsed / done * (total - done) if done else float("nan")
-    sys.stderr.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] {done}/{total} {unit}  {elapsed:6.1f} s  ETA {eta:6.1f} s")
-    sys.stderr.flush()
-
-
-# Rec. 709 luminance of linear RGB.
-_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
-
-def exposure(img: np.ndarray, key: float = 0.18, white_percentile: float = 99.5) -> tuple[float, float]:
-    """(log-average luminance, white point) of ``tonemap``'s operator for ``img``: applied to other images
-    with ``reinhard``, one exposure for several pictures (a contact sheet)."""
-    rgb = np.clip(np.nan_to_num(np.asarray(img, dtype=np.float64), nan=0.0, posinf=0.0), 0.0, None)
-    lum = rgb[..., :3] @ _LUMINANCE if rgb.shape[-1] >= 3 else rgb[..., 0]
-    log_avg = float(np.exp(np.mean(np.log(1e-6 + lum))))
-    white = max(float(np.percentile(lum * (key / max(log_avg, 1e-12)), white_percentile)), 1e-6)
-    return log_avg, white
-
-
-def reinhard(img: np.ndarray, log_avg: float, white: float, key: float = 0.18) -> np.ndarray:
-    """Reinhard's global operator with a given exposure: linear RGB to display values in [0, 1]."""
-    rgb = np.clip(np.nan_to_num(np.asarray(img, dtype=np.float64), nan=0.0, posinf=0.0), 0.0, None)
-    lum = rgb[..., :3] @ _LUMINANCE if rgb.shape[-1] >= 3 else rgb[..., 0]
-    scaled = lum * (key / max(log_avg, 1e-12))
-    display = scaled * (1.0 + scaled / white**2) / (1.0 + scaled)
-    gain = np.divide(display, lum, out=np.zeros_like(lum), where=lum > 0)
-    return np.clip(rgb * gain[..., None], 0.0, 1.0)
-
-
-def tonemap(img: np.ndarray, key: float = 0.18, white_percentile: float = 99.5) -> np.ndarray:
-    """Linear RGB (H, W, C) to display values in [0, 1]: Reinhard et al.'s global photographic operator.
-    The log-average luminance maps to ``key`` (mid grey) and the ``white_percentile``-th luminance to
-    white; brighter pixels (a floor patch lit by a spot) saturate smoothly instead of setting the
-    exposure of the whole picture, so a dim room stays readable beside a bright beam."""
-    return reinhard(img, *exposure(img, key, white_percentile), key=key)
-
-
-def _write_atomically(path: pathlib.Path, write) -> None:
-    """Write through a temporary file and rename, so that Ctrl-C never leaves a truncated image."""
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    write(str(tmp))
-    os.replace(tmp, path)
-
-
-def _write_images(mi, exr: pathlib.Path, img: np.ndarray, png: bool) -> list[str]:
-    """The EXR (linear) and, if asked, a tone-mapped sRGB PNG beside it."""
-    exr.parent.mkdir(parents=True, exist_ok=True)
-    _write_atomically(exr, mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write)
-    written = [str(exr)]
-    if png:
-        path = exr.with_suffix(".png")
-        bmp = mi.Bitmap(np.ascontiguousarray(tonemap(img), dtype=np.float32))
-        fmt = mi.Bitmap.PixelFormat.RGB if img.shape[-1] >= 3 else mi.Bitmap.PixelFormat.Y
-        _write_atomically(path, bmp.convert(fmt, mi.Struct.Type.UInt8, srgb_gamma=True).write)
-        written.append(str(path))
-    return written
+# exposure, reinhard and tonemap stay importable from here (motes.cli.tonemap: scripts/paper, tests).
+from ._output import exposure, progress, reinhard, tonemap, write_images  # noqa: F401
+from .cluster import DEFAULT_FPS, frame_defines, frame_output, parse_frames, pass_plan
 
 
 class _CtrlC:
@@ -205,8 +144,6 @@ def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool
     """One image in this process, pass by pass (``cluster.pass_plan``), each pass's average written at once
     (``quiet``, a frame of a sequence: written once, after its last pass, so that a frame on disk is a
     finished frame and a sequence resumed after Ctrl-C renders the interrupted one again)."""
-    from .cluster import pass_plan  # noqa: PLC0415
-
     t0 = time.perf_counter()
     if not quiet:
         print(f"motes: loading {scene_path} ({variant}): particles, optics tables, grid ...", file=sys.stderr)
@@ -223,11 +160,11 @@ def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool
         done_spp += k
         # Each pass's average is written at once, so that Ctrl-C keeps what is done.
         if not quiet or done_spp == spp:
-            written = _write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
+            written = write_images(mi, out, (acc / done_spp).astype(np.float32), args.png)
         if done_spp < spp and not quiet:
             ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done_spp} of {spp} spp; wrote {', '.join(written)}")
         if not quiet:
-            _progress(i + 1, len(plan), time.perf_counter() - t1)
+            progress(i + 1, len(plan), time.perf_counter() - t1)
     from ._memory import peak_resident_mb  # noqa: PLC0415
 
     if not quiet:
@@ -238,8 +175,6 @@ def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool
 
 def _render_frames(args, mi, variant, scene_path, defines) -> int:
     """A frame sequence in this process: ``$frame`` and ``$time`` per frame; frames on disk are skipped."""
-    from .cluster import frame_defines, frame_output, parse_frames  # noqa: PLC0415
-
     frames = parse_frames(args.frames)
     outs = {f: frame_output(args.output, scene_path.stem, f) for f in frames}
     todo = [f for f in frames if args.overwrite or not outs[f].exists()]
@@ -254,7 +189,7 @@ def _render_frames(args, mi, variant, scene_path, defines) -> int:
                         outs[f], ctrl_c, quiet=True)
             ctrl_c.say(f"motes: interrupted (Ctrl-C) after {i + 1} of {len(todo)} frames (the frame in flight "
                        "is not written: a second run renders it)")
-            _progress(i + 1, len(todo), time.perf_counter() - t0, "frames")
+            progress(i + 1, len(todo), time.perf_counter() - t0, "frames")
     if todo:
         sys.stderr.write("\n")
     print(f"motes: {len(todo)} frames in {time.perf_counter() - t0:.1f} s "

@@ -30,6 +30,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import _env
+
+#: Frames per second of ``motes render --frames`` ($time = frame / fps; ``frame_defines``).
+DEFAULT_FPS = 24.0
 #: Sampler seed of pass ``i`` of an image rendered with ``--seed s``: ``s * PASS_SEED_STRIDE + i`` (mod 2^32).
 PASS_SEED_STRIDE = 100003
 
@@ -171,11 +175,11 @@ class _SceneCache:
         motes.set_variant(variant)
         import mitsuba as mi  # noqa: PLC0415
 
-        threads = os.environ.get("MOTES_WORKER_THREADS")
-        if threads and not self.threads_set:  # a local cluster's share of the cores per worker
+        threads = _env.worker_threads()
+        if threads is not None and not self.threads_set:  # a local cluster's share of the cores per worker
             import drjit as dr  # noqa: PLC0415
 
-            dr.set_thread_count(int(threads))
+            dr.set_thread_count(threads)
             self.threads_set = True
 
         key = (path, tuple(sorted(defines.items())), variant)
@@ -206,5 +210,5 @@ def render_image(scene: str, defines: dict, variant: str, plan, files: dict | No
     return merge_passes(imgs, [k for k, _ in plan]).astype(np.float32)
 
 
-__all__ = ["PASS_SEED_STRIDE", "frame_defines", "frame_output", "merge_passes", "parse_frames", "pass_plan",
+__all__ = ["DEFAULT_FPS", "PASS_SEED_STRIDE", "frame_defines", "frame_output", "merge_passes", "parse_frames", "pass_plan",
            "referenced_files", "render_image", "render_pass"]

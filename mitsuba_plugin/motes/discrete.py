@@ -229,6 +229,25 @@ def _light_tuple(centre, radius, disc=0.0, normal=(0.0, 0.0, 0.0), axis=(0.0, 0.
     return c, float(radius), float(disc), n, a, float(cos_cutoff)
 
 
+def _procedural_bins(tables: _BinTables, species: list, size_bins: int) -> tuple[list, list]:
+    """Each species' ``size_bins`` log-spaced optics bins of a procedural cloud, added to ``tables``: (the bin
+    edges of each species, the index of each species' first bin)."""
+    edges_all, first = [], []
+    for k, sp in enumerate(species):
+        # Over the radii a cloud of this size holds (as a stored cloud's bins span its particles'
+        # radii): quantiles 1e-7 and 1 - 1e-7 (+-5.2 sigma of a log-normal); the rare radii beyond
+        # belong to the end bins. Bins over a truncated PSD's whole support were 1.5 times wider in
+        # ln r and their mean Q_ext moved a stored cloud's transmittance by 2 % (10 SE).
+        r_lo, r_hi = (float(v) for v in sp.psd.quantile(np.array([PROCEDURAL_RADIUS_QUANTILE,
+                                                                  1.0 - PROCEDURAL_RADIUS_QUANTILE])))
+        edges = np.geomspace(r_lo, r_hi, size_bins + 1) if r_hi > r_lo * (1 + 1e-9) else np.array([r_lo, r_lo])
+        first.append(len(tables.grey_q))
+        for b in range(edges.size - 1):
+            tables.add(k, sp, float(edges[b]), float(edges[b + 1]))
+        edges_all.append([float(e) for e in edges])
+    return edges_all, first
+
+
 class DiscreteMedium:
     """Particles with per-bin optics in the Rust medium (module docs)."""
 
@@ -238,9 +257,7 @@ class DiscreteMedium:
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                  storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True):
-        if storage not in STORAGES:
-            raise ValueError(f"invalid storage = {storage!r}: must be one of {', '.join(STORAGES)}")
-        self.storage = storage
+        self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
         if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
         pos, r, idx, species, lam_in, lam = _checked_inputs(
@@ -449,19 +466,7 @@ class DiscreteMedium:
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in box)
         rank = np.searchsorted(lam, lam_in)
         tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model)
-        edges_all, first = [], []
-        for k, sp in enumerate(species):
-            # Over the radii a cloud of this size holds (as a stored cloud's bins span its particles'
-            # radii): quantiles 1e-7 and 1 - 1e-7 (+-5.2 sigma of a log-normal); the rare radii beyond
-            # belong to the end bins. Bins over a truncated PSD's whole support were 1.5 times wider in
-            # ln r and their mean Q_ext moved a stored cloud's transmittance by 2 % (10 SE).
-            r_lo, r_hi = (float(v) for v in sp.psd.quantile(np.array([PROCEDURAL_RADIUS_QUANTILE,
-                                                                      1.0 - PROCEDURAL_RADIUS_QUANTILE])))
-            edges = np.geomspace(r_lo, r_hi, size_bins + 1) if r_hi > r_lo * (1 + 1e-9) else np.array([r_lo, r_lo])
-            first.append(len(tables.grey_q))
-            for b in range(edges.size - 1):
-                tables.add(k, sp, float(edges[b]), float(edges[b + 1]))
-            edges_all.append([float(e) for e in edges])
+        edges_all, first = _procedural_bins(tables, species, size_bins)
         tables.report(self)
         albedos, theta, f, offsets = tables.core_tables()
         kind, params = density

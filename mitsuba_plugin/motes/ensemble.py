@@ -48,7 +48,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import _motes
+from . import _env, _motes, _version
 from ._optics import HYBRID_RADIUS_UM, _method, _p_max
 from .psd import Psd
 
@@ -124,11 +124,8 @@ _KEYS = ("wavelength_um", "sigma_t", "sigma_s", "sigma_a", "albedo", "g", "theta
 
 def cache_dir() -> pathlib.Path | None:
     """Where ``bulk_properties`` caches its tables: ``$MOTES_CACHE_DIR``, else ``~/.cache/motes``;
-    ``MOTES_CACHE_DIR=""`` disables the cache."""
-    env = os.environ.get("MOTES_CACHE_DIR")
-    if env is not None:
-        return pathlib.Path(env) if env else None
-    return pathlib.Path.home() / ".cache" / "motes"
+    ``MOTES_CACHE_DIR=""`` disables the cache (``motes._env``)."""
+    return _env.cache_dir()
 
 
 #: Hash of the Rust sources the extension was built from (``rust/motes-py/build.rs``): the disk cache is
@@ -137,9 +134,7 @@ CORE_HASH: str = _motes.core_hash()
 
 
 def _cache_key(payload: dict) -> str:
-    from . import __version__  # noqa: PLC0415
-
-    text = json.dumps({"format": _CACHE_FORMAT, "version": __version__, "core": CORE_HASH, **payload}, sort_keys=True)
+    text = json.dumps({"format": _CACHE_FORMAT, "version": _version.__version__, "core": CORE_HASH, **payload}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 

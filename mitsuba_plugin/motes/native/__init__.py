@@ -21,6 +21,8 @@ import subprocess
 import sys
 import tempfile
 
+from .. import _env
+
 #: Variants the native library is built for.
 NATIVE_VARIANTS = ("scalar_rgb", "scalar_spectral", "llvm_ad_rgb", "llvm_ad_spectral")
 #: Plugin names it registers (one library, one symlink per name).
@@ -28,13 +30,16 @@ PLUGIN_NAMES = ("motes_discrete_native", "motes_particle_native")
 SOURCE = pathlib.Path(__file__).with_name("motes_native.cpp")
 #: The wheels are built for AVX2/FMA/F16C/BMI; Dr.Jit lays out small static arrays (a scalar Color3f) as
 #: SIMD packets when these are on, so the plugin must be compiled with the same flags or scalar variants
-#: disagree with libmitsuba about those types' layout (../shared/MITSUBA-NOTES.md).
+#: disagree with libmitsuba about those types' layout (their native renders would then depart from the Python
+#: path's, which ``tests/test_render_paths.py`` compares in scalar_rgb and scalar_spectral).
 ISA_FLAGS = ("-mavx2", "-mfma", "-mf16c", "-mbmi", "-mbmi2")
 CXX_FLAGS = ("-std=c++17", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-DNDEBUG") + ISA_FLAGS
 
 _folder: pathlib.Path | None = None
 _failure: str | None = None
 _library: ctypes.CDLL | None = None
+#: Variants ``load`` made the native plugins findable for (``motes.native_variants()``).
+_loaded: set[str] = set()
 
 
 class NativeBuildError(RuntimeError):
@@ -42,8 +47,8 @@ class NativeBuildError(RuntimeError):
 
 
 def requested() -> bool:
-    """Whether the native path is wanted (``MOTES_NATIVE=0`` turns it off)."""
-    return os.environ.get("MOTES_NATIVE", "1").strip() not in ("0", "false", "no", "off")
+    """Whether the native path is wanted (``MOTES_NATIVE=0`` turns it off; ``motes._env``)."""
+    return _env.native_requested()
 
 
 def _versions() -> tuple[str, str]:
@@ -61,8 +66,7 @@ def _key() -> str:
 
 
 def _cache_root() -> pathlib.Path:
-    env = os.environ.get("MOTES_CACHE_DIR")
-    base = pathlib.Path(env) if env else pathlib.Path.home() / ".cache" / "motes"
+    base = _env.cache_dir() or _env.default_cache_dir()  # MOTES_CACHE_DIR="" keeps the default here
     return base / "native"
 
 
@@ -187,8 +191,15 @@ def load(variant: str) -> bool:
     fr = mi.file_resolver()
     if path not in [str(p) for p in fr]:
         fr.prepend(path)
+    _loaded.add(variant)
     return True
 
 
-__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "medium_handle", "simd",
+def loaded_variants() -> frozenset[str]:
+    """The variants ``load`` has made render through the native path in this process (``motes.native_variants()``);
+    the others use the evaluated-mode Python path."""
+    return frozenset(_loaded)
+
+
+__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "loaded_variants", "medium_handle", "simd",
            "requested"]

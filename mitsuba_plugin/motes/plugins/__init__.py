@@ -23,16 +23,16 @@ from __future__ import annotations
 import os
 import warnings
 
+from .. import native as _native
 from . import llvm as _llvm
 
 _registered: set[str] = set()
-_native: set[str] = set()
 
 
 def native_variants() -> frozenset[str]:
     """Variants registered with the native render path (``motes.native``); the others use the
     evaluated-mode Python path."""
-    return frozenset(_native)
+    return _native.loaded_variants()
 
 
 def configure_llvm() -> str | None:
@@ -62,14 +62,10 @@ def register() -> None:
     if variant is None:
         raise RuntimeError("motes.register(): set a Mitsuba variant first (motes.set_variant(...))")
     if variant not in _registered:
-        from .. import native
-
-        if native.load(variant):
-            _native.add(variant)
-        elif variant in native.NATIVE_VARIANTS and native.requested():
-            warnings.warn(f"motes: the native render path is unavailable ({native.failure()}); {variant} renders "
+        if not _native.load(variant) and variant in _native.NATIVE_VARIANTS and _native.requested():
+            warnings.warn(f"motes: the native render path is unavailable ({_native.failure()}); {variant} renders "
                           "through the slower evaluated-mode Python path", RuntimeWarning, stacklevel=2)
-    if variant.startswith(("llvm_", "cuda_")) and variant not in _native:
+    if variant.startswith(("llvm_", "cuda_")) and variant not in _native.loaded_variants():
         # The Python path hands numpy batches to Rust: evaluated mode, on this thread (Dr.Jit's flags are
         # per thread; a render from another thread must call motes.set_evaluated_mode() there first).
         set_evaluated_mode(True)
@@ -95,7 +91,7 @@ PRBVOLPATH_WARNING = ("motes: prbvolpath does not support the discrete medium (i
 
 
 def _scene_has_discrete_medium(scene) -> bool:
-    from .cameras import discrete_media
+    from ._scene import discrete_media
 
     return bool(discrete_media(scene))
 

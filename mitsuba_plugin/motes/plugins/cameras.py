@@ -26,11 +26,14 @@ continuous equivalent sooner.
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 import warnings
 
 import numpy as np
+
+from . import _scene, enclosure
+# Re-exported: the scene's discrete media are looked up in ``_scene`` (below this module and ``enclosure``).
+from ._scene import data_of, discrete_media, discrete_medium_objects  # noqa: F401
 
 #: Discrete media constructed in this process (``attach`` does nothing before the first).
 _made = [0]
@@ -200,9 +203,6 @@ def diffuse_only(scene) -> bool:
     camera ray, grains in silhouette against a light included."""
     import mitsuba as mi
 
-    from .discrete_medium import native_data
-    from .scene_checks import _discrete_data
-
     allowed = int(mi.BSDFFlags.DiffuseReflection) | int(mi.BSDFFlags.DiffuseTransmission) | int(mi.BSDFFlags.Null)
     lobes = int(mi.BSDFFlags.All)
     for shape in scene.shapes():
@@ -212,47 +212,13 @@ def diffuse_only(scene) -> bool:
         if bsdf is None or int(bsdf.flags()) & lobes & ~allowed:
             return False
         for medium in (shape.interior_medium(), shape.exterior_medium()):
-            if medium is not None and _discrete_data(medium) is None and native_data(medium) is None:
+            if medium is not None and _scene.discrete_data(medium) is None and _scene.native_data(medium) is None:
                 return False
     for sensor in scene.sensors():
         medium = getattr(sensor, "medium", lambda: None)()
-        if medium is not None and _discrete_data(medium) is None and native_data(medium) is None:
+        if medium is not None and _scene.discrete_data(medium) is None and _scene.native_data(medium) is None:
             return False
     return True
-
-
-def data_of(medium):
-    """The data (``motes.DiscreteMedium``) of a ``discrete`` medium object (Python or native), or None."""
-    if medium is None:
-        return None
-    from .discrete_medium import native_data
-    from .scene_checks import _discrete_data
-
-    return _discrete_data(medium) or native_data(medium)
-
-
-def discrete_medium_objects(scene) -> list:
-    """Every ``discrete`` medium object the scene's shapes and sensors hold, each once. One pass over the
-    shapes, each medium object looked at once: ``mi.render`` asks for them at every call, and a scene of
-    5·10^5 spheres (explicit path tracing) spent 2.6 s per call in a pass that asked every shape's media
-    for their data."""
-    media, seen = [], set()
-    shape_media = (m for s in scene.shapes() if s.is_medium_transition()
-                   for m in (s.interior_medium(), s.exterior_medium()))
-    sensor_media = (getattr(s, "medium", lambda: None)() for s in scene.sensors())
-    for m in itertools.chain(shape_media, sensor_media):
-        if m is not None and id(m) not in seen:
-            seen.add(id(m))
-            if data_of(m) is not None:
-                media.append(m)
-    return media
-
-
-def discrete_media(scene, objects=None) -> list:
-    """The data (``motes.DiscreteMedium``) of every ``discrete`` medium the scene's shapes and sensors hold (of
-    ``objects``, the scene's ``discrete_medium_objects``, where the caller has them), each once."""
-    objects = discrete_medium_objects(scene) if objects is None else objects
-    return list({id(d): d for d in map(data_of, objects)}.values())
 
 
 def attach(scene, sensor=None, integrator=None) -> list:
@@ -261,12 +227,10 @@ def attach(scene, sensor=None, integrator=None) -> list:
     ``discrete`` medium objects (``discrete_medium_objects``)."""
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
         return []
-    objects = discrete_medium_objects(scene)
-    media = discrete_media(scene, objects)
+    objects = _scene.discrete_medium_objects(scene)
+    media = _scene.discrete_media(scene, objects)
     if media:
-        from .enclosure import set_enclosures
-
-        set_enclosures(scene, integrator, objects)
+        enclosure.set_enclosures(scene, integrator, objects)
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
         # A light the rule cannot place may be small and sharp: no blur then.
         diffuse = lights is not None and diffuse_only(scene) and uniform_distant_light(scene)
@@ -297,9 +261,7 @@ def _wrapped_render(render):
             return render(scene, *args, **kwargs)
         finally:
             if objects:  # a scene without discrete media is not scanned twice
-                from .enclosure import clear_clips
-
-                clear_clips(scene, objects)
+                enclosure.clear_clips(scene, objects)
 
     render_with_cameras._motes_cameras = True
     return render_with_cameras

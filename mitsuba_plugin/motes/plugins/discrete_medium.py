@@ -184,10 +184,11 @@ from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DE
                         DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, PHASE_MODELS, STORAGES)
 from ..particle_io import load_particles
 from ..particles import query_radius_from_camera
-from .. import _memory, _motes
+from .. import _memory, _motes, native
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 from . import cameras
+from ._scene import native_data
 
 #: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
 PLUGIN_STORAGES = STORAGES + ("procedural",)
@@ -605,9 +606,7 @@ def _wavelengths(wavelengths: str | None) -> np.ndarray:
 # -- Native render path ----------------------------------------------------------------------------
 def native_in_use() -> bool:
     """Whether the current variant renders through the native plugins (``motes.native``)."""
-    from . import native_variants
-
-    return mi.variant() in native_variants()
+    return mi.variant() in native.loaded_variants()
 
 
 def _native_objects(data: DiscreteMedium, sample_emitters: bool, description: str):
@@ -625,14 +624,6 @@ def _native_objects(data: DiscreteMedium, sample_emitters: bool, description: st
     medium = mi.load_dict({"type": "motes_discrete_native", "sample_emitters": sample_emitters, "phase": phase,
                            "description": description, **common()})
     return medium, phase
-
-
-def native_data(medium) -> DiscreteMedium | None:
-    """The data of a native ``discrete`` medium object (scalar variants' scene media), or None."""
-    from .. import _motes, native
-
-    handle = native.medium_handle(medium)
-    return None if handle is None else _motes.native_owner(handle)
 
 
 def _data_of_native(medium) -> DiscreteMedium:

@@ -42,6 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _scene
+
 #: Integrators whose next-event estimation multiplies the phase value by the light the shadow ray sees.
 SKIPPING_INTEGRATORS = ("VolumetricPathIntegrator", "VolpathMisIntegratorImpl")  # Mitsuba 3.9's class names
 
@@ -96,9 +98,7 @@ def clear_clips(scene, objects=None) -> None:
     """Let no integrator clip rays at the sites of the scene's ``discrete`` media (the flag as built): what
     ``mi.render`` leaves behind, once the render it set the flag for has traced its kernels. ``objects``: those
     media's objects where the caller has them (``cameras.attach`` returns them)."""
-    from .cameras import discrete_medium_objects
-
-    for m in discrete_medium_objects(scene) if objects is None else objects:
+    for m in _scene.discrete_medium_objects(scene) if objects is None else objects:
         _set_clips_rays(m, False)
 
 
@@ -106,15 +106,13 @@ def set_enclosures(scene, integrator=None, objects=None) -> None:
     """Set on each ``discrete`` medium of ``scene`` the shapes that hold it and whether integrators may clip its rays
     at their sites (module docs), for ``integrator``, the one about to render; None: neither (the default state).
     ``objects``: the scene's discrete medium objects where the caller has them."""
-    from .cameras import data_of, discrete_medium_objects
-
     shapes = list(scene.shapes())
     skips = integrator is not None and integrator_skips(integrator)
-    for m in discrete_medium_objects(scene) if objects is None else objects:
+    for m in _scene.discrete_medium_objects(scene) if objects is None else objects:
         _set_clips_rays(m, skips)
     holders = {}  # id(data) -> (data, [shape])
     for s in shapes:
-        data = data_of(s.interior_medium()) if s.is_medium_transition() else None
+        data = _scene.data_of(s.interior_medium()) if s.is_medium_transition() else None
         if data is not None:
             holders.setdefault(id(data), (data, []))[1].append(s)
     usable = skips and not any(s.class_name() in ("Instance", "ShapeGroup") for s in shapes)

@@ -32,6 +32,8 @@ import subprocess
 import sys
 import time
 
+from .. import _env
+
 SEARCH_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
                 "/usr/lib/llvm-*/lib/libLLVM*.so*", "/usr/lib64/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*")
 PREFERRED_MAJOR = 19
@@ -73,8 +75,8 @@ def major_version(path: str) -> int:
 
 def candidates() -> list[str]:
     """Installed libLLVMs, one path per real file: 19 first, then newest first."""
-    search = os.environ.get("MOTES_LLVM_SEARCH")
-    paths = search.split(os.pathsep) if search is not None else [p for g in SEARCH_GLOBS for p in sorted(glob.glob(g))]
+    search = _env.llvm_search()
+    paths = search if search is not None else [p for g in SEARCH_GLOBS for p in sorted(glob.glob(g))]
     seen, out = set(), []
     for p in paths:
         if not p or not os.path.isfile(p):
@@ -89,11 +91,8 @@ def candidates() -> list[str]:
 
 def _cache_file() -> str | None:
     """``llvm-probe.json`` in motes's cache (``$MOTES_CACHE_DIR``, else ``~/.cache/motes``; ``""`` keeps none)."""
-    env = os.environ.get("MOTES_CACHE_DIR")
-    if env == "":
-        return None
-    base = env if env is not None else os.path.join(os.path.expanduser("~"), ".cache", "motes")
-    return os.path.join(base, "llvm-probe.json")
+    base = _env.cache_dir()
+    return None if base is None else os.path.join(base, "llvm-probe.json")
 
 
 def _cpu_flags() -> str:

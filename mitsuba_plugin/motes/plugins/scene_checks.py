@@ -16,6 +16,9 @@ import warnings
 
 import numpy as np
 
+from . import cameras
+from ._scene import discrete_data
+
 #: Below this share of the particles' box inside the shape's box, loading warns.
 INSIDE_WARN_SHARE = 0.5
 
@@ -32,16 +35,6 @@ def inside_share(lo, hi, shape_lo, shape_hi) -> float:
     return share
 
 
-def _discrete_data(medium):
-    from ..discrete import DiscreteMedium
-
-    try:
-        data = getattr(medium, "data", None)
-    except Exception:  # noqa: BLE001 - a foreign medium's property may raise anything
-        return None
-    return data if isinstance(data, DiscreteMedium) else None
-
-
 def _fmt(v) -> str:
     return "(" + ", ".join(f"{float(x):.4g}" for x in v) + ")"
 
@@ -51,7 +44,7 @@ def outside_warnings(scene) -> list[str]:
     out = []
     for shape in scene.shapes():
         medium = shape.interior_medium()
-        data = None if medium is None else _discrete_data(medium)
+        data = None if medium is None else discrete_data(medium)
         if data is None:
             continue
         lo, hi = (np.asarray(v, dtype=np.float64) for v in data.centre_box)
@@ -82,9 +75,7 @@ def _wrapped(load):
         obj = load(*args, **kwargs)
         if hasattr(obj, "shapes") and hasattr(obj, "sensors"):  # a scene (load_dict also makes plugins)
             check_scene(obj, stacklevel=3)
-            from .cameras import attach
-
-            attach(obj)  # the surface-ray rule's cameras (cameras.py)
+            cameras.attach(obj)  # the surface-ray rule's cameras (cameras.py)
         return obj
 
     load_and_check._motes_checked = True
