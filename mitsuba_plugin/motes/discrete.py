@@ -1,5 +1,5 @@
 """The discrete medium's data, independent of Mitsuba: particles in a grid with the optics the renderer
-queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
+queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
 
 ``DiscreteMedium(positions, radii_um, species_index, species, ...)``
 
@@ -15,7 +15,7 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
 ``tau_max``                 cap on each particle's optical depth (``DEFAULT_TAU_MAX`` = 1): a particle
                             whose disk r_c + r_i would be more opaque is given a wider one, and each
                             disk's depth is -ln(1 - C/(pi R^2)) so that it removes exactly its C_ext
-                            from a beam whatever r_c (``rust/motes-core/src/render/discrete.rs``); inf: no cap
+                            from a beam whatever r_c (``rust/motes-core/src/render/discrete/mod.rs``); inf: no cap
 ``size_bins``               radius bins per species (log-spaced over its particles' radii); each bin's
                             albedo, efficiencies and phase function are the ensemble of a uniform
                             distribution over the bin (Eq. 16-17), which also smooths Mie ripples

@@ -87,7 +87,7 @@ def register() -> None:
 
 
 PRBVOLPATH_WARNING = ("motes: prbvolpath does not support the discrete medium (it loses ~4 % of the energy in a "
-                      "white furnace: BENCHMARKS.md, issue 5); render with volpath or volpathmis")
+                      "white furnace: scripts/figures/prbvolpath_check.py); render with volpath or volpathmis")
 
 
 def _scene_has_discrete_medium(scene) -> bool:

@@ -103,12 +103,12 @@ are widened until tau_i <= ``tau_max``. A ``query_radius`` that widening overrid
 the particles raises a warning.
 Forward-peak truncation is on by default: a diffraction lobe a few mrad wide cannot be found by a delta
 light (spot, point) except as fireflies, so without it a spot-lit floor under 80 um grains renders
-~30 % dark at 64 spp (BENCHMARKS.md, issue 9).
+37 % +- 5 % dark at 64 spp (``scripts/bench/bench_spotlit.py``; BENCHMARKS.md, "Rendering accuracy").
 Grains nobody can see are not walked one by one: a size class whose particles a pixel's query cylinder
 holds many of (``continuous_count``) has each tau_i tiny and no resolvable grain, so it is sampled as a
 continuous medium with the same extinction per cell and the cell's phase mixture, combined exactly
 with the discrete classes (the nearer of the two sampled interactions). What it drops is the grain
-texture of relative size 1/sqrt(N) (BENCHMARKS.md, issue 10.3).
+texture of relative size 1/sqrt(N) (BENCHMARKS.md, "Rendering accuracy").
 
 ``storage = procedural`` stores no particle (``rust/motes-core/src/render/procedural.rs``): the continuous
 classes are the density field's expected extinction, and the grains that stay discrete are generated
@@ -118,7 +118,7 @@ Where few of the cloud's discrete grains are in view (occluded, outside the fram
 thick front) or most of its grains are continuous, that is little; where every discrete grain of the
 cloud is in view, a pass generates what a stored build would, and only a cache that holds all their
 bricks (``cache_mb``; about 40 bytes per visible grain) keeps later passes from generating them again
-(BENCHMARKS.md, issue 24). ``count`` is the mean of a Poisson count, not an exact one.
+(BENCHMARKS.md, "Memory and scale"). ``count`` is the mean of a Poisson count, not an exact one.
 
 The phase function must be ``<phase type="particle"/>``. Unknown or misspelt parameters fail loading
 (Mitsuba's unreferenced-property check); invalid values raise ``ValueError`` naming the parameter and
@@ -127,7 +127,7 @@ its allowed range.
 How it maps onto Mitsuba's delta tracking
 -----------------------------------------
 Along a ray the discrete optical depth is a sum of per-particle steps, so the core samples the first
-interaction *exactly* (``rust/motes-core/src/render/discrete.rs``). ``intersect_aabb`` returns that site as
+interaction *exactly* (``rust/motes-core/src/render/discrete/``). ``intersect_aabb`` returns that site as
 ``mint`` (nothing lies before it); ``get_majorant`` returns a huge constant ``MAJORANT``, so Mitsuba's
 tentative distance lands on the site; ``get_scattering_coefficients`` returns ``sigma_t = MAJORANT`` and
 ``sigma_n = 0`` there, so every tentative collision is real. The result: no null collisions at all, and
