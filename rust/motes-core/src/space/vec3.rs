@@ -77,3 +77,55 @@ pub fn octahedral(w: [f64; 3]) -> [f64; 2] {
         [(1.0 - y.abs()).copysign(x), (1.0 - x.abs()).copysign(y)]
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Octahedral directions (how the native plugin's phase samples travel) unfolded as the C++ plugin
+    /// does, in float32, come back within float32 precision: axes, signed zeros, the equator, the
+    /// poles and random directions.
+    #[test]
+    fn octahedral_directions_survive_float32() {
+        // motes_native.cpp's `octahedral`, in float32.
+        let decode = |x: f32, y: f32| {
+            let z = 1.0 - x.abs() - y.abs();
+            let (ux, uy) = if z < 0.0 {
+                ((1.0 - y.abs()).copysign(x), (1.0 - x.abs()).copysign(y))
+            } else {
+                (x, y)
+            };
+            let n = (ux * ux + uy * uy + z * z).sqrt();
+            [ux / n, uy / n, z / n].map(|c| c as f64)
+        };
+        let mut s = 17u64;
+        let mut r = || crate::test_rng::lcg(&mut s);
+        let mut dirs: Vec<[f64; 3]> = vec![
+            [1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [-0.0, -0.0, -1.0],
+            [0.6, -0.8, 0.0],
+            [0.6, -0.8, -0.0],
+            [1e-9, 0.0, -1.0],
+        ];
+        for _ in 0..20000 {
+            let z: f64 = 2.0 * r() - 1.0;
+            let phi = 2.0 * PI * r();
+            let st = (1.0 - z * z).sqrt();
+            dirs.push([st * phi.cos(), st * phi.sin(), z]);
+        }
+        for w in dirs {
+            let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+            let w = w.map(|c| c / l);
+            let [x, y] = octahedral(w);
+            let v = decode(x as f32, y as f32);
+            let err =
+                ((v[0] - w[0]).powi(2) + (v[1] - w[1]).powi(2) + (v[2] - w[2]).powi(2)).sqrt();
+            assert!(err < 1e-6, "{w:?} -> {v:?}: {err}");
+        }
+    }
+}
