@@ -127,7 +127,7 @@ its allowed range.
 How it maps onto Mitsuba's delta tracking
 -----------------------------------------
 Along a ray the discrete optical depth is a sum of per-particle steps, so the core samples the first
-interaction *exactly* (``rust/motes-core/src/render/discrete.rs``). ``intersect_aabb`` returns that site as
+interaction *exactly* (``rust/motes-core/src/render/discrete/``). ``intersect_aabb`` returns that site as
 ``mint`` (nothing lies before it); ``get_majorant`` returns a huge constant ``MAJORANT``, so Mitsuba's
 tentative distance lands on the site; ``get_scattering_coefficients`` returns ``sigma_t = MAJORANT`` and
 ``sigma_n = 0`` there, so every tentative collision is real. The result: no null collisions at all, and

@@ -1,7 +1,7 @@
 //! Rays from surfaces and the pixel footprint they carry (issue 25).
 //!
 //! A path that has scattered in the cloud sees the grains' continuous equivalent
-//! (`discrete.rs`, "Grains along a path"). Rays that start on a surface (a wall's shadow ray towards
+//! (`crate::render::discrete`, "Grains along a path"). Rays that start on a surface (a wall's shadow ray towards
 //! the light, a bounce off the floor) start at no event, so until now they walked the grains one by
 //! one, and in a closed room most rays start on a surface. Whether a viewer can see the grains along
 //! such a ray is the question Eq. 23 answers for camera rays: the pixel that the ray's light reaches

@@ -192,7 +192,7 @@ impl DiscreteMedium {
         (res.into_iter().flat_map(|r| r.0).collect(), pdf)
     }
 
-    /// Sample the phase function of the event at each lane's `p` (module docs): outgoing directions,
+    /// Sample the phase function of the event at each lane's `p` (`discrete` docs): outgoing directions,
     /// weights (value / pdf per channel) and pdfs.
     pub fn phase_sample(
         &self,

@@ -113,7 +113,7 @@ fn build_walk(
         g
     });
     // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not by
-    // τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (module docs). The field
+    // τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (`discrete` docs). The field
     // selects its particles from the full columns (every particle continuous: all of them).
     let field = (!field_ids.is_empty()).then(|| {
         let ids = (!discrete_ids.is_empty()).then_some(&field_ids[..]);
@@ -166,7 +166,7 @@ fn procedural_footprint(
     SurfaceFootprint::new(classes, Bounds3 { lo, hi }, length, min_count)
 }
 
-/// Inclusion radius and optical depth of one particle's disk (module docs): the disk r_c + r is
+/// Inclusion radius and optical depth of one particle's disk (`discrete` docs): the disk r_c + r is
 /// widened until its fill x = C / (π R²) is at most 1 − e^{−τ_max}, and τ = −ln(1 − x).
 pub fn particle_disk(radius: f64, c_ext: f64, query_radius: f64, tau_max: f64) -> (f64, f64) {
     let fill_max = -(-tau_max).exp_m1(); // 1 − e^{−τ_max}, 1 for τ_max = ∞
@@ -301,7 +301,7 @@ impl DiskTable {
         self.classes.as_ref().map(|c| &c.codes[..])
     }
 
-    /// The grid and the fields of the particles at `positions` (module docs).
+    /// The grid and the fields of the particles at `positions` (`discrete` docs).
     fn walk(
         &self,
         positions: &[[f64; 3]],

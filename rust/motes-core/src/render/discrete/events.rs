@@ -7,7 +7,7 @@ use super::MAX_CHANNELS;
 use crate::space::grid::Site;
 use rustc_hash::FxHashMap;
 
-/// A remembered event: the site's particles and the path's channel throughput (module docs) before
+/// A remembered event: the site's particles and the path's channel throughput (`discrete` docs) before
 /// (`t_in`, sampling at this event) and after (`t_out`, for the next event) this event's phase sample.
 /// All-zero throughputs mean "unknown": uniform channel choice.
 #[derive(Clone, Copy, Debug)]
@@ -17,7 +17,7 @@ pub(super) struct Event {
     pub(super) t_out: [f32; MAX_CHANNELS],
     /// Which event of its chain this is (1: the first since the path entered the medium; 0: no
     /// event). A ray leaving an event at or past the medium's grain depth sees the grains' continuous
-    /// equivalent (module docs, "Grains along a path").
+    /// equivalent (`discrete` docs, "Grains along a path").
     pub(super) depth: u32,
     /// The site's albedo per channel at the wavelengths whose first is `albedo_nm` (NaN: not known),
     /// computed when the event was remembered (the packet interface weighs its phase function by it).

@@ -268,7 +268,7 @@ impl DiscreteMedium {
 
     /// What a ray's free flight (to its next site, skipping the particles of the event it starts at;
     /// `u` uniform in [0, 1)) takes: the answer where no grain needs walking (no ray, the grains'
-    /// continuous equivalent), or else the walk through the grains still to do (module docs).
+    /// continuous equivalent), or else the walk through the grains still to do (`discrete` docs).
     /// `defer`: a flight through the continuous equivalent alone is queued as lane `i` of the caller's
     /// field lanes where the field steps a packet's flights together ([`Plan::Deferred`]; never with
     /// `want_tau`). Queued in place: through the returned plan the ray was copied twice.
@@ -361,7 +361,7 @@ impl DiscreteMedium {
     }
 
     /// The continuous equivalent of all particles when a ray leaving `parent` is to see it rather than
-    /// the grains: `parent` is the `grain_depth`-th event of its path or a later one (module docs).
+    /// the grains: `parent` is the `grain_depth`-th event of its path or a later one (`discrete` docs).
     pub(super) fn grains_field_from(&self, parent: &Event) -> Option<&ContinuousField> {
         let depth = self.grain_depth.load(Ordering::Relaxed);
         if !(parent.depth > 0 && parent.depth >= depth) {

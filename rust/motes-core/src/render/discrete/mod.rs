@@ -4,13 +4,14 @@
 //!
 //! ## Model
 //! Along a ray the discrete optical depth is a staircase: particle i, passing within R_i of the ray with
-//! its centre projecting at t_i, adds τ_i. A free flight is sampled exactly by walking the
-//! particles in t order ([`ParticleGrid::sample_site`]): no majorant, no null collisions. The
-//! interaction happens at the site's t (the particle's projection on the ray). The scattered path must
-//! not meet the particle that scattered it again (its internal paths are already in its phase
-//! function), so each event that starts new rays is remembered by the exact bits of its position and
-//! the particles of that event are skipped by rays starting there (`EventMap`); the phase function
-//! finds the event's particles there too (or, failing that, from the geometry along the incident ray).
+//! its centre projecting at t_i, adds τ_i. A free flight is sampled exactly by walking the particles
+//! in t order ([`ParticleGrid::sample_site`](crate::space::grid::ParticleGrid::sample_site)): no
+//! majorant, no null collisions. The interaction happens at the site's t (the particle's projection
+//! on the ray). The scattered path must not meet the particle that scattered it again (its internal
+//! paths are already in its phase function), so each event that starts new rays is remembered by the
+//! exact bits of its position and the particles of that event are skipped by rays starting there
+//! (`EventMap`); the phase function finds the event's particles there too (or, failing that, from the
+//! geometry along the incident ray).
 //!
 //! ## Per-particle optical depth (a documented deviation from Eq. 18)
 //! The paper spreads C_t,i over the query disk, τ_i = C_t,i / (π R_i²) with R_i = r_c + r_i, so that
@@ -59,9 +60,10 @@
 //! wavelengths. Per wavelength the site has its own albedo a_c = C_s,c / C_t,c and phase function
 //! f_c. Why grey: Mitsuba's medium interface applies per-channel weights at collisions but not to a
 //! path that leaves the medium without one, so a channel-dependent free flight cannot be re-weighted
-//! there (see `mitsuba_plugin/motes/plugins/discrete_medium.py`). A non-absorbing particle keeps a_c = 1 in
-//! every channel, so energy is conserved exactly (white furnace); what is approximated is the colour
-//! of the transmittance, by the spread of C_t over the channels (measured by scripts/figures/grey_extinction.py, BENCHMARKS.md).
+//! there (see `mitsuba_plugin/motes/plugins/discrete_medium.py`). A non-absorbing particle keeps
+//! a_c = 1 in every channel, so energy is conserved exactly (white furnace); what is approximated is
+//! the colour of the transmittance, by the spread of C_t over the channels (measured by
+//! scripts/figures/grey_extinction.py, BENCHMARKS.md).
 //!
 //! ## Phase function of a site (Eq. 24)
 //! With the site's particles j, scattering weights s_j,c = τ_j a_j,c, the phase function for
@@ -72,7 +74,7 @@
 //! exactly and the weights f_c / pdf stay bounded.
 //!
 //! ## Where it lives
-//! * [`settings`]: what a build takes besides the particles ([`MediumSettings`]) and its checks.
+//! * `settings`: what a build takes besides the particles ([`MediumSettings`]) and its checks.
 //! * `build`: the medium from stored particles or a procedural cloud: each particle's disk, the grid
 //!   and the continuous fields.
 //! * `flight`: free flights: the grains walked one by one, the continuous fields, the choice between
@@ -98,7 +100,7 @@ mod local;
 mod packet;
 mod packet_state;
 mod phase;
-pub mod settings;
+mod settings;
 
 pub use crate::space::vec3::octahedral;
 pub use build::particle_disk;

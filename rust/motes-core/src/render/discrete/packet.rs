@@ -317,7 +317,7 @@ impl DiscreteMedium {
     /// events' throughputs are updated as [`Self::phase_sample`] does (in the lane's own copy where
     /// the event is its last, else in the map). `evaluated_next`: the caller evaluates each sampled
     /// direction next (the C++ plugin's spectral variants, whose record has no room for four weights),
-    /// which the sample's own values then answer ([`SampledLane`]).
+    /// which the sample's own values then answer (`SampledLane`).
     #[allow(clippy::too_many_arguments)]
     pub fn packet_phase_sample(
         &self,

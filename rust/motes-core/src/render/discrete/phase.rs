@@ -28,7 +28,7 @@ fn bin_phase(b: &BinOptics, l: (usize, usize, f64), mu: f64) -> f64 {
     }
 }
 
-/// [`bin_phase`] at a location of μ in the bin's tables, all on the same nodes ([`PhaseTable::locate`](crate::ensemble::phase_table::PhaseTable::locate)).
+/// [`bin_phase`] at a location of μ in the bin's tables, all on the same nodes (`PhaseTable::locate`).
 #[inline(always)]
 fn bin_phase_at(b: &BinOptics, l: (usize, usize, f64), at: (usize, f64)) -> f64 {
     let lo = b.phase[l.0].eval_at(at);
@@ -39,7 +39,7 @@ fn bin_phase_at(b: &BinOptics, l: (usize, usize, f64), at: (usize, f64)) -> f64 
     }
 }
 
-/// A mixture of particles as a phase function sees it (module docs): particle j of `members` weighs
+/// A mixture of particles as a phase function sees it (`discrete` docs): particle j of `members` weighs
 /// `scale(j)` × its albedo in each channel; `ls` are the channels' wavelength brackets (from
 /// `DiscreteMedium::bracket`) and `pi` the probabilities of sampling each channel.
 pub(super) struct Mixture<'a, S> {
@@ -81,13 +81,7 @@ impl DiscreteMedium {
 
     /// `v` (one value per channel of `lam`, brackets `ls`) times the event's albedo: the one remembered
     /// with it where it was remembered at these wavelengths, else the site's.
-    fn times_albedo(
-        &self,
-        e: &Event,
-        lam: &[f64],
-        ls: &[(usize, usize, f64)],
-        v: &mut [f64],
-    ) {
+    fn times_albedo(&self, e: &Event, lam: &[f64], ls: &[(usize, usize, f64)], v: &mut [f64]) {
         let known =
             lam.len() <= MAX_CHANNELS && lam.first().map(|&l| l as f32) == Some(e.albedo_nm);
         for (c, x) in v.iter_mut().enumerate() {
@@ -147,7 +141,7 @@ impl DiscreteMedium {
     }
 
     /// Phase function of a mixture of particles per channel at μ = cos θ, and the pdf Σ_c π_c f_c of
-    /// sampling it (module docs; see [`Mixture`]).
+    /// sampling it (`discrete` docs; see [`Mixture`]).
     pub(super) fn mixture_phase(
         &self,
         m: &Mixture<impl Fn(u32) -> f64>,
@@ -158,7 +152,7 @@ impl DiscreteMedium {
     }
 
     /// [`Self::mixture_phase`] with μ's location in the tables of the one particle's bin where the
-    /// caller knows it (`at`: a sample from one of them, [`PhaseTable::sample_located`](crate::ensemble::phase_table::PhaseTable::sample_located)).
+    /// caller knows it (`at`: a sample from one of them, `PhaseTable::sample_located`).
     fn mixture_phase_at(
         &self,
         m: &Mixture<impl Fn(u32) -> f64>,
@@ -339,7 +333,7 @@ impl DiscreteMedium {
         let pi = event_channels(e, channels);
         let mixture = self.event_mixture(e, ls, &pi);
         let mut sample = self.mixture_sample(&mixture, w_in, lane.u1, lane.u2);
-        // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (module docs).
+        // The path's throughput after this bounce, t_c f_c / q ∝ t_c × weight_c (`discrete` docs).
         let known = e.t_in.iter().any(|&x| x > 0.0);
         let t_out = (channels <= MAX_CHANNELS && sample.2 > 0.0).then(|| {
             normalised_throughput(
@@ -398,7 +392,7 @@ impl DiscreteMedium {
         true
     }
 
-    /// The mixture of an event's particles, each weighing its τ (module docs), at the channels'
+    /// The mixture of an event's particles, each weighing its τ (`discrete` docs), at the channels'
     /// wavelength brackets `ls`, sampled with channel probabilities `pi`.
     fn event_mixture<'a>(
         &'a self,

@@ -894,7 +894,7 @@ fn events_exclude_and_phase_is_consistent() {
             pdf2[i]
         );
         assert!((w[2 * i] * pdf[i] - vals[2 * i]).abs() < 1e-3 * vals[2 * i].max(1e-9));
-        // the pdf is a mixture of the channel values (throughput-proportional weights, module docs)
+        // the pdf is a mixture of the channel values (throughput-proportional weights, `discrete` docs)
         let (lo, hi) = (
             vals[2 * i].min(vals[2 * i + 1]),
             vals[2 * i].max(vals[2 * i + 1]),
