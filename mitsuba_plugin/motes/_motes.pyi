@@ -103,7 +103,7 @@ def check_discrete_inputs(positions: F64, radius: F64, query_radius: float, tau_
     """The core's checks of a particle set and the medium's settings (raises MotesError)."""
 
 class DiscreteMedium:
-    """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete.rs)."""
+    """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete/)."""
 
     def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], albedo: F64,
                  theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64, query_radius: float,
@@ -190,12 +190,12 @@ def native_owner(handle: int) -> object | None: ...
 NATIVE_API: int
 NATIVE_ABI: int
 
-#: Default cap on a particle's optical depth (rust/motes-core/src/render/discrete.rs).
+#: Default cap on a particle's optical depth (rust/motes-core/src/render/discrete/).
 DEFAULT_TAU_MAX: float
 #: Default bytes of a procedural cloud's bricks kept (rust/motes-core/src/render/procedural.rs).
 DEFAULT_CACHE_BYTES: int
 #: Default particles per query cylinder from which a size class is sampled as a continuous medium
-#: (rust/motes-core/src/render/continuous.rs).
+#: (rust/motes-core/src/render/continuous/).
 DEFAULT_CELLS_PER_PARTICLE: float
 DEFAULT_CONTINUOUS_COUNT: float
 

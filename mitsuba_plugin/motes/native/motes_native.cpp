@@ -21,7 +21,7 @@
 //
 // Users never write these: the Python `discrete` plugin parses the scene's parameters, builds the
 // particles and optics in Rust and creates these objects. All physics is in the Rust core
-// (rust/motes-core/src/render/discrete.rs); this file only moves rays in and results out:
+// (rust/motes-core/src/render/discrete/); this file only moves rays in and results out:
 //
 // * LLVM variants: each query is one `jit_llvm_ray_trace` call, the hook Mitsuba's own CPU ray tracers
 //   use: inside Mitsuba's default *symbolic* kernels, drjit-core calls `packet<Width>` once per SIMD packet
@@ -220,7 +220,7 @@ public:
 
     MotesDiscreteNative(const Properties &props) : Base(props) {
         m_is_homogeneous = false;
-        m_has_spectral_extinction = false;  // grey free flights (discrete.rs, "Colour")
+        m_has_spectral_extinction = false;  // grey free flights (render/discrete, "Colour")
         m_call.init(props, "motes_discrete_native");
         m_albedo_scale = TensorXf(dr::full<typename TensorXf::Array>(1.f, 1));
     }

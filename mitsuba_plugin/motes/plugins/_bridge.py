@@ -15,7 +15,7 @@ def is_jit() -> bool:
 def symbolic_mode() -> bool:
     """Whether Dr.Jit traces loops and calls symbolically on this thread (Mitsuba's default; scalar
     variants count as symbolic: a path runs on one thread there too). The native plugins keep per-thread
-    state and need it (``rust/motes-core/src/render/discrete/mod.rs``, "One packet at a time")."""
+    state and need it (``rust/motes-core/src/render/discrete/packet.rs``, "One packet at a time")."""
     return not is_jit() or (dr.flag(dr.JitFlag.SymbolicLoops) and dr.flag(dr.JitFlag.SymbolicCalls))
 
 

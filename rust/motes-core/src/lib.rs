@@ -7,13 +7,17 @@
 //! * [`space`]: particles in space — a uniform grid, query cylinders (Eq. 18) and spheres (Eq. 24).
 //! * [`render`]: the discrete medium as a renderer queries it (Sec. 5), and size classes no pixel
 //!   resolves as a continuous medium.
-//! * [`error`] (one error type naming the bad argument), [`cancel`] (Ctrl-C for long table builds) and
-//!   [`rng`] (the SplitMix64 hash behind every random number the core draws).
+//! * [`error`] (one error type naming the bad argument), [`cancel`] (Ctrl-C for long table builds),
+//!   [`rng`] (the SplitMix64 hash behind every random number the core draws), [`quadrature`]
+//!   (Gauss–Legendre nodes for the optics' and the ensembles' integrals) and [`options`] (the
+//!   environment switches for side-by-side comparisons).
 
 pub mod cancel;
 pub mod ensemble;
 pub mod error;
 pub mod optics;
+pub mod options;
+pub mod quadrature;
 pub mod render;
 pub mod rng;
 pub mod space;

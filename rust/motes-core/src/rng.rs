@@ -1,7 +1,7 @@
 //! Counter-based random numbers: the SplitMix64 output function (Steele, Lea & Flood, "Fast
 //! splittable pseudorandom number generators", OOPSLA 2014). One home for the hash behind the free
-//! flights' uniform numbers (`render::discrete`) and the procedural densities' lattice values
-//! (Python's `motes.Noise`, through the binding).
+//! flights' uniform numbers (`render::discrete`, [`uniform`]) and the procedural densities' lattice
+//! values (Python's `motes.Noise`, through the binding).
 //!
 //! Infrastructure: implements no equation of the paper.
 
@@ -38,6 +38,25 @@ pub fn splitmix64(z: u64) -> u64 {
 #[inline]
 pub fn unit_f64(z: u64) -> f64 {
     (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// The stream of call `call` under `seed`: the key whose [`stream_bits`] by index are [`random_bits`].
+#[inline]
+pub fn stream_key(seed: u64, call: u64) -> u64 {
+    seed ^ call.wrapping_mul(GOLDEN_GAMMA)
+}
+
+/// The 64 random bits of (seed, call, lane): the `lane`-th of call `call`'s stream under `seed`.
+#[inline]
+pub fn random_bits(seed: u64, call: u64, lane: u64) -> u64 {
+    stream_bits(stream_key(seed, call), lane)
+}
+
+/// A uniform number in [0, 1) from (seed, call, lane) ([`random_bits`]): counter-based, so that what
+/// a render draws does not depend on the thread schedule.
+#[inline]
+pub fn uniform(seed: u64, call: u64, lane: u64) -> f64 {
+    unit_f64(random_bits(seed, call, lane))
 }
 
 #[cfg(test)]

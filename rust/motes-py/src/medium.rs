@@ -3,7 +3,7 @@
 
 use crate::convert::*;
 use crate::native;
-use motes_core::render::discrete::{PhaseEvalLane, PhaseSampleLane};
+use motes_core::render::discrete::{MediumSettings, PhaseEvalLane, PhaseSampleLane};
 use motes_core::render::enclosure::{Enclosure, Region};
 use motes_core::render::footprint::{Camera, Light, View};
 use numpy::{IntoPyArray, PyReadonlyArray1};
@@ -111,6 +111,15 @@ impl PyDiscreteMedium {
             let r = r[i] * radius_scale;
             std::f64::consts::PI * r * r * q[b[i] as usize]
         };
+        let settings = MediumSettings {
+            query_radius,
+            tau_max,
+            cells_per_particle,
+            continuous_count,
+            seed,
+            storage,
+            ..MediumSettings::default()
+        };
         let medium = motes_core::render::discrete::DiscreteMedium::build(
             pos,
             r,
@@ -119,12 +128,7 @@ impl PyDiscreteMedium {
             b,
             bins,
             lam,
-            query_radius,
-            tau_max,
-            cells_per_particle,
-            continuous_count,
-            seed,
-            storage,
+            &settings,
         )
         .map_err(to_py)?;
         Ok(Self::wrap(medium))
@@ -200,18 +204,19 @@ impl PyDiscreteMedium {
             q_ext,
             motion,
         };
+        let settings = MediumSettings {
+            query_radius,
+            tau_max,
+            cells_per_particle,
+            continuous_count,
+            seed,
+            cache_bytes,
+            ..MediumSettings::default()
+        };
         let medium = py
             .detach(|| {
                 motes_core::render::discrete::DiscreteMedium::procedural(
-                    &spec,
-                    bins,
-                    lam,
-                    query_radius,
-                    tau_max,
-                    cells_per_particle,
-                    continuous_count,
-                    seed,
-                    cache_bytes,
+                    &spec, bins, lam, &settings,
                 )
             })
             .map_err(to_py)?;
@@ -689,13 +694,17 @@ pub(crate) fn check_discrete_inputs(
     cells_per_particle: f64,
     continuous_count: f64,
 ) -> PyResult<()> {
-    motes_core::render::discrete::check_particles_and_settings(
-        points_view(positions.as_slice()?)?,
-        radius.as_slice()?,
+    let settings = MediumSettings {
         query_radius,
         tau_max,
         cells_per_particle,
         continuous_count,
+        ..MediumSettings::default()
+    };
+    motes_core::render::discrete::check_particles_and_settings(
+        points_view(positions.as_slice()?)?,
+        radius.as_slice()?,
+        &settings,
     )
     .map_err(to_py)
 }

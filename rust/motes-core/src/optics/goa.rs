@@ -39,7 +39,7 @@
 //!    GOA term asymptotically (ρ = 2α|η−1| → ∞); the factor and the edge term fade with
 //!    `ray_optics_weight(ρ) = ρ²/(ρ²+25)`, so the extinction tends to ADT's (→ 0) as η → 1.
 
-use crate::ensemble::quadrature::gauss_legendre;
+use crate::quadrature::gauss_legendre;
 use num_complex::Complex64 as C64;
 use std::f64::consts::{FRAC_PI_2, PI};
 

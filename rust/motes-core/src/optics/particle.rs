@@ -3,7 +3,7 @@
 //! batched over many particles and angles (rayon inside; no Python here).
 
 use crate::cancel;
-use crate::ensemble::quadrature::gauss_legendre;
+use crate::quadrature::gauss_legendre;
 use crate::error::{require, OpticsError};
 use crate::optics::goa::{self, GoaGeometry, GoaOptions};
 use crate::optics::mie::MieCoefficients;

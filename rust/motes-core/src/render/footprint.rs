@@ -1,7 +1,7 @@
 //! Rays from surfaces and the pixel footprint they carry (issue 25).
 //!
 //! A path that has scattered in the cloud sees the grains' continuous equivalent
-//! (`discrete.rs`, "Grains along a path"). Rays that start on a surface (a wall's shadow ray towards
+//! (`crate::render::discrete`, "Grains along a path"). Rays that start on a surface (a wall's shadow ray towards
 //! the light, a bounce off the floor) start at no event, so until now they walked the grains one by
 //! one, and in a closed room most rays start on a surface. Whether a viewer can see the grains along
 //! such a ray is the question Eq. 23 answers for camera rays: the pixel that the ray's light reaches
@@ -695,7 +695,7 @@ mod tests {
         let cam = Camera::new([0.3, -1.0, 4.0], 0.01, 0.0).unwrap();
         let mut seed = 7u64;
         let mut next = || {
-            seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
+            seed = crate::rng::splitmix64(seed);
             crate::rng::unit_f64(seed) * 2.0 - 1.0
         };
         for _ in 0..200 {
@@ -715,7 +715,7 @@ mod tests {
     fn the_window_holds_the_fewest_grains() {
         let mut seed = 5u64;
         let mut next = || {
-            seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
+            seed = crate::rng::splitmix64(seed);
             crate::rng::unit_f64(seed)
         };
         for _ in 0..300 {
@@ -757,7 +757,7 @@ mod tests {
     fn the_penumbra_is_the_least_over_the_backward_half_line() {
         let mut seed = 9u64;
         let mut next = || {
-            seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
+            seed = crate::rng::splitmix64(seed);
             crate::rng::unit_f64(seed) * 2.0 - 1.0
         };
         for _ in 0..300 {
@@ -980,7 +980,7 @@ mod tests {
     fn early_rejection_changes_no_answer(bounds: Bounds3, view: View) {
         let mut seed = 11u64;
         let mut next = || {
-            seed = crate::rng::splitmix64_finalise(seed.wrapping_add(crate::rng::GOLDEN_GAMMA));
+            seed = crate::rng::splitmix64(seed);
             crate::rng::unit_f64(seed) * 2.0 - 1.0
         };
         for density in [0.5, 5.0, 100.0, 926.0, 5000.0] {

@@ -17,8 +17,5 @@ mod phase_lanes;
 pub mod procedural;
 pub mod storage;
 
-/// An on-by-default switch of the environment (side-by-side comparisons only, read when a medium is
-/// built): off where set to "0".
-pub(crate) fn env_flag(name: &str) -> bool {
-    std::env::var(name).map_or(true, |v| v != "0")
-}
+/// An on-by-default switch of the environment (`crate::options`).
+pub(crate) use crate::options::env_flag;

@@ -399,6 +399,43 @@ pub(crate) fn build_parts(
     continuous_count: f64,
     cache_bytes: usize,
 ) -> Result<ProceduralParts, OpticsError> {
+    let (to_cloud, mean) = checked_cloud(spec)?;
+    let count = spec.count;
+    let mut classes = class_table(spec)?;
+    let fine = classes.len();
+    let (volume, chord) = scene_box(spec);
+    let disks: Vec<(f64, f64)> = classes.iter().map(|c| disk(c.radius, c.c_ext)).collect();
+    let mut discrete = discrete_classes(&classes, &disks, count, volume, chord, continuous_count);
+    let weights = push_representatives(&mut classes, &mut discrete, count, volume, &spec.q_ext);
+    let fields = procedural_fields(spec, &to_cloud, mean, fine, &weights);
+    let split = ClassSplit {
+        classes: &classes,
+        disks: &disks,
+        discrete: &discrete,
+        fine,
+    };
+    let grains = procedural_grains(
+        spec,
+        to_cloud,
+        &split,
+        &fields.corners,
+        GridSettings::new(query_radius, cells_per_particle),
+        cache_bytes,
+    )?;
+    Ok(ProceduralParts {
+        classes,
+        discrete,
+        grains,
+        field: fields.field,
+        all_field: fields.all_field,
+        corners: fields.corners,
+        field_count: fields.field_count,
+    })
+}
+
+/// The checks of a procedural cloud's count, box, density and transform; the map from scene units to
+/// the cloud's coordinates and the density's mean over the box.
+fn checked_cloud(spec: &ProceduralSpec) -> Result<([[f64; 4]; 3], f64), OpticsError> {
     let count = spec.count;
     require(
         "count",
@@ -427,9 +464,12 @@ pub(crate) fn build_parts(
         value: 0.0,
         requirement: "an invertible transform",
     })?;
-    let mut classes = class_table(spec)?;
-    let fine = classes.len();
-    // The box in scene units: its volume and surface (edge vectors of the parallelepiped).
+    Ok((to_cloud, mean))
+}
+
+/// The box in scene units: its volume and mean chord 4V/S (edge vectors of the parallelepiped).
+fn scene_box(spec: &ProceduralSpec) -> (f64, f64) {
+    let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
     let e = [0, 1, 2].map(|a| {
         let mut v = [0.0; 3];
         v[a] = hi[a] - lo[a];
@@ -439,10 +479,19 @@ pub(crate) fn build_parts(
     let volume = dot(e[0], cross(e[1], e[2])).abs();
     let surface =
         2.0 * (norm(cross(e[0], e[1])) + norm(cross(e[1], e[2])) + norm(cross(e[2], e[0])));
-    let chord = 4.0 * volume / surface;
-    let disks: Vec<(f64, f64)> = classes.iter().map(|c| disk(c.radius, c.c_ext)).collect();
-    // Which classes a query cylinder holds fewer than `continuous_count` of
-    // (crate::render::continuous::resolvable, with expected counts).
+    (volume, 4.0 * volume / surface)
+}
+
+/// Which classes stay discrete: those whose size class a query cylinder holds fewer than
+/// `continuous_count` of (crate::render::continuous::resolvable, with expected counts).
+fn discrete_classes(
+    classes: &[ClassEntry],
+    disks: &[(f64, f64)],
+    count: f64,
+    volume: f64,
+    chord: f64,
+    continuous_count: f64,
+) -> Vec<bool> {
     let sigma: f64 = classes.iter().map(|c| count * c.p * c.c_ext).sum::<f64>() / volume;
     let length = if sigma > 0.0 {
         chord.min(1.0 / sigma)
@@ -451,20 +500,37 @@ pub(crate) fn build_parts(
     };
     let reach_max = disks.iter().map(|d| d.0).fold(0.0, f64::max);
     let mut area = [0.0f64; SIZE_CLASSES];
-    for (c, d) in classes.iter().zip(&disks) {
+    for (c, d) in classes.iter().zip(disks) {
         area[size_class(reach_max, d.0)] += count * c.p * PI * d.0 * d.0;
     }
     let keep_class: Vec<bool> = area
         .iter()
         .map(|a| !continuous_count.is_finite() || a * length / volume < continuous_count)
         .collect();
-    let mut discrete: Vec<bool> = disks
+    disks
         .iter()
         .map(|d| keep_class[size_class(reach_max, d.0)])
-        .collect();
-    // One representative per bin for the fields: each bin's continuous classes (all of its classes
-    // for the grains' equivalent) scatter as that bin.
-    let bins = spec.q_ext.len();
+        .collect()
+}
+
+/// Per optics bin: the expected extinction per unit volume of its continuous classes (`cont`) and
+/// of all its classes (`all`), and the probability of its continuous classes (`p_cont`).
+struct BinWeights {
+    cont: Vec<f64>,
+    all: Vec<f64>,
+    p_cont: Vec<f64>,
+}
+
+/// One representative per bin for the fields, pushed onto the classes (continuous): each bin's
+/// continuous classes (all of its classes for the grains' equivalent) scatter as that bin.
+fn push_representatives(
+    classes: &mut Vec<ClassEntry>,
+    discrete: &mut Vec<bool>,
+    count: f64,
+    volume: f64,
+    q_ext: &[f64],
+) -> BinWeights {
+    let bins = q_ext.len();
     let (mut w_cont, mut w_all, mut p_cont) = (vec![0.0; bins], vec![0.0; bins], vec![0.0; bins]);
     for (k, c) in classes.iter().enumerate() {
         let w = count * c.p * c.c_ext / volume;
@@ -475,7 +541,7 @@ pub(crate) fn build_parts(
         }
     }
     let mut p_bin = vec![0.0; bins];
-    for c in &classes {
+    for c in classes.iter() {
         p_bin[c.bin as usize] += c.p;
     }
     for b in 0..bins {
@@ -491,14 +557,39 @@ pub(crate) fn build_parts(
         };
         classes.push(ClassEntry {
             bin: b as u32,
-            radius: (c_ext / (PI * spec.q_ext[b].max(1e-300))).sqrt(),
+            radius: (c_ext / (PI * q_ext[b].max(1e-300))).sqrt(),
             c_ext,
             p: 0.0,
         });
         discrete.push(false);
     }
-    // The fields over the box's bounding box in scene units; the density mapped back to the cloud's
-    // coordinates (zero outside the box), averaged over FIELD_SAMPLES³ points per cell.
+    BinWeights {
+        cont: w_cont,
+        all: w_all,
+        p_cont,
+    }
+}
+
+/// The fields of a procedural cloud and the box's corners in scene units ([`procedural_fields`]).
+struct FieldParts {
+    corners: Vec<[f64; 3]>,
+    field: Option<ContinuousField>,
+    all_field: ContinuousField,
+    field_count: f64,
+}
+
+/// The continuous classes' field and every class's, over the box's bounding box in scene units; the
+/// density mapped back to the cloud's coordinates (zero outside the box), averaged over
+/// FIELD_SAMPLES³ points per cell. `fine`: the code of the first bin's representative.
+fn procedural_fields(
+    spec: &ProceduralSpec,
+    to_cloud: &[[f64; 4]; 3],
+    mean: f64,
+    fine: usize,
+    weights: &BinWeights,
+) -> FieldParts {
+    let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
+    let density = &spec.cloud.density;
     let corners: Vec<[f64; 3]> = (0..8)
         .map(|i| {
             let p = [0, 1, 2].map(|a| if i >> a & 1 == 1 { hi[a] } else { lo[a] });
@@ -521,69 +612,87 @@ pub(crate) fn build_parts(
         for k in 0..m * m * m {
             let idx = [k % m, (k / m) % m, k / (m * m)];
             let p = [0, 1, 2].map(|x| a[x] + (b[x] - a[x]) * (idx[x] as f64 + 0.5) / m as f64);
-            let q = apply(&to_cloud, p);
+            let q = apply(to_cloud, p);
             if (0..3).all(|x| q[x] >= lo[x] && q[x] <= hi[x]) {
                 sum += density.at(q, lo, hi);
             }
         }
         sum / (m * m * m) as f64 / mean
     };
+    let bins = weights.cont.len();
     let reps: Vec<u32> = (0..bins).map(|b| CLASS_FLAG | (fine + b) as u32).collect();
-    let field_count: f64 = count * p_cont.iter().sum::<f64>();
+    let field_count: f64 = spec.count * weights.p_cont.iter().sum::<f64>();
     let field = (field_count > 0.0)
-        .then(|| ContinuousField::from_density(flo, fhi, dims, rel, reps.clone(), &w_cont));
-    let all_field = ContinuousField::from_density(flo, fhi, dims, rel, reps, &w_all);
-    // The discrete process.
-    let codes: Vec<u32> = (0..fine)
-        .filter(|&k| discrete[k])
+        .then(|| ContinuousField::from_density(flo, fhi, dims, rel, reps.clone(), &weights.cont));
+    let all_field = ContinuousField::from_density(flo, fhi, dims, rel, reps, &weights.all);
+    FieldParts {
+        corners,
+        field,
+        all_field,
+        field_count,
+    }
+}
+
+/// A procedural cloud's classes (the `fine` ones, then the representatives), their disks and which
+/// stay discrete.
+struct ClassSplit<'a> {
+    classes: &'a [ClassEntry],
+    disks: &'a [(f64, f64)],
+    discrete: &'a [bool],
+    fine: usize,
+}
+
+/// The discrete process (module docs): the grains of the discrete classes, generated brick by brick
+/// (None when no class is discrete).
+fn procedural_grains(
+    spec: &ProceduralSpec,
+    to_cloud: [[f64; 4]; 3],
+    split: &ClassSplit,
+    corners: &[[f64; 3]],
+    settings: GridSettings,
+    cache_bytes: usize,
+) -> Result<Option<ProceduralGrains>, OpticsError> {
+    let (classes, disks) = (split.classes, split.disks);
+    let codes: Vec<u32> = (0..split.fine)
+        .filter(|&k| split.discrete[k])
         .map(|k| k as u32)
         .collect();
     let p_disc: f64 = codes.iter().map(|&k| classes[k as usize].p).sum();
-    let grains = if codes.is_empty() || p_disc.is_nan() || p_disc <= 0.0 {
-        None
-    } else {
-        let mut acc = 0.0;
-        let cdf = codes
-            .iter()
-            .map(|&k| {
-                acc += classes[k as usize].p / p_disc;
-                acc
-            })
-            .collect();
-        let reach_disc = codes
-            .iter()
-            .map(|&k| disks[k as usize].0)
-            .fold(0.0, f64::max);
-        let grid_radius = disks
-            .iter()
-            .zip(&classes)
-            .map(|(d, c)| (d.0 - query_radius).max(c.radius))
-            .collect();
-        let grid_c = disks.iter().map(|d| d.1 * PI * d.0 * d.0).collect();
-        Some(ProceduralGrains::new(
-            spec,
-            to_cloud,
-            codes,
-            cdf,
-            grid_radius,
-            grid_c,
-            reach_disc,
-            // The largest scene coordinate a grain's centre can have: the f32 rounding it carries.
-            corners.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs())) + reach_disc,
-            GridSettings::new(query_radius, cells_per_particle),
-            count * p_disc,
-            cache_bytes,
-        )?)
-    };
-    Ok(ProceduralParts {
-        classes,
-        discrete,
-        grains,
-        field,
-        all_field,
-        corners,
-        field_count,
-    })
+    if codes.is_empty() || p_disc.is_nan() || p_disc <= 0.0 {
+        return Ok(None);
+    }
+    let mut acc = 0.0;
+    let cdf = codes
+        .iter()
+        .map(|&k| {
+            acc += classes[k as usize].p / p_disc;
+            acc
+        })
+        .collect();
+    let reach_disc = codes
+        .iter()
+        .map(|&k| disks[k as usize].0)
+        .fold(0.0, f64::max);
+    let grid_radius = disks
+        .iter()
+        .zip(classes)
+        .map(|(d, c)| (d.0 - settings.query_radius).max(c.radius))
+        .collect();
+    let grid_c = disks.iter().map(|d| d.1 * PI * d.0 * d.0).collect();
+    Ok(Some(ProceduralGrains::new(
+        spec,
+        to_cloud,
+        codes,
+        cdf,
+        grid_radius,
+        grid_c,
+        reach_disc,
+        // The largest scene coordinate a grain's centre can have: the f32 rounding it carries.
+        corners.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs())) + reach_disc,
+        settings,
+        spec.count * p_disc,
+        cache_bytes,
+    )?))
 }
 
 impl ProceduralGrains {
