@@ -145,10 +145,13 @@ def test_core_procedural_property(log_count, lo, size, scale, median, sigma_g, s
     transform = [[scale[0], 0, 0, 0.5], [0, scale[1], 0, -0.5], [0, 0, scale[2], 0.0]]
     hi = [lo[a] + size[a] for a in range(3)]
     try:
+        tables = motes._motes.BinTables(_ISO["albedo"], _ISO["theta"], _ISO["f"], _ISO["offsets"],
+                                        np.array([467.0, 532.0, 630.0]))
+        settings = motes._motes.MediumSettings(query_radius=query_radius, tau_max=1.0, cells_per_particle=0.125,
+                                               continuous_count=continuous_count, seed=seed, cache_bytes=2**26)
         m = motes._motes.DiscreteMedium.procedural(
-            10.0 ** log_count, list(lo), hi, kind, params, seed, [psd._core], [1.0], seed, transform, scene_per_um,
-            [edges], [0], [2.0], _ISO["albedo"], _ISO["theta"], _ISO["f"], _ISO["offsets"],
-            np.array([467.0, 532.0, 630.0]), query_radius, 1.0, 0.125, continuous_count, seed, 2**26)
+            10.0 ** log_count, (list(lo), hi), (kind, params, seed), ([psd._core], [1.0]), seed, transform,
+            scene_per_um, ([edges], [0], [2.0]), tables, settings)
     except ValueError as e:
         assert any(name in str(e) for name in ("count", "query_radius", "density", "to_world", "hi", "lo")), e
         return

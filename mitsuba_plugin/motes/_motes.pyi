@@ -98,29 +98,49 @@ class ParticleGrid:
 F32 = npt.NDArray[np.float32]
 
 
-def check_discrete_inputs(positions: F64, radius: F64, query_radius: float, tau_max: float,
-                          cells_per_particle: float, continuous_count: float) -> None:
+class MediumSettings:
+    """A discrete medium's settings (rust/motes-core/src/render/discrete/settings.rs); every keyword defaults to
+    the core's own default. storage is "compact" or "full" (checked here: MotesError naming it)."""
+
+    def __init__(self, *, query_radius: float | None = None, tau_max: float | None = None,
+                 cells_per_particle: float | None = None, continuous_count: float | None = None,
+                 seed: int | None = None, storage: str | None = None, cache_bytes: int | None = None) -> None: ...
+    query_radius: float
+    tau_max: float
+    cells_per_particle: float
+    continuous_count: float
+    seed: int
+    storage: str
+    cache_bytes: int
+
+
+class BinTables:
+    """Each optics bin's albedo (bins*K) and phase tables (flat theta/f, offsets bins*K + 1 ending at len(theta))
+    at K wavelengths lambda_ (nm, increasing)."""
+
+    def __init__(self, albedo: F64, theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64) -> None: ...
+    def __len__(self) -> int: ...
+
+
+def check_discrete_inputs(positions: F64, radius: F64, settings: MediumSettings) -> None:
     """The core's checks of a particle set and the medium's settings (raises MotesError)."""
 
 class DiscreteMedium:
     """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete/)."""
 
-    def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], albedo: F64,
-                 theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64, query_radius: float,
-                 tau_max: float, cells_per_particle: float, continuous_count: float, seed: int,
-                 storage: str = "full", radius_scale: float = 1.0) -> None:
+    def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], tables: BinTables,
+                 settings: MediumSettings, radius_scale: float = 1.0) -> None:
         """radius x radius_scale in scene units (radii in um pass their scale, not a scaled copy); q_ext: each
-        bin's grey extinction efficiency (C_ext = pi r^2 q_ext); storage "compact" or "full"
-        (rust/motes-core/src/render/storage.rs)."""
+        bin's grey extinction efficiency (C_ext = pi r^2 q_ext)."""
     @staticmethod
-    def procedural(count: float, lo: list[float], hi: list[float], kind: str, params: list[float], noise_seed: int,
-                   psds: list[Psd], shares: list[float], cloud_seed: int, transform: list[list[float]],
-                   scene_per_um: float, bin_edges_um: list[list[float]], first_bin: list[int], q_ext: list[float],
-                   albedo: F64, theta: F64, f: F64, offsets: npt.NDArray[np.uint64], lambda_: F64,
-                   query_radius: float, tau_max: float, cells_per_particle: float, continuous_count: float,
-                   seed: int, cache_bytes: int) -> DiscreteMedium:
+    def procedural(count: float, box_: tuple[list[float], list[float]], density: tuple[str, list[float], int],
+                   species: tuple[list[Psd], list[float]], cloud_seed: int, transform: list[list[float]],
+                   scene_per_um: float, bins: tuple[list[list[float]], list[int], list[float]], tables: BinTables,
+                   settings: MediumSettings, *, turbulence: float = 0.0, turbulence_scale: float = 1.0,
+                   time: float = 0.0) -> DiscreteMedium:
         """A procedural cloud: no particle stored, bricks generated on demand
-        (rust/motes-core/src/render/procedural.rs)."""
+        (rust/motes-core/src/render/procedural.rs); bins: per species its bins' edges (um) and first global bin,
+        and q_ext per global bin."""
     @property
     def bricks_built(self) -> int: ...
     @property

@@ -130,9 +130,18 @@ def _checked_optics_inputs(species, wavelength_um, size_bins, scale_m):
     return species, lam_in, lam
 
 
-def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius,
-                    tau_max, cells_per_particle, continuous_count, storage=DEFAULT_STORAGE):
-    """The inputs as arrays (positions, radii, species index, species list, wavelengths as given and sorted), checked."""
+def _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed=0, storage=DEFAULT_STORAGE,
+              cache_bytes=None):
+    """The core's ``MediumSettings`` (its own checks of each value, e.g. ``storage``, naming the parameter)."""
+    return _motes.MediumSettings(query_radius=float(query_radius), tau_max=float(tau_max),
+                                 cells_per_particle=float(cells_per_particle),
+                                 continuous_count=float(continuous_count), seed=int(seed) & (2**64 - 1),
+                                 storage=storage, cache_bytes=None if cache_bytes is None else int(cache_bytes))
+
+
+def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, settings):
+    """The inputs as arrays (positions, radii, species index, species list, wavelengths as given and sorted), checked
+    with the medium's ``settings`` (``_settings``)."""
     pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64))
     if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
         raise ValueError(f"positions must have shape (n, 3) with n >= 1, got {pos.shape}")
@@ -152,12 +161,11 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     if r.size == n:
         lo_box, hi_box = box_of(pos)
         extent = float(np.max(hi_box - lo_box))
-        reach_max = float(query_radius) + float(r.max()) * 1e-6 / scale_m
-        _memory.require(_memory.bytes_per_particle(n, extent, reach_max, storage) * n,
+        reach_max = settings.query_radius + float(r.max()) * 1e-6 / scale_m
+        _memory.require(_memory.bytes_per_particle(n, extent, reach_max, settings.storage) * n,
                         f"a discrete medium of {n} particles")
     # The core's own rules, checked now rather than after minutes of optics tables.
-    _motes.check_discrete_inputs(pos.ravel(), r, float(query_radius), float(tau_max), float(cells_per_particle),
-                                 float(continuous_count))
+    _motes.check_discrete_inputs(pos.ravel(), r, settings)
     return pos, r, idx, species, lam_in, lam
 
 
@@ -222,6 +230,14 @@ class _BinTables:
         return self.albedos, self.theta, self.f, self.offsets
 
 
+def _core_tables(tables, lam) -> _motes.BinTables:
+    """The core's ``BinTables`` of (albedos, theta, f, offsets) per bin and the tabulated wavelengths (um)."""
+    albedos, theta, f, offsets = tables
+    return _motes.BinTables(np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
+                            np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
+                            np.ascontiguousarray(lam * 1e3))
+
+
 def _light_tuple(centre, radius, disc=0.0, normal=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 0.0), cos_cutoff=-1.0) -> tuple:
     """A light for the core: (centre, radius, disc, normal, spot axis, spot cos_cutoff) as floats
     (``DiscreteMedium.set_cameras``)."""
@@ -260,9 +276,9 @@ class DiscreteMedium:
         self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
         if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
+        settings = _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed, storage)
         pos, r, idx, species, lam_in, lam = _checked_inputs(
-            positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, query_radius, tau_max,
-            cells_per_particle, continuous_count, storage)
+            positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, settings)
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 
@@ -271,8 +287,7 @@ class DiscreteMedium:
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
                                                     truncate_below_rad, albedo, phase_model)
-        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
-                         cells_per_particle, continuous_count, seed, warn_widened)
+        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened)
         self._set_path_rules(grain_depth, surface_footprint)
 
     def _set_path_rules(self, grain_depth: int, surface_footprint: bool) -> None:
@@ -372,11 +387,10 @@ class DiscreteMedium:
         tables.report(self)
         return bin_of, np.asarray(tables.grey_q), tables.core_tables()
 
-    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, query_radius, tau_max,
-                    cells_per_particle, continuous_count, seed, warn_widened):
+    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened):
         """The Rust medium over the particles and their bins' tables, and the attributes that report it."""
         n = pos.shape[0]
-        albedos, theta, f, offsets = tables
+        query_radius, tau_max = settings.query_radius, settings.tau_max
         t_grid = time.perf_counter()
         um = 1e-6 / scale_m
         # Each particle's cross section is pi r^2 of its bin's grey Q_ext: the core computes it (a column of
@@ -388,12 +402,8 @@ class DiscreteMedium:
         #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         # Radii in um with their scale (a scaled copy of 1e8 radii would be 800 MB).
-        self._core = _motes.DiscreteMedium(
-            pos.ravel(), r, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
-            np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
-            np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
-            np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
-            float(continuous_count), int(seed) & (2**64 - 1), self.storage, radius_scale=um)
+        self._core = _motes.DiscreteMedium(pos.ravel(), r, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
+                                           _core_tables(tables, lam), settings, radius_scale=um)
         log.info("grid: %d particles, %.1f MB, %.1f s", n, self._core.bytes / 1e6, time.perf_counter() - t_grid)
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened
@@ -468,18 +478,15 @@ class DiscreteMedium:
         tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model)
         edges_all, first = _procedural_bins(tables, species, size_bins)
         tables.report(self)
-        albedos, theta, f, offsets = tables.core_tables()
         kind, params = density
         t_build = time.perf_counter()
         self._core = _motes.DiscreteMedium.procedural(
-            float(count), lo.tolist(), hi.tolist(), kind, [float(x) for x in params], int(noise_seed) & (2**64 - 1),
-            [sp.psd._core for sp in species], shares, int(cloud_seed) & (2**64 - 1), m[:3, :4].tolist(),
-            1e-6 / float(scale_m), edges_all, first, [float(q) for q in tables.grey_q],
-            np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
-            np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
-            np.ascontiguousarray(lam * 1e3), float(query_radius), float(tau_max), float(cells_per_particle),
-            float(continuous_count), int(seed) & (2**64 - 1), int(cache_bytes), turbulence=float(turbulence),
-            turbulence_scale=float(turbulence_scale), time=float(time_s))
+            float(count), (lo.tolist(), hi.tolist()), (kind, [float(x) for x in params], int(noise_seed) & (2**64 - 1)),
+            ([sp.psd._core for sp in species], shares), int(cloud_seed) & (2**64 - 1), m[:3, :4].tolist(),
+            1e-6 / float(scale_m), (edges_all, first, [float(q) for q in tables.grey_q]),
+            _core_tables(tables.core_tables(), lam),
+            _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed, cache_bytes=cache_bytes),
+            turbulence=float(turbulence), turbulence_scale=float(turbulence_scale), time=float(time_s))
         log.info("procedural cloud: %.3g particles, %.3g of them continuous, %.1f MB before any brick, %.1f s",
                  count, self._core.continuous_particles, self._core.bytes / 1e6, time.perf_counter() - t_build)
         self._set_path_rules(grain_depth, surface_footprint)

@@ -73,6 +73,8 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<ensemble::PyGoaCache>()?;
     m.add_class::<grid::PyParticleGrid>()?;
     m.add_class::<medium::PyDiscreteMedium>()?;
+    m.add_class::<medium::settings::PyMediumSettings>()?;
+    m.add_class::<medium::settings::PyBinTables>()?;
     m.add(
         "DEFAULT_TAU_MAX",
         motes_core::render::discrete::DEFAULT_TAU_MAX,

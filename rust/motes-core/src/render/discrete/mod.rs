@@ -123,6 +123,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 
 /// Optical data of one radius bin of one species at the tabulated wavelengths.
+#[derive(Clone, Debug)]
 pub struct BinOptics {
     /// Single-scattering albedo C_s / C_t per tabulated wavelength.
     pub albedo: Vec<f64>,
