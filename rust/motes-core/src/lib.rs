@@ -9,6 +9,7 @@
 //!   resolves as a continuous medium.
 //! * [`error`] (one error type naming the bad argument), [`cancel`] (Ctrl-C for long table builds) and
 //!   [`rng`] (the SplitMix64 hash behind every random number the core draws).
+//! * [`simd`]: which SIMD paths this CPU runs, decided once per process.
 
 pub mod cancel;
 pub mod ensemble;
@@ -16,6 +17,7 @@ pub mod error;
 pub mod optics;
 pub mod render;
 pub mod rng;
+pub mod simd;
 pub mod space;
 
 #[cfg(test)]

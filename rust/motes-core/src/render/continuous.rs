@@ -274,24 +274,8 @@ impl FlightLanes {
     }
 }
 
-/// Whether the CPU has AVX-512 F, DQ and VL, which the lockstep's 64-bit lanes need (their multiplies
-/// and conversions), and the grid's wide walks are on (`crate::space::grid::wide_simd`). No with
-/// `MOTES_SIMD=sse` (the baseline everywhere) or `MOTES_SIMD=avx2` (stop at AVX2).
-pub(crate) fn lockstep_simd() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *ON.get_or_init(|| {
-            crate::space::grid::wide_simd()
-                && std::env::var("MOTES_SIMD").map_or(true, |v| v != "avx2")
-                && std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512dq")
-                && std::arch::is_x86_feature_detected!("avx512vl")
-        })
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    false
-}
+/// (The path `render::phase_lanes` names it by.)
+pub(crate) use crate::simd::lockstep_simd;
 
 /// What a tentative collision of delta tracking turns out to be.
 enum Tentative {

@@ -55,6 +55,7 @@
 //! overlap slots, for those comparisons): BENCHMARKS.md section 24.
 
 use crate::error::{require, require_len, OpticsError};
+use crate::simd::wide_simd;
 use crate::space::dda::{inverse, Dda, DdaCell, GridFrame};
 use crate::space::ray::RaySegment;
 use crate::space::ray_lanes::RayLanes;
@@ -455,23 +456,6 @@ fn block_pretest<const WIDE: bool>(b: &Block, f: &RayFrame) -> u32 {
         return unsafe { block_pretest_avx2(b, f) };
     }
     block_pretest_narrow(b, f)
-}
-
-/// Whether this CPU runs the AVX2 + FMA walk (`MOTES_SIMD=sse` forces the narrow one, for tests and
-/// comparisons). Eight spheres per operation instead of four: free flights 0.33 -> 0.27 us per sparse
-/// ray in `benches/traverse.rs`, the sparse render 6 % faster (BENCHMARKS 10.1).
-pub fn wide_simd() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        static WIDE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *WIDE.get_or_init(|| {
-            std::env::var("MOTES_SIMD").map_or(true, |v| v != "sse")
-                && std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-        })
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    false
 }
 
 /// [`block_pretest`] in one AVX2 operation per step (FMA rounds once where SSE rounds twice: the

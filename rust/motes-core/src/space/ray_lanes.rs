@@ -46,7 +46,7 @@ impl RayLanes {
             dz: [0.0; RAYS],
             t0: [0.0; RAYS],
             t1: [0.0; RAYS],
-            simd: crate::render::continuous::lockstep_simd(),
+            simd: crate::simd::lockstep_simd(),
         };
         for (i, r) in rays.take(RAYS).enumerate() {
             let Some(r) = r else { continue };
