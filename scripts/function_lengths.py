@@ -22,8 +22,10 @@ PY_FN = re.compile(r"^(\s*)(async )?def (\w+)")
 
 def rust_functions(path: pathlib.Path):
     lines = path.read_text().splitlines()
-    # Unit tests live in a `#[cfg(test)] mod tests` at the end of a file.
-    end = next((i for i, ln in enumerate(lines) if ln.startswith("#[cfg(test)]")), len(lines))
+    # Unit tests live in a `#[cfg(test)] mod tests` at the end of a file, or in a module folder's
+    # `tests.rs` (all of it).
+    end = 0 if path.name == "tests.rs" else next(
+        (i for i, ln in enumerate(lines) if ln.startswith("#[cfg(test)]")), len(lines))
     for i, ln in enumerate(lines[:end]):
         m = RUST_FN.match(ln)
         if m and not ln.rstrip().endswith(";"):

@@ -41,7 +41,6 @@ pub use lockstep::FLIGHT_LANES;
 use crate::render::footprint::{ClassMoments, SurfaceFootprint};
 use crate::space::dda::{Bounds3, GridFrame};
 use crate::space::grid::{bounding_box, size_class};
-use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 

@@ -2,6 +2,7 @@ use super::flight::ln_unit;
 use super::*;
 
 use crate::rng::stream_bits;
+use crate::space::ray::RaySegment;
 use crate::space::vec3;
 use crate::test_rng::{assert_escape_rate, lcg, random_points};
 use std::sync::atomic::Ordering;

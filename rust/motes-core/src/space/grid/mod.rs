@@ -64,6 +64,7 @@
 //! * `beam`: rays that travel together, walked as one beam.
 
 mod beam;
+mod build;
 mod flight;
 mod rows;
 mod settings;
@@ -77,12 +78,13 @@ pub use settings::{
     FREE_PATHS_PER_CELL,
 };
 pub(crate) use settings::{size_class, SIZE_CLASSES};
-pub(crate) use slots::ball_contribution;
 pub use subgrid::SubGrid;
-#[allow(unused_imports)] // (the crate's path for it; no module outside names it today)
-pub(crate) use walk::Cursor;
+// The crate's paths for these (outside this folder only tests name them today).
+#[allow(unused_imports)]
+pub(crate) use {slots::ball_contribution, walk::Cursor};
 
 use crate::error::OpticsError;
+#[cfg(any(test, feature = "oracles"))]
 use crate::space::ray::RaySegment;
 use rayon::prelude::*;
 use settings::{mean_free_path, merge_sparse_classes, occupied_volume_by};
