@@ -3,13 +3,14 @@
 use super::flight::Flight;
 use super::rows::{Near, Segment, ROWS_PER_STEP};
 use super::settings::BOX_MARGIN;
-use super::slots::{ALL_LANES, LANES};
+use super::slots::{Spheres, LANES};
 use super::walk::Probe;
 use super::{ParticleGrid, Site, SubGrid};
 use crate::simd::wide_simd;
 use crate::space::dda::{Dda, GridFrame};
 use crate::space::ray::RaySegment;
 use crate::space::ray_lanes::RayLanes;
+use crate::space::vec3::dot;
 
 /// Rays a beam walks together at most ([`ParticleGrid::sample_sites_beam`]: a packet's lanes).
 pub const BEAM_RAYS: usize = 16;
@@ -73,67 +74,8 @@ impl SubGrid {
         rays: &[RaySegment],
         probes: &mut [Option<Probe>; BEAM_RAYS],
     ) -> Option<Beam> {
-        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-        let mut clip = [None; BEAM_RAYS];
-        let (mut sum, mut live) = ([0.0; 3], 0);
-        for (i, r) in rays.iter().enumerate() {
-            // (A NaN origin or direction clips to a NaN-free range and would poison the mean.)
-            if !r.o.iter().chain(&r.d).all(|x| x.is_finite()) {
-                return None;
-            }
-            // (An empty segment, NaN ends included, has no contribution: no probe. The box's clip
-            // drops a NaN end.)
-            clip[i] = if r.is_empty() {
-                None
-            } else {
-                self.frame.bounds.clip(r)
-            };
-            if clip[i].is_some() {
-                (0..3).for_each(|a| sum[a] += r.d[a]);
-                live += 1;
-            }
-        }
-        let norm = dot(sum, sum).sqrt();
-        let d = (live > 0 && norm > 0.0).then(|| sum.map(|x| x / norm))?;
-        let at = |r: &RaySegment, t: f64| [0, 1, 2].map(|a| r.o[a] + t * r.d[a]);
-        let mut o = [0.0; 3];
-        for (r, c) in rays.iter().zip(&clip) {
-            if let Some((t0, _)) = c {
-                let p = at(r, *t0);
-                (0..3).for_each(|a| o[a] += p[a] / live as f64);
-            }
-        }
-        let mut proj = [(0.0, 1.0); BEAM_RAYS];
-        for (i, (r, c)) in rays.iter().zip(&clip).enumerate() {
-            if c.is_none() {
-                continue;
-            }
-            let cos = dot(r.d, d);
-            if cos.is_nan() || cos < 0.9 {
-                return None;
-            }
-            let rel = [0, 1, 2].map(|a| r.o[a] - o[a]);
-            proj[i] = (dot(rel, d), cos);
-        }
-        // δ and the representative's range [s0, s1] over the rays' segments in the box, each cut to
-        // its first 1 / 2^k (δ is largest at a segment's ends: a ray's distance from another line
-        // is convex along it).
-        let spread = |k: i32| {
-            let (mut delta, mut s0, mut s1) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
-            for (r, c) in rays.iter().zip(&clip) {
-                let Some((t0, t1)) = *c else { continue };
-                for t in [t0, t0 + (t1 - t0) * 0.5f64.powi(k)] {
-                    let p = at(r, t);
-                    let v = [0, 1, 2].map(|a| p[a] - o[a]);
-                    let s = dot(v, d);
-                    let across = [0, 1, 2].map(|a| v[a] - s * d[a]);
-                    delta = delta.max(dot(across, across).sqrt());
-                    s0 = s0.min(s);
-                    s1 = s1.max(s);
-                }
-            }
-            (delta, s0, s1)
-        };
+        let (clip, sum, live) = self.beam_clips(rays)?;
+        let (o, d, proj) = beam_axis(rays, &clip, sum, live)?;
         let cell = self.frame.cell;
         let reach_with = |delta: f64| self.reach_max * BOX_MARGIN.0 + BOX_MARGIN.1 + delta;
         let fits = |&(_, (delta, s0, s1)): &(i32, (f64, f64, f64))| {
@@ -145,7 +87,9 @@ impl SubGrid {
         // Rays that spread too far over the whole box (a pixel's camera rays through a deep cloud)
         // make a beam over their first part: most of them find their site there in a dense cloud,
         // the others go on one by one from where it ends (`ParticleGrid::beam_lanes`).
-        let (k, (delta, s0, s1)) = (0..=BEAM_CUTS).map(|k| (k, spread(k))).find(fits)?;
+        let (k, (delta, s0, s1)) = (0..=BEAM_CUTS)
+            .map(|k| (k, beam_spread(rays, &clip, o, d, k)))
+            .find(fits)?;
         let reach = reach_with(delta);
         let rep = RaySegment::new(o, d, s0, s1);
         let mut cut = [f64::INFINITY; BEAM_RAYS];
@@ -169,6 +113,294 @@ impl SubGrid {
             proj,
             delta,
         })
+    }
+
+    /// Each ray's segment in the class's box (None: an empty segment, NaN ends included, or one that
+    /// misses the box), the sum of those rays' directions and their count; None where a ray has a
+    /// NaN or infinite origin or direction (it clips to a NaN-free range and would poison the mean).
+    #[allow(clippy::type_complexity)]
+    fn beam_clips(
+        &self,
+        rays: &[RaySegment],
+    ) -> Option<([Option<(f64, f64)>; BEAM_RAYS], [f64; 3], usize)> {
+        let mut clip = [None; BEAM_RAYS];
+        let (mut sum, mut live) = ([0.0; 3], 0);
+        for (i, r) in rays.iter().enumerate() {
+            if !r.o.iter().chain(&r.d).all(|x| x.is_finite()) {
+                return None;
+            }
+            // (The box's clip drops a NaN end: an empty segment gets no probe.)
+            clip[i] = if r.is_empty() {
+                None
+            } else {
+                self.frame.bounds.clip(r)
+            };
+            if clip[i].is_some() {
+                (0..3).for_each(|a| sum[a] += r.d[a]);
+                live += 1;
+            }
+        }
+        Some((clip, sum, live))
+    }
+}
+
+/// The point at `t` on ray `r`.
+#[inline]
+fn point_at(r: &RaySegment, t: f64) -> [f64; 3] {
+    [0, 1, 2].map(|a| r.o[a] + t * r.d[a])
+}
+
+/// The representative ray of the `live` rays with segments `clip` in the box, whose directions sum to
+/// `sum`: its origin (their mean entry point) and direction (their mean), and each ray's projections
+/// on it ([`Beam::proj`]); None where the mean is no direction or a ray's is more than ~25° from it.
+#[allow(clippy::type_complexity)]
+fn beam_axis(
+    rays: &[RaySegment],
+    clip: &[Option<(f64, f64)>; BEAM_RAYS],
+    sum: [f64; 3],
+    live: usize,
+) -> Option<([f64; 3], [f64; 3], [(f64, f64); BEAM_RAYS])> {
+    let norm = dot(sum, sum).sqrt();
+    let d = (live > 0 && norm > 0.0).then(|| sum.map(|x| x / norm))?;
+    let mut o = [0.0; 3];
+    for (r, c) in rays.iter().zip(clip) {
+        if let Some((t0, _)) = c {
+            let p = point_at(r, *t0);
+            (0..3).for_each(|a| o[a] += p[a] / live as f64);
+        }
+    }
+    let mut proj = [(0.0, 1.0); BEAM_RAYS];
+    for (i, (r, c)) in rays.iter().zip(clip).enumerate() {
+        if c.is_none() {
+            continue;
+        }
+        let cos = dot(r.d, d);
+        if cos.is_nan() || cos < 0.9 {
+            return None;
+        }
+        let rel = [0, 1, 2].map(|a| r.o[a] - o[a]);
+        proj[i] = (dot(rel, d), cos);
+    }
+    Some((o, d, proj))
+}
+
+/// δ and the representative ray's (origin `o`, direction `d`) range [s0, s1] over the rays' segments
+/// in the box, each cut to its first 1 / 2^k (δ is largest at a segment's ends: a ray's distance
+/// from another line is convex along it).
+fn beam_spread(
+    rays: &[RaySegment],
+    clip: &[Option<(f64, f64)>; BEAM_RAYS],
+    o: [f64; 3],
+    d: [f64; 3],
+    k: i32,
+) -> (f64, f64, f64) {
+    let (mut delta, mut s0, mut s1) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
+    for (r, c) in rays.iter().zip(clip) {
+        let Some((t0, t1)) = *c else { continue };
+        for t in [t0, t0 + (t1 - t0) * 0.5f64.powi(k)] {
+            let p = point_at(r, t);
+            let v = [0, 1, 2].map(|a| p[a] - o[a]);
+            let s = dot(v, d);
+            let across = [0, 1, 2].map(|a| v[a] - s * d[a]);
+            delta = delta.max(dot(across, across).sqrt());
+            s0 = s0.min(s);
+            s1 = s1.max(s);
+        }
+    }
+    (delta, s0, s1)
+}
+
+/// A beam's walk in progress: its class, and per ray its probe, its flight (None: not flying, or
+/// done) and its hits waiting for their frontier.
+struct BeamWalk<'a> {
+    c: &'a SubGrid,
+    slots: &'a Spheres,
+    n: usize,
+    probes: [Option<Probe>; BEAM_RAYS],
+    flights: [Option<Flight<'static>>; BEAM_RAYS],
+    /// Buffers kept per thread between beams ([`BEAM_PENDING`]: a beam per packet).
+    pending: [Vec<(f64, u32)>; BEAM_RAYS],
+    /// Each candidate particle against every ray at once where the CPU can (`RayLanes`), else each
+    /// ray's own pre-test and exact test, block by block.
+    lanes_of_rays: RayLanes,
+    side_by_side: bool,
+    /// The rays still flying, as bits.
+    alive: u32,
+    ts: [f64; BEAM_RAYS],
+}
+
+impl<'a> BeamWalk<'a> {
+    /// The walk of the `n` rays with `probes` through class `c` (`us` and `coincide` as
+    /// [`ParticleGrid::sample_sites_beam`]'s), each ray's result in `out` cleared.
+    #[inline(always)]
+    fn new<const WIDE: bool>(
+        c: &'a SubGrid,
+        probes: [Option<Probe>; BEAM_RAYS],
+        n: usize,
+        us: &[f64],
+        coincide: f64,
+        out: &mut [(Option<Site>, f64)],
+    ) -> Self {
+        let mut flights: [Option<Flight>; BEAM_RAYS] = [const { None }; BEAM_RAYS];
+        for i in 0..n {
+            out[i] = (None, 0.0);
+            flights[i] = probes[i].map(|_| Flight::new(&[], us[i], coincide));
+        }
+        let mut pending = BEAM_PENDING.take();
+        pending.iter_mut().for_each(Vec::clear);
+        let lanes_of_rays = RayLanes::new(probes.iter().map(|p| p.as_ref().map(|p| &p.ray)));
+        // (A ray has a flight exactly where it has a probe.)
+        let alive = (0..n).fold(0u32, |m, i| m | (flights[i].is_some() as u32) << i);
+        BeamWalk {
+            c,
+            slots: c.slots(),
+            n,
+            probes,
+            flights,
+            pending,
+            side_by_side: WIDE && lanes_of_rays.simd,
+            lanes_of_rays,
+            alive,
+            ts: [0.0; BEAM_RAYS],
+        }
+    }
+
+    /// The beam's DDA steps through the cells around its representative ray, each step's rows tested
+    /// and each ray's hits before the step's exit passed to its flight, until no ray flies (a ray that
+    /// found its site writes it to `out`).
+    #[inline(always)]
+    fn walk<const WIDE: bool>(&mut self, beam: &Beam, out: &mut [(Option<Site>, f64)]) {
+        let mut rows = [Segment::default(); ROWS_PER_STEP];
+        let mut dda = Dda::new(&beam.cells, &beam.rep.ray);
+        let mut prev: Option<[i64; 3]> = None;
+        let mut flying = self.flights.iter().filter(|f| f.is_some()).count();
+        while flying > 0 {
+            let Some(step) = dda.next() else { break };
+            let last = dda.finished();
+            // The grown grid's cell, in the class's cell coordinates (−1 and dims: outside).
+            let cell = step.cell.map(|x| x as i64 - 1);
+            let rep = &beam.rep;
+            let (t0, t1) = (rep.ray.t0, rep.ray.t1);
+            let m = self
+                .c
+                .near_rows(cell, prev.replace(cell), t0, t1, &beam.near, &mut rows);
+            for sg in rows[..m].iter_mut() {
+                self.test_row::<WIDE>(sg, rep);
+            }
+            // Each ray's contributions are known where its points project before this step's exit.
+            for i in 0..self.n {
+                let Some(f) = &mut self.flights[i] else {
+                    continue;
+                };
+                let upto = if last {
+                    f64::INFINITY
+                } else {
+                    beam.frontier(i, step.t_exit)
+                };
+                if !self.c.visit_before(upto, &mut self.pending[i], f) {
+                    out[i] = self.flights[i].take().map_or((None, 0.0), Flight::finish);
+                    self.alive &= !(1 << i);
+                    flying -= 1;
+                }
+            }
+            if last {
+                break;
+            }
+        }
+    }
+
+    /// Test the slots of row `sg` (cells, until loaded here) against the beam's flying rays: the
+    /// representative ray's pre-test for all of them, then each ray's exact test.
+    #[inline(always)]
+    fn test_row<const WIDE: bool>(&mut self, sg: &mut Segment, rep: &Probe) {
+        let c = self.c;
+        c.load_slot_range(sg);
+        if sg.c0 == sg.c1 {
+            return;
+        }
+        c.locate(sg, rep);
+        // Where each ray's pre-test reads the row's slots from (its lattice offsets; the rest of the
+        // segment is the row's).
+        let mut offs = [[0.0f32; 2]; BEAM_RAYS];
+        if c.quant.is_some() && !self.side_by_side {
+            for i in 0..self.n {
+                if let (Some(probe), Some(_)) = (&self.probes[i], &self.flights[i]) {
+                    offs[i] = probe.offsets(sg.cell);
+                }
+            }
+        }
+        for blk in sg.c0 / LANES..=(sg.c1 - 1) / LANES {
+            // The lanes the representative ray's pre-test passes (within R + δ of it): one pre-test
+            // for all rays, most blocks of a dense cloud none.
+            let candidates = sg.block_lanes(blk) & c.pretest::<WIDE>(self.slots, blk, sg, rep);
+            if candidates == 0 {
+                continue;
+            }
+            if self.side_by_side {
+                // (A row's contributions count anywhere on a ray's segment: `near_rows`.)
+                debug_assert!(sg.t_enter == f64::NEG_INFINITY && sg.t_exit == f64::INFINITY);
+                self.block_side_by_side(blk, candidates, sg);
+                continue;
+            }
+            for i in 0..self.n {
+                let (Some(probe), Some(_)) = (&self.probes[i], &self.flights[i]) else {
+                    continue;
+                };
+                let own = Segment {
+                    off: offs[i],
+                    ..*sg
+                };
+                let list = &mut self.pending[i];
+                c.test_block::<WIDE>(self.slots, blk, candidates, &own, probe, &mut |t, s| {
+                    list.push((t, s as u32));
+                    true
+                });
+            }
+        }
+    }
+
+    /// The `candidates` of block `blk` of row `sg` against every flying ray at once (`RayLanes`).
+    #[inline(always)]
+    fn block_side_by_side(&mut self, blk: usize, candidates: u32, sg: &Segment) {
+        let mut m = candidates;
+        while m != 0 {
+            let s = LANES * blk + m.trailing_zeros() as usize;
+            m &= m - 1;
+            let ball = self.c.slot_ball(s, sg.cell);
+            let mut hit = self
+                .lanes_of_rays
+                .contributions(ball, self.alive, &mut self.ts);
+            while hit != 0 {
+                let i = hit.trailing_zeros() as usize;
+                hit &= hit - 1;
+                self.pending[i].push((self.ts[i], s as u32));
+            }
+        }
+    }
+}
+
+impl SubGrid {
+    /// Ray `pending`'s hits (t, slot) before `upto`, in t order, into its flight, and out of the
+    /// list; false once the flight found its site.
+    #[inline(always)]
+    fn visit_before(&self, upto: f64, pending: &mut Vec<(f64, u32)>, flight: &mut Flight) -> bool {
+        // The hits before the frontier to the front, then only those sorted: the ones held back
+        // were sorted again at every step (the sorts were 2 % of a dense box's render).
+        let mut k = 0;
+        for j in 0..pending.len() {
+            if pending[j].0 < upto {
+                pending.swap(k, j);
+                k += 1;
+            }
+        }
+        pending[..k].sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
+        for &(t, s) in &pending[..k] {
+            if !flight.visit(t, self.hit_tau(s as usize)[0], self.hit_index(s as usize)) {
+                return false;
+            }
+        }
+        pending.drain(..k);
+        true
     }
 }
 
@@ -235,146 +467,15 @@ impl ParticleGrid {
         let Some(beam) = c.beam(rays, &mut probes) else {
             return false;
         };
-        let mut flights: [Option<Flight>; BEAM_RAYS] = [const { None }; BEAM_RAYS];
+        let mut walk = BeamWalk::new::<WIDE>(c, probes, n, us, coincide, out);
+        walk.walk::<WIDE>(&beam, out);
+        // The rays still flying past the beam's end: their last hits, then past its cut their own
+        // walks (the same flights going on).
         for i in 0..n {
-            out[i] = (None, 0.0);
-            flights[i] = probes[i].map(|_| Flight::new(&[], us[i], coincide));
-        }
-        // Each ray's hits waiting for its frontier, in buffers kept per thread (a beam per packet).
-        let mut pending = BEAM_PENDING.take();
-        pending.iter_mut().for_each(Vec::clear);
-        // Ray i's hits before `upto`, in t order, into its flight; false once it found its site.
-        let emit = |upto: f64, pending: &mut Vec<(f64, u32)>, flight: &mut Flight| -> bool {
-            // The hits before the frontier to the front, then only those sorted: the ones held back
-            // were sorted again at every step (the sorts were 2 % of a dense box's render).
-            let mut k = 0;
-            for j in 0..pending.len() {
-                if pending[j].0 < upto {
-                    pending.swap(k, j);
-                    k += 1;
-                }
-            }
-            pending[..k].sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
-            for &(t, s) in &pending[..k] {
-                if !flight.visit(t, c.hit_tau(s as usize)[0], c.hit_index(s as usize)) {
-                    return false;
-                }
-            }
-            pending.drain(..k);
-            true
-        };
-        let slots = c.slots();
-        // Each candidate particle against every ray at once where the CPU can (`RayLanes`), else
-        // each ray's own pre-test and exact test, block by block.
-        let lanes_of_rays = RayLanes::new(probes.iter().map(|p| p.as_ref().map(|p| &p.ray)));
-        let side_by_side = WIDE && lanes_of_rays.simd;
-        // (A ray has a flight exactly where it has a probe.)
-        let mut alive = (0..n).fold(0u32, |m, i| m | (flights[i].is_some() as u32) << i);
-        let mut ts = [0.0; BEAM_RAYS];
-        let mut rows = [Segment::default(); ROWS_PER_STEP];
-        let mut dda = Dda::new(&beam.cells, &beam.rep.ray);
-        let mut prev: Option<[i64; 3]> = None;
-        let mut flying = flights.iter().filter(|f| f.is_some()).count();
-        while flying > 0 {
-            let Some(step) = dda.next() else { break };
-            let last = dda.finished();
-            // The grown grid's cell, in the class's cell coordinates (−1 and dims: outside).
-            let cell = step.cell.map(|x| x as i64 - 1);
-            let rep = &beam.rep;
-            let m = c.near_rows(
-                cell,
-                prev.replace(cell),
-                rep.ray.t0,
-                rep.ray.t1,
-                &beam.near,
-                &mut rows,
-            );
-            for sg in rows[..m].iter_mut() {
-                (sg.c0, sg.c1) = (c.start[sg.c0] as usize, c.start[sg.c1] as usize);
-                if sg.c0 == sg.c1 {
-                    continue;
-                }
-                c.locate(sg, rep);
-                // Where each ray's pre-test reads the row's slots from (its lattice offsets; the
-                // rest of the segment is the row's).
-                let mut offs = [[0.0f32; 2]; BEAM_RAYS];
-                if c.quant.is_some() && !side_by_side {
-                    for i in 0..n {
-                        if let (Some(probe), Some(_)) = (&probes[i], &flights[i]) {
-                            offs[i] = probe.offsets(sg.cell);
-                        }
-                    }
-                }
-                for blk in sg.c0 / LANES..=(sg.c1 - 1) / LANES {
-                    let base = LANES * blk;
-                    let first = (sg.c0.max(base) - base) as u32;
-                    let end = (sg.c1.min(base + LANES) - base) as u32;
-                    let lanes = (ALL_LANES >> (LANES as u32 - end)) & (ALL_LANES << first);
-                    // The lanes the representative ray's pre-test passes (within R + δ of it): one
-                    // pre-test for all rays, most blocks of a dense cloud none.
-                    let candidates = lanes & c.pretest::<WIDE>(slots, blk, sg, rep);
-                    if candidates == 0 {
-                        continue;
-                    }
-                    if side_by_side {
-                        // (A row's contributions count anywhere on a ray's segment: `near_rows`.)
-                        debug_assert!(
-                            sg.t_enter == f64::NEG_INFINITY && sg.t_exit == f64::INFINITY
-                        );
-                        let mut m = candidates;
-                        while m != 0 {
-                            let s = base + m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            let ball = c.slot_ball(s, sg.cell);
-                            let mut hit = lanes_of_rays.contributions(ball, alive, &mut ts);
-                            while hit != 0 {
-                                let i = hit.trailing_zeros() as usize;
-                                hit &= hit - 1;
-                                pending[i].push((ts[i], s as u32));
-                            }
-                        }
-                        continue;
-                    }
-                    for i in 0..n {
-                        let (Some(probe), Some(_)) = (&probes[i], &flights[i]) else {
-                            continue;
-                        };
-                        let own = Segment {
-                            off: offs[i],
-                            ..*sg
-                        };
-                        let list = &mut pending[i];
-                        c.test_block::<WIDE>(slots, blk, candidates, &own, probe, &mut |t, s| {
-                            list.push((t, s as u32));
-                            true
-                        });
-                    }
-                }
-            }
-            // Each ray's contributions are known where its points project before this step's exit.
-            for i in 0..n {
-                let Some(f) = &mut flights[i] else { continue };
-                let upto = if last {
-                    f64::INFINITY
-                } else {
-                    beam.frontier(i, step.t_exit)
-                };
-                if !emit(upto, &mut pending[i], f) {
-                    out[i] = flights[i].take().map_or((None, 0.0), Flight::finish);
-                    alive &= !(1 << i);
-                    flying -= 1;
-                }
-            }
-            if last {
-                break;
-            }
-        }
-        for i in 0..n {
-            if let Some(mut f) = flights[i].take() {
-                let mut going = emit(f64::INFINITY, &mut pending[i], &mut f);
+            if let Some(mut f) = walk.flights[i].take() {
+                let mut going = c.visit_before(f64::INFINITY, &mut walk.pending[i], &mut f);
                 let r = &rays[i];
                 if going && beam.cut[i] < r.t1 {
-                    // Past the beam's cut, the ray's own walk (the same flight going on).
                     self.walk(&r.between(beam.cut[i], r.t1), |t, tau, j| {
                         going = f.visit(t, tau[0], j);
                         going
@@ -383,7 +484,7 @@ impl ParticleGrid {
                 out[i] = f.finish();
             }
         }
-        BEAM_PENDING.set(pending);
+        BEAM_PENDING.set(walk.pending);
         true
     }
 }

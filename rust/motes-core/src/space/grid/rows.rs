@@ -2,6 +2,7 @@
 //! block around it that the ray comes near and no earlier step tested (centre cells).
 
 use super::settings::BOX_MARGIN;
+use super::slots::{ALL_LANES, LANES};
 use super::SubGrid;
 use crate::space::dda::GridFrame;
 use crate::space::ray::RaySegment;
@@ -25,6 +26,17 @@ pub(super) struct Segment {
     pub(super) off: [f32; 2],
     /// Quantised slots: the slot origin's lattice coordinates modulo 2^16 (`QSlots::origin_bits`).
     pub(super) base: [u16; 3],
+}
+
+impl Segment {
+    /// The lanes of slot block `blk` inside the slots `c0..c1`, as bits.
+    #[inline(always)]
+    pub(super) fn block_lanes(&self, blk: usize) -> u32 {
+        let base = LANES * blk;
+        let first = (self.c0.max(base) - base) as u32;
+        let end = (self.c1.min(base + LANES) - base) as u32;
+        (ALL_LANES >> (LANES as u32 - end)) & (ALL_LANES << first)
+    }
 }
 
 /// When a ray comes near a layer of cells (k = 1, `SubGrid::step_rows`): along axis a, its coordinate

@@ -151,6 +151,12 @@ impl SubGrid {
         }
     }
 
+    /// A segment's cells `c0..c1` as the slots they hold, `start[c0]..start[c1]`.
+    #[inline(always)]
+    pub(super) fn load_slot_range(&self, sg: &mut Segment) {
+        (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
+    }
+
     /// Where a segment's quantised slots lie across the ray (`Segment::off`, `Segment::base`): once per
     /// segment, before its slots are tested (spheres need nothing).
     #[inline(always)]
@@ -212,7 +218,7 @@ impl SubGrid {
         }
         let slots = self.slots();
         for sg in batch.iter_mut() {
-            (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
+            self.load_slot_range(sg);
             self.locate(sg, &cur.probe);
             if self.prefetch_slots {
                 for blk in sg.c0 / LANES..sg.c1.div_ceil(LANES) {
@@ -245,12 +251,7 @@ impl SubGrid {
             return true;
         }
         for blk in sg.c0 / LANES..=(sg.c1 - 1) / LANES {
-            // Lanes of this block inside the segment's slot range.
-            let base = LANES * blk;
-            let first = (sg.c0.max(base) - base) as u32;
-            let end = (sg.c1.min(base + LANES) - base) as u32;
-            let lanes = (ALL_LANES >> (LANES as u32 - end)) & (ALL_LANES << first);
-            if !self.test_block::<WIDE>(slots, blk, lanes, sg, probe, found) {
+            if !self.test_block::<WIDE>(slots, blk, sg.block_lanes(blk), sg, probe, found) {
                 return false;
             }
         }
@@ -423,7 +424,7 @@ impl SubGrid {
                 return Some(f64::INFINITY);
             };
             for sg in rows[..n].iter_mut() {
-                (sg.c0, sg.c1) = (self.start[sg.c0] as usize, self.start[sg.c1] as usize);
+                self.load_slot_range(sg);
                 if sg.c0 == sg.c1 {
                     continue;
                 }
