@@ -56,6 +56,84 @@ pub(super) struct Near {
 }
 
 impl Near {
+    /// The cells [`SubGrid::near_rows`] tests for DDA cell `c` after `prev` (None: the first step) of
+    /// a segment on [t0, t1], in a grid of `dims` cells: per axis, the range of cells (None: none).
+    /// The candidates are the cells within one of `c` along each axis (clamped to the grid), or the
+    /// slab's one coordinate. Where the segment comes within R_max of them: first a t interval (near
+    /// the slab's layer, or near the block along every axis), then along each other axis the layers
+    /// the ray's coordinate comes near over that interval (a cell whose grown box the ray crosses at t
+    /// has t in the interval and its layers within R_max of the coordinates there: none is dropped).
+    #[inline(always)]
+    fn cells_near(
+        &self,
+        c: [i64; 3],
+        prev: Option<[i64; 3]>,
+        t0: f64,
+        t1: f64,
+        dims: [i64; 3],
+    ) -> Option<[[i64; 2]; 3]> {
+        let range = [0, 1, 2].map(|a| [(c[a] - 1).max(0), (c[a] + 1).min(dims[a] - 1)]);
+        match prev {
+            Some(p) => self.slab_near(c, p, t0, t1, dims, range),
+            None => self.block_near(t0, t1, range),
+        }
+    }
+
+    /// [`Self::cells_near`] of the slab a step from `p` to `c` adds to the block already tested.
+    #[inline(always)]
+    fn slab_near(
+        &self,
+        c: [i64; 3],
+        p: [i64; 3],
+        t0: f64,
+        t1: f64,
+        dims: [i64; 3],
+        mut range: [[i64; 2]; 3],
+    ) -> Option<[[i64; 2]; 3]> {
+        // The axis the step moved along (exactly one differs), without a branch per axis.
+        let a = usize::from(p[1] != c[1]) + 2 * usize::from(p[2] != c[2]);
+        let far = if c[a] > p[a] { c[a] + 1 } else { c[a] - 1 };
+        if far < 0 || far >= dims[a] {
+            return None; // the slab lies outside the grid
+        }
+        let t0 = fmax(t0, self.enter[a] + far as f64 * self.step[a]);
+        let t1 = fmin(t1, self.exit[a] + far as f64 * self.step[a]);
+        if t0 > t1 {
+            return None;
+        }
+        range[a] = [far, far];
+        for b in [(a + 1) % 3, (a + 2) % 3] {
+            range[b] = self.layers(b, t0, t1, range[b])?;
+        }
+        Some(range)
+    }
+
+    /// [`Self::cells_near`] of a first step: the whole block of `range`.
+    #[inline(always)]
+    fn block_near(&self, t0: f64, t1: f64, mut range: [[i64; 2]; 3]) -> Option<[[i64; 2]; 3]> {
+        if range.iter().any(|r| r[0] > r[1]) {
+            return None; // the block lies outside the grid
+        }
+        let (mut t0, mut t1) = (t0, t1);
+        for a in 0..3 {
+            let [m0, m1] = range[a];
+            let (first, last) = if self.step[a] > 0.0 {
+                (m0, m1)
+            } else {
+                (m1, m0)
+            };
+            t0 = fmax(t0, self.enter[a] + first as f64 * self.step[a]);
+            t1 = fmin(t1, self.exit[a] + last as f64 * self.step[a]);
+        }
+        if t0 > t1 {
+            return None;
+        }
+        for a in 0..3 {
+            range[a] = self.layers(a, t0, t1, range[a])?;
+        }
+        Some(range)
+    }
+
     /// The layers along axis `a` within `r` that the segment comes near over [t0, t1] (None: none).
     /// A layer m is near where [m, m + 1) meets the coordinate's span grown by R_max (in cells).
     #[inline(always)]
@@ -184,60 +262,10 @@ impl SubGrid {
         near: &Near,
         out: &mut [Segment],
     ) -> usize {
-        let dims = self.frame.dims.map(|d| d as i64);
-        // Cells within one of `c` along axis a (clamped to the grid), or the slab's one coordinate.
-        let mut range = [0, 1, 2].map(|a| [(c[a] - 1).max(0), (c[a] + 1).min(dims[a] - 1)]);
-        // Where the segment comes within R_max of the candidate cells: first a t interval (near the
-        // slab's layer, or near the block along every axis), then along each other axis the layers
-        // the ray's coordinate comes near over that interval (a cell whose grown box the ray crosses
-        // at t has t in the interval and its layers within R_max of the coordinates there: none is
-        // dropped).
-        let (mut t0, mut t1) = (t0, t1);
-        // The layers near the segment along `a` over [t0, t1], within `range[a]` (None: none). A
-        // layer m is near where [m, m + 1) meets the coordinate's span grown by R_max (in cells).
-        if let Some(p) = prev {
-            // The axis the step moved along (exactly one differs), without a branch per axis.
-            let a = usize::from(p[1] != c[1]) + 2 * usize::from(p[2] != c[2]);
-            let far = if c[a] > p[a] { c[a] + 1 } else { c[a] - 1 };
-            if far < 0 || far >= dims[a] {
-                return 0; // the slab lies outside the grid
-            }
-            t0 = fmax(t0, near.enter[a] + far as f64 * near.step[a]);
-            t1 = fmin(t1, near.exit[a] + far as f64 * near.step[a]);
-            if t0 > t1 {
-                return 0;
-            }
-            range[a] = [far, far];
-            for b in [(a + 1) % 3, (a + 2) % 3] {
-                match near.layers(b, t0, t1, range[b]) {
-                    Some(r) => range[b] = r,
-                    None => return 0,
-                }
-            }
-        } else {
-            if range.iter().any(|r| r[0] > r[1]) {
-                return 0; // the block lies outside the grid
-            }
-            for a in 0..3 {
-                let [m0, m1] = range[a];
-                let (first, last) = if near.step[a] > 0.0 {
-                    (m0, m1)
-                } else {
-                    (m1, m0)
-                };
-                t0 = fmax(t0, near.enter[a] + first as f64 * near.step[a]);
-                t1 = fmin(t1, near.exit[a] + last as f64 * near.step[a]);
-            }
-            if t0 > t1 {
-                return 0;
-            }
-            for a in 0..3 {
-                match near.layers(a, t0, t1, range[a]) {
-                    Some(r) => range[a] = r,
-                    None => return 0,
-                }
-            }
-        }
+        let Some(range) = near.cells_near(c, prev, t0, t1, self.frame.dims.map(|d| d as i64))
+        else {
+            return 0;
+        };
         let mut n = 0;
         let (first, last) = (range[0][0] as usize, range[0][1] as usize);
         let dims = self.frame.dims;
