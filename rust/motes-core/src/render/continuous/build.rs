@@ -3,6 +3,7 @@
 
 use super::{Column, ContinuousField, Members, CLASS_FLAG};
 use crate::space::dda::GridFrame;
+use crate::space::grid::counting_sort_by;
 use rayon::prelude::*;
 
 /// Particles per cell of the field. A cell spreads its particles' extinction over its whole cross
@@ -65,27 +66,7 @@ impl ContinuousField {
     ) -> Self {
         let n = ids.map_or(positions.len(), <[u32]>::len);
         let id = |j: usize| ids.map_or(j, |v| v[j] as usize);
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        let mut reach_max = 0.0f64;
-        for j in 0..n {
-            let (p, i) = (positions[id(j)], id(j));
-            reach_max = reach_max.max(reach(i));
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
-        // The field fills the centres' box exactly, cells fitted to it per axis: a cell straddling the
-        // box face would spread its particles' extinction over volume a bounded medium (a null-BSDF
-        // cube around generated particles) never reaches, and darken the cloud's edges (measured:
-        // 1.6-2.7 % less light in the dust room before). An axis the centres do not span gets the
-        // thickness of a ball, 2 R_max.
-        for a in 0..3 {
-            let pad =
-                (reach_max - 0.5 * (hi[a] - lo[a])).max(0.0) + 1e-9 * (hi[a] - lo[a]).max(1e-300);
-            lo[a] -= pad;
-            hi[a] += pad;
-        }
+        let (lo, hi) = field_box(n, |j| positions[id(j)], |j| reach(id(j)));
         let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12));
         let volume = ext[0] * ext[1] * ext[2];
         let cells = (n as f64 / PARTICLES_PER_CELL).clamp(1.0, MAX_CELLS);
@@ -98,48 +79,16 @@ impl ContinuousField {
                 [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell[a]).max(0.0) as usize).min(dims[a] - 1));
             (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]
         };
-        // Counting sort by cell, in u32 (the field takes at most 2^32 particles, as the grid does).
+        // The original indices in cell order, by a counting sort in u32 (the field takes at most
+        // 2^32 particles, as the grid does).
         let which: Vec<u32> = (0..n)
             .into_par_iter()
             .map(|j| cell_of(&positions[id(j)]) as u32)
             .collect();
-        let mut start = vec![0u32; n_cells + 1];
-        for &c in &which {
-            start[c as usize + 1] += 1;
-        }
-        for c in 0..n_cells {
-            start[c + 1] += start[c];
-        }
-        let mut fill = start.clone();
-        // The original indices in cell order.
-        let mut order = vec![0u32; n];
-        for (j, &c) in which.iter().enumerate() {
-            order[fill[c as usize] as usize] = id(j) as u32;
-            fill[c as usize] += 1;
-        }
-        drop((which, fill));
+        let (start, order) = counting_sort_by(&which, n_cells, |j| id(j) as u32);
+        drop(which);
         let cell_volume = cell[0] * cell[1] * cell[2];
-        let mut sigma = vec![0f32; n_cells];
-        let mut cdf = vec![0u16; n];
-        for c in 0..n_cells {
-            let (a, b) = (start[c] as usize, start[c + 1] as usize);
-            let total: f64 = order[a..b].iter().map(|&i| weight(i as usize)).sum();
-            sigma[c] = (total / cell_volume) as f32;
-            let mut acc = 0.0;
-            for j in a..b {
-                acc += weight(order[j] as usize);
-                let share = if total > 0.0 {
-                    acc / total
-                } else {
-                    (j + 1 - a) as f64 / (b - a) as f64
-                };
-                cdf[j] = if j + 1 == b {
-                    u16::MAX
-                } else {
-                    (share * u16::MAX as f64).round() as u16
-                };
-            }
-        }
+        let (sigma, cdf) = cell_shares(&order, &start, weight, cell_volume);
         let (members, cdf) = match classes {
             None => (Members::Ids(order), cdf),
             Some(c) if c.iter().all(|&k| k <= u16::MAX as u32) => {
@@ -155,6 +104,21 @@ impl ContinuousField {
                 cdf,
             ),
         };
+        Self::with_cells(lo, cell, dims, sigma, start, members, cdf)
+    }
+
+    /// The field of cells `dims` of edges `cell` from `lo` with σ_t `sigma`, its members, each cell's
+    /// first member (`start`) and their running shares (`cdf`), and its majorants (read here:
+    /// `MOTES_UNIFORM_MAJORANT`).
+    fn with_cells(
+        lo: [f64; 3],
+        cell: [f64; 3],
+        dims: [usize; 3],
+        sigma: Vec<f32>,
+        start: Vec<u32>,
+        members: Members,
+        cdf: Vec<u16>,
+    ) -> Self {
         let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
         ContinuousField {
             frame: GridFrame::new(lo, cell, dims),
@@ -211,19 +175,15 @@ impl ContinuousField {
                 }
             })
             .collect();
-        let (block_frame, majorant) = block_majorants(lo, cell, dims, &sigma);
-        ContinuousField {
-            frame: GridFrame::new(lo, cell, dims),
-            inv_cell: cell.map(|c| 1.0 / c),
+        Self::with_cells(
+            lo,
+            cell,
+            dims,
             sigma,
-            start: Vec::new(),
-            members: Members::Shared(members),
+            Vec::new(),
+            Members::Shared(members),
             cdf,
-            picks: None,
-            uniform_majorant: uniform_majorant(&majorant),
-            block_frame,
-            majorant,
-        }
+        )
     }
 
     /// Picks by groups of classes (`group` of a class code; compact storage: its optics bin, which
@@ -247,6 +207,68 @@ impl ContinuousField {
         }
         self
     }
+}
+
+/// The box of the `n` centres `position(0..n)` whose inclusion radii are `reach(0..n)`, as the field
+/// fills it: exactly the centres' box, cells fitted to it per axis (a cell straddling the box face would
+/// spread its particles' extinction over volume a bounded medium, a null-BSDF cube around generated
+/// particles, never reaches, and darken the cloud's edges); an axis the centres do not span gets the
+/// thickness of a ball, 2 R_max.
+fn field_box(
+    n: usize,
+    position: impl Fn(usize) -> [f64; 3],
+    reach: impl Fn(usize) -> f64,
+) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    let mut reach_max = 0.0f64;
+    for j in 0..n {
+        let p = position(j);
+        reach_max = reach_max.max(reach(j));
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    for a in 0..3 {
+        let pad = (reach_max - 0.5 * (hi[a] - lo[a])).max(0.0) + 1e-9 * (hi[a] - lo[a]).max(1e-300);
+        lo[a] -= pad;
+        hi[a] += pad;
+    }
+    (lo, hi)
+}
+
+/// σ_t of each cell (its particles' summed `weight` over `cell_volume`) and each particle's running
+/// share of its cell's extinction in units of 1/65535 (the last of a cell 65535; a cell without
+/// extinction shares it evenly), the particles `order` in cells `start`.
+fn cell_shares(
+    order: &[u32],
+    start: &[u32],
+    weight: Column,
+    cell_volume: f64,
+) -> (Vec<f32>, Vec<u16>) {
+    let n_cells = start.len() - 1;
+    let mut sigma = vec![0f32; n_cells];
+    let mut cdf = vec![0u16; order.len()];
+    for c in 0..n_cells {
+        let (a, b) = (start[c] as usize, start[c + 1] as usize);
+        let total: f64 = order[a..b].iter().map(|&i| weight(i as usize)).sum();
+        sigma[c] = (total / cell_volume) as f32;
+        let mut acc = 0.0;
+        for j in a..b {
+            acc += weight(order[j] as usize);
+            let share = if total > 0.0 {
+                acc / total
+            } else {
+                (j + 1 - a) as f64 / (b - a) as f64
+            };
+            cdf[j] = if j + 1 == b {
+                u16::MAX
+            } else {
+                (share * u16::MAX as f64).round() as u16
+            };
+        }
+    }
+    (sigma, cdf)
 }
 
 /// Each cell's distinct groups of classes (`group` of a class code) of a [`Members::Classes`] list

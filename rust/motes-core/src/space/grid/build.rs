@@ -17,6 +17,15 @@ pub(super) const PREFETCH_SLOTS_ABOVE_BYTES: usize = 4 << 20;
 
 /// Counting sort of items by key (O(N)): the start of each key's run and the items in key order.
 pub(super) fn counting_sort(keys: &[u32], n_keys: usize) -> (Vec<u32>, Vec<u32>) {
+    counting_sort_by(keys, n_keys, |i| i as u32)
+}
+
+/// [`counting_sort`] of the items `item(0..)` whose keys are `keys`.
+pub(crate) fn counting_sort_by(
+    keys: &[u32],
+    n_keys: usize,
+    item: impl Fn(usize) -> u32,
+) -> (Vec<u32>, Vec<u32>) {
     let mut start = vec![0u32; n_keys + 1];
     for &c in keys {
         start[c as usize + 1] += 1;
@@ -27,7 +36,7 @@ pub(super) fn counting_sort(keys: &[u32], n_keys: usize) -> (Vec<u32>, Vec<u32>)
     let mut fill = start.clone();
     let mut order = vec![0u32; keys.len()];
     for (i, &c) in keys.iter().enumerate() {
-        order[fill[c as usize] as usize] = i as u32;
+        order[fill[c as usize] as usize] = item(i);
         fill[c as usize] += 1;
     }
     (start, order)

@@ -73,6 +73,7 @@ mod subgrid;
 mod walk;
 
 pub use beam::BEAM_RAYS;
+pub(crate) use build::counting_sort_by;
 pub use settings::{
     bounding_box, check_cross_sections, check_particles, GridSettings, DEFAULT_CELLS_PER_PARTICLE,
     FREE_PATHS_PER_CELL,
