@@ -72,18 +72,9 @@ impl ContinuousField {
         mut next_bits: impl FnMut() -> u64,
     ) -> Option<FieldHit> {
         if let Some(m) = self.uniform_majorant {
-            // One majorant for the whole field: no block walk at all. A ray that starts inside the
-            // field's box needs no clip (three divisions) until a tentative collision falls outside
-            // it (past its exit, as a convex box is left once, or at a face by rounding).
-            let bounds = &self.frame.bounds;
-            let start = [0, 1, 2].map(|a| ray.o[a] + ray.t0 * ray.d[a]);
-            let inside = (0..3).all(|a| start[a] > bounds.lo[a] && start[a] < bounds.hi[a]);
-            let (t, t1) = if inside {
-                (ray.t0, ray.t1)
-            } else {
-                bounds.clip(ray)?
-            };
-            return self.uniform_flight_from::<WIDE>(ray, m, t, t1, !inside, next_bits);
+            // One majorant for the whole field: no block walk at all.
+            let (t, t1, exit_known) = self.uniform_span(ray)?;
+            return self.uniform_flight_from::<WIDE>(ray, m, t, t1, exit_known, next_bits);
         }
         for b in Dda::new(&self.block_frame, ray) {
             let m = self.majorant[b.index] as f64;
@@ -103,6 +94,23 @@ impl ContinuousField {
             }
         }
         None
+    }
+
+    /// Where delta tracking against the whole field's majorant runs along `ray`: (t, t1, whether t1 is
+    /// at most the field's exit), None where the ray misses the field's box. A ray that starts inside
+    /// the box needs no clip (three divisions) until a tentative collision falls outside it (past its
+    /// exit, as a convex box is left once, or at a face by rounding).
+    #[inline(always)]
+    pub(super) fn uniform_span(&self, ray: &RaySegment) -> Option<(f64, f64, bool)> {
+        let bounds = &self.frame.bounds;
+        let start = [0, 1, 2].map(|a| ray.o[a] + ray.t0 * ray.d[a]);
+        let inside = (0..3).all(|a| start[a] > bounds.lo[a] && start[a] < bounds.hi[a]);
+        let (t, t1) = if inside {
+            (ray.t0, ray.t1)
+        } else {
+            bounds.clip(ray)?
+        };
+        Some((t, t1, !inside))
     }
 
     /// Delta tracking against the whole field's majorant `m` from `t` (up to `t1`; `exit_known`: `t1` is

@@ -100,15 +100,10 @@ impl ContinuousField {
         let mut lanes = FlightLanes::default();
         let bounds = &self.frame.bounds;
         for (i, ray) in rays.iter().enumerate().take(n) {
-            let start = [0, 1, 2].map(|a| ray.o[a] + ray.t0 * ray.d[a]);
-            let inside = (0..3).all(|a| start[a] > bounds.lo[a] && start[a] < bounds.hi[a]);
-            let span = if inside {
-                Some((ray.t0, ray.t1))
-            } else {
-                bounds.clip(ray)
+            let Some((t, t1, exit_known)) = self.uniform_span(ray) else {
+                continue;
             };
-            let Some((t, t1)) = span else { continue };
-            lanes.set(i, ray, keys[i], t, t1, !inside);
+            lanes.set(i, ray, keys[i], t, t1, exit_known);
         }
         self.step_lanes(m, &mut lanes);
         for (i, ray) in rays.iter().enumerate().take(n) {

@@ -81,8 +81,14 @@ impl SubGrid {
 
     /// A ray as the slot tests see it, its pre-test's slack grown by `widen`.
     pub(super) fn probe(&self, ray: &RaySegment, widen: f64) -> Probe {
+        self.probe_with_slack(ray, (self.pretest_slack(ray.o) + widen) as f32)
+    }
+
+    /// A ray as the slot tests see it, its pre-test's slack `slack`.
+    #[inline(always)]
+    fn probe_with_slack(&self, ray: &RaySegment, slack: f32) -> Probe {
         let step = self.quant.as_ref().map_or(0.0, |q| q.step);
-        let frame = RayFrame::new(ray, (self.pretest_slack(ray.o) + widen) as f32, step);
+        let frame = RayFrame::new(ray, slack, step);
         Probe {
             ray: *ray,
             corners: if self.quant.is_some() {
@@ -117,28 +123,22 @@ impl SubGrid {
 
     /// Start a traversal of a ray segment, |d| = 1, `inv_d` the direction's reciprocals.
     pub(crate) fn cursor(&self, ray: &RaySegment, inv_d: [f64; 3]) -> Cursor {
-        let b = &self.frame.bounds;
         let dda = Dda::new_in(&self.frame, ray, inv_d);
         // A ray that misses the grid tests nothing: no frame for it (in a room with a cloud in it,
         // most shadow rays).
         let misses = dda.finished();
-        let frame = if misses {
-            RayFrame::UNUSED
+        let probe = if misses {
+            Probe {
+                ray: *ray,
+                frame: RayFrame::UNUSED,
+                corners: [[0.0; 4]; 2],
+            }
         } else {
-            let step = self.quant.as_ref().map_or(0.0, |q| q.step);
-            RayFrame::new(ray, self.pretest_slack(ray.o) as f32, step)
+            self.probe_with_slack(ray, self.pretest_slack(ray.o) as f32)
         };
         Cursor {
             dda,
-            probe: Probe {
-                ray: *ray,
-                corners: if self.quant.is_some() && !misses {
-                    frame.corner_offsets(b.lo, self.frame.cell, ray.o)
-                } else {
-                    [[0.0; 4]; 2]
-                },
-                frame,
-            },
+            probe,
             first: true,
             ahead: None,
             prev: None,
