@@ -10,20 +10,14 @@ use rayon::prelude::*;
 /// section, so a ray meets a cell's particles all together or not at all, and the cells' shot noise
 /// (±1/√n each) lets light through: E[e^{−τ}] > e^{−E[τ]} (Jensen), whereas each grain's own disk
 /// (−ln(1 − x), `discrete.rs`) keeps the grains' mean transmittance exact. Larger cells: less of that
-/// bias, but less of the cloud's own density texture at the pixel scale. Measured on a 10 cm cloud of
-/// 10^7 ice grains of 50 µm (transmittance of the field over that of the same grains walked one by one,
-/// at optical depth 0.57 / 2.3 / 4.5): 8 per cell +0.66 / +2.6 / +5.8 %; 64: +0.09 / +0.52 / +1.7 %;
-/// 256: about a fifth of that again, but the 4·10^6 × 20 µm row of `scripts/bench/bench_dense.py`
-/// (default against exact) went from per-pixel RMS/noise 0.98 (64) to 1.93 (256; 8: 1.08).
+/// bias, but less of the cloud's own density texture at the pixel scale
+/// (`scripts/bench/bench_field_bias.py` and `bench_dense.py` weigh the two).
 pub(super) const PARTICLES_PER_CELL: f64 = 64.0;
 
 /// Cells per axis of a majorant block: [`ContinuousField::sample_free_flight`] walks blocks of this
 /// many cells cubed, each with the largest σ_t of its cells, and looks up σ_t only at tentative
 /// collisions (delta tracking) instead of crossing every cell (one exponential per cell). A block's
 /// majorant is its largest cell's fluctuation: wider blocks mean fewer steps but more null collisions.
-/// Measured side by side with cells of 8 particles (±35 %; 64 since issue 24.3, ±12 %)
-/// (`scripts/bench/bench_dense.py --rows 1.6e6x80,4e6x20 --reps 3`, llvm_ad_rgb, default render,
-/// seconds): cell by cell 1.10 / 0.67, blocks of 4 1.28 / 0.50, blocks of 2 1.08 / 0.54.
 pub(super) const MAJORANT_BLOCK: usize = 2;
 
 /// Most cells along one axis (and in all) of the field.
@@ -34,10 +28,7 @@ pub(super) const MAX_CELLS: f64 = 1.0e8;
 /// A field uses one majorant for all its cells (its largest σ_t) when that is at most this many times
 /// the mean of the blocks' majorants (over all blocks, empty ones included: the rate of tentative
 /// collisions a block walk would see over the field's box). A few more null collisions then cost less
-/// than a block walk per free flight. Measured in llvm_ad_rgb, 96 px, 16 spp, seconds per render with
-/// the blocks / with one majorant (ratio): Cornell box 0.83 / 0.785 (1.24), staircase 0.49 / 0.39
-/// (1.51), lamp 0.098 / 0.086 (2.41), house 0.103 / 0.071 (2.95); a Cornell box whose grains crowd
-/// a ball in its middle 0.64 / 0.64 (7.8) and 0.615 / 0.675 (16.2).
+/// than a block walk per free flight; far more (grains crowding one spot) do not.
 pub(super) const UNIFORM_MAJORANT_RATIO: f64 = 4.0;
 
 /// [`ContinuousField::uniform_majorant`] of block majorants. `MOTES_UNIFORM_MAJORANT=0` at build keeps

@@ -15,9 +15,9 @@ pub(super) enum Tentative {
 
 /// A unit exponential from the upper 32 of `bits`: −ln((k + 1/2) / 2^32) (cut off at 22.9 mean free
 /// paths, probability 1.2e-10). One ray at a time (`WIDE` false) by libm's single-precision logarithm
-/// (a distance 6e-8 off relatively; f64's libm logarithm was 4 % of a dense cloud's events,
-/// `field_events` bench); a packet's rays in lockstep (`WIDE`) by [`ln_unit`], which vectorises, and
-/// so do their flights' continuations one by one (the same hits either way, for a test to compare).
+/// (a distance 6e-8 off relatively, and cheaper than f64's); a packet's rays in lockstep (`WIDE`) by
+/// [`ln_unit`], which vectorises, and so do their flights' continuations one by one (the same hits
+/// either way, for a test to compare).
 #[inline(always)]
 pub(super) fn exponential<const WIDE: bool>(bits: u64) -> f64 {
     let u = ((bits >> 32) as f64 + 0.5) * (1.0 / 4294967296.0);
@@ -55,8 +55,8 @@ impl ContinuousField {
     /// (or of the whole field's, [`UNIFORM_MAJORANT_RATIO`]), accepted with probability σ_t / majorant.
     /// Costs one σ_t lookup per tentative collision instead of one exponential per cell crossed, but
     /// gives no optical depth. `next_bits` supplies 64 random bits per tentative collision: the upper 32
-    /// draw its distance, the lower 32 its acceptance (one hash where two uniforms were 2 % of a dense
-    /// render; the distance's exponential is then cut off at 22.9 mean free paths, probability 1.2e-10).
+    /// draw its distance, the lower 32 its acceptance (one hash instead of two uniforms; the distance's
+    /// exponential is then cut off at 22.9 mean free paths, probability 1.2e-10).
     pub fn sample_free_flight(
         &self,
         ray: &RaySegment,

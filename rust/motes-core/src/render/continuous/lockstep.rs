@@ -91,8 +91,8 @@ impl ContinuousField {
             })
         };
         // In lockstep only where 64-bit lanes multiply and convert natively (AVX-512 DQ): AVX2 runs
-        // the loop lane by lane, each ray stepping as long as the packet's slowest (`field_events`
-        // bench: 0.72 us per event against 0.49 one ray at a time).
+        // the loop lane by lane, each ray stepping as long as the packet's slowest: slower than one
+        // ray at a time.
         let Some(m) = self.uniform_majorant.filter(|_| n > 1 && lockstep) else {
             (0..n).for_each(|i| out[i] = one_by_one(i));
             return;

@@ -129,7 +129,7 @@ enum Members {
     Ids(Vec<u32>),
     /// Class codes of at most 16 bits (compact storage), each with its running share of the cell's
     /// extinction in the upper 16 bits (the field's `cdf` is empty): a pick reads one array, one
-    /// cache miss instead of two (the misses were 85 % of a pick's time in a dense Cornell box).
+    /// cache miss instead of two (the misses are most of a pick's time).
     Classes(Vec<u32>),
     /// Class codes with [`CLASS_FLAG`] (compact storage of more than 65536 classes).
     WideClasses(Vec<u32>),
@@ -175,8 +175,7 @@ impl Members {
 pub struct ContinuousField {
     /// The cells: the centres' box, cell edges and cells per axis.
     frame: GridFrame,
-    /// 1 / the cell edges (a tentative collision's cell by multiplication: three divisions were a few
-    /// percent of a dense cloud's field free flight).
+    /// 1 / the cell edges (a tentative collision's cell by multiplication: three divisions cost more).
     inv_cell: [f64; 3],
     /// σ_t of each cell (grey, per scene unit).
     sigma: Vec<f32>,
@@ -189,10 +188,10 @@ pub struct ContinuousField {
     /// ([`Members::Classes`]).
     cdf: Vec<u16>,
     /// Where [`Self::picking_by`] found few groups of classes per cell (classes that scatter alike:
-    /// an optics bin's radius levels), one class of each group once with the running share of the cell's extinction (packed as in [`Members::Classes`])
-    /// and each cell's first entry: what a pick reads instead of `members`, small enough to stay in
-    /// cache (a pick's cache miss was 10 % of a dense Cornell box's render in llvm_ad_rgb, and of the
-    /// staircase's). Picks each class (group) with the same probability as `members` does.
+    /// an optics bin's radius levels), one class of each group once with the running share of the
+    /// cell's extinction (packed as in [`Members::Classes`]) and each cell's first entry: what a pick
+    /// reads instead of `members`, small enough to stay in cache where `members` costs a cache miss
+    /// per pick. Picks each class (group) with the same probability as `members` does.
     picks: Option<(Vec<u32>, Vec<u32>)>,
     /// Blocks of [`MAJORANT_BLOCK`]³ cells (the last ones along an axis may reach past the field's
     /// box, where σ_t = 0) and the largest σ_t of each.

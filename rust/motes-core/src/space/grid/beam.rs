@@ -18,11 +18,8 @@ pub const BEAM_RAYS: usize = 16;
 const _: () = assert!(BEAM_RAYS == crate::space::ray_lanes::RAYS);
 
 /// Rays make a beam while they stay within this many R_max of their representative ray (δ): wider,
-/// the blocks within R_max + δ of it hold few particles near any one ray, and every ray pre-tests them.
-/// Measured (llvm_ad_rgb, seconds per render with beams / without, alternating): the dense haze of
-/// `scripts/bench/render_seconds.py dense --res 256 --spp 64` 4.08–4.26 / 4.42–4.43 with any
-/// spread, no gain below 1; the Cornell box with 10^5 grains of 2 mm at 96 px (δ up to several R_max)
-/// 0.71 with 2, 0.73 without a bound, 0.71 without beams.
+/// the blocks within R_max + δ of it hold few particles near any one ray, and every ray pre-tests them
+/// (a tighter bound gained nothing on dense clouds).
 pub(super) const BEAM_SPREAD: f64 = 2.0;
 
 /// Halvings of its rays' segments a beam may take to keep within [`BEAM_SPREAD`] (then it covers their
@@ -384,8 +381,8 @@ impl SubGrid {
     /// list; false once the flight found its site.
     #[inline(always)]
     fn visit_before(&self, upto: f64, pending: &mut Vec<(f64, u32)>, flight: &mut Flight) -> bool {
-        // The hits before the frontier to the front, then only those sorted: the ones held back
-        // were sorted again at every step (the sorts were 2 % of a dense box's render).
+        // The hits before the frontier to the front, then only those sorted: the ones held back are
+        // not sorted again at every step.
         let mut k = 0;
         for j in 0..pending.len() {
             if pending[j].0 < upto {

@@ -141,8 +141,8 @@ impl ParticleGrid {
             let j = j as usize;
             visit(t, c.hit_tau(j), c.hit_index(j))
         };
-        // Hits waiting for their batch's frontier, in a buffer kept per thread (an allocation and its
-        // growth per walk were 1 % of a dense render); a nested walk takes a fresh one.
+        // Hits waiting for their batch's frontier, in a buffer kept per thread (no allocation per
+        // walk); a nested walk takes a fresh one.
         let mut buffer = PendingHits(WALK_PENDING.with(|b| b.take()));
         buffer.0.clear();
         let pending = &mut buffer.0;

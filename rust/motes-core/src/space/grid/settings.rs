@@ -48,9 +48,7 @@ pub(super) const OCCUPANCY_PARTICLES_PER_CELL: f64 = 16.0;
 
 /// Cells per particle of centre-cell classes ([`GridSettings::centre_cells`]) relative to the
 /// setting: a centre-cell step works out which cells of its slab the ray comes near before it tests
-/// any, so fewer, larger cells pay (32 particles a cell at the default; llvm_ad_rgb, 96 px, 16 spp,
-/// s per render at 1 / 0.5 / 0.25 / 0.125 of the setting: dust_box 0.139 / 0.129 / 0.129 / 0.128,
-/// cornell 0.756 / 0.739 / 0.722 / 0.720; the overlap layout 0.110 and 0.703 beside them).
+/// any, so fewer, larger cells pay (32 particles a cell at the default).
 pub(super) const CENTRE_CELLS_FACTOR: f64 = 0.25;
 
 /// Most cells per axis (the counting sorts index cells with u32).
@@ -61,10 +59,8 @@ pub(super) const MAX_CELLS: f64 = 2.0e8;
 
 /// Default grid resolution, in cells per particle: about eight particles per cell. A step tests its
 /// cell's spheres eight per pre-test in whole blocks, so larger cells than the paper's one particle
-/// per voxel (Sec. 6.5) pay: fewer DDA steps for a few more (cheap) sphere tests (measured in
-/// `cargo bench -p motes-core --bench traverse` over 1, 0.5, 0.25, 0.125, 0.0625, AVX2 walk: free
-/// flights 0.60, 0.35, 0.30, 0.27, 0.27 us per sparse ray; 2.20, 2.01, 1.98, 2.00, 2.22 us per dense
-/// one; memory falls with the cell count).
+/// per voxel (Sec. 6.5) pay: fewer DDA steps for a few more (cheap) sphere tests, and less memory
+/// (`cargo bench -p motes-core --bench traverse` compares resolutions).
 pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 
 /// How a [`ParticleGrid`] is laid over its particles: the query radius r_c (scene units; a particle
@@ -121,8 +117,7 @@ impl GridSettings {
 /// Cell edge in mean free paths where [`GridSettings::free_path_cells`] sizes the cells by it. A free
 /// flight ends about one mean free path into the cloud; a centre-cell walk scans the cells around
 /// the ray's, so cells much wider than that path test grains far beyond the interaction, and much
-/// narrower ones cost DDA steps. Chosen by sweeps of 0.75–3 on dense Cornell boxes with a temporary
-/// switch (a few per cent on grains of 4 mm, noise on 2 mm; BENCHMARKS 25, session 12).
+/// narrower ones cost DDA steps.
 pub const FREE_PATHS_PER_CELL: f64 = 1.5;
 
 /// The finest cells [`GridSettings::free_path_cells`] makes, in cells per particle (four particles a
@@ -206,7 +201,7 @@ pub(super) fn merge_sparse_classes(
 /// cloud are empty by chance) and refined twice. A cloud that fills a
 /// slanted column, a noise density or a Houdini sim covers a fraction of its bounding box; sized by the
 /// box, its occupied cells would hold several times the intended particles each (a column around the
-/// default scene's beam: ~40 instead of ~8 per cell, 1.1 us per ray instead of 0.4 in the render).
+/// default scene's beam: ~40 instead of ~8 per cell).
 pub(super) fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync) -> f64 {
     let (lo, hi) = bounding_box_by(n, &at);
     let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12));

@@ -184,8 +184,7 @@ pub(super) fn lattice_point(p: [f64; 3], lo: [f64; 3], step: f64) -> [i64; 3] {
 pub(super) struct RayFrame {
     // Each coefficient broadcast to the lanes of a block once per ray: the pre-test loop calls
     // out (to `found`), which spills every vector register, and reloading a broadcast vector is one
-    // memory operand where a scalar costs a load and a shuffle per block (measured in
-    // `benches/traverse.rs` and the sparse render, BENCHMARKS 10.2).
+    // memory operand where a scalar costs a load and a shuffle per block.
     pub(super) e1: [[f32; LANES]; 3],
     pub(super) e2: [[f32; LANES]; 3],
     pub(super) o1: [f32; LANES],
@@ -258,8 +257,8 @@ impl RayFrame {
 
 /// The lanes of a block whose sphere may contribute to the ray (seen through its [`RayFrame`]), as
 /// bits: a conservative single-precision version of [`sphere_contribution`]. `WIDE`: one AVX2
-/// operation per step ([`wide_simd`] said the CPU has it); otherwise two SSE operations (x86-64) or a
-/// loop.
+/// operation per step ([`crate::simd::wide_simd`] said the CPU has it); otherwise two SSE operations
+/// (x86-64) or a loop.
 #[inline(always)]
 pub(super) fn block_pretest<const WIDE: bool>(b: &Block, f: &RayFrame) -> u32 {
     #[cfg(target_arch = "x86_64")]

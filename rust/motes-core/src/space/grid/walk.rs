@@ -15,11 +15,10 @@ use crate::space::ray::RaySegment;
 pub(super) const SEGMENTS_PER_BATCH: usize = 36;
 
 /// DDA steps of a walk's first batch (`SubGrid::advance` and its cached variants): each batch after it
-/// twice as many, up to [`SEGMENTS_PER_BATCH`] (and the rows a prefetched batch holds). A free flight that stops after a
-/// few cells (in a dense cloud, most) then walks few past its site, while a long walk still sorts its
-/// hits once per large batch. Two, not four: a ray from a wall into a cloud whose cells hold about
-/// a free path finds its site in the first step or two (the dense Cornell box, 10^6 x 2 mm, 1.2 %
-/// faster; the default box 1.4 %; the sparse dust box unchanged; one step was no faster than two).
+/// twice as many, up to [`SEGMENTS_PER_BATCH`] (and the rows a prefetched batch holds). A free flight
+/// that stops after a few cells (in a dense cloud, most) then walks few past its site, while a long walk
+/// still sorts its hits once per large batch. Two: a ray from a wall into a cloud whose cells hold
+/// about a free path finds its site in the first step or two.
 pub(super) const FIRST_CACHED_BATCH: usize = 2;
 
 /// Cache lines of the next cell's slots the cached sparse walk prefetches (a cell's ~12 slots fill two
@@ -181,8 +180,7 @@ impl SubGrid {
         // The walk is memory-latency bound on dense clouds: a cell's start offset, then its slots are
         // dependent cache misses. So the DDA runs ahead over a batch of steps, gathering the row
         // segments to test, and each level of loads of the whole batch is prefetched before the next
-        // is read (many misses in flight instead of one after the other: 14.1 -> 4.8 us per dense ray
-        // in `benches/traverse.rs`).
+        // is read (many misses in flight instead of one after the other).
         if self.k == 0 && !self.prefetch_slots {
             return self.advance_cached_sparse::<WIDE>(cur, found);
         }
@@ -334,9 +332,8 @@ impl SubGrid {
 
     /// [`Self::advance`] for a class that references its particles from every cell their balls
     /// overlap (k = 0) with slots that stay cached: one pass per step (DDA, the cell's slot range, its
-    /// whole blocks), no batch of segments to gather and prefetch. The same contract as `advance`
-    /// (measured in `benches/traverse.rs`: sparse free flight 0.49 -> 0.39 us per ray without the
-    /// batch; cells padded to whole blocks then make larger cells pay, see DEFAULT_CELLS_PER_PARTICLE).
+    /// whole blocks), no batch of segments to gather and prefetch: cheaper where nothing waits on
+    /// memory. The same contract as `advance`.
     #[inline(always)]
     pub(super) fn advance_cached_sparse<const WIDE: bool>(
         &self,
