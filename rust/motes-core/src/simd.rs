@@ -49,3 +49,11 @@ pub(crate) fn cpu_has_lockstep() -> bool {
         && std::arch::is_x86_feature_detected!("avx512dq")
         && std::arch::is_x86_feature_detected!("avx512vl")
 }
+
+/// Says, past the test harness's capture of the output (so that a passing test's log shows it), that
+/// `test` ran without its SIMD half here: `why` names what this CPU, or `MOTES_SIMD`, lacks.
+#[cfg(test)]
+pub(crate) fn say_simd_half_not_run(test: &str, why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{test}: {why}; SIMD half not run");
+}

@@ -147,6 +147,12 @@ mod tests {
     /// every direction, segment ends at the projections themselves, and rays left out of `alive`.
     #[test]
     fn side_by_side_equals_one_by_one() {
+        if !crate::simd::lockstep_simd() {
+            crate::simd::say_simd_half_not_run(
+                "side_by_side_equals_one_by_one",
+                "no AVX-512 here (CPU or MOTES_SIMD): the scalar loop was compared with itself",
+            );
+        }
         let mut s = 7u64;
         let mut next = move || {
             s = s

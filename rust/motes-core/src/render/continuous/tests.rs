@@ -65,6 +65,12 @@ fn field_is_the_mean_of_the_particles() {
 /// time, which rounding at a face causes only now and then); packets of 1 to 24 rays.
 #[test]
 fn packet_free_flights_match_one_ray_at_a_time() {
+    if !crate::simd::lockstep_simd() {
+        crate::simd::say_simd_half_not_run(
+            "packet_free_flights_match_one_ray_at_a_time",
+            "no AVX-512 here (CPU or MOTES_SIMD): the forced lockstep ran lane by lane",
+        );
+    }
     let mut s = 23u64;
     let mut f = ContinuousField::build(
         &random_points(&mut s, 30_000),

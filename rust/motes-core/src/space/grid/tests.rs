@@ -224,6 +224,17 @@ fn batched_centre_cell_walks_equal_brute_force() {
 /// alone past the cut). Rays that diverge from the start are no beam.
 #[test]
 fn beams_sample_each_rays_own_free_flight() {
+    if !crate::simd::wide_simd() {
+        crate::simd::say_simd_half_not_run(
+            "beams_sample_each_rays_own_free_flight",
+            "no AVX2 + FMA walk here (CPU or MOTES_SIMD): every beam ran the narrow walk",
+        );
+    } else if !crate::simd::lockstep_simd() {
+        crate::simd::say_simd_half_not_run(
+            "beams_sample_each_rays_own_free_flight",
+            "no AVX-512 here (CPU or MOTES_SIMD): no beam tested its rays side by side",
+        );
+    }
     let mut s = 29u64;
     let n = 20_000;
     let pos = random_points(&mut s, n);
@@ -481,11 +492,14 @@ fn positional_ids_name_the_same_particles() {
 #[test]
 fn wide_and_narrow_walks_agree() {
     #[cfg(target_arch = "x86_64")]
-    let cpu_has_wide = is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma");
+    let cpu_has_wide = crate::simd::cpu_has_wide();
     #[cfg(not(target_arch = "x86_64"))]
     let cpu_has_wide = false;
     if !cpu_has_wide {
-        eprintln!("wide_and_narrow_walks_agree: no AVX2 + FMA here, only the narrow walk is run");
+        crate::simd::say_simd_half_not_run(
+            "wide_and_narrow_walks_agree",
+            "no AVX2 + FMA on this CPU (only the narrow walk ran)",
+        );
     }
     let mut s = 11u64;
     let (pos, rad) = random_particles(&mut s, 3000, 0.001, 0.02);
