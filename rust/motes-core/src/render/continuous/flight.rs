@@ -52,7 +52,7 @@ pub(super) fn ln_unit(x: f64) -> f64 {
 impl ContinuousField {
     /// The same free flight as [`Self::free_flight`] in distribution, by delta tracking (Woodcock
     /// tracking; pbrt-v4's majorant grid): tentative collisions at the rate of each block's majorant
-    /// (or of the whole field's, [`UNIFORM_MAJORANT_RATIO`]), accepted with probability σ_t / majorant.
+    /// (or of the whole field's, [`UNIFORM_MAJORANT_RATIO`](super::build::UNIFORM_MAJORANT_RATIO)), accepted with probability σ_t / majorant.
     /// Costs one σ_t lookup per tentative collision instead of one exponential per cell crossed, but
     /// gives no optical depth. `next_bits` supplies 64 random bits per tentative collision: the upper 32
     /// draw its distance, the lower 32 its acceptance (one hash instead of two uniforms; the distance's

@@ -193,12 +193,12 @@ pub struct ContinuousField {
     /// reads instead of `members`, small enough to stay in cache where `members` costs a cache miss
     /// per pick. Picks each class (group) with the same probability as `members` does.
     picks: Option<(Vec<u32>, Vec<u32>)>,
-    /// Blocks of [`MAJORANT_BLOCK`]³ cells (the last ones along an axis may reach past the field's
+    /// Blocks of [`MAJORANT_BLOCK`](build::MAJORANT_BLOCK)³ cells (the last ones along an axis may reach past the field's
     /// box, where σ_t = 0) and the largest σ_t of each.
     block_frame: GridFrame,
     majorant: Vec<f32>,
     /// The largest σ_t of all cells, where it is close to the blocks' mean (a cloud of even density):
-    /// free flights then use it everywhere instead of walking the blocks ([`UNIFORM_MAJORANT_RATIO`]).
+    /// free flights then use it everywhere instead of walking the blocks ([`UNIFORM_MAJORANT_RATIO`](build::UNIFORM_MAJORANT_RATIO)).
     uniform_majorant: Option<f64>,
 }
 

@@ -460,7 +460,7 @@ fn class_slots(
 }
 
 impl SubGrid {
-    /// Build one class from already validated inputs (see [`ParticleGrid::build`]): the particles
+    /// Build one class from already validated inputs (see [`ParticleGrid::build`](super::ParticleGrid::build)): the particles
     /// `ids` of `p` (the caller's indices, which the class reports).
     pub(super) fn build_class(
         p: &Particles,

@@ -63,7 +63,7 @@ pub(super) const MAX_CELLS: f64 = 2.0e8;
 /// (`cargo bench -p motes-core --bench traverse` compares resolutions).
 pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 
-/// How a [`ParticleGrid`] is laid over its particles: the query radius r_c (scene units; a particle
+/// How a [`ParticleGrid`](super::ParticleGrid) is laid over its particles: the query radius r_c (scene units; a particle
 /// contributes to the rays passing within r_c + r_i of its centre, Sec. 5.3) and the resolution in
 /// cells per particle (paper Sec. 6.5: about one particle per voxel; see
 /// [`DEFAULT_CELLS_PER_PARTICLE`]).
@@ -71,7 +71,7 @@ pub const DEFAULT_CELLS_PER_PARTICLE: f64 = 0.125;
 pub struct GridSettings {
     pub query_radius: f64,
     pub cells_per_particle: f64,
-    /// Quantise every class's slots ([`QSlots`]: centres on a lattice of 2^14 steps per cell, radii
+    /// Quantise every class's slots ([`QSlots`](super::slots::QSlots): centres on a lattice of 2^14 steps per cell, radii
     /// and τ by code): 8 bytes a slot (12 with an overlap slot's index) instead of 24.
     pub quantise: bool,
     /// Store every class by its centres' cells (k = 1: each particle once, the walk scanning the
@@ -144,7 +144,7 @@ pub(super) fn mean_free_path(p: &Particles, volume: f64) -> f64 {
     volume / parts.iter().sum::<f64>()
 }
 
-/// Size classes of a [`ParticleGrid`]: factors of two in inclusion radius, the last one open below.
+/// Size classes of a [`ParticleGrid`](super::ParticleGrid): factors of two in inclusion radius, the last one open below.
 pub(crate) const SIZE_CLASSES: usize = 13;
 
 /// The size class of an inclusion radius `reach` among radii up to `reach_max`: class c holds reach in
@@ -232,7 +232,7 @@ pub(super) fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync
 }
 
 /// The checks of a particle set and its grid settings, each naming its argument: done once, where the
-/// particles enter the core ([`ParticleGrid::build`], `DiscreteMedium::build`); what is derived from
+/// particles enter the core ([`ParticleGrid::build`](super::ParticleGrid::build), `DiscreteMedium::build`); what is derived from
 /// checked inputs is built without checking again (`ParticleGrid::from_checked`).
 pub fn check_particles(
     positions: &[[f64; 3]],

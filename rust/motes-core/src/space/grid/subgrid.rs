@@ -6,7 +6,7 @@ use crate::space::dda::GridFrame;
 #[cfg(any(test, feature = "oracles"))]
 use crate::space::ray::RaySegment;
 
-/// One size class of a [`ParticleGrid`]: particles of similar inclusion radius in a uniform grid whose cells are at least
+/// One size class of a [`ParticleGrid`](super::ParticleGrid): particles of similar inclusion radius in a uniform grid whose cells are at least
 /// as large as that radius (so a traversal scans only the 3×3×3 cells around each ray cell).
 pub struct SubGrid {
     /// Centre (scene units) and inclusion radius R_i = r_c + r_i of each stored particle, stored in
@@ -27,7 +27,7 @@ pub struct SubGrid {
     /// hit on clouds that overflow the cache). Empty for k = 1, whose slots are the stored particles.
     pub(super) slot_tau: Vec<f32>,
     pub(super) slot_index: Vec<u32>,
-    /// The class's slots quantised (compact storage, [`GridSettings::quantise`]): in place of
+    /// The class's slots quantised (compact storage, [`GridSettings::quantise`](super::GridSettings::quantise)): in place of
     /// `inline` and `slot_tau` (k = 0), or of `particles` and `tau` (k = 1).
     pub(super) quant: Option<QSlots>,
     /// The cells (cubes) as a DDA walks them.
@@ -41,7 +41,7 @@ pub struct SubGrid {
     /// Particles of the class (`particles`, `tau` and `index` are emptied by `release_stored` where the
     /// slots hold copies of everything a walk reads).
     pub(super) count: usize,
-    /// Positional identities ([`ParticleGrid::positional`]): a k = 1 class with no `index` reports
+    /// Positional identities ([`ParticleGrid::positional`](super::ParticleGrid::positional)): a k = 1 class with no `index` reports
     /// stored particle j as `first_id + j`.
     pub(super) first_id: u32,
 }
