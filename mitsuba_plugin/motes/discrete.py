@@ -28,7 +28,7 @@ queries (``rust/motes-core/src/render/discrete.rs`` documents the model).
                             (``DEFAULT_CONTINUOUS_COUNT`` = 16), are sampled as a continuous medium of
                             the same mean extinction and local phase mixture: no pixel resolves their
                             grains, and they cost about what ``homogeneous`` costs
-                            (``rust/motes-core/src/render/continuous.rs``); inf: every particle discrete
+                            (``rust/motes-core/src/render/continuous/``); inf: every particle discrete
 ``grain_depth``             a path's rays see grains one by one until its ``grain_depth``-th scattering
                             event (``DEFAULT_GRAIN_DEPTH`` = 1); rays leaving that event or a later one
                             see the grains' continuous equivalent (same extinction per cell and local

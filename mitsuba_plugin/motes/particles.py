@@ -31,7 +31,7 @@ from a camera (Eq. 23).
 
 A particle contributes ``C_t / (pi R^2)`` to a segment when the ray passes within ``R = r_c + r_p`` of
 its centre and the centre's projection lies on the segment: the expected optical depth per unit length is
-then exactly the bulk sigma_t, for any r_c (see ``rust/motes-core/src/space/grid.rs``). Queries are batched over
+then exactly the bulk sigma_t, for any r_c (see ``rust/motes-core/src/space/grid/mod.rs``). Queries are batched over
 rays (numpy arrays), run in Rust with the GIL released.
 """
 
