@@ -265,6 +265,8 @@ impl<'a> BeamWalk<'a> {
     /// The beam's DDA steps through the cells around its representative ray, each step's rows tested
     /// and each ray's hits before the step's exit passed to its flight, until no ray flies (a ray that
     /// found its site writes it to `out`).
+    // (Ray i's entries of the walk's arrays are indexed together.)
+    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn walk<const WIDE: bool>(&mut self, beam: &Beam, out: &mut [(Option<Site>, f64)]) {
         let mut rows = [Segment::default(); ROWS_PER_STEP];
@@ -308,6 +310,8 @@ impl<'a> BeamWalk<'a> {
 
     /// Test the slots of row `sg` (cells, until loaded here) against the beam's flying rays: the
     /// representative ray's pre-test for all of them, then each ray's exact test.
+    // (Ray i's entries of the walk's arrays are indexed together.)
+    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn test_row<const WIDE: bool>(&mut self, sg: &mut Segment, rep: &Probe) {
         let c = self.c;
