@@ -116,7 +116,7 @@ def test_sse_and_avx2_walks_render_the_same_image(tmp_path):
 
 def test_lockstep_field_flights_render_the_same_image_in_distribution(tmp_path):
     """On CPUs with AVX-512 (F, DQ, VL) a packet's free flights through the grains' continuous equivalent
-    step together in SIMD lanes, with their own logarithm (`render/continuous.rs`,
+    step together in SIMD lanes, with their own logarithm (`render/continuous/lockstep.rs`,
     `sample_free_flights`; the Rust test `packet_free_flights_match_one_ray_at_a_time` shows the same
     hits ray by ray from the same exponentials). Against one ray at a time (MOTES_SIMD=avx2) the image
     of a cube of grey grains dense enough that paths scatter many times in the field agrees in its mean

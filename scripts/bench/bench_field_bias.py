@@ -3,7 +3,7 @@ one by one, and against a procedural cloud of the same distribution (its field i
 no shot noise). A 10 cm cube (scale 1 cm) of ``--count`` ice grains (log-normal, median 50 um, sigma_g 1.5),
 ``query_radius`` 0.02; 40 000 rays along z through the cube's middle, transmittance over 0.5, 2 and 4 cm
 from the face (optical depth ~0.57 / 2.3 / 4.5 at 10^7). The field's cell size is the core's
-``PARTICLES_PER_CELL`` (``rust/motes-core/src/render/continuous.rs``): measure other values by changing it.
+``PARTICLES_PER_CELL`` (``rust/motes-core/src/render/continuous/build.rs``): measure other values by changing it.
 
     .venv/bin/python scripts/bench/bench_field_bias.py [--count 1e7]
 """

@@ -1,6 +1,6 @@
 """Issue 24.2: compact storage's quantised slots against spheres, side by side in one process.
 
-A sparse class's slots are quantised under compact storage (``rust/motes-core/src/space/grid.rs``,
+A sparse class's slots are quantised under compact storage (``rust/motes-core/src/space/grid/mod.rs``,
 "Quantised slots"); ``MOTES_QUANTISE=0`` at load keeps them as f32 spheres with per-slot τ (the layout
 before, for this comparison only). Each scene is loaded both ways, rendered alternately ``--reps`` times after a
 warm-up (this machine is shared: the best of each is compared), with the same sampler seeds:

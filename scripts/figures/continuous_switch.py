@@ -3,7 +3,7 @@ discrete render of the same particles.
 
 The `discrete` medium samples a size class as a continuous medium (its cells' mean extinction and phase
 mixture) when a query cylinder holds at least `continuous_count` of its particles over one mean free path
-or across the cloud (`rust/motes-core/src/render/continuous.rs`). What that drops is the grain texture: the
+or across the cloud (`rust/motes-core/src/render/continuous/`). What that drops is the grain texture: the
 per-pixel fluctuation of the particle count, of relative size 1/sqrt(N). This script renders the dust
 room (`bench_render.room`, llvm_ad_rgb, native path) with particle clouds whose N spans the threshold,
 once fully discrete (`continuous_count = inf`) and once at each threshold, two sampler seeds each, and

@@ -11,6 +11,7 @@
 //!   [`rng`] (the SplitMix64 hash behind every random number the core draws), [`quadrature`]
 //!   (Gauss–Legendre nodes for the optics' and the ensembles' integrals) and [`options`] (the
 //!   environment switches for side-by-side comparisons).
+//! * [`simd`]: which SIMD paths this CPU runs, decided once per process.
 
 pub mod cancel;
 pub mod ensemble;
@@ -20,6 +21,7 @@ pub mod options;
 pub mod quadrature;
 pub mod render;
 pub mod rng;
+pub mod simd;
 pub mod space;
 
 #[cfg(test)]

@@ -23,10 +23,10 @@ fn core_hash() -> &'static str {
 }
 
 /// The particle walk this CPU runs: "avx2" (AVX2 + FMA, eight spheres per pre-test) or "sse"
-/// (baseline, also where `MOTES_SIMD=sse` asks for it); `motes_core::space::grid::wide_simd`.
+/// (baseline, also where `MOTES_SIMD=sse` asks for it); `motes_core::simd::wide_simd`.
 #[pyfunction]
 fn simd_walk() -> &'static str {
-    if motes_core::space::grid::wide_simd() {
+    if motes_core::simd::wide_simd() {
         "avx2"
     } else {
         "sse"

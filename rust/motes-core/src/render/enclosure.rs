@@ -30,6 +30,106 @@ pub const MARGIN: f64 = 1e-4;
 /// Most faces a polyhedron may have (each point is tested against every face plane).
 pub const MAX_FACES: usize = 64;
 
+/// The checks of a mesh's vertices and faces, each naming its argument.
+fn check_mesh(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Result<(), OpticsError> {
+    require(
+        "vertices (count)",
+        vertices.len() as f64,
+        vertices.len() >= 4,
+        ">= 4",
+    )?;
+    require(
+        "faces (count)",
+        faces.len() as f64,
+        faces.len() >= 4,
+        ">= 4",
+    )?;
+    for v in vertices {
+        for &x in v {
+            require("vertex", x, x.is_finite(), "finite")?;
+        }
+    }
+    for f in faces {
+        for &i in f {
+            require(
+                "face vertex index",
+                i as f64,
+                (i as usize) < vertices.len(),
+                "< number of vertices",
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// The distinct planes of a closed mesh's faces, each oriented away from the vertices' `centroid` and
+/// shrunk by [`MARGIN`] of the mesh's size (degenerate triangles hold none); None where a vertex lies
+/// in front of a face's plane (the mesh is not convex).
+fn face_planes(
+    vertices: &[[f64; 3]],
+    faces: &[[u32; 3]],
+    centroid: [f64; 3],
+) -> Option<Vec<([f64; 3], f64)>> {
+    let (lo, hi) = vertices.iter().fold(
+        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(lo, hi), v| {
+            (
+                [0, 1, 2].map(|a| lo[a].min(v[a])),
+                [0, 1, 2].map(|a| hi[a].max(v[a])),
+            )
+        },
+    );
+    let size = dot(sub(hi, lo), sub(hi, lo)).sqrt();
+    let margin = MARGIN * size;
+    let mut planes: Vec<([f64; 3], f64)> = Vec::new();
+    for f in faces {
+        let [a, b, c] = f.map(|i| vertices[i as usize]);
+        let nrm = cross(sub(b, a), sub(c, a));
+        let len = dot(nrm, nrm).sqrt();
+        if !(len > 1e-12 * size * size) {
+            continue; // a degenerate triangle holds no plane
+        }
+        let mut nrm = nrm.map(|x| x / len);
+        let mut off = dot(nrm, a);
+        if dot(nrm, centroid) > off {
+            nrm = nrm.map(|x| -x);
+            off = -off;
+        }
+        if vertices.iter().any(|&v| dot(nrm, v) - off > margin) {
+            return None;
+        }
+        let known = planes
+            .iter()
+            .any(|(m, c)| dot(*m, nrm) > 1.0 - 1e-9 && (c + margin - off).abs() <= margin);
+        if !known {
+            planes.push((nrm, off - margin));
+        }
+    }
+    Some(planes)
+}
+
+/// The axis-aligned box six `planes` bound, if they are axis-aligned (a `cube` shape scaled and
+/// moved, not rotated: six comparisons per point).
+fn axis_box(planes: &[([f64; 3], f64)]) -> Option<Region> {
+    let axis = |n: &[f64; 3]| (0..3).find(|&a| n[a].abs() == 1.0);
+    if planes.len() != 6 || !planes.iter().all(|(n, _)| axis(n).is_some()) {
+        return None;
+    }
+    let (mut lo, mut hi) = ([f64::NAN; 3], [f64::NAN; 3]);
+    for (n, c) in planes {
+        let a = axis(n).unwrap();
+        if n[a] > 0.0 {
+            hi[a] = *c;
+        } else {
+            lo[a] = -c;
+        }
+    }
+    lo.iter()
+        .chain(&hi)
+        .all(|x| !x.is_nan())
+        .then_some(Region::Box { lo, hi })
+}
+
 /// One convex region.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Region {
@@ -51,74 +151,15 @@ impl Region {
         vertices: &[[f64; 3]],
         faces: &[[u32; 3]],
     ) -> Result<Option<Self>, OpticsError> {
-        require(
-            "vertices (count)",
-            vertices.len() as f64,
-            vertices.len() >= 4,
-            ">= 4",
-        )?;
-        require(
-            "faces (count)",
-            faces.len() as f64,
-            faces.len() >= 4,
-            ">= 4",
-        )?;
-        for v in vertices {
-            for &x in v {
-                require("vertex", x, x.is_finite(), "finite")?;
-            }
-        }
-        for f in faces {
-            for &i in f {
-                require(
-                    "face vertex index",
-                    i as f64,
-                    (i as usize) < vertices.len(),
-                    "< number of vertices",
-                )?;
-            }
-        }
+        check_mesh(vertices, faces)?;
         if !closed(vertices, faces) {
             return Ok(None);
         }
         let n = vertices.len() as f64;
         let centroid = [0, 1, 2].map(|a| vertices.iter().map(|v| v[a]).sum::<f64>() / n);
-        let (lo, hi) = vertices.iter().fold(
-            ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-            |(lo, hi), v| {
-                (
-                    [0, 1, 2].map(|a| lo[a].min(v[a])),
-                    [0, 1, 2].map(|a| hi[a].max(v[a])),
-                )
-            },
-        );
-        let size = dot(sub(hi, lo), sub(hi, lo)).sqrt();
-        let margin = MARGIN * size;
-        let mut planes: Vec<([f64; 3], f64)> = Vec::new();
-        for f in faces {
-            let [a, b, c] = f.map(|i| vertices[i as usize]);
-            let nrm = cross(sub(b, a), sub(c, a));
-            let len = dot(nrm, nrm).sqrt();
-            if !(len > 1e-12 * size * size) {
-                continue; // a degenerate triangle holds no plane
-            }
-            let mut nrm = nrm.map(|x| x / len);
-            let mut off = dot(nrm, a);
-            if dot(nrm, centroid) > off {
-                nrm = nrm.map(|x| -x);
-                off = -off;
-            }
-            // Not convex where any vertex lies in front of this face.
-            if vertices.iter().any(|&v| dot(nrm, v) - off > margin) {
-                return Ok(None);
-            }
-            let known = planes
-                .iter()
-                .any(|(m, c)| dot(*m, nrm) > 1.0 - 1e-9 && (c + margin - off).abs() <= margin);
-            if !known {
-                planes.push((nrm, off - margin));
-            }
-        }
+        let Some(planes) = face_planes(vertices, faces, centroid) else {
+            return Ok(None);
+        };
         // The centroid must lie inside every shrunk plane: a flat or open mesh bounds nothing.
         if planes.len() < 4
             || planes.len() > MAX_FACES
@@ -126,23 +167,9 @@ impl Region {
         {
             return Ok(None);
         }
-        // An axis-aligned box (a `cube` shape scaled and moved, not rotated): six comparisons.
-        let axis = |n: &[f64; 3]| (0..3).find(|&a| n[a].abs() == 1.0);
-        if planes.len() == 6 && planes.iter().all(|(n, _)| axis(n).is_some()) {
-            let (mut lo, mut hi) = ([f64::NAN; 3], [f64::NAN; 3]);
-            for (n, c) in &planes {
-                let a = axis(n).unwrap();
-                if n[a] > 0.0 {
-                    hi[a] = *c;
-                } else {
-                    lo[a] = -c;
-                }
-            }
-            if lo.iter().chain(&hi).all(|x| !x.is_nan()) {
-                return Ok(Some(Region::Box { lo, hi }));
-            }
-        }
-        Ok(Some(Region::Polyhedron { planes }))
+        Ok(Some(
+            axis_box(&planes).unwrap_or(Region::Polyhedron { planes }),
+        ))
     }
 
     /// The ball of `radius` around `centre`, shrunk by [`MARGIN`] of the radius.

@@ -8,6 +8,11 @@
 //!   combined exactly with the discrete classes.
 //! * [`footprint`]: when a ray from a surface may see the grains' continuous equivalent (its pixel
 //!   footprint holds many grains; camera rays never do).
+//! * [`procedural`]: clouds whose grains are never stored, generated brick by brick from a seed when a
+//!   ray first reaches a brick.
+//! * [`enclosure`]: the convex shapes that hold a medium, inside which next-event estimation towards a
+//!   light blocked by a site needs no phase evaluation.
+//! * `phase_lanes`: a packet's phase samples side by side (AVX-512), bit for bit the one-lane result.
 
 pub mod continuous;
 pub mod discrete;
@@ -16,6 +21,3 @@ pub mod footprint;
 mod phase_lanes;
 pub mod procedural;
 pub mod storage;
-
-/// An on-by-default switch of the environment (`crate::options`).
-pub(crate) use crate::options::env_flag;

@@ -124,7 +124,7 @@ impl PhaseLanes {
     /// Whether [`Self::sample`] runs in SIMD here (AVX-512 F/DQ/VL): elsewhere a packet's lanes are
     /// better sampled one by one (the lane loop in scalar code does every step for every channel).
     pub fn available() -> bool {
-        crate::render::continuous::lockstep_simd()
+        crate::simd::lockstep_simd()
     }
 
     /// Sample lanes `0..n` (`force_scalar`: the lane loop in scalar code, for tests).

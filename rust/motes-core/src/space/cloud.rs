@@ -477,6 +477,19 @@ pub fn generate(
             require("transform", x, x.is_finite(), "finite")?;
         }
     }
+    let (tiling, counts, m) = candidates(spec, count)?;
+    let drop = dropped(m, m - count, spec.seed);
+    let mut cloud = Cloud {
+        centres: vec![[0.0; 3]; count as usize],
+        radius_um: vec![0.0; count as usize],
+        species: vec![0; count as usize],
+    };
+    place(spec, &tiling, &counts, &drop, transform, &mut cloud);
+    Ok(cloud)
+}
+
+/// The tiling of `spec`'s candidates, each tile's candidate count and their total, at least `count`.
+fn candidates(spec: &CloudSpec, count: u64) -> Result<(Tiling, Vec<u32>, u64), OpticsError> {
     let n = count as f64;
     // The density must be positive somewhere, and not so concentrated that candidates outnumber the
     // particles by more than MAX_CONCENTRATION (a noise carved to nothing over the box).
@@ -496,7 +509,7 @@ pub fn generate(
     };
     let mut expected = (n + MARGIN_SIGMAS * n.sqrt() + 20.0) * slack;
     let mut attempt = 0;
-    let (tiling, counts, m) = loop {
+    loop {
         let tiling = spec.tiling(expected);
         require(
             "count",
@@ -510,7 +523,7 @@ pub fn generate(
             .collect();
         let m: u64 = counts.iter().map(|&c| c as u64).sum();
         if m >= count {
-            break (tiling, counts, m);
+            return Ok((tiling, counts, m));
         }
         attempt += 1;
         require(
@@ -521,12 +534,23 @@ pub fn generate(
         )?;
         expected *= 1.05 * n / (m.max(1) as f64);
         expected += MARGIN_SIGMAS * n.sqrt() + 20.0;
-    };
-    let drop = dropped(m, m - count, spec.seed);
+    }
+}
+
+/// The candidates of `tiling` (`counts` per tile) but the `drop`ped ones (global indices, sorted) into
+/// `cloud`, centres through `transform`, in tile order.
+fn place(
+    spec: &CloudSpec,
+    tiling: &Tiling,
+    counts: &[u32],
+    drop: &[u64],
+    transform: &[[f64; 4]; 3],
+    cloud: &mut Cloud,
+) {
     // Each tile's first global index, and its first output index (minus the drops before it).
     let mut first = Vec::with_capacity(counts.len() + 1);
     let mut acc = 0u64;
-    for &c in &counts {
+    for &c in counts {
         first.push(acc);
         acc += c as u64;
     }
@@ -535,11 +559,6 @@ pub fn generate(
         .iter()
         .map(|&g| (g - drop.partition_point(|&d| d < g) as u64) as usize)
         .collect();
-    let mut cloud = Cloud {
-        centres: vec![[0.0; 3]; count as usize],
-        radius_um: vec![0.0; count as usize],
-        species: vec![0; count as usize],
-    };
     // Tiles in groups, each group writing its own slice of the outputs.
     const GROUP: usize = 256;
     let groups = counts.len().div_ceil(GROUP);
@@ -563,7 +582,7 @@ pub fn generate(
         for t in g * GROUP..((g + 1) * GROUP).min(counts.len()) {
             let mut global = first[t];
             let mut next_drop = drop.partition_point(|&d| d < global);
-            spec.visit_tile(&tiling, t, Some(&samplers), |grain| {
+            spec.visit_tile(tiling, t, Some(&samplers), |grain| {
                 let skip = next_drop < drop.len() && drop[next_drop] == global;
                 global += 1;
                 if skip {
@@ -577,7 +596,6 @@ pub fn generate(
             });
         }
     });
-    Ok(cloud)
 }
 
 #[cfg(test)]

@@ -4,9 +4,11 @@
 //! * [`cloud`]: generated particle clouds (a density, species, size distributions), tile by tile.
 //! * [`dda`]: an axis-aligned box with one slab test and the 3D-DDA walk of a ray through a uniform
 //!   grid (Amanatides & Woo).
-//! * [`grid`]: a uniform grid over particle centres; optical depth along a query cylinder (Eq. 18),
-//!   the local density in a query sphere (Eq. 24) and exact free flights (Sec. 5.2–5.3).
-//! * `ray_lanes`: a beam's rays tested against one particle side by side (AVX-512).
+//! * [`grid`]: a uniform grid over particle centres, one per size class; optical depth along a query
+//!   cylinder (Eq. 18), the local density in a query sphere (Eq. 24), exact free flights (Sec. 5.2–5.3)
+//!   and beams of rays that travel together.
+//! * `ray_lanes` (crate-internal): a beam's rays tested against one particle side by side (AVX-512 where
+//!   [`crate::simd`] allows).
 //! * [`motion`]: moving generated grains: a uniform velocity plus a divergence-free turbulent drift.
 
 pub mod cloud;

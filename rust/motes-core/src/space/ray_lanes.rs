@@ -46,7 +46,7 @@ impl RayLanes {
             dz: [0.0; RAYS],
             t0: [0.0; RAYS],
             t1: [0.0; RAYS],
-            simd: crate::render::continuous::lockstep_simd(),
+            simd: crate::simd::lockstep_simd(),
         };
         for (i, r) in rays.take(RAYS).enumerate() {
             let Some(r) = r else { continue };
@@ -147,6 +147,12 @@ mod tests {
     /// every direction, segment ends at the projections themselves, and rays left out of `alive`.
     #[test]
     fn side_by_side_equals_one_by_one() {
+        if !crate::simd::lockstep_simd() {
+            crate::simd::say_simd_half_not_run(
+                "side_by_side_equals_one_by_one",
+                "no AVX-512 here (CPU or MOTES_SIMD): the scalar loop was compared with itself",
+            );
+        }
         let mut s = 7u64;
         let mut next = move || {
             s = s
