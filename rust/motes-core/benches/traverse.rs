@@ -32,6 +32,45 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// The grid layouts timed (cells per particle and "q" quantised, "c" centre cells), each built over
+/// the particles; `TRAVERSE_LAYOUT=qc` (say) keeps only that layout (for a profiler).
+fn grids(
+    pos: &[[f64; 3]],
+    rad: &[f64],
+    c: &[f64],
+    query_radius: f64,
+) -> (Vec<(f64, &'static str)>, Vec<ParticleGrid>) {
+    let d = DEFAULT_CELLS_PER_PARTICLE;
+    let layouts = [
+        (d, ""),
+        (d, "q"),
+        (d, "qc"),
+        (4.0 * d, "qc"),
+        (0.25 * d, "qc"),
+        (0.1 * d, "qc"),
+        (1.0, ""),
+        (0.25, ""),
+        (0.0625, ""),
+    ];
+    let only = std::env::var("TRAVERSE_LAYOUT").ok();
+    let layouts: Vec<(f64, &'static str)> = layouts
+        .into_iter()
+        .filter(|(_, l)| only.as_deref().is_none_or(|o| o == *l))
+        .collect();
+    let grids: Vec<ParticleGrid> = layouts
+        .iter()
+        .map(|&(cpp, l)| {
+            let settings = GridSettings::new(query_radius, cpp)
+                .quantised(l.starts_with('q'))
+                .centred(l == "qc");
+            let mut g = ParticleGrid::build(pos, rad, c, 1, &settings).unwrap();
+            g.release_stored(); // as a medium keeps it
+            g
+        })
+        .collect();
+    (layouts, grids)
+}
+
 fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
     let mut r = Lcg(1);
     let point = |r: &mut Lcg| [0; 3].map(|_| 20.0 * r.next() - 10.0);
@@ -49,35 +88,7 @@ fn run(name: &str, n: usize, r_min: f64, r_span: f64, query_radius: f64) {
             RaySegment::new(o, d.map(|x| x / l), 0.0, 40.0)
         })
         .collect();
-    let d = DEFAULT_CELLS_PER_PARTICLE;
-    let layouts = [
-        (d, ""),
-        (d, "q"),
-        (d, "qc"),
-        (4.0 * d, "qc"),
-        (0.25 * d, "qc"),
-        (0.1 * d, "qc"),
-        (1.0, ""),
-        (0.25, ""),
-        (0.0625, ""),
-    ];
-    // TRAVERSE_LAYOUT=qc (say) times only that layout (for a profiler).
-    let only = std::env::var("TRAVERSE_LAYOUT").ok();
-    let layouts: Vec<(f64, &str)> = layouts
-        .into_iter()
-        .filter(|(_, l)| only.as_deref().is_none_or(|o| o == *l))
-        .collect();
-    let grids: Vec<ParticleGrid> = layouts
-        .iter()
-        .map(|&(cpp, l)| {
-            let settings = GridSettings::new(query_radius, cpp)
-                .quantised(l.starts_with('q'))
-                .centred(l == "qc");
-            let mut g = ParticleGrid::build(&pos, &rad, &c, 1, &settings).unwrap();
-            g.release_stored(); // as a medium keeps it
-            g
-        })
-        .collect();
+    let (layouts, grids) = grids(&pos, &rad, &c, query_radius);
     let mut times = vec![[const { Vec::new() }; 3]; grids.len()];
     let (mut hits, mut sites) = (0usize, 0usize);
     for _ in 0..ROUNDS {

@@ -12,9 +12,7 @@ pub fn wide_simd() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         static WIDE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *WIDE.get_or_init(|| {
-            crate::options::simd_cap() != SimdCap::Sse && cpu_has_wide()
-        })
+        *WIDE.get_or_init(|| crate::options::simd_cap() != SimdCap::Sse && cpu_has_wide())
     }
     #[cfg(not(target_arch = "x86_64"))]
     false
@@ -30,9 +28,7 @@ pub(crate) fn lockstep_simd() -> bool {
     {
         static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
         *ON.get_or_init(|| {
-            wide_simd()
-                && crate::options::simd_cap() == SimdCap::Widest
-                && cpu_has_lockstep()
+            wide_simd() && crate::options::simd_cap() == SimdCap::Widest && cpu_has_lockstep()
         })
     }
     #[cfg(not(target_arch = "x86_64"))]

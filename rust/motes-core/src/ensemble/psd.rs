@@ -7,8 +7,8 @@
 //! [`Psd::quadrature`] or [`Psd::sample`], which treat both alike. Specs are JSON (serde), e.g.
 //! `{"type": "lognormal", "median_um": 800, "sigma_g": 4, "r_max_um": 2000}`.
 
-use crate::quadrature::gauss_legendre;
 use crate::error::{require, require_len, require_min_len, OpticsError};
+use crate::quadrature::gauss_legendre;
 use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};

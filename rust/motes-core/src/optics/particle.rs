@@ -3,10 +3,10 @@
 //! batched over many particles and angles (rayon inside; no Python here).
 
 use crate::cancel;
-use crate::quadrature::gauss_legendre;
 use crate::error::{require, OpticsError};
 use crate::optics::goa::{self, GoaGeometry, GoaOptions};
 use crate::optics::mie::MieCoefficients;
+use crate::quadrature::gauss_legendre;
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
 use std::collections::HashMap;

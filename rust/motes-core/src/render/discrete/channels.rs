@@ -32,18 +32,6 @@ pub(super) fn channel_probabilities(
     pi
 }
 
-/// A throughput normalised to sum 1 (zeros stay zeros).
-#[inline]
-pub(super) fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
-    let mut out = [0.0f64; MAX_CHANNELS];
-    for (k, x) in t.take(MAX_CHANNELS).enumerate() {
-        out[k] = if x.is_finite() && x > 0.0 { x } else { 0.0 };
-    }
-    let total: f64 = out.iter().sum();
-    let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
-    out.map(|x| (x * inv) as f32)
-}
-
 /// Lane `i`'s wavelengths in `lambda`: all of it when its `channels` wavelengths are shared by
 /// every lane, else the lane's own `channels` of them.
 #[inline]

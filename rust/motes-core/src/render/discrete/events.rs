@@ -2,7 +2,6 @@
 //! remembered by the exact bits of its position, with its site's particles (which the rays that start
 //! there skip) and the path's channel throughput; and what a ray takes from the event it starts at.
 
-use super::channels::normalised_throughput;
 use super::MAX_CHANNELS;
 use crate::space::grid::Site;
 use rustc_hash::FxHashMap;
@@ -191,4 +190,16 @@ pub(super) fn same_key(a: &[u32; 3], b: &[u32; 3]) -> bool {
 #[inline]
 pub(super) fn key(p: [f32; 3]) -> [u32; 3] {
     p.map(|x| (x + 0.0).to_bits())
+}
+
+/// A throughput normalised to sum 1 (zeros stay zeros).
+#[inline]
+pub(super) fn normalised_throughput(t: impl Iterator<Item = f64>) -> [f32; MAX_CHANNELS] {
+    let mut out = [0.0f64; MAX_CHANNELS];
+    for (k, x) in t.take(MAX_CHANNELS).enumerate() {
+        out[k] = if x.is_finite() && x > 0.0 { x } else { 0.0 };
+    }
+    let total: f64 = out.iter().sum();
+    let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
+    out.map(|x| (x * inv) as f32)
 }

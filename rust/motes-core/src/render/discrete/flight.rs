@@ -5,7 +5,7 @@
 
 use super::counters::SurfaceTally;
 use super::events::{key, Event, Events, Parent, NO_EVENT};
-use super::packet_state::PendingLane;
+use super::lane::PendingLane;
 use super::{DiscreteMedium, PACKET_LANES};
 use crate::render::continuous::{ContinuousField, FieldHit};
 use crate::render::footprint::View;

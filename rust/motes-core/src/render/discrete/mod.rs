@@ -96,6 +96,7 @@ mod channels;
 mod counters;
 mod events;
 mod flight;
+mod lane;
 mod local;
 mod packet;
 mod packet_state;

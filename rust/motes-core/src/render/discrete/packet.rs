@@ -25,9 +25,8 @@ use super::channels::{copy_channels, lane_wavelengths, PacketWaves};
 use super::counters::SurfaceTally;
 use super::events::{key, same_key, LaneEvents};
 use super::flight::{ray_bits, GrainWalk, Grains, Plan};
-use super::packet_state::{
-    at_site, same_direction, site_position, PacketState, PendingLane, SampledLane,
-};
+use super::lane::{at_site, same_direction, site_position, PendingLane};
+use super::packet_state::{PacketState, SampledLane};
 use super::phase::{null_sample, Sample};
 use super::{
     DiscreteMedium, PacketRay, PhaseEvalLane, PhaseSampleLane, MAX_CHANNELS, PACKET_LANES,

@@ -2,8 +2,8 @@
 //! the mixture of its particles' tabulated phase functions per channel (Eq. 24), its evaluation and
 //! its sampling, at a remembered event or at a site found from the geometry.
 
-use super::channels::{channel_probabilities, event_channels, normalised_throughput, PerChannel};
-use super::events::{key, Event, Events};
+use super::channels::{channel_probabilities, event_channels, PerChannel};
+use super::events::{key, normalised_throughput, Event, Events};
 use super::{BinOptics, DiscreteMedium, PhaseEvalLane, PhaseSampleLane, MAX_CHANNELS};
 use crate::render::phase_lanes::PhaseLanes;
 use crate::space::grid::Site;

@@ -1,8 +1,8 @@
 use super::build::TAU_OPAQUE;
-use super::channels::normalised_throughput;
+use super::events::normalised_throughput;
 use super::events::{key, Event, EventMap, Events, Parent, NO_EVENT};
 use super::flight::Grains;
-use super::packet_state::{at_site, site_position, PendingLane};
+use super::lane::{at_site, site_position, PendingLane};
 use super::phase::Mixture;
 use super::*;
 use crate::render::phase_lanes::PhaseLanes;
@@ -21,6 +21,12 @@ use std::f64::consts::PI;
 /// the previous packet, and an albedo scaled to 0 (every sample null).
 #[test]
 fn phase_lanes_match_one_lane_at_a_time() {
+    if !crate::simd::lockstep_simd() {
+        crate::simd::say_simd_half_not_run(
+            "phase_lanes_match_one_lane_at_a_time",
+            "no AVX-512 here (CPU or MOTES_SIMD): the scalar lane loop stood in for it",
+        );
+    }
     let mut s = 11u64;
     let mut r = || crate::test_rng::lcg(&mut s);
     let (mut long, mut short, mut alone) = (0, 0, 0);
