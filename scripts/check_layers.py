@@ -1,7 +1,10 @@
 """Issue 42's layering: the imports of the Python package and of the Rust core, checked for cycles and for
 a lower layer reaching up.
 
-    python3 scripts/check_layers.py [--python-only | --rust-only] [--edges]
+    python3 scripts/check_layers.py [--python-only | --rust-only] [--edges] [--sizes]
+
+``--sizes`` also checks the rooms' sizes: no Rust file over 1,000 lines of code before its unit tests or
+1,500 in all, no binding file (``rust/motes-py``) over 450.
 
 Python (``mitsuba_plugin/motes``): every ``import`` / ``from ... import`` of a module of the package, at
 the top of a module or inside a function alike (``ast``), is an edge; ``from . import x`` is an edge to the
@@ -445,6 +448,38 @@ def check_rust(src: pathlib.Path = RUST_SRC) -> tuple[list[str], str]:
     return failures, summary
 
 
+# --------------------------------------------------------------------------------------------- sizes
+
+#: Issue 42's room sizes: lines of code before a Rust file's unit tests, lines in all, and lines of a
+#: binding file.
+MAX_CODE_LINES, MAX_FILE_LINES, MAX_BINDING_LINES = 1000, 1500, 450
+
+
+def code_lines(path: pathlib.Path) -> tuple[int, int]:
+    """(lines before the file's first ``#[cfg(test)]`` item, 0 for a ``tests.rs``; lines in all)."""
+    lines = path.read_text().splitlines()
+    if path.name == "tests.rs":
+        return 0, len(lines)
+    end = next((i for i, ln in enumerate(lines) if ln.startswith("#[cfg(test)]")), len(lines))
+    return end, len(lines)
+
+
+def check_sizes(root: pathlib.Path = ROOT) -> tuple[list[str], str]:
+    """Every Rust source file of the workspace within the limits above; the largest ones in the summary."""
+    failures, sizes = [], []
+    for path in sorted((root / "rust").rglob("*.rs")):
+        code, total = code_lines(path)
+        rel = _shown(path)
+        sizes.append((code, total, rel))
+        if code > MAX_CODE_LINES or total > MAX_FILE_LINES:
+            failures.append(f"size: {rel} has {code} lines of code before its tests and {total} in all "
+                            f"(at most {MAX_CODE_LINES} / {MAX_FILE_LINES})")
+        if "motes-py" in path.parts and total > MAX_BINDING_LINES:
+            failures.append(f"size: binding file {rel} has {total} lines (at most {MAX_BINDING_LINES})")
+    top = ", ".join(f"{rel} {c}/{t}" for c, t, rel in sorted(sizes, reverse=True)[:3])
+    return failures, f"Rust files: {len(sizes)}, largest (code before tests / all): {top}"
+
+
 # ---------------------------------------------------------------------------------------------- main
 
 def main(argv=None) -> int:
@@ -453,8 +488,11 @@ def main(argv=None) -> int:
     which.add_argument("--python-only", action="store_true", help="check the Python package alone")
     which.add_argument("--rust-only", action="store_true", help="check the Rust core alone")
     ap.add_argument("--edges", action="store_true", help="print every edge too")
+    ap.add_argument("--sizes", action="store_true", help="also check the Rust files' sizes (issue 42's limits)")
     args = ap.parse_args(argv)
     checks = []
+    if args.sizes:
+        checks.append((check_sizes, lambda: {}))
     if not args.rust_only:
         checks.append((check_python, python_graph))
     if not args.python_only:
@@ -472,7 +510,8 @@ def main(argv=None) -> int:
             for f in failures:
                 print(f"  {f}")
         else:
-            print(f"ok   {summary}, no cycles" + ("" if check is check_python else ", layers in order"))
+            tail = {check_python: ", no cycles", check_rust: ", no cycles, layers in order"}.get(check, ", within limits")
+            print(f"ok   {summary}{tail}")
     return 1 if failed else 0
 
 

@@ -88,8 +88,8 @@ impl Codes {
     }
     fn bytes(&self) -> usize {
         match self {
-            Codes::Narrow(c) => c.len() * 2,
-            Codes::Wide(c) => c.len() * 4,
+            Codes::Narrow(c) => c.capacity() * 2,
+            Codes::Wide(c) => c.capacity() * 4,
         }
     }
 }
@@ -247,7 +247,7 @@ impl ParticleOptics {
     }
     /// Heap bytes.
     pub(crate) fn bytes(&self) -> usize {
-        self.tau.len() * 17 + self.codes.as_ref().map_or(0, Codes::bytes)
+        self.tau.capacity() * 17 + self.codes.as_ref().map_or(0, Codes::bytes)
     }
 }
 

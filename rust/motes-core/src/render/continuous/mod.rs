@@ -165,7 +165,7 @@ impl Members {
             Members::Ids(v)
             | Members::WideClasses(v)
             | Members::Shared(v)
-            | Members::Classes(v) => v.len() * 4,
+            | Members::Classes(v) => v.capacity() * 4,
             Members::Counted(_) => 0,
         }
     }
@@ -244,13 +244,13 @@ impl ContinuousField {
 
     /// Heap bytes.
     pub fn bytes(&self) -> usize {
-        (self.sigma.len() + self.start.len() + self.majorant.len()) * 4
+        (self.sigma.capacity() + self.start.capacity() + self.majorant.capacity()) * 4
             + self.members.bytes()
-            + self.cdf.len() * 2
+            + self.cdf.capacity() * 2
             + self
                 .picks
                 .as_ref()
-                .map_or(0, |(a, b)| (a.len() + b.len()) * 4)
+                .map_or(0, |(a, b)| (a.capacity() + b.capacity()) * 4)
     }
 
     /// The particle of cell `cell` that an interaction there scatters from: each with probability ∝

@@ -83,7 +83,7 @@ impl Spheres {
         [b.x[l], b.y[l], b.z[l], b.r[l]]
     }
     pub(super) fn bytes(&self) -> usize {
-        self.0.len() * std::mem::size_of::<Block>()
+        self.0.capacity() * std::mem::size_of::<Block>()
     }
     /// Ask for every cache line of block `blk` (a hint: any index is safe).
     #[inline(always)]
@@ -163,8 +163,8 @@ impl QSlots {
         self.blocks[s / LANES].code[s % LANES] as usize
     }
     pub(super) fn bytes(&self) -> usize {
-        self.blocks.len() * std::mem::size_of::<QBlock>()
-            + (self.block_reach.len() + self.reach.len() + self.tau.len()) * 4
+        self.blocks.capacity() * std::mem::size_of::<QBlock>()
+            + (self.block_reach.capacity() + self.reach.capacity() + self.tau.capacity()) * 4
     }
 }
 

@@ -102,16 +102,16 @@ impl SubGrid {
         self.frame.dims
     }
 
-    /// Heap bytes of the grid and the particles it stores.
+    /// Heap bytes of the grid and the particles it stores (allocated: capacities, not lengths).
     pub fn bytes(&self) -> usize {
         self.particles.bytes()
             + self.inline.bytes()
             + self.quant.as_ref().map_or(0, QSlots::bytes)
-            + self.slot_tau.len() * 4
-            + self.slot_index.len() * 4
-            + self.tau.len() * 4
-            + self.index.len() * 4
-            + self.start.len() * 4
+            + self.slot_tau.capacity() * 4
+            + self.slot_index.capacity() * 4
+            + self.tau.capacity() * 4
+            + self.index.capacity() * 4
+            + self.start.capacity() * 4
     }
 
     /// The slots' spheres.
