@@ -1,11 +1,11 @@
 """Bytes per particle as the process holds them: the medium's own accounting (`DiscreteMedium.bytes`, the
 sum of its arrays' lengths) against the resident memory it adds, in a fresh process per row.
 
-Each row builds a medium from generated grains, drops the inputs (positions, radii, species index), and
-reads the process's resident size (Linux ``/proc/self/status`` VmRSS) against the size before the inputs
-were made, both read after ``malloc_trim`` (glibc) hands freed heap pages back. What the accounting misses
-(spare capacity of a grown vector, a table left over from the build, what the Python wrapper keeps) shows as
-resident > accounted.
+Each row builds a medium from generated grains, drops the inputs and the Python wrapper (which keeps the
+inputs in full storage, by design), and reads how much the process's resident size (Linux
+``/proc/self/status`` VmRSS, after ``malloc_trim`` hands freed heap pages back) falls when the Rust medium
+is dropped: the memory the medium holds. What its accounting misses (spare capacity, a table left over
+from the build, fixed tables of a few MB that weigh on small clouds) shows as resident > accounted.
 
     .venv/bin/python scripts/bench/bench_resident.py [--n 1000000] [--rows sparse-compact,dense-compact,...]
 
@@ -29,13 +29,16 @@ def rss():
         return next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmRSS:"))
 n, half, storage = {n}, {half}, "{storage}"
 sp = motes.Species(motes.LogNormal(40.0, 1.5), 1.55)
-base = rss()
 r = sp.psd.sample(n, seed=1)
 pos = np.random.default_rng(0).uniform(-half, half, (n, 3))
 m = motes.DiscreteMedium(pos, r, np.zeros(n, int), sp, motes.RGB_WAVELENGTHS_UM, scale_m=0.01,
                          query_radius=0.03 * half / 10, storage=storage)
 del r, pos
-print(m.bytes, rss() - base)
+core = m._core  # the Rust medium: the Python wrapper's own arrays (full storage keeps the inputs) aside
+del m
+held, accounted = rss(), core.bytes
+del core
+print(accounted, held - rss())
 """
 
 ROWS = {"sparse-compact": (10.0, "compact"), "dense-compact": (0.01, "compact"),

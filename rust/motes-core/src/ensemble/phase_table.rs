@@ -149,6 +149,13 @@ fn cdf_bucket(u: f64) -> usize {
 }
 
 impl PhaseTable {
+    /// Heap bytes of the table (allocated: capacities).
+    pub fn bytes(&self) -> usize {
+        (self.mu.capacity() + self.f.capacity() + self.cdf.capacity()) * 8
+            + self.nodes.capacity() * 24
+            + (self.by_angle.range.capacity() + self.by_cdf.range.capacity()) * 8
+    }
+
     /// Build from angles θ (strictly increasing, spanning [0, π]) and values f(θ) ≥ 0.
     pub fn new(theta: &[f64], f: &[f64]) -> Result<Self, OpticsError> {
         require(

@@ -132,6 +132,13 @@ pub struct BinOptics {
     pub phase: Vec<PhaseTable>,
 }
 
+impl BinOptics {
+    /// Heap bytes of the bin's albedos and phase tables.
+    pub fn bytes(&self) -> usize {
+        self.albedo.capacity() * 8 + self.phase.iter().map(PhaseTable::bytes).sum::<usize>()
+    }
+}
+
 /// Default cap on a particle's optical depth τ_i (module docs): its disk is widened until
 /// τ_i ≤ 1, i.e. a ray through it interacts with probability at most 1 − e^{−1} = 63 %.
 pub const DEFAULT_TAU_MAX: f64 = 1.0;
@@ -316,6 +323,7 @@ impl DiscreteMedium {
             + self.field.as_ref().map_or(0, ContinuousField::bytes)
             + self.grains_field.as_ref().map_or(0, ContinuousField::bytes)
             + self.optics.bytes()
+            + self.bins.iter().map(BinOptics::bytes).sum::<usize>()
     }
 
     pub fn lambda(&self) -> &[f64] {
