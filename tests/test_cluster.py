@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import motes
+from _scenes import discrete_xml
 from motes import cluster as C
 from motes.cli import main
 
@@ -32,13 +33,7 @@ SCENE = """<scene version="3.0.0">
     <emitter type="constant"/>
     <shape type="cube">
         <bsdf type="null"/>
-        <medium type="discrete" name="interior">
-            <integer name="count" value="$count"/>
-            <float name="radius_median" value="300"/>
-            <float name="scale_m" value="0.01"/>
-            {frame_use}
-            <phase type="particle"/>
-        </medium>
+        {medium}
     </shape>
 </scene>
 """
@@ -46,8 +41,9 @@ SCENE = """<scene version="3.0.0">
 
 def scene_file(folder: pathlib.Path, uses_frame: bool = False) -> pathlib.Path:
     """A small scene; with ``uses_frame`` its medium's seed is ``$frame`` (a scene that changes per frame)."""
+    seed = '<integer name="seed" value="$frame"/>' if uses_frame else ""
     text = SCENE.format(frame_default='<default name="frame" value="0"/>' if uses_frame else "",
-                        frame_use='<integer name="seed" value="$frame"/>' if uses_frame else "")
+                        medium=discrete_xml("$count", 300, seed))
     path = folder / "tiny.xml"
     path.write_text(text)
     return path
@@ -151,7 +147,7 @@ def test_a_particle_file_per_frame(tmp_path):
     for f in (1, 2):
         pos = np.array([[-0.5 + 0.5 * f, 0.0, 0.0]])
         motes.save_particles(tmp_path / f"grains_{f}.npz", motes.ParticleSet(pos, np.array([3e3]), np.zeros(1, np.int64)))
-    text = SCENE.format(frame_default="", frame_use='<float name="albedo" value="0"/>').replace(
+    text = SCENE.format(frame_default="", medium=discrete_xml("$count", 300, '<float name="albedo" value="0"/>')).replace(
         '<integer name="count" value="$count"/>', '<string name="filename" value="grains_$frame.npz"/>').replace(
         '<default name="count" value="400"/>', "")
     (tmp_path / "files.xml").write_text(text)

@@ -10,13 +10,12 @@ trusted every site would darken the image: the negative control sets such an enc
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 import textwrap
 
 import numpy as np
 import pytest
+
+from _scenes import run_json
 
 CODE = textwrap.dedent("""
     import json, sys
@@ -24,20 +23,15 @@ CODE = textwrap.dedent("""
     import motes, mitsuba as mi
     motes.set_variant(sys.argv[1])
     import motes.plugins.enclosure as E
+    from _scenes import point_lit_cube
 
     def scene(extra=None, integrator="volpath", **integrator_props):
-        d = {"type": "scene", "integrator": {"type": integrator, "max_depth": 12, **integrator_props},
-             "sensor": {"type": "perspective", "fov": 45,
-                        "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}},
-                        "to_world": mi.ScalarTransform4f().look_at(origin=[0.7, 0.4, 5.0], target=[0, 0.3, 0],
-                                                                   up=[0, 1, 0])},
-             "light": {"type": "point", "position": [0.1, 1.1, 0.05], "intensity": {"type": "rgb", "value": 3.0}},
-             "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.05}},
-             "cube": {"type": "cube", "bsdf": {"type": "null"},
-                      "interior": {"type": "discrete", "count": 8000, "radius_median": 300, "radius_sigma_g": 1.2,
-                                   "eta": 1.5, "scale_m": 0.01, "seed": 3,
-                                   "to_world": mi.ScalarTransform4f().scale(1.2),
-                                   "phase": {"type": "particle"}}}}
+        grains = {"type": "discrete", "count": 8000, "radius_median": 300, "radius_sigma_g": 1.2, "eta": 1.5,
+                  "scale_m": 0.01, "seed": 3, "to_world": mi.ScalarTransform4f().scale(1.2),
+                  "phase": {"type": "particle"}}
+        d = point_lit_cube(mi, grains, integrator={"type": integrator, "max_depth": 12, **integrator_props},
+                           fov=45, res=16, origin=[0.7, 0.4, 5.0], target=[0, 0.3, 0], light=[0.1, 1.1, 0.05],
+                           intensity=3.0, sky=0.05)
         if extra:
             d.update(extra)
         return mi.load_dict(d)
@@ -131,9 +125,7 @@ CODE = textwrap.dedent("""
 
 @pytest.fixture(scope="module", params=["llvm_ad_rgb", "scalar_rgb", "llvm_ad_spectral", "scalar_spectral"])
 def results(request):
-    out = subprocess.run([sys.executable, "-c", CODE, request.param], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr[-3000:]
-    return request.param, json.loads(out.stdout.strip().splitlines()[-1])
+    return request.param, run_json(CODE, request.param)
 
 
 def test_volpath_and_volpathmis_get_the_cube_and_clipped_rays(results):

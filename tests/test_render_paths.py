@@ -14,14 +14,13 @@ same cloud of clear grains).
 from __future__ import annotations
 
 import functools
-import json
 import os
-import subprocess
-import sys
 import textwrap
 
 import numpy as np
 import pytest
+
+from _scenes import run_json
 
 SEEDS = 6
 ETA_K = 8e-5  # 300 um grains: the cloud 40 % as bright as clear grains, 5 % darker in blue than in red
@@ -30,6 +29,7 @@ CODE = textwrap.dedent("""
     import json, os, sys
     import numpy as np
     import motes, mitsuba as mi
+    from _scenes import point_lit_cube
     variant, integrator, seeds = sys.argv[1], sys.argv[2], int(sys.argv[3])
     motes.set_variant(variant)
     if os.environ["MOTES_NATIVE"] == "0":
@@ -37,16 +37,11 @@ CODE = textwrap.dedent("""
     assert (variant in motes.native_variants()) == (os.environ["MOTES_NATIVE"] == "1")
     out = []
     for k in map(float, sys.argv[4:]):
-        scene = mi.load_dict({"type": "scene", "integrator": {"type": integrator, "max_depth": 16},
-            "sensor": {"type": "perspective", "fov": 40,
-                       "film": {"type": "hdrfilm", "width": 12, "height": 12, "rfilter": {"type": "box"}},
-                       "to_world": mi.ScalarTransform4f().look_at(origin=[1.6, 1.1, 3.6], target=[0, 0, 0],
-                                                                  up=[0, 1, 0])},
-            "light": {"type": "point", "position": [2.5, 3.0, 1.0], "intensity": {"type": "rgb", "value": 12.0}},
-            "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.2}},
-            "cube": {"type": "cube", "bsdf": {"type": "null"},
-                     "interior": {"type": "discrete", "count": 20000, "radius_median": 300, "radius_sigma_g": 1.2,
-                                  "eta": 1.5, "eta_k": k, "scale_m": 0.01, "phase": {"type": "particle"}}}})
+        grains = {"type": "discrete", "count": 20000, "radius_median": 300, "radius_sigma_g": 1.2, "eta": 1.5,
+                  "eta_k": k, "scale_m": 0.01, "phase": {"type": "particle"}}
+        scene = mi.load_dict(point_lit_cube(mi, grains, integrator={"type": integrator, "max_depth": 16}, fov=40,
+                                            res=12, origin=[1.6, 1.1, 3.6], target=[0, 0, 0], light=[2.5, 3.0, 1.0],
+                                            intensity=12.0, sky=0.2))
         out.append([np.asarray(mi.render(scene, spp=32, seed=s), dtype=np.float64)[..., :3].mean(axis=(0, 1)).tolist()
                     for s in range(seeds)])
     print(json.dumps(out))
@@ -56,10 +51,7 @@ CODE = textwrap.dedent("""
 def _means(variant: str, native: str, integrator: str, *eta_k: float) -> list[np.ndarray]:
     """Per-seed channel means (seeds x 3) of each cloud."""
     env = dict(os.environ, MOTES_NATIVE=native)
-    out = subprocess.run([sys.executable, "-c", CODE, variant, integrator, str(SEEDS), *map(str, eta_k)],
-                         capture_output=True, text=True, timeout=600, env=env)
-    assert out.returncode == 0, out.stderr[-3000:]
-    return [np.array(m) for m in json.loads(out.stdout.strip().splitlines()[-1])]
+    return [np.array(m) for m in run_json(CODE, variant, integrator, str(SEEDS), *map(str, eta_k), env=env)]
 
 
 @functools.lru_cache(maxsize=None)

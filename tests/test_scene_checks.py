@@ -22,6 +22,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import motes
+from _scenes import discrete_xml
 from conftest import hsettings
 from motes.plugins.scene_checks import INSIDE_WARN_SHARE, inside_share
 
@@ -46,13 +47,7 @@ def xml(medium_to_world: bool) -> str:
   <shape type="cube" id="box">
     <transform name="to_world">{SHIFT}</transform>
     <bsdf type="null"/>
-    <medium type="discrete" name="interior" id="dust">
-      <integer name="count" value="500"/>
-      <float name="radius_median" value="50"/>
-      <float name="scale_m" value="0.01"/>
-      {mt}
-      <phase type="particle"/>
-    </medium>
+    {discrete_xml(500, 50, mt, ident="dust")}
   </shape>
 </scene>"""
 

@@ -26,7 +26,6 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # scripts/
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "paper"))
 import numpy as np  # noqa: E402
 
-import _common as C  # noqa: E402
 import _paper as P  # noqa: E402
 import bench_surface  # noqa: E402
 
@@ -81,22 +80,15 @@ def run_scene(mi, name: str, args) -> dict:
 
 
 def main() -> None:
-    ap = bench_surface.scene_parser(__doc__, SCENES)
-    ap.add_argument("--seeds", type=int, default=8)
-    bench_surface.add_overrides(ap)
-    args = ap.parse_args()
-    bench_surface.read_overrides(args, bench_surface.OVERRIDES)
-    args.seeds = 2 if args.quick else max(2, args.seeds)
-    out, sw = C.out_dir(args.out), C.Stopwatch()
-    mi = P.setup(args.variant)
-    rows = [run_scene(mi, n.strip(), args) for n in args.scenes.split(",") if n.strip()]
-    C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, {args.seeds} seeds: diffuse surfaces' blur "
-                  "on against off", ["scene", "time on/off", "rays seeing the field on / off",
-                                     "mean diff (SE; paired SE)", "RMS/noise all; lit"],
-                  [[r["scene"], f"{r['speed_ratio']:.2f}", f"{r['field_share_on']:.0%} / {r['field_share_off']:.0%}",
-                    f"{r['rel_diff']:+.3%} ({r['diff_se']:+.1f}; {in_paired_se(r)})",
-                    f"{r['rms_over_noise']:.2f}; {r['rms_over_noise_lit']:.2f}"] for r in rows])
-    C.finish(args, sw, out / f"bench_penumbra_{args.variant}.json", rows=rows)
+    args, names, seeds, out, sw, mi = bench_surface.start(__doc__, SCENES, seeds=8)
+    args.seeds = seeds  # what run_scene and the JSON's record of the arguments use
+    rows = [run_scene(mi, n, args) for n in names]
+    bench_surface.report(args, seeds, rows, "diffuse surfaces' blur on against off",
+                         {"rays seeing the field on / off":
+                              lambda r: f"{r['field_share_on']:.0%} / {r['field_share_off']:.0%}",
+                          "mean diff (SE; paired SE)":
+                              lambda r: f"{r['rel_diff']:+.3%} ({r['diff_se']:+.1f}; {in_paired_se(r)})"},
+                         sw, out / f"bench_penumbra_{args.variant}.json")
 
 
 if __name__ == "__main__":

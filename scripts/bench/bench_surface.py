@@ -103,23 +103,37 @@ def read_overrides(args, into: dict) -> None:
         into[k] = v
 
 
-def main() -> None:
-    ap = scene_parser(__doc__, SCENES)
-    ap.add_argument("--seeds", type=int, default=4)
+def start(doc: str, scenes, seeds: int):
+    """The common start of the on-against-off benchmarks (this one and ``bench_penumbra.py``): the scene
+    arguments, ``--seeds`` (default ``seeds``) and ``--set`` (read into ``OVERRIDES``). Returns (parsed
+    arguments, scene names, seeds to run (at least 2; 2 with ``--quick``), output folder, stopwatch, ``mitsuba``)."""
+    ap = scene_parser(doc, scenes)
+    ap.add_argument("--seeds", type=int, default=seeds)
     add_overrides(ap)
     args = ap.parse_args()
     read_overrides(args, OVERRIDES)
     names = [s.strip() for s in args.scenes.split(",") if s.strip()]
-    out, sw = C.out_dir(args.out), C.Stopwatch()
-    mi = P.setup(args.variant)
     seeds = 2 if args.quick else max(2, args.seeds)
-    rows = [run_scene(mi, n, args.res, args.spp, seeds) for n in names]
-    C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, {seeds} seeds: surface rule on against off",
-                  ["scene", "time on/off", "rays seeing the field", "mean diff (SE)", "RMS/noise all; lit"],
-                  [[r["scene"], f"{r['speed_ratio']:.2f}", f"{r['field_share']:.0%}",
-                    f"{r['rel_diff']:+.2%} ({r['diff_se']:+.1f})",
+    return args, names, seeds, C.out_dir(args.out), C.Stopwatch(), P.setup(args.variant)
+
+
+def report(args, seeds: int, rows: list, what: str, columns: dict, sw, path: pathlib.Path) -> None:
+    """The on-against-off table (scene, time on/off, the ``columns``: title -> cell of a row, RMS/noise on all
+    pixels and the lit ones) printed, and the rows written to ``path`` with the run's provenance."""
+    C.print_table(f"{args.variant}, {args.res}x{args.res}, {args.spp} spp, {seeds} seeds: {what}",
+                  ["scene", "time on/off", *columns, "RMS/noise all; lit"],
+                  [[r["scene"], f"{r['speed_ratio']:.2f}", *(cell(r) for cell in columns.values()),
                     f"{r['rms_over_noise']:.2f}; {r['rms_over_noise_lit']:.2f}"] for r in rows])
-    C.finish(args, sw, out / f"bench_surface_{args.variant}.json", rows=rows)
+    C.finish(args, sw, path, rows=rows)
+
+
+def main() -> None:
+    args, names, seeds, out, sw, mi = start(__doc__, SCENES, seeds=4)
+    rows = [run_scene(mi, n, args.res, args.spp, seeds) for n in names]
+    report(args, seeds, rows, "surface rule on against off",
+           {"rays seeing the field": lambda r: f"{r['field_share']:.0%}",
+            "mean diff (SE)": lambda r: f"{r['rel_diff']:+.2%} ({r['diff_se']:+.1f})"},
+           sw, out / f"bench_surface_{args.variant}.json")
 
 
 if __name__ == "__main__":

@@ -52,6 +52,18 @@ def quality(args) -> tuple[int, int]:
     return args.spp or spp, args.res or res
 
 
+def ept_start(doc: str, spp: int, res: int, full_spp: int, full_res: int):
+    """The start of a script that sets explicit path tracing (EPT) beside motes: the common flags plus
+    ``--no-ept``, in scalar_rgb by default (EPT's spheres are slow in LLVM, where each is its own shape).
+    Returns (parsed arguments, spp, res, ``mitsuba`` in the chosen variant)."""
+    ap = parser(doc, spp=spp, res=res, full_spp=full_spp, full_res=full_res)
+    ap.add_argument("--no-ept", action="store_true", help="skip explicit path tracing")
+    ap.set_defaults(variant="scalar_rgb")
+    args = ap.parse_args()
+    spp, res = quality(args)
+    return args, spp, res, setup(args.variant)
+
+
 def setup(variant: str):
     sys.path.insert(0, str(ROOT / "mitsuba_plugin"))
     import motes  # noqa: PLC0415

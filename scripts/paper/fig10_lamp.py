@@ -39,12 +39,7 @@ def beam(res: int):
 
 
 def main() -> int:
-    ap = P.parser(__doc__, spp=16, res=128, full_spp=256, full_res=512)
-    ap.add_argument("--no-ept", action="store_true", help="skip explicit path tracing")
-    ap.set_defaults(variant="scalar_rgb")
-    args = ap.parse_args()
-    spp, res = P.quality(args)
-    mi = P.setup(args.variant)
+    args, spp, res, mi = P.ept_start(__doc__, spp=16, res=128, full_spp=256, full_res=512)
     ept_row, motes_row, rows = [], [], []
     for r_g, s_g in PSDS:
         params = dict(radius_median=r_g, sigma_g=s_g, max_depth=MAX_DEPTH)

@@ -71,12 +71,7 @@ def phase_plot(path: pathlib.Path) -> dict:
 
 
 def main() -> int:
-    ap = P.parser(__doc__, spp=32, res=128, full_spp=512, full_res=512)
-    ap.add_argument("--no-ept", action="store_true", help="skip explicit path tracing")
-    ap.set_defaults(variant="scalar_rgb")
-    args = ap.parse_args()
-    spp, res = P.quality(args)
-    mi = P.setup(args.variant)
+    args, spp, res, mi = P.ept_start(__doc__, spp=32, res=128, full_spp=512, full_res=512)
     imgs, numbers = {}, {"spp": spp, "res": res, "variant": args.variant, "images": {}, "pairs": {}}
     for name, params in CONFIGS.items():
         pair, t_load, times = P.render(mi, "cornell", spp, res, seeds=(0, 1), **params)

@@ -28,13 +28,17 @@ def verdict(ok) -> str:
     return "**holds**" if ok else "**does not hold**"
 
 
+def table(*columns: str) -> list[str]:
+    """A Markdown table's head: the column titles and the line under them."""
+    return ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
 def quality(d) -> str:
     return f"{d['res']}×{d['res']} px, {d['spp']} spp, `{d['variant']}`"
 
 
 def fig10(d):
-    lines = ["| PSD (r_g, σ_g) | motes, beam mean | EPT, beam mean | EPT / motes | render s (motes, EPT) |",
-             "|---|---|---|---|---|"]
+    lines = table("PSD (r_g, σ_g)", "motes, beam mean", "EPT, beam mean", "EPT / motes", "render s (motes, EPT)")
     for r in d["rows"]:
         ept = r.get("ept_mean")
         lines.append(f"| {r['radius_median']} µm, {r['sigma_g']} | {pm(r['motes_mean'], r['motes_se'])} | "
@@ -46,10 +50,10 @@ def fig10(d):
 
 def fig12(d):
     im = d["images"]
-    lines = ["| image | mean ± SE | render s |", "|---|---|---|"]
+    lines = table("image", "mean ± SE", "render s")
     for k, v in im.items():
         lines.append(f"| {k} | {pm(v['mean'], v['se'])} | {v['render_s']:.1f} |")
-    lines += ["", "| pair | relative difference of means | RMS(difference) / noise |", "|---|---|---|"]
+    lines += [""] + table("pair", "relative difference of means", "RMS(difference) / noise")
     for k, v in d["pairs"].items():
         lines.append(f"| {k} | {v['rel_diff']:+.4f} ± {v['rel_diff_se']:.4f} | {v['rms_over_noise']:.2f} |")
     lines.append(f"\nThe grains' asymmetry g at 532 nm: {d['phase']['g']:.4f} (the HG of Fig. 13 has the same g).")
@@ -57,8 +61,8 @@ def fig12(d):
 
 
 def fig14(d):
-    lines = ["| N | radius | storage | mean D / H − 1 | RMS(D − H) / noise | transmittance D / H | medium graininess | render s |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = table("N", "radius", "storage", "mean D / H − 1", "RMS(D − H) / noise", "transmittance D / H",
+                  "medium graininess", "render s")
     for r in d["rows"]:
         lines.append(f"| {r['count']:.0e} | {r['radius_um']:.1f} µm | {r['storage']} | {r['rel_diff']:+.4f} ± "
                      f"{r['rel_diff_se']:.4f} | {r['rms_over_noise']:.2f} | {r['transmittance_ratio']:.4f} ± "
@@ -71,8 +75,7 @@ def fig14(d):
 
 
 def fig16(d):
-    lines = ["| N | k | mean ± SE | MC noise per pixel / mean | medium graininess | render s |",
-             "|---|---|---|---|---|---|"]
+    lines = table("N", "k", "mean ± SE", "MC noise per pixel / mean", "medium graininess", "render s")
     for res in d["results"]:
         for r in res["rows"]:
             lines.append(f"| {r['count']:.0e} | {r['k']:g} | {pm(r['mean'], r['se'])} | {r['mc_noise']:.2f} | "
@@ -84,7 +87,7 @@ def fig16(d):
 
 
 def fig17(d):
-    lines = ["| particles per cell | cells | render s | load s |", "|---|---|---|---|"]
+    lines = table("particles per cell", "cells", "render s", "load s")
     for r in d["rows"]:
         lines.append(f"| {r['particles_per_cell']:.3g} | {r['cells']:.0f} (~{r['cells_per_axis_cubic']:.0f}³) | "
                      f"{r['render_s']:.2f} | {r['load_s']:.2f} |")
@@ -94,7 +97,7 @@ def fig17(d):
 
 
 def fig18(d):
-    lines = ["| η_i | image mean ± SE | render s |", "|---|---|---|"]
+    lines = table("η_i", "image mean ± SE", "render s")
     for r in d["rows"]:
         lines.append(f"| {r['eta_k']:g} | {pm(r['mean'], r['se'])} | {r['render_s']:.1f} |")
     lines.append(f"\nScattering dims at every step of η_i (beyond 2 SE): {verdict(d['dims_monotonically'])}.")
@@ -102,8 +105,7 @@ def fig18(d):
 
 
 def fig19(d):
-    lines = ["| row | PSD | sky mean ± SE | mean optical depth | medium graininess | render s |",
-             "|---|---|---|---|---|---|"]
+    lines = table("row", "PSD", "sky mean ± SE", "mean optical depth", "medium graininess", "render s")
     for key, label in (("r_g", "r_g"), ("sigma_g", "σ_g"), ("bimodal", "bimodal")):
         for r in d[key]:
             psd = (f"r_g {r['radius_median']} µm, σ_g {r['sigma_g']}" if key != "bimodal" else

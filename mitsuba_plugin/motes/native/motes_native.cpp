@@ -26,7 +26,7 @@
 // * LLVM variants: each query is one `jit_llvm_ray_trace` call, the hook Mitsuba's own CPU ray tracers
 //   use: inside Mitsuba's default *symbolic* kernels, drjit-core calls `packet<Width>` once per SIMD packet
 //   with Embree's ray/hit record (structure of arrays), which goes unchanged to Rust (`motes_packet`,
-//   rust/motes-py/src/native.rs, documents which fields each operation reads and writes). Outputs come
+//   rust/motes-py/src/native/mod.rs, documents which fields each operation reads and writes). Outputs come
 //   back as the hit flag (geom_id != -1), t (= tfar), u, v, prim_id, geom_id and inst_id.
 // * Scalar variants: the same Rust function is called directly with a one-lane record.
 //
@@ -56,7 +56,7 @@
 
 NAMESPACE_BEGIN(mitsuba)
 
-/// The Rust core's C interface (rust/motes-py/src/native.rs: NativeApi); abi must match.
+/// The Rust core's C interface (rust/motes-py/src/native/mod.rs: NativeApi); abi must match.
 struct MotesNativeApi {
     uint32_t abi;
     void (*packet)(const void *medium, uint32_t op, uint32_t width, const int32_t *valid, uint8_t *args,
@@ -151,7 +151,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
         }
     }
 
-    /// The unit vector of an octahedral map (rust/motes-py/src/native.rs): the lower hemisphere unfolded.
+    /// The unit vector of an octahedral map (rust/motes-py/src/native/mod.rs): the lower hemisphere unfolded.
     static Vector3f octahedral(const Float &x, const Float &y) {
         Float z = 1.f - dr::abs(x) - dr::abs(y);
         Mask lower = z < 0.f;

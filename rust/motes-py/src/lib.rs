@@ -95,7 +95,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "DEFAULT_GRAIN_DEPTH",
         motes_core::render::discrete::DEFAULT_GRAIN_DEPTH,
     )?;
-    // The native render path's C interface (rust/motes-py/src/native.rs): its address and version.
+    // The native render path's C interface (rust/motes-py/src/native/mod.rs): its address and version.
     m.add(
         "NATIVE_API",
         &native::API as *const native::NativeApi as usize,

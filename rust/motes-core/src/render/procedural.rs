@@ -23,7 +23,7 @@
 //! the difference, 1/√N, is nothing a render shows).
 //!
 //! ## Bricks
-//! The discrete process is tiled (`CloudSpec::tiling_at_least`, about 64 candidates a tile) and the
+//! The discrete process is tiled (`CloudSpec::tiling`, about 64 candidates a tile) and the
 //! tiles grouped into bricks of B³ tiles (about [`BRICK_PARTICLES`] particles, and at least twice as
 //! wide as the halo: the tiles a ball reaches across), with a ring of bricks around the box for the
 //! balls that reach out of it. A brick's grid holds its own tiles' particles and those of the halo
@@ -54,16 +54,10 @@ use std::sync::{Arc, RwLock};
 /// Expected discrete particles per brick: a brick's grid costs a cache lookup and a walk set-up per
 /// ray that crosses it, and a build (its tiles and their neighbours generated) per cache miss.
 pub const BRICK_PARTICLES: f64 = 8192.0;
-/// Expected candidates per tile of the discrete process.
-const CANDIDATES_PER_TILE: f64 = 64.0;
 /// Default bytes of bricks kept (the cache drops the least recently used beyond this).
 pub const DEFAULT_CACHE_BYTES: usize = 1 << 30;
 /// Cache shards (independent locks for the render threads).
 const SHARDS: usize = 64;
-/// Cells of the continuous classes' field along the box's longest side.
-const FIELD_CELLS: usize = 64;
-/// Sub-samples per axis of the density in each field cell.
-const FIELD_SAMPLES: usize = 2;
 /// Largest number of particles one tile may hold (a tile's index in a particle key).
 const TILE_INDEX_BITS: u32 = 24;
 /// Most candidates one brick may generate (its tiles and their halo).
@@ -578,6 +572,11 @@ struct FieldParts {
     field_count: f64,
 }
 
+/// Cells of the continuous classes' field along the box's longest side.
+const FIELD_CELLS: usize = 64;
+/// Sub-samples per axis of the density in each field cell.
+const FIELD_SAMPLES: usize = 2;
+
 /// The continuous classes' field and every class's, over the box's bounding box in scene units; the
 /// density mapped back to the cloud's coordinates (zero outside the box), averaged over
 /// FIELD_SAMPLES³ points per cell. `fine`: the code of the first bin's representative.
@@ -717,9 +716,7 @@ impl ProceduralGrains {
         let density = &spec.cloud.density;
         let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
         let candidates = expected * density.bound() / density.mean(lo, hi);
-        let tiling = spec
-            .cloud
-            .tiling_at_least(expected, 0.0, CANDIDATES_PER_TILE);
+        let tiling = spec.cloud.tiling(expected);
         let per_tile = candidates / tiling.len() as f64;
         // Tiles a ball reaches across (the halo), and bricks at least twice that wide so that a brick
         // generates at most (1 + 2 halo / brick)³ ≤ 8 times its own particles.

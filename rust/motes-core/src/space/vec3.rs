@@ -66,7 +66,7 @@ pub fn deflect(w_in: [f64; 3], mu: f64, u: f64) -> [f64; 3] {
 
 /// The octahedral map of a unit vector (Cigolle et al. 2014, "A survey of efficient representations
 /// for independent unit vectors"): x, y of w / |w|_1, the lower hemisphere folded over the diagonals.
-/// How the native plugin's phase samples send a direction in two floats (`rust/motes-py/src/native.rs`;
+/// How the native plugin's phase samples send a direction in two floats (`rust/motes-py/src/native/mod.rs`;
 /// the C++ plugin unfolds it: test `octahedral_directions_survive_float32`).
 pub fn octahedral(w: [f64; 3]) -> [f64; 2] {
     let n = w[0].abs() + w[1].abs() + w[2].abs();

@@ -239,9 +239,16 @@ impl PyDiscreteMedium {
         Ok(out.into_pyarray(py))
     }
 
+    /// Heap bytes the medium holds (its particles, grid, fields and optics tables).
     #[getter]
     fn bytes(&self) -> usize {
         self.medium.bytes()
+    }
+
+    /// Of `bytes`, the optics bins' tables: a fixed cost whatever the number of particles.
+    #[getter]
+    fn table_bytes(&self) -> usize {
+        self.medium.table_bytes()
     }
     fn __len__(&self) -> usize {
         self.medium.len()

@@ -493,13 +493,7 @@ impl DiscreteMedium {
             coincide,
             event_box,
         };
-        Ok(Self::assemble(
-            walkable,
-            bins,
-            lambda,
-            settings.seed,
-            &switches,
-        ))
+        Ok(walkable.into_medium(bins, lambda, settings.seed, &switches))
     }
 
     /// A procedural cloud (`crate::render::procedural`): nothing stored but the class table, the
@@ -565,38 +559,34 @@ impl DiscreteMedium {
             coincide,
             event_box,
         };
-        Ok(Self::assemble(
-            walkable,
-            bins,
-            lambda,
-            settings.seed,
-            &switches,
-        ))
+        Ok(walkable.into_medium(bins, lambda, settings.seed, &switches))
     }
+}
 
+impl Walkable {
     /// The medium over what its free flights walk, with fresh per-render state.
-    fn assemble(
-        w: Walkable,
+    fn into_medium(
+        self,
         bins: Vec<BinOptics>,
         lambda: Vec<f64>,
         seed: u64,
         switches: &BuildSwitches,
-    ) -> Self {
+    ) -> DiscreteMedium {
         DiscreteMedium {
-            grid: w.grid,
-            expected: w.expected,
-            field: w.field,
-            grains_field: w.grains_field,
-            footprint: w.footprint,
+            grid: self.grid,
+            expected: self.expected,
+            field: self.field,
+            grains_field: self.grains_field,
+            footprint: self.footprint,
             view: RwLock::new(Arc::new(View::default())),
             view_epoch: AtomicU64::new(0),
             enclosure: RwLock::new(Arc::new(Enclosure::default())),
             surface_footprint: AtomicBool::new(true),
             surface_counts: ShardedCounts::default(),
-            optics: w.optics,
-            widened: w.widened,
-            coincide: w.coincide,
-            event_box: w.event_box,
+            optics: self.optics,
+            widened: self.widened,
+            coincide: self.coincide,
+            event_box: self.event_box,
             beams: switches.beams,
             shared_nodes: bins
                 .iter()

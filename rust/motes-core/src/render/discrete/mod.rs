@@ -323,7 +323,12 @@ impl DiscreteMedium {
             + self.field.as_ref().map_or(0, ContinuousField::bytes)
             + self.grains_field.as_ref().map_or(0, ContinuousField::bytes)
             + self.optics.bytes()
-            + self.bins.iter().map(BinOptics::bytes).sum::<usize>()
+            + self.table_bytes()
+    }
+
+    /// Heap bytes of the optics bins' tables (albedos and phase functions): fixed whatever the count.
+    pub fn table_bytes(&self) -> usize {
+        self.bins.iter().map(BinOptics::bytes).sum()
     }
 
     pub fn lambda(&self) -> &[f64] {

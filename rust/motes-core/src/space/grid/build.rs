@@ -100,10 +100,11 @@ pub(super) fn slot_spheres(slot_particle: &[u32], particles: &Spheres) -> Sphere
     })
 }
 
-/// The quantised slots ([`QSlots`]) of a class of particles at `positions` (storage order `order`) on
-/// the lattice of its `layout` (each at its nearest point), or None where they have more distinct
-/// (R, τ) pairs than a u16 code holds (then the class keeps spheres). `slot_particle`: each slot's
-/// stored particle (k = 0), or None where slot j is stored particle j (k = 1).
+/// The quantised slots ([`QSlots`]) of a class of particles at `positions` (storage order `order`)
+/// on the lattice of its `layout` (each at its nearest point), or None where the layout is not
+/// quantised or they have more distinct (R, τ) pairs than a u16 code holds (then the class keeps
+/// spheres). `slot_particle`: each slot's stored particle (k = 0), or None where slot j is stored
+/// particle j (k = 1).
 #[allow(clippy::too_many_arguments)]
 fn build_qslots(
     position: impl Fn(usize) -> [f64; 3],
@@ -115,11 +116,20 @@ fn build_qslots(
     slot_particle: Option<&[u32]>,
     layout: &ClassLayout,
 ) -> Option<QSlots> {
+    let step = layout.step?;
     if channels > 3 {
         return None;
     }
     let (code_of, q_reach, q_tau) = qslot_codes(order, reach, tau, channels)?;
-    let blocks = qslot_blocks(position, order, start, slot_particle, layout, &code_of);
+    let blocks = qslot_blocks(
+        position,
+        order,
+        start,
+        slot_particle,
+        layout,
+        step,
+        &code_of,
+    );
     let block_reach = blocks
         .iter()
         .map(|b| {
@@ -135,7 +145,7 @@ fn build_qslots(
         block_reach,
         reach: q_reach,
         tau: q_tau,
-        step: layout.step,
+        step,
     })
 }
 
@@ -188,9 +198,10 @@ fn qslot_blocks(
     start: &[u32],
     slot_particle: Option<&[u32]>,
     layout: &ClassLayout,
+    step: f64,
     code_of: &[u16],
 ) -> Vec<QBlock> {
-    let (lo, step, dims) = (layout.lo, layout.step, layout.dims);
+    let (lo, dims) = (layout.lo, layout.dims);
     let slots = slot_particle.map_or(order.len(), <[u32]>::len);
     let mut blocks = vec![QBlock::default(); slots.div_ceil(LANES)];
     for z in 0..dims[2] {
@@ -291,8 +302,7 @@ struct ClassLayout {
     cell: f64,
     dims: [usize; 3],
     k: i64,
-    quantise: bool,
-    step: f64,
+    step: Option<f64>,
 }
 
 impl ClassLayout {
@@ -318,9 +328,8 @@ impl ClassLayout {
         let (k, cell) = class_cells(settings, volume, n, free_path_cell, reach_max);
         // Compact storage quantises a class's centres to a lattice of its cells (`QSlots`): from here
         // on the particles are those lattice points, the box grown by two steps to hold them.
-        let quantise = settings.quantise;
-        let step = cell / LATTICE_PER_CELL as f64;
-        if quantise {
+        let step = settings.quantise.then(|| cell / LATTICE_PER_CELL as f64);
+        if let Some(step) = step {
             for a in 0..3 {
                 lo[a] -= 2.0 * step;
                 hi[a] += 2.0 * step;
@@ -334,7 +343,6 @@ impl ClassLayout {
             cell,
             dims,
             k,
-            quantise,
             step,
         }
     }
@@ -346,9 +354,9 @@ impl ClassLayout {
     /// A particle's centre as stored, from its centre `p` (quantised: the nearest lattice point).
     #[inline]
     fn stored(&self, p: [f64; 3]) -> [f64; 3] {
-        if self.quantise {
-            let g = lattice_point(p, self.lo, self.step);
-            [0, 1, 2].map(|a| self.lo[a] + g[a] as f64 * self.step)
+        if let Some(step) = self.step {
+            let g = lattice_point(p, self.lo, step);
+            [0, 1, 2].map(|a| self.lo[a] + g[a] as f64 * step)
         } else {
             p
         }
@@ -362,8 +370,8 @@ impl ClassLayout {
     #[inline]
     fn cell_of(&self, p: [f64; 3]) -> usize {
         let (lo, dims) = (self.lo, self.dims);
-        let idx = if self.quantise {
-            let g = lattice_point(p, lo, self.step);
+        let idx = if let Some(step) = self.step {
+            let g = lattice_point(p, lo, step);
             [0, 1, 2].map(|a| (g[a].div_euclid(LATTICE_PER_CELL).max(0) as usize).min(dims[a] - 1))
         } else {
             [0, 1, 2].map(|a| (((p[a] - lo[a]) / self.cell) as usize).min(dims[a] - 1))
@@ -421,7 +429,7 @@ fn storage_order(
         .collect();
     let (centre_start, mut order) = counting_sort(&cells, layout.cells());
     drop(cells);
-    if layout.quantise && layout.k == 1 {
+    if layout.step.is_some() && layout.k == 1 {
         for c in 0..layout.cells() {
             order[centre_start[c] as usize..centre_start[c + 1] as usize]
                 .sort_unstable_by(|a, b| reach(*b as usize).total_cmp(&reach(*a as usize)));
@@ -446,7 +454,7 @@ fn class_slots(
     }
     let (lo, cell, dims) = (layout.lo, layout.cell, layout.dims);
     let (start, mut slot_particle) = inline_slots(at, &reach, order, lo, cell, dims);
-    if layout.quantise {
+    if layout.step.is_some() {
         let key = |j: &u32| match *j {
             PADDING_SLOT => -1.0,
             j => reach(order[j as usize] as usize),
@@ -488,14 +496,9 @@ impl SubGrid {
         let (centre_start, order) = storage_order(&layout, n, position, reach);
         let (start, slot_particle) = class_slots(&layout, centre_start, &order, &at, reach);
         let slot_of = (layout.k == 0).then_some(&slot_particle[..]);
-        let quant = layout
-            .quantise
-            .then(|| {
-                build_qslots(
-                    position, reach, tau, channels, &order, &start, slot_of, &layout,
-                )
-            })
-            .flatten();
+        let quant = build_qslots(
+            position, reach, tau, channels, &order, &start, slot_of, &layout,
+        );
         // Spheres of the stored particles, but where quantised centre cells are them (unless their
         // (R, τ) pairs were too many for codes: spheres after all).
         let particles = if layout.k == 1 && quant.is_some() {

@@ -1,0 +1,51 @@
+"""Small scenes shared by the plugin tests, importable without ``conftest``'s side effects (a fresh cache
+folder, hypothesis profiles): also inside the fresh interpreters that ``run_json`` starts.
+
+* ``point_lit_cube`` — a scene dict: a medium in a cube under a point light and a constant sky.
+* ``discrete_xml`` — a ``discrete`` medium element of a scene's XML.
+* ``run_json`` — run a snippet by ``python -c`` (with this folder importable) and read the JSON it printed last.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import sys
+
+HERE = pathlib.Path(__file__).resolve().parent
+
+
+def point_lit_cube(mi, interior: dict, *, integrator: dict, fov: float, res: int, origin, target, light,
+                   intensity: float, sky: float) -> dict:
+    """A scene dict: the medium ``interior`` in a cube with a null BSDF, a point light at ``light`` (RGB
+    intensity ``intensity``) and a constant sky (RGB radiance ``sky``), seen from ``origin`` towards ``target``
+    by a ``res`` x ``res`` perspective camera of field of view ``fov`` with a box filter; ``integrator`` is
+    the integrator's dict."""
+    return {"type": "scene", "integrator": integrator,
+            "sensor": {"type": "perspective", "fov": fov,
+                       "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                       "to_world": mi.ScalarTransform4f().look_at(origin=origin, target=target, up=[0, 1, 0])},
+            "light": {"type": "point", "position": light, "intensity": {"type": "rgb", "value": intensity}},
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": sky}},
+            "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": interior}}
+
+
+def discrete_xml(count, radius_median, more: str = "", ident: str = "") -> str:
+    """The XML of a shape's interior ``discrete`` medium: ``count`` grains of median radius ``radius_median``
+    um, 1 cm per scene unit, the properties ``more`` (XML) and the grains' own phase function; ``ident`` its
+    id, if any. ``count`` may be a scene parameter (``"$count"``)."""
+    id_attr = f' id="{ident}"' if ident else ""
+    return (f'<medium type="discrete" name="interior"{id_attr}>'
+            f'<integer name="count" value="{count}"/><float name="radius_median" value="{radius_median}"/>'
+            f'<float name="scale_m" value="0.01"/>{more}<phase type="particle"/></medium>')
+
+
+def run_json(code: str, *argv: str, env: dict | None = None, timeout: float = 600):
+    """Run ``code`` in a fresh interpreter (``python -c``, arguments ``argv``, environment ``env``) that can
+    import this module; it must succeed and print JSON on its last line, which is returned parsed."""
+    code = f"import sys; sys.path.insert(0, {str(HERE)!r})\n" + code
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=timeout,
+                         env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
