@@ -342,9 +342,14 @@ def one_line(e: BaseException) -> str:
     loader's source locations."""
     import re
 
+    from ._errors import without_traceback  # noqa: PLC0415
+
     text = str(e)
     head, sep, tail = text.partition("Traceback (most recent call last):")
-    if sep:
+    clean = without_traceback(text)
+    if clean is not None:  # a user's error: the whole message, however many lines
+        text = clean
+    elif sep:
         last = [ln for ln in tail.strip().splitlines() if ln.strip()][-1]
         text = f"{head.strip()} {last.strip()}"
     text = re.sub(r"\[[\w.]+\.cpp:\d+\]\s*", "", text).removeprefix("motes: ")

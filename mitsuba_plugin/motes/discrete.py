@@ -52,16 +52,27 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
                             (``rust/motes-core/src/render/storage.rs``)
 ``seed``                    seed of the free-flight random numbers
 ``albedo``                  replaces every particle's single-scattering albedo (tests, stylisation;
-                            default: the physical one)
+                            default: the physical one): one number for every channel, or one per
+                            channel in the order of ``wavelength_um`` as given, each in [0, 1]
 ``phase_model``             ``tabulated`` (default: each bin's ensemble phase function, Eq. 17) or
                             ``hg``: Henyey-Greenstein with the same asymmetry g per bin and wavelength
                             (the model graphics often uses instead; the paper's Fig. 13 comparison)
+``phase``                   one phase function for every bin and wavelength instead of the grains' own
+                            (a Mitsuba scene's ``<phase>`` child; ``phase_table`` builds it):
+                            ``{"type": "isotropic"}``, ``{"type": "hg", "g": g}`` or ``{"type":
+                            "tabphase", "values": [...]}`` (values on a regular grid of cos(theta) from
+                            -1, backward, to 1, forward, as Mitsuba's ``tabphase``); None: the grains'
+                            own (default). Extinction and albedo stay the grains'
 ==========================  ==========================================================================
 
 Each particle's extinction cross section is ``pi r^2 Q_ext`` with its bin's mean efficiency over the
 wavelengths (grey, see the Rust docs for why), its albedo and phase function those of its bin per
-wavelength. ``bin_radius_um``, ``bin_species``, ``bin_q_ext`` and ``bin_albedo`` (per channel, in the order
-the wavelengths were given) and ``particle_bin`` report what was built.
+wavelength. ``bin_radius_um``, ``bin_species``, ``bin_q_ext``, ``bin_albedo`` (the physical one) and
+``bin_g`` (the mean cosine of the phase function the bin renders with) (per channel, in the order the
+wavelengths were given) and ``particle_bin`` report what was built.
+
+``mean_extinction_um2`` is the mean of that grey cross section over the species' PSDs (what a bulk
+extinction sigma_t = n <C_ext> needs: the ``discrete`` plugin's ``sigma_t``).
 """
 
 from __future__ import annotations
@@ -93,6 +104,8 @@ WIDENED_WARN_SHARE: float = 1e-3
 STORAGES = ("compact", "full")
 #: What ``phase_model`` takes: the tabulated ensemble phase function, or Henyey-Greenstein of the same g.
 PHASE_MODELS = ("tabulated", "hg")
+#: What ``phase`` takes (module docs): one phase function for every bin, by Mitsuba's names for it.
+PHASE_TYPES = ("isotropic", "hg", "tabphase")
 #: A procedural cloud's optics bins span its PSD's quantiles q and 1 - q (``DiscreteMedium.procedural``).
 PROCEDURAL_RADIUS_QUANTILE = 1e-7
 #: Most particles a procedural cloud takes (its count is a Poisson mean, not stored).
@@ -184,14 +197,24 @@ class _BinTables:
     """The optics bins of a medium as they are added (one ``add`` per radius bin of a species): each bin's
     grey Q_ext, albedo per wavelength and phase tables, and what the medium reports about them."""
 
-    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model="tabulated"):
+    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model="tabulated", phase=None):
         if phase_model not in PHASE_MODELS:
             raise ValueError(f"invalid phase_model = {phase_model!r}: must be one of {', '.join(PHASE_MODELS)}")
+        if phase is not None and phase_model != "tabulated":
+            raise ValueError(f"phase_model = {phase_model!r} and phase = {phase!r} both replace the grains' phase "
+                             "function: give one")
         self.lam, self.rank, self.eta_medium, self.method = lam, rank, eta_medium, method
         self.phase_model = phase_model
-        self.truncate_below_rad, self.albedo = truncate_below_rad, albedo
+        #: The user's phase function for every bin (``phase_table``), or None: the grains' own.
+        self.phase = None if phase is None else phase_table(phase)
+        self.truncate_below_rad = truncate_below_rad
+        self.albedo = _checked_albedo(albedo, rank.size)
+        if self.albedo is not None and self.albedo.ndim == 1:  # per channel -> per tabulated wavelength
+            by_rank = np.empty(lam.size)
+            by_rank[rank] = self.albedo
+            self.albedo = by_rank
         self.grey_q, self.albedos, self.theta, self.f, self.offsets = [], [], [], [], [0]
-        self.radius_um, self.species, self.q_ext, self.bin_albedo = [], [], [], []
+        self.radius_um, self.species, self.q_ext, self.bin_albedo, self.bin_g = [], [], [], [], []
         self.goa_cache = _motes.GoaCache()  # shared by this medium's bins, dropped after the build
         self.t_start = self.t_said = time.perf_counter()
 
@@ -200,18 +223,28 @@ class _BinTables:
         q_t, bulk = _bin_optics(sp, lo, hi, self.lam, self.eta_medium, self.method, self.truncate_below_rad,
                                 self.goa_cache)
         self.grey_q.append(float(np.mean(q_t)))
-        self.albedos.append(np.clip(bulk["albedo"], 0.0, 1.0) if self.albedo is None
-                            else np.full(self.lam.size, float(self.albedo)))
+        if self.albedo is None:
+            self.albedos.append(np.clip(bulk["albedo"], 0.0, 1.0))
+        elif self.albedo.ndim == 0:
+            self.albedos.append(np.full(self.lam.size, float(self.albedo)))
+        else:
+            self.albedos.append(self.albedo.copy())
+        g = []
         for row in bulk["phase"]:
+            theta = bulk["theta"]
             if self.phase_model == "hg":  # the same g (of the truncated table the render would use)
                 row = _motes.henyey_greenstein(_motes.PhaseTable(bulk["theta"], row).mean_cosine(), bulk["theta"])
-            self.theta.append(bulk["theta"])
+            elif self.phase is not None:  # the user's, the same in every bin and channel
+                theta, row = self.phase(bulk["theta"])
+            self.theta.append(theta)
             self.f.append(row)
-            self.offsets.append(self.offsets[-1] + bulk["theta"].size)
+            self.offsets.append(self.offsets[-1] + theta.size)
+            g.append(_motes.PhaseTable(theta, row).mean_cosine())
         self.radius_um.append((lo, hi))
         self.species.append(k)
         self.q_ext.append(q_t[self.rank])
         self.bin_albedo.append(bulk["albedo"][self.rank])
+        self.bin_g.append(np.asarray(g)[self.rank])
         if time.perf_counter() - self.t_said > 1.0:  # long builds say where they are, once a second
             self.t_said = time.perf_counter()
             log.info("optics tables: %d bins so far (species %d), %.1f s", len(self.grey_q), k,
@@ -222,12 +255,82 @@ class _BinTables:
         """The bins' figures as the medium's attributes."""
         log.info("optics tables: %d bins in %.1f s", len(self.grey_q), time.perf_counter() - self.t_start)
         medium.bin_radius_um, medium.bin_species = self.radius_um, self.species
-        medium.bin_q_ext, medium.bin_albedo = self.q_ext, self.bin_albedo
+        medium.bin_q_ext, medium.bin_albedo, medium.bin_g = self.q_ext, self.bin_albedo, self.bin_g
         medium.n_bins = len(self.grey_q)
 
     def core_tables(self):
         """(albedos, theta, f, offsets) as the core's constructors take them."""
         return self.albedos, self.theta, self.f, self.offsets
+
+
+def _checked_albedo(albedo, channels: int):
+    """``albedo`` as None, a 0-d array (every channel) or one value per channel, each in [0, 1]."""
+    if albedo is None:
+        return None
+    a = np.asarray(albedo, dtype=np.float64)
+    if a.ndim > 1 or (a.ndim == 1 and a.size != channels):
+        raise ValueError(f"invalid albedo = {albedo!r}: one number, or one per wavelength ({channels})")
+    if not np.all(np.isfinite(a) & (a >= 0) & (a <= 1)):
+        raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
+    return a
+
+
+def phase_table(phase: dict):
+    """The ``phase`` a medium renders every bin with (module docs), as a function of a bin's angle grid
+    theta (radians, 0 to pi) returning that bin's (theta, f): isotropic and Henyey-Greenstein on the bin's
+    grid, a ``tabphase`` on its own nodes (piecewise linear in cos(theta), as Mitsuba's ``tabphase`` and
+    the core's tables both are: the same function), normalised to 1 over the sphere."""
+    if not isinstance(phase, dict) or phase.get("type") not in PHASE_TYPES:
+        raise ValueError(f"invalid phase = {phase!r}: a dict whose \"type\" is one of {', '.join(PHASE_TYPES)}")
+    kind = phase["type"]
+    extra = sorted(set(phase) - {"type"} - {"hg": {"g"}, "tabphase": {"values"}, "isotropic": set()}[kind])
+    if extra:
+        raise ValueError(f"invalid phase = {phase!r}: a {kind} phase function takes no {', '.join(extra)}")
+    if kind == "isotropic":
+        return lambda theta: (theta, np.full(theta.size, 0.25 / np.pi))
+    if kind == "hg":
+        g = phase.get("g")
+        if isinstance(g, bool) or not isinstance(g, (int, float, np.floating)) or not -1 < g < 1:
+            raise ValueError(f"invalid hg phase function g = {g!r}: must be in (-1, 1)")
+        return lambda theta: (theta, _motes.henyey_greenstein(float(g), theta))
+    values = np.asarray(phase.get("values", ()), dtype=np.float64).ravel()
+    if values.size < 2 or not np.all(np.isfinite(values) & (values >= 0)) or not np.any(values > 0):
+        raise ValueError(f"invalid tabphase values = {phase.get('values')!r}: at least two, finite, >= 0, "
+                         "not all zero")
+    mu = np.linspace(-1.0, 1.0, values.size)
+    # Increasing theta: forward (mu = 1) first. Normalised as Mitsuba's tabphase: 2 pi int f dmu = 1.
+    theta = np.ascontiguousarray(np.arccos(mu[::-1]))
+    theta[0], theta[-1] = 0.0, np.pi
+    f = values[::-1] / (2.0 * np.pi * np.trapezoid(values, mu))
+    return lambda _theta: (theta, np.ascontiguousarray(f))
+
+
+def mean_extinction_um2(species, wavelength_um, *, shares=None, size_bins: int = 16, eta_medium: float = 1.0,
+                        method: str = "auto", truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD) -> float:
+    """The grains' mean grey extinction cross section <C_ext> (um^2) over their PSDs (species mixed by
+    ``shares``, default each species' ``share``), exactly as a medium of these arguments gives each grain
+    its own: its optics bin's grey Q_ext (the mean over the wavelengths, forward peak truncated below
+    ``truncate_below_rad``) times pi r^2. The bins are ``size_bins`` per species, log-spaced between the
+    PSD's quantiles 1e-7 and 1 - 1e-7 (the rarer radii beyond in the end bins): a procedural cloud's bins
+    (``DiscreteMedium.procedural``); a stored cloud spans its own grains' radii, which moves the mean by
+    what a bin's Q_ext varies across the PSD's far tails. A bulk extinction sigma_t (1/m) is then
+    n <C_ext> 1e-12 with n grains per m^3."""
+    species, lam_in, lam = _checked_optics_inputs(species, wavelength_um, size_bins, 1.0)
+    w = np.asarray([sp.share for sp in species] if shares is None else np.atleast_1d(shares), dtype=np.float64)
+    if w.size != len(species) or not np.all(np.isfinite(w) & (w >= 0)) or w.sum() <= 0:
+        raise ValueError(f"invalid shares = {w.tolist()}: one per species, >= 0, with a positive sum")
+    if truncate_below_rad is not None and truncate_below_rad <= 0:
+        truncate_below_rad = None
+    tables = _BinTables(lam, np.searchsorted(lam, lam_in), eta_medium, method, truncate_below_rad, None)
+    edges_all, first = _procedural_bins(tables, species, int(size_bins))
+    grey_q = np.asarray(tables.grey_q)
+    total = 0.0
+    for k, sp in enumerate(species):
+        r, wr = sp.psd.quadrature(0.01)
+        edges = np.asarray(edges_all[k])
+        which = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, max(edges.size - 2, 0))
+        total += w[k] * float(np.sum(wr * np.pi * r**2 * grey_q[first[k] + which]) / np.sum(wr))
+    return total / float(w.sum())
 
 
 def _core_tables(tables, lam) -> _motes.BinTables:
@@ -272,7 +375,8 @@ class DiscreteMedium:
                  truncate_below_rad: float | None = DEFAULT_TRUNCATE_RAD, cells_per_particle: float = DEFAULT_CELLS_PER_PARTICLE, seed: int = 0,
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
-                 storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True):
+                 storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True,
+                 phase: dict | None = None):
         self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
         if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
@@ -282,11 +386,10 @@ class DiscreteMedium:
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 
-        if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
-            raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
+        _checked_albedo(albedo, lam.size)
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
-                                                    truncate_below_rad, albedo, phase_model)
+                                                    truncate_below_rad, albedo, phase_model, phase)
         self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened)
         self._set_path_rules(grain_depth, surface_footprint)
 
@@ -363,11 +466,11 @@ class DiscreteMedium:
         return self._core.lights
 
     def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo,
-                       phase_model):
+                       phase_model, phase=None):
         """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""
         n = r.size
         bin_of = np.zeros(n, dtype=np.uint32)
-        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model, phase)
         for k, sp in enumerate(species):
             # One species (the common case): every particle, without index arrays (1e8 particles).
             sel = slice(None) if len(species) == 1 else np.flatnonzero(idx == k)
@@ -441,7 +544,7 @@ class DiscreteMedium:
                    continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                    cache_bytes: int | None = None, phase_model: str = "tabulated", turbulence: float = 0.0,
                    turbulence_scale: float = 1.0, time_s: float = 0.0,
-                   surface_footprint: bool = True) -> "DiscreteMedium":
+                   surface_footprint: bool = True, phase: dict | None = None) -> "DiscreteMedium":
         """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural.rs``):
         ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
         ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
@@ -468,14 +571,13 @@ class DiscreteMedium:
             raise ValueError(f"invalid cache_bytes = {cache_bytes!r}: must be a positive integer")
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
-        if albedo is not None and not (np.isfinite(albedo) and 0 <= albedo <= 1):
-            raise ValueError(f"invalid albedo = {albedo}: must be in [0, 1]")
+        _checked_albedo(albedo, lam.size)
         m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
         if m.shape != (4, 4) or not np.all(np.isfinite(m)):
             raise ValueError(f"to_world must be a finite 4x4 matrix, got shape {m.shape}")
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in box)
         rank = np.searchsorted(lam, lam_in)
-        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model, phase)
         edges_all, first = _procedural_bins(tables, species, size_bins)
         tables.report(self)
         kind, params = density
@@ -560,4 +662,4 @@ class DiscreteMedium:
         return self._core.optical_depth((np.ascontiguousarray(o).ravel(), np.ascontiguousarray(d).ravel(), a, b))
 
 
-__all__ = ["DiscreteMedium"]
+__all__ = ["DiscreteMedium", "mean_extinction_um2", "phase_table"]

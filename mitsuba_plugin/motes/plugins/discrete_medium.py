@@ -2,94 +2,117 @@
 are visible where they are few and large and which turns into an ordinary hazy medium where they are many
 and small (Guo et al., Sec. 5). Rendered by Mitsuba's own ``volpath`` and ``volpathmis``.
 
-======================  =========  ======================================================================
-Parameter               Type       Meaning (default)
-======================  =========  ======================================================================
-``filename``            string     Particle file (.npz, .npy, .csv, .ply; see ``motes.load_particles``),
-                                   positions in the medium's local units. Without it particles are
-                                   generated in the local cube [-1, 1]^3:
-``count``               integer    number of generated particles (10000; at most 1e9 stored, 1e15
-                                   procedural)
-``distribution``        string     ``uniform``, ``gradient`` (concentration falling linearly along
-                                   local +z) or ``noise`` (fBm noise, scale 0.5) (``uniform``).
-                                   Generated in the core tile by tile (``seed`` fixes every grain
-                                   whatever the thread count; ``rust/motes-core/src/space/cloud.rs``)
-``radius_median``       float      log-normal PSD of the radii: median in um (20)
-``radius_sigma_g``      float      log-normal geometric standard deviation, >= 1 (1.5)
-``psd``                 string     any PSD as JSON, e.g. ``{"type": "uniform", "r_min_um": 5,
-                                   "r_max_um": 50}``; replaces the two above
-``material``            string     ``ice`` or ``water`` (tabulated indices); or give ``eta``:
-``eta``, ``eta_k``      float      particle refractive index n + i k (1.31, 0)
-``eta_medium``          float      index of the host medium (1.0)
-``species``             string     JSON list of species for mixtures, each ``{"psd": {...}, "material":
-                                   "ice"}`` or ``{"psd": ..., "eta": [n, k]}``, optional ``"share"``;
-                                   replaces psd/material/eta. Files give each particle's species index
-``scale_m``             float      metres per scene unit (the units after ``to_world``), so that um radii
-                                   and positions combine (1e-3)
-``query_radius``        float      r_c of the query cylinder in scene units (0: the particles' own
-                                   cross sections, widened where needed by ``tau_max``). Or Eq. 23:
-``footprint_k``         float      k in (0, 2] (paper: 0.5-1), with ``fov`` (degrees), ``film_width``
-                                   (pixels) and ``z_med`` (nearest depth of the medium, scene units)
-``tau_max``             float      cap on each particle's optical depth (1): a particle whose disk
-                                   r_c + r_i would be more opaque gets a wider disk; each disk removes
-                                   exactly its C_ext from a beam (see Notes)
-``cells_per_particle``  float      grid resolution (0.125: about eight particles per cell)
-``continuous_count``    float      size classes with at least this many particles per query cylinder
-                                   (over a mean free path or across the cloud) are rendered as a
-                                   continuous medium: no pixel resolves their grains (16; inf: none)
-``grain_depth``         integer    a path's rays walk grains one by one until its ``grain_depth``-th
-                                   scattering event, and see their continuous equivalent after (1:
-                                   grains are seen where a path meets them first; ignored when
-                                   ``continuous_count`` is inf, which keeps every ray exact)
-``surface_footprint``   boolean    rays from surfaces (a wall's shadow ray, a bounce off the floor) see
-                                   the grains' continuous equivalent where the narrowest pixel
-                                   footprint they can carry holds ``continuous_count`` grains (an
-                                   effective count over the discrete size classes); camera rays always
-                                   walk them. The cameras are read
-                                   from the scene at every load and ``mi.render``
-                                   (``rust/motes-core/src/render/footprint.rs``; true; false: rays
-                                   from surfaces walk the grains)
-``storage``             string     ``compact``: each particle is a class (its optics bin and one of 1024
-                                   radius levels per bin; radii move by at most half a level), stored
-                                   once in its centre's grid cell at 6e-5 of a cell from 65536
-                                   discrete grains up: 11-14 bytes per discrete grain, 4-5 per
-                                   continuous one; ``full``: radii and
-                                   positions as given, 60-75 bytes per discrete grain;
-                                   ``procedural``: generated particles are never stored, each brick of
-                                   the cloud generated from ``seed`` when a ray first needs it (``count``
-                                   up to 1e15, a Poisson mean; memory follows what a render visits)
-                                   (``compact``; see ``motes.DiscreteMedium``)
-``cache_mb``            float      ``storage = procedural``: megabytes of generated bricks kept between
-                                   rays (the least recently used are dropped beyond it and generated
-                                   again when needed) (a quarter of the memory available at load)
-``size_bins``           integer    radius bins of the optics tables per species (16)
-``method``              string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
-``truncate_below``      float      forward-peak truncation angle in radians; default (or any negative
-                                   value, so that a scene parameter can ask for it): the pixel
-                                   footprint fov / film_width when ``fov`` and ``film_width`` are
-                                   given, else 0.0313 (one bin of a 4096-value tabphase, as
-                                   ``homogeneous_equivalent``); 0: none
-``wavelengths``         string     tabulated wavelengths in um, comma-separated (spectral variants:
-                                   8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
-``seed``                integer    seed of generated positions and free flights (0)
-``time``                float      seconds since the cloud was at rest; generated grains move with (0):
-``velocity``            vector     uniform velocity, scene units per second ("0, 0, 0")
-``turbulence``          float      amplitude A (scene units) of a smooth, seeded drift around the mean
-                                   path whose displacement field is divergence-free (a uniform cloud
-                                   stays uniform to O((A / L)^2); keep A well below L) (0: none)
-``turbulence_scale``    float      spatial scale of the drift, scene units (a quarter of the cloud's
-                                   largest extent); ``rust/motes-core/src/space/motion.rs``. Each grain
-                                   keeps its radius and species; the medium's shape must hold the
-                                   grains where they move to, or:
-``wrap``                boolean    grains that leave the cloud's box come back through the opposite
-                                   face (periodic: a snowfall that never runs out) (false; stored only)
-``albedo``              float      replaces every particle's albedo, in [0, 1] (tests, stylisation)
-``phase_model``         string     ``tabulated``: the grains' own phase functions (Eq. 17 per size bin);
-                                   ``hg``: Henyey-Greenstein with the same g per bin and channel, the
-                                   model graphics often uses instead (paper Fig. 13) (``tabulated``)
-``to_world``            transform  places the particle positions in the scene (radii stay physical)
-``sample_emitters``     boolean    next-event estimation at scattering events (true)
-======================  =========  ======================================================================
+===========================  =========  ======================================================================
+Parameter                    Type       Meaning (default)
+===========================  =========  ======================================================================
+``filename``                 string     Particle file (.npz, .npy, .csv, .ply; see ``motes.load_particles``),
+                                        positions in the medium's local units. Without it particles are
+                                        generated in the local cube [-1, 1]^3:
+``count``                    integer    number of generated particles (10000; at most 1e9 stored, 1e15
+                                        procedural); or, as ``homogeneous`` takes it:
+``sigma_t``                  float,     the bulk extinction per scene unit the grains make (Mitsuba reads it
+                             rgb or     as ``homogeneous`` does: an rgb in [0, 1] times ``scale``, or above
+                             spectrum   1): the number of generated grains is sigma_t V / <C_ext>, V the
+                                        medium's box (``to_world`` of the local cube, 8 |det| units^3, in m^3
+                                        through ``scale_m``), <C_ext> the grains' own grey extinction cross
+                                        section (each optics bin's truncated Q_ext times pi r^2, the mean over
+                                        the PSD; ``motes.discrete.mean_extinction_um2``). A coloured sigma_t:
+                                        grains' extinction is grey, so the mean over the channels is taken and
+                                        a warning says so (colour comes from ``albedo``). With ``distribution``
+                                        gradient or noise it is the box's mean; with ``count`` or
+                                        ``filename`` an error
+``scale``                    float      multiplies sigma_t (1; alone: sigma_t = 1 times it, as
+                                        ``homogeneous``)
+``distribution``             string     ``uniform``, ``gradient`` (concentration falling linearly along
+                                        local +z) or ``noise`` (fBm noise, scale 0.5) (``uniform``).
+                                        Generated in the core tile by tile (``seed`` fixes every grain
+                                        whatever the thread count; ``rust/motes-core/src/space/cloud.rs``)
+``radius_median``            float      log-normal PSD of the radii: median in um (20)
+``radius_sigma_g``           float      log-normal geometric standard deviation, >= 1 (1.5)
+``psd``                      string     any PSD as JSON, e.g. ``{"type": "uniform", "r_min_um": 5,
+                                        "r_max_um": 50}``; replaces the two above
+``material``                 string     ``ice`` or ``water`` (tabulated indices); or give ``eta``:
+``eta``, ``eta_k``           float      particle refractive index n + i k (1.31, 0)
+``eta_medium``               float      index of the host medium (1.0)
+``species``                  string     JSON list of species for mixtures, each ``{"psd": {...}, "material":
+                                        "ice"}`` or ``{"psd": ..., "eta": [n, k]}``, optional ``"share"``;
+                                        replaces psd/material/eta. Files give each particle's species index
+``scale_m``                  float      metres per scene unit (the units after ``to_world``), so that um radii
+                                        and positions combine (1e-3)
+``query_radius``             float      r_c of the query cylinder in scene units (0: the particles' own
+                                        cross sections, widened where needed by ``tau_max``). Or Eq. 23:
+``footprint_k``              float      k in (0, 2] (paper: 0.5-1), with ``fov`` (degrees), ``film_width``
+                                        (pixels) and ``z_med`` (nearest depth of the medium, scene units)
+``tau_max``                  float      cap on each particle's optical depth (1): a particle whose disk
+                                        r_c + r_i would be more opaque gets a wider disk; each disk removes
+                                        exactly its C_ext from a beam (see Notes)
+``cells_per_particle``       float      grid resolution (0.125: about eight particles per cell)
+``continuous_count``         float      size classes with at least this many particles per query cylinder
+                                        (over a mean free path or across the cloud) are rendered as a
+                                        continuous medium: no pixel resolves their grains (16; inf: none)
+``grain_depth``              integer    a path's rays walk grains one by one until its ``grain_depth``-th
+                                        scattering event, and see their continuous equivalent after (1:
+                                        grains are seen where a path meets them first; ignored when
+                                        ``continuous_count`` is inf, which keeps every ray exact)
+``surface_footprint``        boolean    rays from surfaces (a wall's shadow ray, a bounce off the floor) see
+                                        the grains' continuous equivalent where the narrowest pixel
+                                        footprint they can carry holds ``continuous_count`` grains (an
+                                        effective count over the discrete size classes); camera rays always
+                                        walk them. The cameras are read
+                                        from the scene at every load and ``mi.render``
+                                        (``rust/motes-core/src/render/footprint.rs``; true; false: rays
+                                        from surfaces walk the grains)
+``storage``                  string     ``compact``: each particle is a class (its optics bin and one of 1024
+                                        radius levels per bin; radii move by at most half a level), stored
+                                        once in its centre's grid cell at 6e-5 of a cell from 65536
+                                        discrete grains up: 11-14 bytes per discrete grain, 4-5 per
+                                        continuous one; ``full``: radii and
+                                        positions as given, 60-75 bytes per discrete grain;
+                                        ``procedural``: generated particles are never stored, each brick of
+                                        the cloud generated from ``seed`` when a ray first needs it (``count``
+                                        up to 1e15, a Poisson mean; memory follows what a render visits)
+                                        (``compact``; see ``motes.DiscreteMedium``)
+``cache_mb``                 float      ``storage = procedural``: megabytes of generated bricks kept between
+                                        rays (the least recently used are dropped beyond it and generated
+                                        again when needed) (a quarter of the memory available at load)
+``size_bins``                integer    radius bins of the optics tables per species (16)
+``method``                   string     ``auto``, ``mie``, ``goa`` or ``hybrid`` (``auto``)
+``truncate_below``           float      forward-peak truncation angle in radians; default (or any negative
+                                        value, so that a scene parameter can ask for it): the pixel
+                                        footprint fov / film_width when ``fov`` and ``film_width`` are
+                                        given, else 0.0313 (one bin of a 4096-value tabphase, as
+                                        ``homogeneous_equivalent``); 0: none
+``wavelengths``              string     tabulated wavelengths in um, comma-separated (spectral variants:
+                                        8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
+``seed``                     integer    seed of generated positions and free flights (0)
+``time``                     float      seconds since the cloud was at rest; generated grains move with (0):
+``velocity``                 vector     uniform velocity, scene units per second ("0, 0, 0")
+``turbulence``               float      amplitude A (scene units) of a smooth, seeded drift around the mean
+                                        path whose displacement field is divergence-free (a uniform cloud
+                                        stays uniform to O((A / L)^2); keep A well below L) (0: none)
+``turbulence_scale``         float      spatial scale of the drift, scene units (a quarter of the cloud's
+                                        largest extent); ``rust/motes-core/src/space/motion.rs``. Each grain
+                                        keeps its radius and species; the medium's shape must hold the
+                                        grains where they move to, or:
+``wrap``                     boolean    grains that leave the cloud's box come back through the opposite
+                                        face (periodic: a snowfall that never runs out) (false; stored only)
+``albedo``                   float,     replaces every particle's albedo, in [0, 1] (tests, stylisation; a
+                             rgb or     drop-in ``homogeneous`` scene's colour): a float for every channel, an
+                             spectrum   rgb or spectrum per channel (RGB variants: R, G, B; spectral: its value
+                                        at each tabulated wavelength) (the physical albedo; ``homogeneous``'s
+                                        default 0.75 is not taken)
+``phase_model``              string     ``tabulated``: the grains' own phase functions (Eq. 17 per size bin);
+                                        ``hg``: Henyey-Greenstein with the same g per bin and channel, the
+                                        model graphics often uses instead (paper Fig. 13) (``tabulated``)
+``to_world``                 transform  places the particle positions in the scene (radii stay physical)
+``sample_emitters``          boolean    next-event estimation at scattering events (true)
+``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
+                                        flights); true is ignored, with one warning (false)
+``<phase>`` child            phase      the grains' phase function: ``particle``, their own (the default, also
+                                        without a child); ``isotropic``, ``hg`` (its ``g``) or ``tabphase``
+                                        (its ``values``): that function for every bin and channel instead
+                                        (extinction and albedo stay the grains'); any other type is an error
+===========================  =========  ======================================================================
 
 Scene parameters (``mi.traverse(scene)``): ``albedo_scale``, a factor on every particle's albedo (1 as
 loaded; a one-element tensor, checked to keep albedos within [0, 1]), editable between renders; and the
@@ -120,9 +143,23 @@ cloud is in view, a pass generates what a stored build would, and only a cache t
 bricks (``cache_mb``; about 40 bytes per visible grain) keeps later passes from generating them again
 (BENCHMARKS.md, "Memory and scale"). ``count`` is the mean of a Poisson count, not an exact one.
 
-The phase function must be ``<phase type="particle"/>``. Unknown or misspelt parameters fail loading
-(Mitsuba's unreferenced-property check); invalid values raise ``ValueError`` naming the parameter and
-its allowed range.
+The phase function is the ``<phase>`` child: ``particle`` (or none) renders the grains' own; ``isotropic``,
+``hg`` and ``tabphase`` give every grain that function (the plugin puts a ``particle`` phase function in their
+place, which renders it: the render path stays the same). Invalid values and unknown or misspelt
+parameters fail loading with one ``ValueError`` (through Mitsuba's loaders a RuntimeError, without the
+plugin's Python traceback) that lists each: the parameter, its value and what it takes.
+
+From a homogeneous medium
+-------------------------
+A scene's ``homogeneous`` medium turns ``discrete`` by changing its type and adding a grain size
+(``radius_median``; ``scale_m`` where a scene unit is not a millimetre) and, today, the box of the shape that
+holds it as ``to_world``: the grains fill that box, not the shape (grains outside every holding shape are
+never met). ``sigma_t``, ``scale``, ``albedo`` (float or rgb), ``sample_emitters``, ``has_spectral_extinction``
+and the phase child (``isotropic``, ``hg``, ``tabphase``) keep their meaning; the grains then make the same
+mean transmittance exp(-sigma_t L) (``tests/test_dropin.py``; ``scripts/bench/bench_dropin.py`` compares three
+such scenes with their homogeneous originals). What differs is the grains themselves: visible where they
+are few and large, and a grey extinction. Too many grains for a stored cloud (sigma_t V / <C_ext> above
+1e9) is an error that says so: use ``storage = procedural``, larger grains or a smaller ``scale_m``.
 
 How it maps onto Mitsuba's delta tracking
 -----------------------------------------
@@ -169,6 +206,7 @@ multiplies is zero). ``Integrator.render`` called directly skips neither unless
 
 from __future__ import annotations
 
+import difflib
 import json
 import time
 import warnings
@@ -178,7 +216,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..discrete import DiscreteMedium, box_of, log
+from ..discrete import PHASE_TYPES, DiscreteMedium, box_of, log, mean_extinction_um2
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
                         DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, PHASE_MODELS, STORAGES)
@@ -187,11 +225,19 @@ from ..particles import query_radius_from_camera
 from .. import _memory, _motes, native
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
-from . import cameras
+from . import cameras, particle_phase
 from ._scene import native_data
 
 #: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
 PLUGIN_STORAGES = STORAGES + ("procedural",)
+
+#: Every parameter of the table (module docs), for the "did you mean" of an unknown one.
+PARAMETERS = ("filename", "count", "distribution", "radius_median", "radius_sigma_g", "psd", "material", "eta", "eta_k",
+              "eta_medium", "species", "scale_m", "query_radius", "footprint_k", "fov", "film_width", "z_med", "tau_max",
+              "cells_per_particle", "continuous_count", "grain_depth", "surface_footprint", "storage", "cache_mb",
+              "size_bins", "method", "truncate_below", "wavelengths", "seed", "time", "velocity", "turbulence",
+              "turbulence_scale", "wrap", "sigma_t", "scale", "albedo", "has_spectral_extinction", "phase_model",
+              "to_world", "sample_emitters")
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -204,20 +250,29 @@ class DiscreteMediumPlugin:
     data: DiscreteMedium | None = None
 
     def __init__(self, props: mi.Properties):
+        # The <phase> child: a particle phase function takes the place of any other (its function becomes
+        # the grains', below), so that the render path is the same whatever the scene gave.
+        user_phase = _take_phase_child(props)
         mi.Medium.__init__(self, props)
         self.m_is_homogeneous = False
         self.m_has_spectral_extinction = False
-        p = _read_parameters(props)
-        species = _species(p, props)
+        p, bad = _read_parameters(props, user_phase)
+        species = _collected(bad, _species, p, props)
+        _raise_if_bad(bad)
+        if p.spectral_extinction:
+            warnings.warn("discrete medium: has_spectral_extinction = true is ignored: the grains' free flights are "
+                          "grey (their albedo and phase function are per channel)", stacklevel=3)
         truncate = p.truncate
         if truncate is None:
             truncate = (pixel_footprint_rad(p.fov, p.film_width) if p.fov is not None and p.film_width is not None
                         else DEFAULT_TRUNCATE_RAD)
-        lam = _wavelengths(p.wavelengths)
+        lam = p.lam
+        if p.sigma_t is not None:
+            p.count = _count_of_extinction(p, species, lam, truncate if truncate > 0 else None)
         common = dict(scale_m=p.scale_m, size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
                       truncate_below_rad=truncate if truncate > 0 else None, cells_per_particle=p.cells, seed=p.seed,
                       albedo=p.albedo, tau_max=p.tau_max, continuous_count=p.continuous, grain_depth=p.grain_depth,
-                      phase_model=p.phase_model, surface_footprint=p.surface_footprint)
+                      phase_model=p.phase_model, surface_footprint=p.surface_footprint, phase=p.phase)
         if p.storage == "procedural":
             self.data = _procedural(p, species, lam, common)
         else:
@@ -313,78 +368,283 @@ class DiscreteMediumPlugin:
 
 
 # -- The constructor's steps -----------------------------------------------------------------------
-def _read_parameters(props) -> SimpleNamespace:
-    """Every parameter of the table (module docs), read in one place so that Mitsuba counts each as used."""
+#: Mitsuba's phase function plugins by class name (``<phase type=...>``), and those whose function a
+#: discrete medium's grains take (``particle``, the grains' own, is the default).
+MITSUBA_PHASES = {"IsotropicPhaseFunction": "isotropic", "HGPhaseFunction": "hg", "TabulatedPhaseFunction": "tabphase",
+                  "RayleighPhaseFunction": "rayleigh", "SGGXPhaseFunction": "sggx", "BlendPhaseFunction": "blendphase"}
+PHASE_CHILDREN = ("particle",) + PHASE_TYPES
+
+
+def _take_phase_child(props):
+    """The medium's ``<phase>`` child as the grains' phase function (``motes.discrete.phase_table``'s dict;
+    None: ``particle`` or none given, the grains' own) or the problem with it (a string), replaced in ``props``
+    by a ``particle`` phase function, which renders whatever the tables hold. Two children: left to Mitsuba."""
+    children = [(k, o) for k, o in props.objects() if isinstance(o, mi.PhaseFunction)]
+    if len(children) > 1 or (children and getattr(children[0][1], "is_motes_particle_phase", False)):
+        return None
+    spec = None
+    if children:
+        key, child = children[0]
+        name = MITSUBA_PHASES.get(child.class_name(), child.class_name())
+        params = mi.traverse(child)
+        if name == "isotropic":
+            spec = {"type": "isotropic"}
+        elif name == "hg":
+            spec = {"type": "hg", "g": float(np.asarray(params["g"]).ravel()[0])}
+        elif name == "tabphase":
+            spec = {"type": "tabphase", "values": np.asarray(params["values"], dtype=np.float64).ravel().tolist()}
+        else:
+            spec = (f'phase function <phase type="{name}">: a discrete medium takes ' +
+                    ", ".join(PHASE_CHILDREN) + " (particle, the grains' own, is the default)")
+    else:
+        key = "phase"
+    props[key] = particle_phase.plugin_class()(mi.Properties("particle"))
+    return spec
+
+
+def _collected(bad: list, fn, *args):
+    """``fn(*args)``, or None with its ValueError added to ``bad``."""
+    try:
+        return fn(*args)
+    except ValueError as e:
+        bad.append(str(e))
+        return None
+
+
+def _raise_if_bad(bad: list) -> None:
+    """One ValueError for every problem found (one problem: its own message, as it always read)."""
+    if len(bad) == 1:
+        raise ValueError(bad[0])
+    if bad:
+        items = [b.removeprefix("discrete medium: ") for b in bad]
+        raise ValueError(f"discrete medium: {len(bad)} problems with its parameters:\n  " + ";\n  ".join(items))
+
+
+def _read_parameters(props, user_phase=None) -> tuple[SimpleNamespace, list]:
+    """Every parameter of the table (module docs), read in one place so that Mitsuba counts each as used:
+    (the parameters, a message for each invalid or unknown one). ``user_phase``: ``_take_phase_child``'s."""
     pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
+    bad: list[str] = []
+    get = lambda *args: _get(props, *args, bad=bad)  # noqa: E731
     p = SimpleNamespace()
-    p.filename = _get(props, "filename", None, str)
-    p.storage = _get(props, "storage", DEFAULT_STORAGE, str, lambda v: v in PLUGIN_STORAGES,
-                     "one of " + ", ".join(PLUGIN_STORAGES))
+    p.filename = get("filename", None, str)
+    p.storage = get("storage", DEFAULT_STORAGE, str, lambda v: v in PLUGIN_STORAGES,
+                    "one of " + ", ".join(PLUGIN_STORAGES))
     if p.storage == "procedural":
         if p.filename is not None:
-            raise ValueError("discrete medium: storage = procedural generates its particles (count, distribution); "
-                             "a particle file is stored: use storage = compact or full with filename")
-        p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= MAX_PROCEDURAL_COUNT,
-                       f"an integer in [1, {MAX_PROCEDURAL_COUNT:g}] (storage = procedural)")
+            bad.append("discrete medium: storage = procedural generates its particles (count, distribution); "
+                       "a particle file is stored: use storage = compact or full with filename")
+        p.count = get("count", 10000, int, lambda v: 1 <= v <= MAX_PROCEDURAL_COUNT,
+                      f"an integer in [1, {MAX_PROCEDURAL_COUNT:g}] (storage = procedural)")
     else:
-        p.count = _get(props, "count", 10000, int, lambda v: 1 <= v <= 10**9,
-                       "an integer in [1, 1e9] (more with storage = procedural)")
+        p.count = get("count", 10000, int, lambda v: 1 <= v <= 10**9,
+                      "an integer in [1, 1e9] (more with storage = procedural)")
         # The least any medium of this count needs (a dense cloud); the build checks its own estimate again.
         _memory.require(_memory.BYTES_PER_PARTICLE_DENSE * p.count, f"discrete medium: count = {p.count}")
-    p.distribution = _get(props, "distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
-                          "one of uniform, gradient, noise")
+    p.distribution = get("distribution", "uniform", str, lambda v: v in ("uniform", "gradient", "noise"),
+                         "one of uniform, gradient, noise")
     lo_um, hi_um = psd_mod.LogNormal.r_min_um, psd_mod.LogNormal.r_max_um
-    p.median = _get(props, "radius_median", 20.0, float, lambda v: lo_um < v < hi_um,
-                    f"in ({lo_um:g}, {hi_um:g}) um (the log-normal PSD is truncated there; a wider one via psd)")
-    p.sigma_g = _get(props, "radius_sigma_g", 1.5, float, lambda v: np.isfinite(v) and v >= 1, "finite and >= 1")
-    p.psd_json = _get(props, "psd", None, str)
-    p.material = _get(props, "material", None, str)
-    p.eta = _get(props, "eta", 1.31, float, pos_f, "finite and > 0")
-    p.eta_k = _get(props, "eta_k", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
-    p.eta_medium = _get(props, "eta_medium", 1.0, float, pos_f, "finite and > 0")
-    p.species_json = _get(props, "species", None, str)
-    p.scale_m = _get(props, "scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
-    p.query_radius = _get(props, "query_radius", None, float)
-    p.k = _get(props, "footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
-    p.fov = _get(props, "fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
-    p.film_width = _get(props, "film_width", None, int, lambda v: v >= 1, "an integer >= 1 (pixels)")
-    p.z_med = _get(props, "z_med", None, float, pos_f, "finite and > 0 (scene units)")
-    p.cells = _get(props, "cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
+    p.median = get("radius_median", 20.0, float, lambda v: lo_um < v < hi_um,
+                   f"in ({lo_um:g}, {hi_um:g}) um (the log-normal PSD is truncated there; a wider one via psd)")
+    p.sigma_g = get("radius_sigma_g", 1.5, float, lambda v: np.isfinite(v) and v >= 1, "finite and >= 1")
+    p.psd_json = get("psd", None, str)
+    p.material = get("material", None, str)
+    p.eta = get("eta", 1.31, float, pos_f, "finite and > 0")
+    p.eta_k = get("eta_k", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0")
+    p.eta_medium = get("eta_medium", 1.0, float, pos_f, "finite and > 0")
+    p.species_json = get("species", None, str)
+    p.scale_m = get("scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
+    p.query_radius = get("query_radius", None, float)
+    p.k = get("footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
+    p.fov = get("fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
+    p.film_width = get("film_width", None, int, lambda v: v >= 1, "an integer >= 1 (pixels)")
+    p.z_med = get("z_med", None, float, pos_f, "finite and > 0 (scene units)")
+    eq23 = [name in props for name in ("footprint_k", "fov", "film_width", "z_med")]
+    if any(eq23) and not all(eq23):
+        bad.append("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
+    elif all(eq23) and p.query_radius is not None:
+        bad.append("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
+    p.cells = get("cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
     # query_radius, cells_per_particle, tau_max and continuous_count are range-checked by the core
     # (motes._motes.check_discrete_inputs) before any table is built: one home for those rules.
-    p.size_bins = _get(props, "size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
-    p.method = _get(props, "method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
-                    "one of auto, mie, goa, hybrid")
-    p.truncate = _get(props, "truncate_below", None, float, lambda v: v < np.pi, "below pi radians (negative: the default)")
+    p.size_bins = get("size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
+    p.method = get("method", "auto", str, lambda v: v in ("auto", "mie", "goa", "hybrid"),
+                   "one of auto, mie, goa, hybrid")
+    p.truncate = get("truncate_below", None, float, lambda v: v < np.pi, "below pi radians (negative: the default)")
     if p.truncate is not None and p.truncate < 0:
         p.truncate = None
-    p.tau_max = _get(props, "tau_max", DEFAULT_TAU_MAX, float)
-    p.continuous = _get(props, "continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
-    p.grain_depth = _get(props, "grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
-    p.surface_footprint = _get(props, "surface_footprint", True, bool)
-    p.cache_mb = _get(props, "cache_mb", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (megabytes)")
+    p.tau_max = get("tau_max", DEFAULT_TAU_MAX, float)
+    p.continuous = get("continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
+    p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
+    p.surface_footprint = get("surface_footprint", True, bool)
+    p.cache_mb = get("cache_mb", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (megabytes)")
     if "cache_mb" in props and p.storage != "procedural":
-        raise ValueError("discrete medium: cache_mb bounds a procedural cloud's bricks: it needs storage = procedural")
-    p.wavelengths = _get(props, "wavelengths", None, str)
-    p.seed = _get(props, "seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
-    p.albedo = _get(props, "albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
-    p.time = _get(props, "time", 0.0, float, np.isfinite, "finite (seconds)")
-    p.velocity = _vector(props, "velocity")
-    p.turbulence = _get(props, "turbulence", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0 (scene units)")
-    p.turbulence_scale = _get(props, "turbulence_scale", None, float, lambda v: np.isfinite(v) and v > 0,
-                              "finite and > 0 (scene units)")
-    p.wrap = _get(props, "wrap", False, bool)
+        bad.append("discrete medium: cache_mb bounds a procedural cloud's bricks: it needs storage = procedural")
+    p.wavelengths = get("wavelengths", None, str)
+    p.lam = _collected(bad, _wavelengths, p.wavelengths)
+    p.seed = get("seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
+    if "albedo" in props and props.type("albedo") not in (mi.Properties.Type.Float, mi.Properties.Type.Integer):
+        p.albedo = _channels(props, "albedo", p.lam, bad, bounded=True)  # rgb, spectrum: one per channel
+    else:
+        p.albedo = get("albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+    p.time = get("time", 0.0, float, np.isfinite, "finite (seconds)")
+    p.velocity = _collected(bad, _vector, props, "velocity")
+    p.velocity = np.zeros(3) if p.velocity is None else p.velocity
+    p.turbulence = get("turbulence", 0.0, float, lambda v: np.isfinite(v) and v >= 0, "finite and >= 0 (scene units)")
+    p.turbulence_scale = get("turbulence_scale", None, float, lambda v: np.isfinite(v) and v > 0,
+                             "finite and > 0 (scene units)")
+    p.wrap = get("wrap", False, bool)
     p.moving = bool(np.any(p.velocity != 0) or p.turbulence > 0)
     if p.filename is not None and (p.moving or "time" in props):
-        raise ValueError("discrete medium: time, velocity and turbulence move generated grains; a particle file "
-                         "is read as it is (one file per frame: filename=\"grains_$frame.npz\")")
+        bad.append("discrete medium: time, velocity and turbulence move generated grains; a particle file "
+                   "is read as it is (one file per frame: filename=\"grains_$frame.npz\")")
     if p.storage == "procedural" and p.wrap:
-        raise ValueError("discrete medium: wrap needs stored grains (storage = compact or full); a procedural "
-                         "cloud moves with velocity and turbulence")
-    p.phase_model = _get(props, "phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
-                         "one of " + ", ".join(PHASE_MODELS))
+        bad.append("discrete medium: wrap needs stored grains (storage = compact or full); a procedural "
+                   "cloud moves with velocity and turbulence")
+    p.phase_model = get("phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
+                        "one of " + ", ".join(PHASE_MODELS))
     p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
-    return p
+    _read_homogeneous_keys(props, p, bad, get)
+    # The phase child (_take_phase_child).
+    p.phase = user_phase if isinstance(user_phase, dict) else None
+    if isinstance(user_phase, str):
+        bad.append(f"discrete medium: {user_phase}")
+    if p.phase is not None and p.phase_model != "tabulated":
+        bad.append(f"discrete medium: phase_model = {p.phase_model} and <phase type=\"{p.phase['type']}\"> both set "
+                   "the grains' phase function: keep one")
+    if p.material is not None and ("eta" in props or "eta_k" in props):
+        bad.append("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
+    if bad and p.to_world is not None:
+        _collected(bad, _checked_to_world, p)
+    unknown = [k for k in props.unqueried() if not k.startswith("_arg_")]
+    for k in unknown:
+        close = difflib.get_close_matches(k, PARAMETERS, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        bad.append(f"discrete medium: unknown parameter '{k}' = {_shown(props, k)}{hint}; the parameters are "
+                   "listed in motes.plugins.discrete_medium's docs")
+    return p, bad
+
+
+def _shown(props, name: str) -> str:
+    try:
+        value = props.get(name)
+    except Exception:  # noqa: BLE001 - an object Mitsuba cannot hand back: name its type
+        return f"<{props.type(name).name}>"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _read_homogeneous_keys(props, p: SimpleNamespace, bad: list, get) -> None:
+    """What Mitsuba's ``homogeneous`` medium takes (module docs, "From a homogeneous medium"): ``sigma_t`` (a
+    float, rgb or spectrum per scene unit, read as ``homogeneous`` reads it) times ``scale`` sets the number of
+    grains (``p.sigma_t``: per channel; None: neither given); ``has_spectral_extinction`` is read and, where it
+    asks for what the grains do not do, said once."""
+    scale = get("scale", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (it multiplies sigma_t)")
+    p.sigma_t = None
+    if "sigma_t" in props:
+        p.sigma_t = _channels(props, "sigma_t", p.lam, bad, bounded=False)
+    elif scale is not None and p.lam is not None:
+        p.sigma_t = np.ones(p.lam.size)  # homogeneous's default sigma_t, 1
+    if p.sigma_t is not None:
+        if not np.all(np.isfinite(p.sigma_t) & (p.sigma_t >= 0)) or not np.mean(p.sigma_t) > 0:
+            bad.append(f"discrete medium: invalid sigma_t = {_fmt_channels(p.sigma_t)}: must be finite, >= 0 and not "
+                       "all zero (a discrete medium holds at least one grain)")
+        p.sigma_t = p.sigma_t * (1.0 if scale is None else scale)
+    given = "sigma_t" if "sigma_t" in props else "scale (times sigma_t, 1 by default)" if "scale" in props else None
+    for other, what in (("count", "the number of generated grains"), ("filename", "a file's grains")):
+        if given is not None and other in props:
+            bad.append(f"discrete medium: {other} and {given} both set the grains: give one ({other}: {what}; "
+                       "sigma_t: the bulk extinction per scene unit, as homogeneous takes it, times scale)")
+    p.spectral_extinction = get("has_spectral_extinction", False, bool)
+
+
+def _channels(props, name: str, lam, bad: list, bounded: bool):
+    """A colour parameter read as Mitsuba's ``homogeneous`` medium reads it (a texture: float, rgb or
+    spectrum) and evaluated at each channel (``_spectrum_values``), or None with the problem added to ``bad``."""
+    if bounded and props.type(name) == mi.Properties.Type.Color:  # Mitsuba's own check names no parameter
+        rgb = np.array([float(c) for c in props.get(name)])
+        if not np.all(np.isfinite(rgb) & (rgb >= 0) & (rgb <= 1)):
+            bad.append(f"discrete medium: invalid {name} = {_fmt_channels(rgb)}: each channel must be in [0, 1]")
+            return None
+    try:
+        if bounded:
+            tex = props.get_texture(name)
+        else:
+            # As homogeneous reads sigma_t (a bounded spectrum, e.g. an rgb in [0, 1] times scale), and beyond 1
+            # as an unbounded one.
+            try:
+                tex = props.get_texture(name)
+            except Exception:  # noqa: BLE001 - Mitsuba refuses an rgb above 1 as a bounded spectrum
+                tex = props.get_unbounded_texture(name)
+    except Exception as e:  # noqa: BLE001 - Mitsuba's own words for what it could not read
+        bad.append(f"discrete medium: invalid {name} ({' '.join(str(e).split())}): give a float, rgb or spectrum"
+                   + (" with values in [0, 1]" if bounded else ""))
+        return None
+    if lam is None:
+        return None
+    values = _spectrum_values(tex, lam)
+    if bounded and not np.all(np.isfinite(values) & (values >= 0) & (values <= 1)):
+        bad.append(f"discrete medium: invalid {name} = {_fmt_channels(values)}: each channel must be in [0, 1]")
+        return None
+    return values
+
+
+def _fmt_channels(v) -> str:
+    return "(" + ", ".join(f"{float(x):.4g}" for x in np.atleast_1d(v)) + ")"
+
+
+def _spectrum_values(tex, lam_um: np.ndarray) -> np.ndarray:
+    """A Mitsuba texture's value at each channel of the medium, in channel order: R, G, B in RGB variants
+    (``lam_um`` holds their wavelengths), the spectrum at each wavelength of ``lam_um`` in spectral ones."""
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    if not mi.is_spectral:
+        v = tex.eval(si)
+        out = np.array([float(np.asarray(v[c]).ravel()[0]) for c in range(dr.size_v(mi.UnpolarizedSpectrum))])
+        return out if out.size == lam_um.size else np.full(lam_um.size, float(out.mean()))
+    nm = [float(x) * 1e3 for x in lam_um]
+    size = dr.size_v(mi.UnpolarizedSpectrum)
+    out = []
+    for i in range(0, len(nm), size):
+        chunk = nm[i:i + size]
+        si.wavelengths = type(si.wavelengths)(chunk + [chunk[-1]] * (size - len(chunk)))
+        v = tex.eval(si)
+        out += [float(np.asarray(v[c]).ravel()[0]) for c in range(len(chunk))]
+    return np.array(out)
+
+
+def _count_of_extinction(p: SimpleNamespace, species: list, lam: np.ndarray, truncate: float | None) -> float:
+    """The number of grains whose bulk extinction is ``p.sigma_t`` (per scene unit; its mean over the channels)
+    in the medium's box (``to_world`` of the local cube [-1, 1]^3): n = sigma_t / <C_ext> per m^3 with the
+    grains' own mean grey C_ext (``motes.discrete.mean_extinction_um2``: each bin's truncated Q_ext times
+    pi r^2, as the medium gives each grain), times the box's volume. An integer for stored grains, the
+    Poisson mean of a procedural cloud."""
+    sigma = float(np.mean(p.sigma_t))
+    if np.ptp(p.sigma_t) > 1e-6 * sigma:
+        warnings.warn(f"discrete medium: sigma_t = {_fmt_channels(p.sigma_t)} per unit is coloured; the grains' "
+                      f"extinction is grey, so their number follows its mean over the channels, {sigma:.4g} per unit "
+                      "(colour them with albedo)", stacklevel=4)
+    c_um2 = mean_extinction_um2(species, lam, size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
+                                truncate_below_rad=truncate)
+    volume = 8.0 * abs(float(np.linalg.det(_checked_to_world(p)[:3, :3])))  # scene units^3
+    count = sigma * volume * p.scale_m**2 / (c_um2 * 1e-12)
+    what = (f"sigma_t = {sigma:.4g} per unit over the medium's box ({volume:.4g} units^3, scale_m = {p.scale_m:g} m) "
+            f"with grains of mean C_ext {c_um2:.4g} um^2 is {count:.4g} grains")
+    if p.storage == "procedural":
+        if not 1 <= count <= MAX_PROCEDURAL_COUNT:
+            raise ValueError(f"discrete medium: {what}: a procedural cloud takes 1 to {MAX_PROCEDURAL_COUNT:g} "
+                             "(change sigma_t, the grains' size or scale_m)")
+    else:
+        count = int(round(count))
+        if count < 1:
+            raise ValueError(f"discrete medium: {what}: fewer than one; raise sigma_t or take smaller grains "
+                             "(radius_median)")
+        if count > 10**9:
+            raise ValueError(f"discrete medium: {what}, more than a stored cloud takes (1e9): use storage = "
+                             "procedural (up to 1e15), larger grains (radius_median) or a smaller scale_m")
+        _memory.require(_memory.BYTES_PER_PARTICLE_DENSE * count, f"discrete medium: sigma_t = {sigma:.4g} ({count} grains)")
+    log.info("sigma_t: %.4g per unit is %.6g grains of mean C_ext %.4g um^2 in %.4g units^3", sigma, count, c_um2,
+             volume)
+    return count
 
 
 def _vector(props, name: str) -> np.ndarray:
@@ -401,8 +661,9 @@ def _vector(props, name: str) -> np.ndarray:
     return v
 
 
-def _get(props, name, default, kind, check=None, allowed=""):
-    """Read a property (so Mitsuba counts it as used), check its type and range."""
+def _get(props, name, default, kind, check=None, allowed="", bad: list | None = None):
+    """Read a property (so Mitsuba counts it as used), check its type and range. A problem raises a
+    ValueError, or with ``bad`` is added to it (and the default returned)."""
     if name not in props:
         return default
     value = props.get(name)
@@ -410,11 +671,17 @@ def _get(props, name, default, kind, check=None, allowed=""):
         value = float(value)
     elif kind is int and isinstance(value, float) and value.is_integer():
         value = int(value)
+    problem = None
     if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise ValueError(f"discrete medium: parameter '{name}' must be a {kind.__name__}, got {value!r}")
-    if check is not None and not check(value):
-        raise ValueError(f"discrete medium: invalid {name} = {value!r}: must be {allowed}")
-    return value
+        problem = f"discrete medium: parameter '{name}' must be a {kind.__name__}, got {value!r}"
+    elif check is not None and not check(value):
+        problem = f"discrete medium: invalid {name} = {value!r}: must be {allowed}"
+    if problem is None:
+        return value
+    if bad is None:
+        raise ValueError(problem)
+    bad.append(problem)
+    return default
 
 
 def _species(p: SimpleNamespace, props) -> list:
@@ -428,8 +695,6 @@ def _species(p: SimpleNamespace, props) -> list:
             raise ValueError("discrete medium: parameter 'species' must be a non-empty JSON list of objects")
         return [_species_entry(e, i) for i, e in enumerate(entries)]
     psd = psd_mod.from_spec(p.psd_json) if p.psd_json is not None else psd_mod.LogNormal(p.median, p.sigma_g)
-    if p.material is not None and ("eta" in props or "eta_k" in props):
-        raise ValueError("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
     return [Species(psd, Material(p.material) if p.material is not None else complex(p.eta, p.eta_k))]
 
 
@@ -573,12 +838,7 @@ def _turbulence_scale(p: SimpleNamespace, to_world: np.ndarray) -> float:
 def _query_radius(p: SimpleNamespace, pos: np.ndarray):
     """(r_c, whether the user set it): ``query_radius``, Eq. 23 from ``footprint_k``, or 0."""
     query_radius = p.query_radius
-    eq23 = [v is not None for v in (p.k, p.fov, p.film_width, p.z_med)]
-    if any(eq23) and not all(eq23):
-        raise ValueError("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
-    if all(eq23):
-        if query_radius is not None:
-            raise ValueError("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
+    if all(v is not None for v in (p.k, p.fov, p.film_width, p.z_med)):  # Eq. 23 (_read_parameters checked the four)
         query_radius = query_radius_from_camera(p.k, p.fov, p.film_width, p.z_med)
     user_radius = query_radius is not None
     query_radius = 0.0 if query_radius is None else query_radius

@@ -5,8 +5,11 @@ holds it has a separate ``to_world``. Forgetting to repeat the shape's transform
 file in other units, puts the particles outside the shape, and the render shows an empty medium without a
 word. After every ``mi.load_file`` / ``mi.load_dict`` / ``mi.load_string`` (wrapped once per process by
 ``wrap_loaders``; ``motes render`` goes through them too), ``check_scene`` compares, for each shape with a
-``discrete`` interior medium, the box of the particles' centres with the shape's bounding box, and warns
-when less than ``INSIDE_WARN_SHARE`` of the particles' box lies inside the shape's.
+``discrete`` interior medium, the box of the particles' centres with the shape's bounding box (for a medium
+that several shapes share, the box around theirs), and warns when less than ``INSIDE_WARN_SHARE`` of the
+particles' box lies inside it. A scene whose plugin
+rejects its parameters raises Mitsuba's RuntimeError (where in the scene) with the plugin's message and
+without its Python traceback (``motes._errors``).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import warnings
 
 import numpy as np
 
+from .._errors import without_traceback
 from . import cameras
 from ._scene import discrete_data
 
@@ -40,22 +44,29 @@ def _fmt(v) -> str:
 
 
 def outside_warnings(scene) -> list[str]:
-    """A message for each shape whose ``discrete`` interior medium's particles lie mostly outside it."""
-    out = []
+    """A message for each ``discrete`` medium whose particles lie mostly outside the shape that holds it (the
+    shapes, where several share it: the box around theirs)."""
+    out, holders = [], {}  # id(data) -> (medium, data, [shapes])
     for shape in scene.shapes():
         medium = shape.interior_medium()
         data = None if medium is None else discrete_data(medium)
-        if data is None:
-            continue
+        if data is not None:
+            holders.setdefault(id(data), (medium, data, []))[2].append(shape)
+    for medium, data, shapes in holders.values():
         lo, hi = (np.asarray(v, dtype=np.float64) for v in data.centre_box)
-        box = shape.bbox()
-        s_lo, s_hi = np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)
+        boxes = [shape.bbox() for shape in shapes]
+        s_lo = np.min([np.array(b.min, dtype=np.float64) for b in boxes], axis=0)
+        s_hi = np.max([np.array(b.max, dtype=np.float64) for b in boxes], axis=0)
         share = inside_share(lo, hi, s_lo, s_hi)
         if share < INSIDE_WARN_SHARE:
+            names = ", ".join(repr(shape.id() or "(unnamed)") for shape in shapes)
+            which, boxes_of = ((f"the shape {names} that holds it", "shape's") if len(shapes) == 1 else
+                               (f"the shapes {names} that hold it", "shapes'"))
             out.append(
-                f"motes: the discrete medium {medium.id() or '(unnamed)'!r} lies mostly outside the shape "
-                f"{shape.id() or '(unnamed)'!r} that holds it ({share:.0%} of the particles' box inside; "
-                f"particles' box {_fmt(lo)}..{_fmt(hi)}, shape's box {_fmt(s_lo)}..{_fmt(s_hi)}, scene units), so "
+                f"motes: the discrete medium {medium.id() or '(unnamed)'!r} lies mostly outside {which} "
+                f"({share:.0%} of the particles' box inside; "
+                f"particles' box {_fmt(lo)}..{_fmt(hi)}, {boxes_of} box "
+                f"{_fmt(s_lo)}..{_fmt(s_hi)}, scene units), so "
                 "the render will show little or none of it: give the medium the shape's to_world (the medium's "
                 "to_world places its particles in the scene), or check the particle file's units")
     return out
@@ -72,7 +83,15 @@ def _wrapped(load):
 
     @functools.wraps(load)
     def load_and_check(*args, **kwargs):
-        obj = load(*args, **kwargs)
+        try:
+            obj = load(*args, **kwargs)
+        except RuntimeError as e:
+            # A plugin's invalid parameters: Mitsuba's message (where in the scene) and the plugin's, without
+            # the plugin's Python traceback (motes._errors).
+            clean = without_traceback(str(e))
+            if clean is None:
+                raise
+            raise RuntimeError(clean) from None
         if hasattr(obj, "shapes") and hasattr(obj, "sensors"):  # a scene (load_dict also makes plugins)
             check_scene(obj, stacklevel=3)
             cameras.attach(obj)  # the surface-ray rule's cameras (cameras.py)
