@@ -423,10 +423,39 @@ def _raise_if_bad(bad: list) -> None:
 def _read_parameters(props, user_phase=None) -> tuple[SimpleNamespace, list]:
     """Every parameter of the table (module docs), read in one place so that Mitsuba counts each as used:
     (the parameters, a message for each invalid or unknown one). ``user_phase``: ``_take_phase_child``'s."""
-    pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
     bad: list[str] = []
     get = lambda *args: _get(props, *args, bad=bad)  # noqa: E731
     p = SimpleNamespace()
+    _read_grains(props, p, bad, get)
+    _read_rendering(props, p, bad, get)
+    _read_motion(props, p, bad, get)
+    p.phase_model = get("phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
+                        "one of " + ", ".join(PHASE_MODELS))
+    p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
+    _read_homogeneous_keys(props, p, bad, get)
+    # The phase child (_take_phase_child).
+    p.phase = user_phase if isinstance(user_phase, dict) else None
+    if isinstance(user_phase, str):
+        bad.append(f"discrete medium: {user_phase}")
+    if p.phase is not None and p.phase_model != "tabulated":
+        bad.append(f"discrete medium: phase_model = {p.phase_model} and <phase type=\"{p.phase['type']}\"> both set "
+                   "the grains' phase function: keep one")
+    if p.material is not None and ("eta" in props or "eta_k" in props):
+        bad.append("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
+    if bad and p.to_world is not None:
+        _collected(bad, _checked_to_world, p)
+    unknown = [k for k in props.unqueried() if not k.startswith("_arg_")]
+    for k in unknown:
+        close = difflib.get_close_matches(k, PARAMETERS, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        bad.append(f"discrete medium: unknown parameter '{k}' = {_shown(props, k)}{hint}; the parameters are "
+                   "listed in motes.plugins.discrete_medium's docs")
+    return p, bad
+
+
+def _read_grains(props, p: SimpleNamespace, bad: list, get) -> None:
+    """The grains: where they come from (a file, or generated: count, distribution), their sizes, index and units (``_read_parameters``)."""
+    pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
     p.filename = get("filename", None, str)
     p.storage = get("storage", DEFAULT_STORAGE, str, lambda v: v in PLUGIN_STORAGES,
                     "one of " + ", ".join(PLUGIN_STORAGES))
@@ -454,6 +483,11 @@ def _read_parameters(props, user_phase=None) -> tuple[SimpleNamespace, list]:
     p.eta_medium = get("eta_medium", 1.0, float, pos_f, "finite and > 0")
     p.species_json = get("species", None, str)
     p.scale_m = get("scale_m", 1e-3, float, pos_f, "finite and > 0 (metres per unit)")
+
+
+def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
+    """How the medium is rendered: query radius (or Eq. 23), grid, optics tables, level of detail, storage cache, wavelengths, seed and albedo (``_read_parameters``)."""
+    pos_f = lambda v: np.isfinite(v) and v > 0  # noqa: E731
     p.query_radius = get("query_radius", None, float)
     p.k = get("footprint_k", None, float, lambda v: 0 < v <= 2, "in (0, 2] (the paper advises 0.5-1)")
     p.fov = get("fov", None, float, lambda v: 0 < v < 180, "in (0, 180) degrees")
@@ -487,6 +521,10 @@ def _read_parameters(props, user_phase=None) -> tuple[SimpleNamespace, list]:
         p.albedo = _channels(props, "albedo", p.lam, bad, bounded=True)  # rgb, spectrum: one per channel
     else:
         p.albedo = get("albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+
+
+def _read_motion(props, p: SimpleNamespace, bad: list, get) -> None:
+    """Moving grains: time, velocity, turbulence and wrap (``_read_parameters``)."""
     p.time = get("time", 0.0, float, np.isfinite, "finite (seconds)")
     p.velocity = _collected(bad, _vector, props, "velocity")
     p.velocity = np.zeros(3) if p.velocity is None else p.velocity
@@ -501,28 +539,6 @@ def _read_parameters(props, user_phase=None) -> tuple[SimpleNamespace, list]:
     if p.storage == "procedural" and p.wrap:
         bad.append("discrete medium: wrap needs stored grains (storage = compact or full); a procedural "
                    "cloud moves with velocity and turbulence")
-    p.phase_model = get("phase_model", "tabulated", str, lambda v: v in PHASE_MODELS,
-                        "one of " + ", ".join(PHASE_MODELS))
-    p.to_world = props.get("to_world") if "to_world" in props else mi.ScalarTransform4f()
-    _read_homogeneous_keys(props, p, bad, get)
-    # The phase child (_take_phase_child).
-    p.phase = user_phase if isinstance(user_phase, dict) else None
-    if isinstance(user_phase, str):
-        bad.append(f"discrete medium: {user_phase}")
-    if p.phase is not None and p.phase_model != "tabulated":
-        bad.append(f"discrete medium: phase_model = {p.phase_model} and <phase type=\"{p.phase['type']}\"> both set "
-                   "the grains' phase function: keep one")
-    if p.material is not None and ("eta" in props or "eta_k" in props):
-        bad.append("discrete medium: give material or eta/eta_k, not both (eta would be ignored)")
-    if bad and p.to_world is not None:
-        _collected(bad, _checked_to_world, p)
-    unknown = [k for k in props.unqueried() if not k.startswith("_arg_")]
-    for k in unknown:
-        close = difflib.get_close_matches(k, PARAMETERS, n=1)
-        hint = f" (did you mean {close[0]}?)" if close else ""
-        bad.append(f"discrete medium: unknown parameter '{k}' = {_shown(props, k)}{hint}; the parameters are "
-                   "listed in motes.plugins.discrete_medium's docs")
-    return p, bad
 
 
 def _shown(props, name: str) -> str:
