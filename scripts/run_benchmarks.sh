@@ -141,6 +141,7 @@ run scale_nave              $PY $B/bench_scale.py --storage procedural --scene n
 run scale_nave_1e8          $PY $B/bench_scale.py --storage procedural --scene nave --counts 1e8 --res 32 --spp 1 --out out
 run scale_nave_1e8_cache    $PY $B/bench_scale.py --storage procedural --scene nave --counts 1e8 --res 32 --spp 1 --cache-mb 16000 --out out
 # (bytes per particle of bench_storage and bench_quantise --switch MOTES_CENTRE_CELLS: the runs above)
+run resident                $PY $B/bench_resident.py               # bytes a medium reports vs resident memory
 
 # --- Against explicit path tracing (issues 9.0, 10.5) ---------------------------------------------------
 run ept                     $PY $B/bench_ept.py --out out
@@ -159,8 +160,13 @@ run table1                  $PY scripts/paper/table1.py      # also writes docs/
 # --- Animations and the Dask cluster (issue 27) ---------------------------------------------------------
 run bench_cluster           $PY $B/bench_cluster.py
 
-# --- Code structure (issue 12) --------------------------------------------------------------------------
+# --- A drop-in medium (issue 43) -----------------------------------------------------------------------
+run dropin                  $PY $B/bench_dropin.py
+run dropin_rotated          $PY $B/bench_dropin.py --rotated-study --spp 256
+
+# --- Code structure (issues 12, 42) ---------------------------------------------------------------------
 run function_lengths        python3 scripts/function_lengths.py   # exits 1 while a function is over 80 lines
+run layers_and_sizes        python3 scripts/check_layers.py --sizes
 run cargo_doc               cargo doc --no-deps -p motes-core      # the warnings, if any, are in its log
 
 # --- TESTING.md -----------------------------------------------------------------------------------------
