@@ -9,6 +9,8 @@
 ``motes particles FILE``               summary of a particle file (count, bounds, radii, species, memory)
 ``motes equivalent``                   the homogeneous + tabphase XML of a particle cloud (A/B reference)
 ``motes scenes [-o DIR]``              the example scenes shipped in the package (list, or copy out)
+``motes convert SCENE.xml -o OUT.xml`` a scene's homogeneous (and heterogeneous) media as ``discrete``, with a
+                                       report of what could not be matched (``motes.convert``)
 =====================================  ===================================================================
 
 Errors print one line (``motes: error: ...``) and exit with status 2; ``--debug`` shows the traceback.
@@ -31,6 +33,7 @@ import numpy as np
 
 # exposure, reinhard and tonemap stay importable from here (motes.cli.tonemap: scripts/paper, tests).
 from ._output import exposure, progress, reinhard, tonemap, write_images  # noqa: F401
+from .convert import GRAIN_OPTIONS
 from .cluster import DEFAULT_FPS, frame_defines, frame_output, parse_frames, pass_plan
 
 
@@ -284,6 +287,21 @@ def cmd_equivalent(args) -> int:
     return 0
 
 
+def cmd_convert(args) -> int:
+    from .convert import convert_scene  # noqa: PLC0415
+
+    grains = {name: getattr(args, name) for _, name, _, _ in GRAIN_OPTIONS if getattr(args, name) is not None}
+    for pair in args.param:
+        key, sep, value = pair.partition("=")
+        if not sep:
+            raise ValueError(f"--param {pair!r}: expected NAME=VALUE")
+        grains[key.strip()] = value
+    report = convert_scene(args.scene, args.output, medium=args.medium, grains=grains)
+    print("\n".join(report))
+    print(f"motes: wrote {args.output} (comments and everything else of the scene kept as they were)")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="motes", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--debug", action="store_true", help="show Python tracebacks")
@@ -333,6 +351,16 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--tabphase-size", type=int, default=4096)
     e.add_argument("--name", default="interior")
     e.set_defaults(run=cmd_equivalent)
+    c = sub.add_parser("convert", help="rewrite a scene's homogeneous (and heterogeneous) media as discrete, "
+                       "with a report of what could not be matched")
+    c.add_argument("scene", help="Mitsuba 3 XML scene")
+    c.add_argument("-o", "--output", required=True, help="the converted scene (XML)")
+    c.add_argument("--medium", metavar="ID", help="convert only the medium with this id (or name)")
+    for option, name, tag, what in GRAIN_OPTIONS:
+        c.add_argument(option, dest=name, metavar=tag.upper(), help=f"{what} ({name})")
+    c.add_argument("-P", "--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="any other discrete parameter (count, footprint_k, fov, film_width, z_med, tau_max, ...)")
+    c.set_defaults(run=cmd_convert)
     return ap
 
 
