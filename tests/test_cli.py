@@ -16,7 +16,8 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["render", "--help"], ["optics", "--help"], ["particles", "--help"],
-                                  ["equivalent", "--help"], ["scenes", "--help"]])
+                                  ["equivalent", "--help"], ["scenes", "--help"],
+                                  ["convert", "--help"]])
 def test_help(argv, capsys):
     with pytest.raises(SystemExit) as e:
         main(argv)

@@ -59,7 +59,7 @@ GRAIN_OPTIONS = (
 )
 
 #: Every other parameter of the discrete medium that ``--param NAME=VALUE`` may set, with its XML tag.
-OTHER_PARAMETERS = {"count": "integer", "eta_medium": "float", "footprint_k": "float", "fov": "float",
+OTHER_PARAMETERS = {"count": "integer", "footprint_k": "float", "fov": "float",
                     "film_width": "integer", "z_med": "float", "tau_max": "float", "cells_per_particle": "float",
                     "grain_depth": "integer", "surface_footprint": "boolean", "cache_mb": "float",
                     "truncate_below": "float", "wavelengths": "string", "time": "float", "velocity": "vector",
@@ -334,23 +334,21 @@ class _Conversion:
                               else "no holding shape's box could be computed") + "; the grains fill the cube "
                               "[-1, 1]^3 until it is set")
             return
-        names = ", ".join(_shape_label(self.doc, s) for s, _ in boxes)
-        transform = self._transform_of(boxes)
-        self._add_element(transform)
-        self.to_world_note += f"from shape{'s' if len(boxes) > 1 else ''} {names}"
+        self._add_element(self._transform_of(boxes))
 
     def _transform_of(self, boxes):
         t = ET.Element("transform", {"name": "to_world"})
         if len(boxes) == 1 and boxes[0][1][2] is not None:  # one cube: its own transform, exact
             matrix = boxes[0][1][2]
             ET.SubElement(t, "matrix", {"value": " ".join(_num(v) for v in matrix.ravel())})
-            self.to_world_note = "= the cube's own transform, "
+            self.to_world_note = f"= the own transform of cube {_shape_label(self.doc, boxes[0][0])}"
             return t
         lo = np.min([b[0] for _, b in boxes], axis=0)
         hi = np.max([b[1] for _, b in boxes], axis=0)
         ET.SubElement(t, "scale", {"value": ", ".join(_num(v) for v in (hi - lo) / 2)})
         ET.SubElement(t, "translate", {"value": ", ".join(_num(v) for v in (hi + lo) / 2)})
-        self.to_world_note = f"= the box [{_vec(lo)}] - [{_vec(hi)}] "
+        names = ", ".join(_shape_label(self.doc, s) for s, _ in boxes)
+        self.to_world_note = f"= the box [{_vec(lo)}] - [{_vec(hi)}] of shape{'s' if len(boxes) > 1 else ''} {names}"
         if len(boxes) > 1 or boxes[0][0].get("type") != "cube":
             self.notes.append("to_world: the holders' world bounding box: the grains fill the box, the shapes cut "
                               "what is seen (grains outside every holder are never met)")
