@@ -3,6 +3,7 @@ folder, hypothesis profiles): also inside the fresh interpreters that ``run_json
 
 * ``point_lit_cube`` — a scene dict: a medium in a cube under a point light and a constant sky.
 * ``discrete_xml`` — a ``discrete`` medium element of a scene's XML.
+* ``sensor_xml``, ``medium_xml`` — a perspective sensor and a medium (any type) as XML lines.
 * ``run_json`` — run a snippet by ``python -c`` (with this folder importable) and read the JSON it printed last.
 """
 
@@ -49,3 +50,27 @@ def run_json(code: str, *argv: str, env: dict | None = None, timeout: float = 60
                          env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def sensor_xml(fov, origin: str, res="16", spp="$spp", sampler: str = "", film: str = "", indent: str = "  ") -> str:
+    """A perspective sensor's XML lines: field of view ``fov`` from ``origin`` towards the origin (y up),
+    ``spp`` samples a pixel (``sampler``: more of its properties), a ``res`` x ``res`` HDR film (``film``: more
+    of its children)."""
+    i, j = indent, indent * 2
+    return (f'{i}<sensor type="perspective">\n{j}<float name="fov" value="{fov}"/>\n'
+            f'{j}<transform name="to_world"><lookat origin="{origin}" target="0, 0, 0" up="0, 1, 0"/></transform>\n'
+            f'{j}<sampler type="independent"><integer name="sample_count" value="{spp}"/>{sampler}</sampler>\n'
+            f'{j}<film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>'
+            f'{film}</film>\n{i}</sensor>\n')
+
+
+def medium_xml(kind: str, props, phase: str = "", attrs: str = 'name="interior"', indent: str = "    ",
+               comment: str = "") -> str:
+    """A medium element of type ``kind`` with ``attrs``: ``props`` as (tag, name, value) triples, then the phase
+    child's XML ``phase`` (if any); ``comment`` a first line inside it."""
+    inner = indent + "  "
+    lines = [f'{indent}<medium type="{kind}" {attrs}>'] + ([f"{inner}<!-- {comment} -->"] if comment else [])
+    lines += [f'{inner}<{tag} name="{name}" value="{value}"/>' for tag, name, value in props]
+    lines += [inner + phase] if phase else []
+    return "\n".join(lines + [f"{indent}</medium>"]) + "\n"
+

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import motes
-from _scenes import discrete_xml
+from _scenes import discrete_xml, sensor_xml
 from motes import cluster as C
 from motes.cli import main
 
@@ -24,13 +24,7 @@ SCENE = """<scene version="3.0.0">
     <default name="count" value="400"/>
     {frame_default}
     <integrator type="volpath"><integer name="max_depth" value="4"/></integrator>
-    <sensor type="perspective">
-        <float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
-        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
-    </sensor>
-    <emitter type="constant"/>
+""" + sensor_xml(40, "0, 0, 5", indent="    ").replace("{", "{{").replace("}", "}}") + """    <emitter type="constant"/>
     <shape type="cube">
         <bsdf type="null"/>
         {medium}

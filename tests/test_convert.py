@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import motes
+from _scenes import medium_xml, sensor_xml
 
 mi = pytest.importorskip("mitsuba")
 
@@ -31,26 +32,11 @@ SCENE = """<?xml version="1.0" encoding="utf-8"?>
 <scene version="3.0.0">
   <default name="spp" value="4"/>
   <integrator type="volpath"><integer name="max_depth" value="16"/></integrator>
-  <sensor type="perspective">
-    <float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 0.5, 9" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
-  </sensor>
-  <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
-  <medium type="homogeneous" id="fog">
-    <!-- the shared fog -->
-    <float name="sigma_t" value="0.5"/>
-    <float name="scale" value="2"/>
-    <rgb name="albedo" value="0.9, 0.6, 0.3"/>
-    <boolean name="has_spectral_extinction" value="true"/>
-    <phase type="hg"><float name="g" value="0.5"/></phase>
-  </medium>
-  <medium type="homogeneous" id="smoke">
-    <float name="sigma_t" value="0.3"/>
-    <phase type="rayleigh"/>
-  </medium>
-  <shape type="cube" id="left">
+""" + sensor_xml(45, "0, 0.5, 9") + """  <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+""" + medium_xml("homogeneous", [("float", "sigma_t", 0.5), ("float", "scale", 2), ("rgb", "albedo", "0.9, 0.6, 0.3"),
+                            ("boolean", "has_spectral_extinction", "true")], '<phase type="hg"><float name="g" value="0.5"/></phase>',
+                 'id="fog"', "  ", "the shared fog") + medium_xml("homogeneous", [("float", "sigma_t", 0.3)], '<phase type="rayleigh"/>',
+                                                                   'id="smoke"', "  ") + """  <shape type="cube" id="left">
     <transform name="to_world"><scale value="0.5, 1, 0.5"/><rotate y="1" angle="30"/><translate value="-1.5, 0, 0"/></transform>
     <bsdf type="null"/><ref name="interior" id="fog"/>
   </shape>

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 import motes
+from _scenes import medium_xml, sensor_xml
 
 mi = pytest.importorskip("mitsuba")
 
@@ -29,26 +30,14 @@ GRAINS = '<float name="radius_median" value="20"/>'
 
 HEAD = """<scene version="3.0.0">
   <integrator type="volpath"><integer name="max_depth" value="64"/></integrator>
-  <sensor type="perspective">
-    <float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 0.5, 8" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="{spp}"/><integer name="seed" value="1"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-      <rfilter type="box"/></film>
-  </sensor>
-  <emitter type="constant"><rgb name="radiance" value="0.3"/></emitter>
+""" + sensor_xml(40, "0, 0.5, 8", "{res}", "{spp}", '<integer name="seed" value="1"/>', '<rfilter type="box"/>') + """  <emitter type="constant"><rgb name="radiance" value="0.3"/></emitter>
   <emitter type="directional"><vector name="direction" value="-1, -1, -0.5"/><rgb name="irradiance" value="3"/></emitter>
 """
 
 #: (a) Two meshes (a cube and a sphere, side by side) sharing one medium: sigma_t 1 times scale 3, an rgb albedo,
 #: an isotropic phase function.
-SHARED = HEAD + """  <medium type="homogeneous" id="fog">
-    <float name="sigma_t" value="1"/>
-    <float name="scale" value="3"/>
-    <rgb name="albedo" value="0.9, 0.6, 0.3"/>
-    <phase type="isotropic"/>
-  </medium>
-  <shape type="cube" id="left">
+SHARED = HEAD + medium_xml("homogeneous", [("float", "sigma_t", 1), ("float", "scale", 3), ("rgb", "albedo", "0.9, 0.6, 0.3")],
+                 '<phase type="isotropic"/>', 'id="fog"', "  ") + """  <shape type="cube" id="left">
     <transform name="to_world"><translate value="-1, 0, 0"/></transform>
     <bsdf type="null"/><ref name="interior" id="fog"/>
   </shape>
@@ -63,27 +52,17 @@ ROTATION = '<transform name="to_world"><rotate value="0.70710678, 0.70710678, 0"
 ROTATED = HEAD + f"""  <shape type="cube" id="crate">
     {ROTATION}
     <bsdf type="null"/>
-    <medium type="homogeneous" name="interior">
-      <float name="sigma_t" value="2"/>
-      <float name="albedo" value="0.8"/>
-      <boolean name="has_spectral_extinction" value="false"/>
-      <boolean name="sample_emitters" value="false"/>
-      <phase type="hg"><float name="g" value="0.7"/></phase>
-    </medium>
-  </shape>
+""" + medium_xml("homogeneous", [("float", "sigma_t", 2), ("float", "albedo", 0.8),
+                            ("boolean", "has_spectral_extinction", "false"), ("boolean", "sample_emitters", "false")],
+                 '<phase type="hg"><float name="g" value="0.7"/></phase>') + """  </shape>
 </scene>"""
 
 #: (c) A ball with a coloured sigma_t (rgb in [0, 1] times scale, Mitsuba's idiom).
 BALL = HEAD + """  <shape type="sphere" id="ball">
     <float name="radius" value="1.6"/>
     <bsdf type="null"/>
-    <medium type="homogeneous" name="interior">
-      <rgb name="sigma_t" value="0.25, 0.5, 1"/>
-      <float name="scale" value="2"/>
-      <rgb name="albedo" value="0.95, 0.9, 0.85"/>
-      <phase type="hg"><float name="g" value="0.3"/></phase>
-    </medium>
-  </shape>
+""" + medium_xml("homogeneous", [("rgb", "sigma_t", "0.25, 0.5, 1"), ("float", "scale", 2),
+                            ("rgb", "albedo", "0.95, 0.9, 0.85")], '<phase type="hg"><float name="g" value="0.3"/></phase>') + """  </shape>
 </scene>"""
 
 #: name -> (scene, what its discrete medium adds beside the grain size: the to_world it needs today, the box of the
