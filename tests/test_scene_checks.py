@@ -161,3 +161,30 @@ def test_motes_render_warns_in_one_line(tmp_path):
 
 def test_warn_share_is_half():
     assert INSIDE_WARN_SHARE == 0.5
+
+
+def test_the_advice_is_a_to_world_that_fills_the_holder():
+    """Issue 43: the warning gives the to_world that maps the medium's local cube onto the holder's box, which is
+    right for any holder (a mesh's own to_world is not: its vertices are not in [-1, 1]^3); with it, the medium
+    loads without the warning. The holder here is a sphere given by center and radius (no to_world at all)."""
+    motes.set_variant("scalar_rgb")
+    medium = {"type": "discrete", "id": "dust", "count": 500, "radius_median": 50.0, "scale_m": 0.01,
+              "phase": {"type": "particle"}}
+
+    def scene(m):
+        return {"type": "scene", "integrator": {"type": "volpath"},
+                "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8}},
+                "ball": {"type": "sphere", "center": [4, 1, 0], "radius": 0.5, "bsdf": {"type": "null"},
+                         "interior": m}}
+
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        mi.load_dict(scene(medium))
+    (msg,) = outside_messages(record)
+    advice = '<transform name="to_world"><scale value="0.5, 0.5, 0.5"/><translate value="4, 1, 0"/></transform>'
+    assert advice in msg and "a mesh's own to_world does not" in msg, msg
+    fixed = dict(medium, to_world=mi.ScalarTransform4f().translate([4, 1, 0]) @ mi.ScalarTransform4f().scale(0.5))
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        mi.load_dict(scene(fixed))
+    assert outside_messages(record) == []

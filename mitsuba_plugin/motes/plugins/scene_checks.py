@@ -1,8 +1,9 @@
 """Checks of a loaded scene that catch silent mistakes with ``discrete`` media.
 
 A ``discrete`` medium takes its particle positions in scene units, after its own ``to_world``; the shape that
-holds it has a separate ``to_world``. Forgetting to repeat the shape's transform on the medium, or a particle
-file in other units, puts the particles outside the shape, and the render shows an empty medium without a
+holds it has a separate ``to_world``. A medium without the ``to_world`` that maps its local cube [-1, 1]^3 onto
+its holders' box (a mesh's own transform does not), or a particle file in other units, puts the particles
+outside the shape, and the render shows an empty medium without a
 word. After every ``mi.load_file`` / ``mi.load_dict`` / ``mi.load_string`` (wrapped once per process by
 ``wrap_loaders``; ``motes render`` goes through them too), ``check_scene`` compares, for each shape with a
 ``discrete`` interior medium, the box of the particles' centres with the shape's bounding box (for a medium
@@ -43,6 +44,13 @@ def _fmt(v) -> str:
     return "(" + ", ".join(f"{float(x):.4g}" for x in v) + ")"
 
 
+def _box_transform(lo, hi) -> str:
+    """The XML of the transform that maps the cube [-1, 1]^3 onto the box [lo, hi] (scale, then translate)."""
+    half, centre = (hi - lo) / 2, (hi + lo) / 2
+    return (f'<transform name="to_world"><scale value="{_fmt(half)[1:-1]}"/>'
+            f'<translate value="{_fmt(centre)[1:-1]}"/></transform>')
+
+
 def outside_warnings(scene) -> list[str]:
     """A message for each ``discrete`` medium whose particles lie mostly outside the shape that holds it (the
     shapes, where several share it: the box around theirs)."""
@@ -67,8 +75,10 @@ def outside_warnings(scene) -> list[str]:
                 f"({share:.0%} of the particles' box inside; "
                 f"particles' box {_fmt(lo)}..{_fmt(hi)}, {boxes_of} box "
                 f"{_fmt(s_lo)}..{_fmt(s_hi)}, scene units), so "
-                "the render will show little or none of it: give the medium the shape's to_world (the medium's "
-                "to_world places its particles in the scene), or check the particle file's units")
+                "the render will show little or none of it: give the medium the to_world that maps its local cube "
+                f"[-1, 1]^3 onto the {boxes_of} box, {_box_transform(s_lo, s_hi)} (for a cube or sphere of your own, "
+                "the shape's to_world works too; a mesh's own to_world does not: its vertices are not in [-1, 1]^3; "
+                "`motes convert` writes it), or check the particle file's units")
     return out
 
 
