@@ -361,8 +361,8 @@ def test_a_homogeneous_scene_turned_discrete_renders_like_it(name):
     discrete, said_d = load(dropin(xml, box))
     assert said_h == [] and len(said_d) == (0 if grey else 1), said_d
     assert isinstance(medium_of(discrete).data, motes.DiscreteMedium)
-    a = np.array(mi.render(homogeneous))
-    b = np.array(mi.render(discrete))
+    a = np.array(mi.render(homogeneous, spp=64))
+    b = np.array(mi.render(discrete, spp=64))
     assert np.all(np.isfinite(b)) and b.shape == a.shape == (32, 32, a.shape[-1])
     # The pixels that see the medium: a clear view shows the sky's 0.3 exactly.
     mask = np.any(np.abs(a[..., :3] - 0.3) > 1e-3, axis=-1)
@@ -378,8 +378,8 @@ def test_the_comparison_sees_a_wrong_density():
     """The 5 % criterion is sharp enough: half the grains fail it."""
     motes.set_variant("scalar_rgb")
     xml, box, _ = SCENES["shared"]
-    a = np.array(mi.render(load(xml)[0]))
-    b = np.array(mi.render(load(dropin(xml.replace('name="scale" value="3"', 'name="scale" value="1.5"'), box))[0]))
+    a = np.array(mi.render(load(xml)[0], spp=64))
+    b = np.array(mi.render(load(dropin(xml.replace('name="scale" value="3"', 'name="scale" value="1.5"'), box))[0], spp=64))
     mask = np.any(np.abs(a[..., :3] - 0.3) > 1e-3, axis=-1)
     assert np.any(np.abs(_medium_means(b, mask) / _medium_means(a, mask) - 1) > 0.05)
 
