@@ -56,25 +56,28 @@ def _pixels(scene, spp: int, seeds) -> np.ndarray:
 
 
 def test_cameras_reach_the_medium():
-    """Pinhole and thin-lens cameras arrive with their position, narrowest pixel angle and aperture; a
-    sensor the medium cannot read (orthographic) leaves no camera; a camera moved through mi.traverse is
-    seen at the next mi.render."""
+    """Pinhole and thin-lens cameras arrive with their position, narrowest pixel angle and aperture, an
+    orthographic one with its axis and pixel width; a camera moved through mi.traverse is seen at the next
+    mi.render, with the spp it renders."""
     motes.set_variant("scalar_rgb")
     med = _grains(2000)
     (data,) = discrete_media(_scene(med, 24, 1))
-    ((pos, angle, aperture),) = data.cameras
-    assert np.allclose(pos, (0, 1.5, 5)) and aperture == 0.0
+    ((pos, angle, aperture, axis, width),) = data.cameras
+    assert np.allclose(pos, (0, 1.5, 5)) and aperture == 0.0 and axis == (0, 0, 0) and width == 0
     tan_half = math.tan(math.radians(20))
     assert angle == pytest.approx(2 * tan_half / 24 / (1 + 2 * tan_half**2), rel=1e-9)
     assert discrete_media(_scene(med, 24, 1, "thinlens"))[0].cameras[0][2] == pytest.approx(0.05)
-    assert discrete_media(_scene(med, 24, 1, "orthographic"))[0].cameras == []
+    ((pos, angle, aperture, axis, width),) = discrete_media(_scene(med, 24, 1, "orthographic"))[0].cameras
+    assert angle == 0 and np.allclose(axis, np.array((0, -2.1, -5)) / np.hypot(2.1, 5)) and width > 0
     scene = _scene(med, 8, 1)
     params = mi.traverse(scene)
     key = next(k for k in params.keys() if k.endswith("to_world") and "sensor" in k.lower() or k == "PerspectiveCamera.to_world")
     params[key] = mi.ScalarTransform4f().look_at(origin=[3, 0, 4], target=[0, 0, 0], up=[0, 1, 0])
     params.update()
-    mi.render(scene, spp=1)
+    assert discrete_media(scene)[0].samples_per_pixel == 1  # the sampler's, at load
+    mi.render(scene, spp=3)
     assert np.allclose(discrete_media(scene)[0].cameras[0][0], (3, 0, 4), atol=1e-5)
+    assert discrete_media(scene)[0].samples_per_pixel == 3  # the render's
     with pytest.raises(ValueError, match="pixel_angle"):
         data.set_cameras([((0, 0, 0), 0.0, 0.0)])
     with pytest.raises((ValueError, RuntimeError), match="surface_footprint"):
@@ -161,11 +164,12 @@ def test_lights_are_placed(variant):
         data.set_cameras([((0, 0, 5), 0.01, 0.0)], [((0, 2, 0), 0.0, 0.0, (0, 0, 0), (0, 1, 0), 1.5)])
 
 
-def test_camera_rays_walk_grains_surface_rays_see_the_field():
+def test_camera_rays_see_the_field_by_their_spp_surface_rays_by_their_footprint():
     """Through the core's free flights, two media alike but for the rule (the same random numbers call by
-    call): rays on the camera's lines (re-spawned anywhere along them) sample the same sites with the rule
-    on and off; rays from the floor towards the cloud sample others (the field) with it on, and the same
-    without cameras, with an infinite continuous_count (exact), or through sparse large grains."""
+    call): rays on the camera's lines (re-spawned anywhere along them) sample other sites (the field) with the
+    rule on at the scene's 1 spp, where their pixels hold hundreds of grains, and the same sites at 4096 spp
+    (10^4 grains needed); rays from the floor towards the cloud sample others (the field) with it on, and the
+    same without cameras, with an infinite continuous_count (exact), or through sparse large grains."""
     motes.set_variant("scalar_rgb")
     rng = np.random.default_rng(1)
     n = 4000
@@ -186,8 +190,13 @@ def test_camera_rays_walk_grains_surface_rays_see_the_field():
                                    np.full(len(o), np.inf), np.zeros(len(o), dtype=bool))[0]
         return np.asarray(t)
 
+    def many_samples(data):
+        data.set_cameras(data.cameras, data.lights, data.diffuse_surfaces, samples_per_pixel=4096)
+
     on, off = pair()
     assert on.continuous_particles == 0  # every class discrete for the camera
+    assert np.mean(flights(on, o_cam, d_cam) != flights(off, o_cam, d_cam)) > 0.3
+    many_samples(on)
     assert np.array_equal(flights(on, o_cam, d_cam), flights(off, o_cam, d_cam), equal_nan=True)
     assert np.mean(flights(on, o_floor, d_floor) != flights(off, o_floor, d_floor)) > 0.3
     on.set_cameras([])
@@ -196,9 +205,10 @@ def test_camera_rays_walk_grains_surface_rays_see_the_field():
     assert np.array_equal(flights(on, o_floor, d_floor), flights(off, o_floor, d_floor), equal_nan=True)
     # A query radius thirteen times the grains' (Eq. 23's usual regime): the disks alone hold ~10 grains
     # per cylinder of the length the classes are chosen by (discrete), and more along the longest camera
-    # rays; camera rays still walk them, rays from the floor still see the field.
+    # rays; at 4096 spp camera rays still walk them, rays from the floor still see the field.
     on, off = pair(r_over_spacing=0.02, query_radius=0.009)
     assert on.continuous_particles == 0
+    many_samples(on)
     assert np.array_equal(flights(on, o_cam, d_cam), flights(off, o_cam, d_cam), equal_nan=True)
     assert np.mean(flights(on, o_floor, d_floor) != flights(off, o_floor, d_floor)) > 0.1
     # Sparse large grains (a few per footprint of a 64-pixel image): rays from the floor keep walking them where

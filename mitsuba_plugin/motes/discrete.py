@@ -34,13 +34,14 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
                             see the grains' continuous equivalent (same extinction per cell and local
                             phase mixture; Müller et al. 2016, Sec. 4.3). Ignored when
                             ``continuous_count`` is inf, which makes the medium exact
-``surface_footprint``       rays that start at no event (a surface, a boundary) see the grains'
+``surface_footprint``       rays that start at no event (a surface, a boundary, a camera) see the grains'
                             continuous equivalent where the narrowest pixel footprint they can carry
                             (from the cameras given to ``set_cameras``; the Mitsuba plugin reads them
                             from the scene) holds ``continuous_count`` grains (an effective count over
-                            the discrete size classes);
-                            camera rays always walk them (``rust/motes-core/src/render/footprint.rs``;
-                            True; without cameras nothing changes)
+                            the discrete size classes); a camera ray also needs 2.5 grains per sample
+                            per pixel of the render, so that their texture stays below its noise
+                            (``rust/motes-core/src/render/footprint.rs``; True; without cameras
+                            nothing changes)
 ``storage``                 ``compact`` (default): each particle is a class of its optics bin and one of
                             1024 radius levels per bin (radii move by at most half a level, 2e-4 for a
                             bin 1.5 wide), stored once, by its centre's grid cell, its centre on a
@@ -341,6 +342,13 @@ def _core_tables(tables, lam) -> _motes.BinTables:
                             np.ascontiguousarray(lam * 1e3))
 
 
+def _camera_tuple(position, pixel_angle, aperture, axis=(0.0, 0.0, 0.0), pixel_width=0.0) -> tuple:
+    """A camera for the core: (position, pixel angle, aperture, orthographic axis, orthographic pixel width) as
+    floats (``DiscreteMedium.set_cameras``)."""
+    p, a = (tuple(float(v[i]) for i in range(3)) for v in (position, axis))
+    return p, float(pixel_angle), float(aperture), a, float(pixel_width)
+
+
 def _light_tuple(centre, radius, disc=0.0, normal=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 0.0), cos_cutoff=-1.0) -> tuple:
     """A light for the core: (centre, radius, disc, normal, spot axis, spot cos_cutoff) as floats
     (``DiscreteMedium.set_cameras``)."""
@@ -403,10 +411,11 @@ class DiscreteMedium:
         self.grain_depth = int(grain_depth)
         self.surface_footprint = bool(surface_footprint)
 
-    def set_cameras(self, cameras, lights=None, diffuse_surfaces=False) -> None:
-        """The cameras whose pixel footprints rays from surfaces carry (``surface_footprint``): a list of
-        (position (x, y, z) in scene units, narrowest angular pixel width in radians, lens aperture radius);
-        empty: rays from surfaces walk the grains. ``lights``: the lights at finite distance that shadow
+    def set_cameras(self, cameras, lights=None, diffuse_surfaces=False, samples_per_pixel=0) -> None:
+        """The cameras whose pixel footprints camera rays and rays from surfaces carry (``surface_footprint``): a
+        list of (position (x, y, z) in scene units, narrowest angular pixel width in radians, lens aperture radius)
+        for a pinhole or thin-lens camera, or (position, 0, 0, axis (x, y, z), pixel width in scene units) for an
+        orthographic one; empty: every ray walks the grains. ``lights``: the lights at finite distance that shadow
         rays converge to, a list of (centre (x, y, z), radius) (0 for a point or spot light) or (centre, radius,
         disc, normal) or (centre, radius, disc, normal, axis, cos_cutoff): a disc of radius ``disc`` <= ``radius``
         around the centre that lies on the light, with its normal (x, y, z), or (0, 0, 0) where the light shows
@@ -415,18 +424,24 @@ class DiscreteMedium:
         continuous equivalent; axis (0, 0, 0) and -1: no spot); None: unknown, every ray taken to end at a light
         (safe, and the rule then rarely applies). ``diffuse_surfaces``: every surface of the scene reflects and
         transmits only diffusely, so that a ray bounced off one carries the grains blurred by the lobe (default
-        False: a surface may be a mirror). ``motes.plugins.cameras`` sets all three from a Mitsuba scene."""
+        False: a surface may be a mirror). ``samples_per_pixel``: the render's, which sets how many grains a camera
+        ray's pixel must hold to see their continuous equivalent (0: unknown, camera rays walk the grains).
+        ``motes.plugins.cameras`` sets all four from a Mitsuba scene before every render."""
         try:
-            cams = [((float(p[0]), float(p[1]), float(p[2])), float(a), float(r)) for p, a, r in cameras]
+            cams = [_camera_tuple(*c) for c in cameras]
         except (TypeError, ValueError, IndexError):
-            raise ValueError("cameras must be a list of ((x, y, z), pixel_angle, aperture) tuples") from None
+            raise ValueError("cameras must be a list of ((x, y, z), pixel_angle, aperture) or ((x, y, z), 0, 0, "
+                             "(ax, ay, az), pixel_width) tuples") from None
+        spp = float(samples_per_pixel)
+        if not (np.isfinite(spp) and spp >= 0):
+            raise ValueError(f"invalid samples_per_pixel = {samples_per_pixel!r}: must be finite and >= 0")
         if lights is not None:
             try:
                 lights = [_light_tuple(*light) for light in lights]
             except (TypeError, ValueError, IndexError):
                 raise ValueError("lights must be None or a list of ((x, y, z), radius), ((x, y, z), radius, disc, "
                                  "(nx, ny, nz)) or (..., (ax, ay, az), cos_cutoff) tuples") from None
-        self._core.set_cameras(cams, lights, bool(diffuse_surfaces))
+        self._core.set_cameras(cams, lights, bool(diffuse_surfaces), spp)
 
     def set_enclosure(self, meshes=(), balls=()) -> int:
         """The convex shapes that hold the medium, inside which no surface lets a shadow ray through: ``meshes`` as
@@ -454,6 +469,11 @@ class DiscreteMedium:
     def diffuse_surfaces(self) -> bool:
         """Whether the scene's surfaces were set as diffuse only (``set_cameras``)."""
         return self._core.diffuse_surfaces
+
+    @property
+    def samples_per_pixel(self) -> float:
+        """The render's samples per pixel as ``set_cameras`` last set them (0: unknown)."""
+        return self._core.samples_per_pixel
 
     @property
     def cameras(self) -> list:

@@ -11,8 +11,10 @@ medium in it: after every ``mi.load_file`` / ``mi.load_dict`` / ``mi.load_string
 a camera moved through ``mi.traverse`` is seen at the next render. A caller that renders through
 ``Integrator.render`` directly after moving a camera calls ``attach(scene)`` itself.
 
-Cameras: ``perspective`` and ``thinlens`` (anything with an ``x_fov``). A scene with any other sensor
-(orthographic, radiance meters, batches) gets no cameras, and its rays from surfaces walk the grains.
+Cameras: ``perspective`` and ``thinlens`` (anything with an ``x_fov``) and ``orthographic``. A scene with any
+other sensor (radiance meters, batches) gets no cameras, and its rays from surfaces and cameras walk the grains.
+Camera rays see the grains' continuous equivalent where their pixel holds enough grains for the render's samples
+per pixel (``samples_per_pixel``: the ``spp`` given to ``mi.render``, else the sensor's sampler's).
 Lights: point and spot lights (and any other light at a point) by position, a spot also by its cone (a shadow ray
 from outside it carries nothing), area lights by a sphere around their shape's bounding box and a disc that lies on
 them (rectangles, disks and spheres; its penumbra blurs the grains' shadows, counted only in scenes whose every
@@ -50,34 +52,56 @@ def _scalar(x) -> float:
 
 def camera_of(sensor):
     """(position, narrowest angular pixel width in radians, aperture radius) of a pinhole or thin-lens
-    camera, or None for any other sensor."""
+    camera, (position, 0, 0, viewing axis, pixel width in scene units) of an orthographic one, or None for
+    any other sensor. A crop window changes neither: its pixels are the full film's."""
     import mitsuba as mi
 
     params = mi.traverse(sensor)
-    if "x_fov" not in params:
-        return None
     width, height = (int(v) for v in sensor.film().size())
+    m = np.asarray(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
+    position = tuple(float(v) for v in m[:3, 3] / m[3, 3])
+    if not all(math.isfinite(v) for v in position):
+        return None
+    if "x_fov" not in params:
+        if sensor.class_name() != "OrthographicCamera":
+            return None
+        # The local image plane spans 2 units across the width (2 / aspect across the height: square
+        # pixels), scaled by to_world.
+        scale = min(float(np.linalg.norm(m[:3, 0])), float(np.linalg.norm(m[:3, 1])))
+        pixel_width = 2.0 * scale / max(width, 1)
+        axis = m[:3, 2] / max(float(np.linalg.norm(m[:3, 2])), 1e-300)
+        if not (pixel_width > 0 and math.isfinite(pixel_width) and np.all(np.isfinite(axis))):
+            return None
+        return position, 0.0, 0.0, tuple(float(v) for v in axis), pixel_width
     tan_half = math.tan(math.radians(_scalar(params["x_fov"])) / 2.0)
     # A pixel spans 2 tan(fov/2) / width of the image plane at unit distance: that angle at the centre,
     # cos²θ of it radially at field angle θ; the image's corners have the largest θ.
     tan_corner2 = tan_half**2 * (1.0 + (height / max(width, 1)) ** 2)
     pixel_angle = 2.0 * tan_half / max(width, 1) / (1.0 + tan_corner2)
     aperture = _scalar(params["aperture_radius"]) if "aperture_radius" in params else 0.0
-    m = np.asarray(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4, -1)[..., 0]
-    position = tuple(float(v) for v in m[:3, 3] / m[3, 3])
-    if not (pixel_angle > 0 and all(math.isfinite(v) for v in position)):
+    if not pixel_angle > 0:
         return None
     return position, pixel_angle, aperture
 
 
 def cameras_of(scene, extra=None) -> list:
     """Every camera of the scene (and ``extra``, a sensor rendered that the scene does not hold); empty when
-    any of them is not a pinhole or thin-lens camera (the medium could not tell its rays)."""
+    any of them is not a pinhole, thin-lens or orthographic camera (the medium could not tell its rays)."""
     sensors = list(scene.sensors())
     if extra is not None and not any(extra == s for s in sensors):
         sensors.append(extra)
     cams = [camera_of(s) for s in sensors]
     return [] if any(c is None for c in cams) else cams
+
+
+def samples_per_pixel(scene, sensor=None, spp: int = 0) -> int:
+    """The spp a render will take: ``spp`` where given (> 0), else ``sensor``'s sampler's, else the most of any
+    of the scene's sensors (at load, before the sensor to render is known: the strictest for camera rays)."""
+    if spp and spp > 0:
+        return int(spp)
+    sensors = [sensor] if sensor is not None else list(scene.sensors())
+    counts = [int(s.sampler().sample_count()) for s in sensors if s.sampler() is not None]
+    return max(counts, default=0)
 
 
 def light_of(emitter):
@@ -221,10 +245,11 @@ def diffuse_only(scene) -> bool:
     return True
 
 
-def attach(scene, sensor=None, integrator=None) -> list:
-    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) on its discrete media, and what
-    ``integrator`` may skip around them (``motes.plugins.enclosure``; None: nothing). Returns the scene's
-    ``discrete`` medium objects (``discrete_medium_objects``)."""
+def attach(scene, sensor=None, integrator=None, spp: int = 0) -> list:
+    """Set the scene's cameras (and ``sensor``'s, if the scene does not hold it) and the render's samples per pixel
+    (``spp``, else the sensor's sampler's: ``samples_per_pixel``) on its discrete media, and what ``integrator``
+    may skip around them (``motes.plugins.enclosure``; None: nothing). Returns the scene's ``discrete`` medium
+    objects (``discrete_medium_objects``)."""
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
         return []
     objects = _scene.discrete_medium_objects(scene)
@@ -234,9 +259,10 @@ def attach(scene, sensor=None, integrator=None) -> list:
         cams, lights = cameras_of(scene, sensor), lights_of(scene)
         # A light the rule cannot place may be small and sharp: no blur then.
         diffuse = lights is not None and diffuse_only(scene) and uniform_distant_light(scene)
+        samples = samples_per_pixel(scene, sensor, spp)
         for data in media:
             try:
-                data.set_cameras(cams, lights, diffuse)
+                data.set_cameras(cams, lights, diffuse, samples)
             except ValueError as e:  # a camera or light the rule cannot use: rays from surfaces walk grains
                 warnings.warn(f"motes: the scene's cameras or lights are not usable by the surface-ray rule ({e}); "
                               "rays from surfaces walk the grains", RuntimeWarning, stacklevel=3)
@@ -256,7 +282,11 @@ def _wrapped_render(render):
         integrator = kwargs.get("integrator", args[2] if len(args) > 2 else None)
         if not isinstance(integrator, mi.Integrator):
             integrator = scene.integrator() if hasattr(scene, "integrator") else None
-        objects = attach(scene, sensor if isinstance(sensor, mi.Sensor) else None, integrator)
+        if not isinstance(sensor, mi.Sensor):
+            sensors = list(scene.sensors()) if hasattr(scene, "sensors") else []
+            sensor = sensors[sensor] if isinstance(sensor, int) and 0 <= sensor < len(sensors) else None
+        spp = kwargs.get("spp", args[5] if len(args) > 5 else 0)
+        objects = attach(scene, sensor, integrator, spp if isinstance(spp, int) else 0)
         try:
             return render(scene, *args, **kwargs)
         finally:

@@ -54,14 +54,18 @@ Parameter                    Type       Meaning (default)
                                         scattering event, and see their continuous equivalent after (1:
                                         grains are seen where a path meets them first; ignored when
                                         ``continuous_count`` is inf, which keeps every ray exact)
-``surface_footprint``        boolean    rays from surfaces (a wall's shadow ray, a bounce off the floor) see
-                                        the grains' continuous equivalent where the narrowest pixel
-                                        footprint they can carry holds ``continuous_count`` grains (an
-                                        effective count over the discrete size classes); camera rays always
-                                        walk them. The cameras are read
-                                        from the scene at every load and ``mi.render``
-                                        (``rust/motes-core/src/render/footprint.rs``; true; false: rays
-                                        from surfaces walk the grains)
+``surface_footprint``        boolean    the automatic level of detail: rays that start at no event (a
+                                        camera's, a wall's shadow ray, a bounce off the floor) see the
+                                        grains' continuous equivalent where the narrowest pixel footprint
+                                        they can carry holds ``continuous_count`` grains (an effective count
+                                        over the discrete size classes), camera rays also 2.5 grains per
+                                        sample per pixel (their texture then stays below the render's
+                                        noise): a cloud seen from afar is rendered as a continuous medium,
+                                        the same cloud seen from nearby as grains. The cameras (perspective,
+                                        thin lens, orthographic) and the render's spp are read from the
+                                        scene at every load and ``mi.render``
+                                        (``rust/motes-core/src/render/footprint.rs``; true; false: every
+                                        ray from no event walks the grains)
 ``storage``                  string     ``compact``: each particle is a class (its optics bin and one of 1024
                                         radius levels per bin; radii move by at most half a level), stored
                                         once in its centre's grid cell at 6e-5 of a cell from 65536

@@ -21,13 +21,28 @@
 //! value over every possible W is ρ(t) = K (a − t) with K = (α/2) min_{s ≥ 0} |o − c − s d| / (a + s),
 //! which has a closed form ([`cone_slope`]). Any other ray (a bounce, a shadow ray towards the sky or
 //! a distant light) keeps ρ = (α/2) min_{s ≥ 0} |o − c − s d|, the distance from the camera to the
-//! backward half-line. A camera ray's backward half-line passes through its camera, so its footprint
-//! bound is 0. Its grains' own disks could still pass the count (a query radius far wider than the
-//! grains, Eq. 23's usual case, with the classes pooled), so a ray whose backward half-line passes
-//! within the lens aperture (plus float rounding) of a camera is refused outright, and a ray passes only
-//! where its footprint, not the disks, is what holds the grains: the footprint must at least double the
-//! effective count the disks alone hold over the same window (a ray just off a camera's line, through a
-//! glass pane say, keeps walking them).
+//! backward half-line.
+//!
+//! Camera rays (issue 43). A ray whose backward half-line passes within the lens aperture (plus float
+//! rounding) of a camera is that camera's ray, or one re-spawned along its line at a boundary: the
+//! pixel's cone widens from the camera, ρ(t) = (α/2) (z₀ + t − aperture) at the distance z₀ + t from
+//! it (a thin lens's footprint is at least the pinhole's, its defocus only widens it), and the window
+//! of least count is at the start of the ray's chord through the grains' box. So a cloud seen from
+//! afar, whose grains a pixel holds many of, is seen as its continuous equivalent; one seen from
+//! nearby walks its grains (Eq. 23's question, asked per ray at the ray's own distance). A ray on a
+//! camera's line is also read as a surface's ray for every other camera, and passes only where all
+//! readings pass. What a pixel shows of the grains is the texture of their realisation, relative
+//! variance ~1/N over the N grains its cone holds; the render's own noise has relative variance at
+//! least ~1/spp (each sample follows one of those grains). A camera ray passes where N is at least
+//! `continuous_count` and [`CAMERA_COUNT_PER_SAMPLE`] × spp, so that the texture stays below the
+//! noise (RMS(default − exact) / noise ≤ 1.1); with the render's spp unknown camera rays walk the
+//! grains. Orthographic cameras: a pixel's footprint is `pixel_width / 2` in radius at every
+//! distance, camera rays are those parallel to the axis, rays from surfaces keep that radius unless
+//! they head for a light (then 0: the surface point could lie anywhere behind them). Either way a ray
+//! passes only where its footprint, not the grains' own disks, is what holds the grains: the footprint
+//! must at least double the effective count the disks alone hold over the same window (a query radius
+//! far wider than the grains, Eq. 23's usual case, with the classes pooled, would otherwise pass a ray
+//! just off a camera's line, through a glass pane say).
 //!
 //! An area light blurs each grain's shadow further: every point of the light casts its own, so at a
 //! distance t from W along a ray towards the light the grains' shadows reaching W spread over the light's
@@ -90,15 +105,21 @@ use crate::space::ray::RaySegment;
 use crate::space::vec3;
 use std::f64::consts::PI;
 
-/// A camera as the footprint rule sees it.
+/// A camera as the footprint rule sees it: a pinhole or thin lens (a pixel's footprint (α/2) z in
+/// radius at a distance z, at least), or an orthographic camera (`pixel_width / 2` at every distance).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
-    /// Centre of projection (scene units).
+    /// Centre of projection (scene units); an orthographic camera's origin.
     pub position: [f64; 3],
-    /// Narrowest angular width of one pixel over the image (radians).
+    /// Narrowest angular width of one pixel over the image (radians; 0 for an orthographic camera).
     pub pixel_angle: f64,
     /// Lens aperture radius (0: a pinhole): camera rays pass within it of `position`.
     pub aperture: f64,
+    /// An orthographic camera's viewing direction (unit; zero for a perspective one): its rays are
+    /// parallel to it.
+    pub axis: [f64; 3],
+    /// An orthographic camera's pixel width in scene units (0 for a perspective one).
+    pub pixel_width: f64,
 }
 
 impl Camera {
@@ -122,7 +143,55 @@ impl Camera {
             position,
             pixel_angle,
             aperture,
+            axis: [0.0; 3],
+            pixel_width: 0.0,
         })
+    }
+
+    /// An orthographic camera at `position` looking along `axis` (any length), its pixels
+    /// `pixel_width` wide in scene units.
+    pub fn orthographic(
+        position: [f64; 3],
+        axis: [f64; 3],
+        pixel_width: f64,
+    ) -> Result<Self, OpticsError> {
+        for x in position {
+            require("camera position", x, x.is_finite(), "finite")?;
+        }
+        let len = axis.iter().map(|x| x * x).sum::<f64>().sqrt();
+        require(
+            "camera axis length",
+            len,
+            len.is_finite() && len > 0.0,
+            "finite and > 0",
+        )?;
+        require(
+            "pixel_width",
+            pixel_width,
+            pixel_width.is_finite() && pixel_width > 0.0,
+            "finite and > 0",
+        )?;
+        Ok(Camera {
+            position,
+            pixel_angle: 0.0,
+            aperture: 0.0,
+            axis: axis.map(|x| x / len),
+            pixel_width,
+        })
+    }
+
+    fn is_orthographic(&self) -> bool {
+        self.axis != [0.0; 3]
+    }
+
+    /// An upper bound of the pixel's footprint radius on a ray from `o`, at most `far` along it:
+    /// along the camera's own line (`on_line`), the cone at `far` beyond `o`; on any other ray the
+    /// bound of [`cone_slope`] (the footprint at the nearest surface point it could come from).
+    fn footprint_bound(&self, o: [f64; 3], on_line: bool, far: f64) -> f64 {
+        let v = [0, 1, 2].map(|a| o[a] - self.position[a]);
+        let dist = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let reach = if on_line { dist + far } else { dist };
+        0.5 * (self.pixel_angle * reach + self.pixel_width)
     }
 }
 
@@ -293,6 +362,9 @@ pub struct View {
     pub cameras: Vec<Camera>,
     pub lights: Option<Vec<Light>>,
     pub diffuse_surfaces: bool,
+    /// Samples per pixel of the render (0: unknown, and camera rays walk the grains): a camera ray
+    /// sees the field only where its pixel holds [`CAMERA_COUNT_PER_SAMPLE`] grains per sample.
+    pub samples_per_pixel: f64,
 }
 
 /// How far outside a spot's cone (in cosine) a point must be for the rule to take it as dark.
@@ -473,13 +545,54 @@ impl SurfaceFootprint {
         }
     }
 
-    /// The widest a diffuse surface's blur could make the cone of a ray from `o` within the grains'
-    /// box (0 unless the view's surfaces are diffuse): its slope times the distance to the box's far
-    /// corner.
-    fn farthest_blur(&self, view: &View, o: [f64; 3]) -> f64 {
-        if !view.diffuse_surfaces {
-            return 0.0;
+    /// Does the ray (origin `o`, unit direction `d`, on [0, `t_max`)), started at no event, see the
+    /// continuous equivalent? (Module docs; false without cameras.) A ray on a camera's line is taken
+    /// both as that camera's ray (its pixel's cone from the camera) and as a ray from a surface for
+    /// every other camera: it passes only where every reading passes.
+    pub fn sees_field(&self, view: &View, o: [f64; 3], d: [f64; 3], t_max: f64) -> bool {
+        if view.cameras.is_empty() {
+            return false;
         }
+        let on_line: Vec<bool> = view
+            .cameras
+            .iter()
+            .map(|c| is_camera_ray(c, o, d))
+            .collect();
+        let camera_ray = on_line.iter().any(|&x| x);
+        if camera_ray && !(view.samples_per_pixel > 0.0) {
+            return false; // the render's noise unknown: camera rays walk the grains
+        }
+        // A shadow ray towards a spot that leaves its origin dark carries nothing, whatever it meets:
+        // the field is the cheapest (module docs). Not a camera ray's line, whatever it heads for.
+        if !camera_ray && view.heads_for_darkness(o, d) {
+            return true;
+        }
+        // ρ(t) ≤ (α/2) |o − c| on a surface's ray, ≤ (α/2) (|o − c| + the box's far corner) on a
+        // camera's, or the widest light's disc in a penumbra (module docs): most rays of a sparse
+        // cloud stop here.
+        let far = self.farthest(o);
+        let bound = view
+            .cameras
+            .iter()
+            .zip(&on_line)
+            .map(|(c, &line)| c.footprint_bound(o, line, far))
+            .fold(f64::INFINITY, f64::min)
+            .max(view.widest_disc())
+            .max(DIFFUSE_LOBE_SLOPE * far * view.diffuse_surfaces as u8 as f64);
+        if bound.is_nan() || bound < self.least_radius {
+            return false;
+        }
+        let Some((ta, tb)) = self.bounds.clip(&RaySegment::new(o, d, 0.0, t_max)) else {
+            return false; // misses the grains: nothing to save
+        };
+        let others = || view.cameras.iter().zip(&on_line).filter(|(_, &l)| !l);
+        (!camera_ray || self.camera_window_passes(view, &on_line, o, d, ta, tb))
+            && (others().next().is_none()
+                || self.surface_window_passes(view, others().map(|(c, _)| c), o, d, t_max, ta, tb))
+    }
+
+    /// The distance from `o` to the grains' box's farthest corner.
+    fn farthest(&self, o: [f64; 3]) -> f64 {
         let far2: f64 = (0..3)
             .map(|a| {
                 let x = (o[a] - self.bounds.lo[a])
@@ -488,41 +601,66 @@ impl SurfaceFootprint {
                 x * x
             })
             .sum();
-        DIFFUSE_LOBE_SLOPE * far2.sqrt()
+        far2.sqrt()
     }
 
-    /// Does the ray (origin `o`, unit direction `d`, on [0, `t_max`)), started at no event, see the
-    /// continuous equivalent? (Module docs; false without cameras.)
-    pub fn sees_field(&self, view: &View, o: [f64; 3], d: [f64; 3], t_max: f64) -> bool {
-        if view.cameras.is_empty() {
+    /// Does a camera ray's own pixel cone pass (module docs, "Camera rays")? The cone of the
+    /// narrowest of the cameras on whose line it is, counted over the window at the start of its
+    /// chord [ta, tb] through the grains' box (the cone only widens away from the camera).
+    fn camera_window_passes(
+        &self,
+        view: &View,
+        on_line: &[bool],
+        o: [f64; 3],
+        d: [f64; 3],
+        ta: f64,
+        tb: f64,
+    ) -> bool {
+        let (mut half_angle, mut half_width, mut z0, mut aperture) =
+            (f64::INFINITY, f64::INFINITY, f64::INFINITY, 0.0f64);
+        for (c, _) in view.cameras.iter().zip(on_line).filter(|(_, &l)| l) {
+            half_angle = half_angle.min(0.5 * c.pixel_angle);
+            half_width = half_width.min(0.5 * c.pixel_width);
+            // The distance from the camera to o along the ray (orthographic: irrelevant).
+            let along: f64 = (0..3).map(|a| (o[a] - c.position[a]) * d[a]).sum();
+            z0 = z0.min(along.max(0.0));
+            aperture = aperture.max(c.aperture);
+        }
+        // ρ(t) = (α/2) max(0, z0 + t − aperture) + w/2: the lens aperture taken off the distance.
+        let rho = |t: f64| half_angle * (z0 + t - aperture).max(0.0) + half_width;
+        let len = (tb - ta).min(self.length);
+        if !(len > 0.0 && len.is_finite() && z0.is_finite()) {
             return false;
         }
-        // A shadow ray towards a spot that leaves its origin dark carries nothing, whatever it meets:
-        // the field is the cheapest (module docs). Not a camera ray's line, whatever it heads for.
-        if view.heads_for_darkness(o, d) && !view.cameras.iter().any(|c| is_camera_ray(c, o, d)) {
-            return true;
-        }
-        // ρ(t) ≤ (α/2) |o − c| on every ray, or the widest light's disc in a penumbra (module docs):
-        // most rays of a sparse cloud stop here.
-        let bound2 = view
-            .cameras
-            .iter()
-            .map(|c| {
-                let v = [0, 1, 2].map(|a| o[a] - c.position[a]);
-                (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) * (0.5 * c.pixel_angle).powi(2)
-            })
-            .fold(f64::INFINITY, f64::min)
-            .max(view.widest_disc().powi(2))
-            .max(self.farthest_blur(view, o).powi(2));
-        if bound2.is_nan() || bound2 < self.least_radius * self.least_radius {
-            return false;
-        }
-        if view.cameras.iter().any(|c| is_camera_ray(c, o, d)) {
-            return false;
-        }
-        let Some((ta, tb)) = self.bounds.clip(&RaySegment::new(o, d, 0.0, t_max)) else {
-            return false; // misses the grains: nothing to save
+        let end = ta + len;
+        let kink = (aperture - z0).clamp(ta, end);
+        let window = Window {
+            len,
+            pieces: [
+                (rho(ta), rho(kink), kink - ta),
+                (rho(kink), rho(end), end - kink),
+            ],
         };
+        let count = self.effective_count(&window, true);
+        count
+            >= self
+                .min_count
+                .max(CAMERA_COUNT_PER_SAMPLE * view.samples_per_pixel)
+            && count >= FOOTPRINT_SHARE * self.effective_count(&window, false)
+    }
+
+    /// Does the footprint of a ray from a surface pass for `cameras` (module docs)?
+    #[allow(clippy::too_many_arguments)]
+    fn surface_window_passes<'c>(
+        &self,
+        view: &View,
+        cameras: impl Iterator<Item = &'c Camera>,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
+        ta: f64,
+        tb: f64,
+    ) -> bool {
         let (a, mut c) = view.target(o, d, t_max);
         if !a.is_finite() && view.diffuse_surfaces {
             c = DIFFUSE_LOBE_SLOPE; // a bounce off a diffuse surface
@@ -531,9 +669,7 @@ impl SurfaceFootprint {
         if tb <= ta {
             return false;
         }
-        let k = view
-            .cameras
-            .iter()
+        let k = cameras
             .map(|cam| cone_slope(cam, o, d, a))
             .fold(f64::INFINITY, f64::min);
         window(k, a, c, ta, tb, self.length).is_some_and(|w| self.passes(&w))
@@ -619,6 +755,11 @@ fn window(k: f64, a: f64, c: f64, ta: f64, tb: f64, length: f64) -> Option<Windo
 /// origins and Mitsuba's offsets of re-spawned rays.
 pub fn is_camera_ray(cam: &Camera, o: [f64; 3], d: [f64; 3]) -> bool {
     let v = [0, 1, 2].map(|a| o[a] - cam.position[a]);
+    if cam.is_orthographic() {
+        // Parallel to the axis (a ray towards the sky along it has the same footprint bound).
+        let cos = d[0] * cam.axis[0] + d[1] * cam.axis[1] + d[2] * cam.axis[2];
+        return cos >= 1.0 - ORTHO_AXIS_TOLERANCE;
+    }
     let vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
     let b = (v[0] * d[0] + v[1] * d[1] + v[2] * d[2]).max(0.0);
     // Distance from the camera to the nearest point o − s d (s = b ≥ 0), from the cross product.
@@ -636,16 +777,36 @@ pub fn is_camera_ray(cam: &Camera, o: [f64; 3], d: [f64; 3]) -> bool {
     dist2 <= tol * tol
 }
 
+/// Grains a camera ray's pixel must hold per sample of the render to see the field (module docs,
+/// "Camera rays"): the grains' pixel-to-pixel texture, relative variance ~1/N, then stays below
+/// 0.4 of the render's own relative variance per pixel (at least ~1/spp: a path samples one grain
+/// of those the pixel holds), so that RMS(default − exact) stays within 1.1 of the noise of their
+/// difference: √(1 + 0.4 / 2) ≈ 1.1.
+pub const CAMERA_COUNT_PER_SAMPLE: f64 = 2.5;
+
 /// How much the footprint must raise the effective count over the disks' own (module docs).
 const FOOTPRINT_SHARE: f64 = 2.0;
 
 /// Relative tolerance of [`is_camera_ray`] (of the scene's coordinates).
 const CAMERA_LINE_TOLERANCE: f64 = 1e-4;
 
+/// How far from an orthographic camera's axis (1 − cos) its rays' directions may be (single-precision
+/// directions).
+const ORTHO_AXIS_TOLERANCE: f64 = 1e-6;
+
 /// The footprint cone's radius per unit distance to where it converges (`t_end` finite: a light), or
 /// its constant radius (`t_end` infinite), bounded below over every surface point on the backward
 /// half-line (module docs); the lens aperture is taken off the distance.
 pub fn cone_slope(cam: &Camera, o: [f64; 3], d: [f64; 3], t_end: f64) -> f64 {
+    if cam.is_orthographic() {
+        // Every pixel's footprint is `pixel_width` across; towards a light it converges over a
+        // distance the rule cannot bound (the surface point may be anywhere behind o).
+        return if t_end.is_finite() {
+            0.0
+        } else {
+            0.5 * cam.pixel_width
+        };
+    }
     let v = [0, 1, 2].map(|a| o[a] - cam.position[a]);
     let vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
     let b = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
@@ -840,6 +1001,7 @@ mod tests {
             cameras: camera.clone(),
             lights: Some(vec![l]),
             diffuse_surfaces: false,
+            samples_per_pixel: 0.0,
         };
         let o = [5.0, -28.0, -10.0];
         let d = unit([0.0 - o[0], 27.9 - o[1], 0.0 - o[2]]);
@@ -879,6 +1041,7 @@ mod tests {
             cameras: vec![Camera::new([0.0, 2.0, 42.0], 0.0027, 0.0).unwrap()],
             lights: Some(vec![Light::new(spot, 0.0).unwrap()]),
             diffuse_surfaces,
+            samples_per_pixel: 0.0,
         };
         let o = [2.0, -12.0, 3.0];
         let bounce = unit([0.3, 1.0, -0.2]);
@@ -951,6 +1114,7 @@ mod tests {
             cameras: vec![Camera::new([0.0, 2.0, 42.0], 0.0076, 0.0).unwrap()],
             lights,
             diffuse_surfaces: false,
+            samples_per_pixel: 0.0,
         };
         (bounds, view)
     }
@@ -1032,45 +1196,90 @@ mod tests {
         }
     }
 
-    #[test]
-    fn camera_rays_never_see_the_field() {
-        // A query radius ten times the grains' radius (Eq. 23's usual case): the disks alone hold ~10
-        // grains per cylinder of resolvable's length (8, the cube's mean chord), and a camera ray along
-        // the cube's diagonal crosses 20.8; two such classes pooled would pass 16.
-        let (bounds, _) = cube_and_camera(None);
+    /// A query radius ten times the grains' radius (Eq. 23's usual case): the disks alone hold ~10
+    /// grains per cylinder of resolvable's length (8, the cube's mean chord); two such classes pooled.
+    fn two_wide_classes(bounds: Bounds3) -> SurfaceFootprint {
         let class = |r: f64| ClassMoments {
             density: 10.0 / (PI * (0.02 + r).powi(2) * 8.0),
             mean_radius: 0.02 + r,
             mean_square_radius: (0.02 + r).powi(2),
             mean_extinction: 2.0 * PI * r * r,
         };
-        let one = SurfaceFootprint::new(vec![class(0.002)], bounds, 8.0, 16.0).unwrap();
-        let two =
-            SurfaceFootprint::new(vec![class(0.002), class(0.0015)], bounds, 8.0, 16.0).unwrap();
+        SurfaceFootprint::new(vec![class(0.002), class(0.0015)], bounds, 8.0, 16.0).unwrap()
+    }
+
+    #[test]
+    fn camera_rays_see_the_field_where_their_pixel_holds_many_grains() {
+        let (bounds, _) = cube_and_camera(None);
+        let rule = two_wide_classes(bounds);
         let c = [20.0, 20.0, 20.0];
-        let view = View {
-            cameras: vec![Camera::new(c, 0.01, 0.0).unwrap()],
-            lights: Some(vec![]),
-            diffuse_surfaces: false,
-        };
         let s3 = 1.0 / 3f64.sqrt();
         let d = [-s3, -s3, -s3];
-        // From the camera, re-spawned at the cube's corner, and re-spawned with an offset of 1e-5;
-        // whatever the surfaces.
-        for diffuse_surfaces in [false, true] {
-            let view = View {
-                diffuse_surfaces,
-                ..view.clone()
-            };
+        let view = |cameras: Vec<Camera>, diffuse_surfaces| View {
+            cameras,
+            lights: Some(vec![]),
+            diffuse_surfaces,
+            samples_per_pixel: 16.0,
+        };
+        for diffuse in [false, true] {
+            // From 24 units a pixel of 0.01 rad is 0.24 across: ~400 grains per window.
+            let afar = view(vec![Camera::new(c, 0.01, 0.0).unwrap()], diffuse);
+            // From the camera, re-spawned at the cube's corner, and with an offset of 1e-5.
             for o in [c, [6.0, 6.0, 6.0], [6.00001, 6.0, 5.99999]] {
-                for rule in [&one, &two] {
-                    assert!(!rule.sees_field(&view, o, d, f64::INFINITY));
-                    assert!(!rule.sees_field(&view, o, d, 1e6));
-                }
+                assert!(rule.sees_field(&afar, o, d, f64::INFINITY));
+                assert!(rule.sees_field(&afar, o, d, 1e6));
             }
+            // Pixels far narrower than the disks: the disks alone hold the grains, and walk them.
+            let sharp = view(vec![Camera::new(c, 1e-5, 0.0).unwrap()], diffuse);
+            for o in [c, [6.0, 6.0, 6.0]] {
+                assert!(!rule.sees_field(&sharp, o, d, f64::INFINITY));
+            }
+            // Inside the cloud the cone starts at nothing: the grains near the camera are seen.
+            let inside = view(vec![Camera::new([0.0; 3], 1e-3, 0.0).unwrap()], diffuse);
+            assert!(!rule.sees_field(&inside, [0.0; 3], d, f64::INFINITY));
+            // Many samples per pixel: the texture would show above the noise.
+            let fine = View {
+                samples_per_pixel: 1e4,
+                ..afar.clone()
+            };
+            assert!(!rule.sees_field(&fine, c, d, f64::INFINITY));
+            // The render's samples unknown: camera rays walk.
+            let unknown = View {
+                samples_per_pixel: 0.0,
+                ..afar.clone()
+            };
+            assert!(!rule.sees_field(&unknown, c, d, f64::INFINITY));
+            // A second, sharp camera elsewhere: the ray may come from its surfaces too, and walks
+            // (unless they are diffuse: their lobe blurs a bounce from 24 units away).
+            let both = view(
+                vec![
+                    Camera::new(c, 0.01, 0.0).unwrap(),
+                    Camera::new([-20.0, 20.0, -20.0], 1e-7, 0.0).unwrap(),
+                ],
+                diffuse,
+            );
+            assert_eq!(rule.sees_field(&both, c, d, f64::INFINITY), diffuse);
         }
-        // A wall's ray across the same cube, far from the camera's lines, does.
-        assert!(two.sees_field(&view, [-40.0, 0.0, 0.0], [1.0, 0.0, 0.0], f64::INFINITY));
+        // Orthographic: wide pixels pass along the axis, narrow ones do not; a ray towards a point
+        // light off the axis has no bound (its surface point may be anywhere behind it).
+        let ortho = |w: f64| View {
+            cameras: vec![Camera::orthographic(c, d, w).unwrap()],
+            lights: Some(vec![Light::new([0.0, -30.0, 0.0], 0.0).unwrap()]),
+            diffuse_surfaces: false,
+            samples_per_pixel: 16.0,
+        };
+        assert!(rule.sees_field(&ortho(0.3), [7.0, 6.0, 7.0], d, f64::INFINITY));
+        assert!(!rule.sees_field(&ortho(1e-5), [7.0, 6.0, 7.0], d, f64::INFINITY));
+        assert!(!rule.sees_field(&ortho(0.3), [0.0, 30.0, 0.0], [0.0, -1.0, 0.0], 60.0));
+        // ... and keeps the pixel's width on a bounce.
+        assert!(rule.sees_field(
+            &ortho(0.3),
+            [-40.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            f64::INFINITY
+        ));
+        assert!(Camera::orthographic(c, [0.0; 3], 1.0).is_err());
+        assert!(Camera::orthographic(c, d, 0.0).is_err());
     }
 
     #[test]
@@ -1107,10 +1316,17 @@ mod tests {
         // Mitsuba's unbounded rays end at the largest float: the same as no end.
         assert!(rule(926.0).sees_field(&cam, o, d, f32::MAX as f64));
         assert!(!rule(5.0).sees_field(&cam, o, d, f32::MAX as f64));
-        // A camera ray counts the grains of its query cylinder alone (fewer than 16: a discrete class).
+        // A camera ray: its pixel's cone holds ~150 grains over a mean free path at the cloud, enough
+        // at 4 samples per pixel (10 needed), too few at 256 (640); unknown samples: it walks.
         let o = [0.0, 2.0, 42.0];
         let dc = [0.0, -2.0 / 42.0f64.hypot(2.0), -42.0 / 42.0f64.hypot(2.0)];
         assert!(!rule(926.0).sees_field(&cam, o, dc, f64::INFINITY));
+        let spp = |samples_per_pixel| View {
+            samples_per_pixel,
+            ..cam.clone()
+        };
+        assert!(rule(926.0).sees_field(&spp(4.0), o, dc, f64::INFINITY));
+        assert!(!rule(926.0).sees_field(&spp(256.0), o, dc, f64::INFINITY));
         // No camera known: never.
         assert!(!rule(1e9).sees_field(&View::default(), [-20.0, 0.0, 0.0], d, f64::INFINITY));
         // Lights unknown: a ray's end is taken for a light. One ending in the cloud: the cone narrows

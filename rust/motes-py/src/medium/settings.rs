@@ -102,7 +102,13 @@ pub(crate) struct PyBinTables {
 #[pymethods]
 impl PyBinTables {
     #[new]
-    fn new(albedo: F64In, theta: F64In, f: F64In, offsets: PyReadonlyArray1<'_, u64>, lambda: F64In) -> PyResult<Self> {
+    fn new(
+        albedo: F64In,
+        theta: F64In,
+        f: F64In,
+        offsets: PyReadonlyArray1<'_, u64>,
+        lambda: F64In,
+    ) -> PyResult<Self> {
         let lambda = lambda.as_slice()?.to_vec();
         let bins = bin_optics(&albedo, &theta, &f, &offsets, lambda.len())?;
         Ok(PyBinTables { bins, lambda })

@@ -8,8 +8,9 @@ use motes_core::render::footprint::{Camera, Light, View};
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 
-/// A camera as Python passes it: (position, pixel angle in radians, aperture radius).
-type CameraTuple = ((f64, f64, f64), f64, f64);
+/// A camera as Python passes it: (position, pixel angle in radians, aperture radius, orthographic
+/// axis or zero, orthographic pixel width or 0).
+type CameraTuple = ((f64, f64, f64), f64, f64, (f64, f64, f64), f64);
 /// A light as Python passes it: (centre, radius, radius of a disc on it, the disc's normal or zero,
 /// a spot's axis or zero, the cosine of its cutoff angle or -1).
 type LightTuple = (
@@ -23,15 +24,25 @@ type LightTuple = (
 
 #[pymethods]
 impl PyDiscreteMedium {
-    /// The cameras whose pixel footprints rays from surfaces carry, as (position, pixel angle in
-    /// radians, aperture radius) tuples (`rust/motes-core/src/render/footprint.rs`).
+    /// The cameras whose pixel footprints rays from surfaces and camera rays carry, as (position,
+    /// pixel angle in radians, aperture radius, orthographic axis, orthographic pixel width) tuples
+    /// (`rust/motes-core/src/render/footprint.rs`).
     #[getter]
     fn cameras(&self) -> Vec<CameraTuple> {
         let t = |p: [f64; 3]| (p[0], p[1], p[2]);
         let view = self.medium.view();
         view.cameras
             .iter()
-            .map(|c| (t(c.position), c.pixel_angle, c.aperture))
+            .map(|c| {
+                let axis = t(c.axis);
+                (
+                    t(c.position),
+                    c.pixel_angle,
+                    c.aperture,
+                    axis,
+                    c.pixel_width,
+                )
+            })
             .collect()
     }
 
@@ -57,23 +68,33 @@ impl PyDiscreteMedium {
         })
     }
 
-    /// Set the cameras (a list of (position, pixel angle, aperture) tuples; empty: rays from surfaces
-    /// walk the grains) and the lights at finite distance (a list of (centre, radius, disc radius,
+    /// Set the cameras (a list of (position, pixel angle, aperture, orthographic axis, orthographic
+    /// pixel width) tuples, axis zero for a perspective camera; empty: rays from surfaces walk the
+    /// grains) and the lights at finite distance (a list of (centre, radius, disc radius,
     /// disc normal, spot axis, spot cos_cutoff) tuples: a sphere that shadow rays aim into, a disc on
     /// the light (radius 0 where none is known) and a spot's cone (axis 0 and -1 for none); None:
     /// unknown, every ray's end taken for a light), and whether every surface of
     /// the scene reflects and transmits only diffusely (rays bounced off them are blurred by the
-    /// lobe). The renderer calls it with its scene's sensors, emitters and shapes.
-    #[pyo3(signature = (cameras, lights = None, diffuse_surfaces = false))]
+    /// lobe), and the render's samples per pixel (0: unknown, camera rays walk the grains). The
+    /// renderer calls it with its scene's sensors, emitters and shapes.
+    #[pyo3(signature = (cameras, lights = None, diffuse_surfaces = false, samples_per_pixel = 0.0))]
     fn set_cameras(
         &self,
         cameras: Vec<CameraTuple>,
         lights: Option<Vec<LightTuple>>,
         diffuse_surfaces: bool,
+        samples_per_pixel: f64,
     ) -> PyResult<()> {
         let cameras = cameras
             .into_iter()
-            .map(|(p, angle, aperture)| Camera::new([p.0, p.1, p.2], angle, aperture))
+            .map(|(p, angle, aperture, axis, width)| {
+                let p = [p.0, p.1, p.2];
+                if axis == (0.0, 0.0, 0.0) {
+                    Camera::new(p, angle, aperture)
+                } else {
+                    Camera::orthographic(p, [axis.0, axis.1, axis.2], width)
+                }
+            })
             .collect::<Result<Vec<_>, _>>()
             .map_err(to_py)?;
         let lights = lights
@@ -92,6 +113,11 @@ impl PyDiscreteMedium {
             cameras,
             lights,
             diffuse_surfaces,
+            samples_per_pixel: if samples_per_pixel.is_finite() && samples_per_pixel > 0.0 {
+                samples_per_pixel
+            } else {
+                0.0
+            },
         });
         Ok(())
     }
@@ -142,6 +168,12 @@ impl PyDiscreteMedium {
     #[getter]
     fn diffuse_surfaces(&self) -> bool {
         self.medium.view().diffuse_surfaces
+    }
+
+    /// The render's samples per pixel as set by `set_cameras` (0: unknown).
+    #[getter]
+    fn samples_per_pixel(&self) -> f64 {
+        self.medium.view().samples_per_pixel
     }
 
     /// Whether rays from surfaces may see the grains' continuous equivalent where their pixel
