@@ -2,13 +2,15 @@
 
 use crate::convert::*;
 use crate::psd::PyPsd;
-use motes_core::space::cloud::{generate, CloudSpec, Density, ValueNoise};
+use motes_core::space::cloud::{generate, CloudSpec, Density, DensityGrid, ValueNoise};
+use std::sync::Arc;
 use motes_core::space::motion::Motion;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::prelude::*;
 
 /// The density named `kind` ("uniform", "gradient" with `params` = [axis, start, end], "noise" with
-/// `params` = [scale, octaves, contrast] and `noise_seed`).
+/// `params` = [scale, octaves, contrast] and `noise_seed`, "grid" with `params` = [nx, ny, nz, then
+/// the nx·ny·nz values, x fastest]).
 fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
     let want = |n: usize| -> PyResult<()> {
         if params.len() == n {
@@ -36,10 +38,24 @@ fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
                 .map(Density::Noise)
                 .map_err(to_py)
         }
+        "grid" if params.len() >= 3 => {
+            let dims = [0, 1, 2].map(|a| params[a]);
+            if !dims.iter().all(|&d| d >= 1.0 && d.fract() == 0.0 && d < 1e9) {
+                return Err(invalid(
+                    "params",
+                    format!("{dims:?}"),
+                    "a grid density's first three parameters are its dimensions (integers >= 1)".to_string(),
+                ));
+            }
+            let values = params[3..].iter().map(|&v| v as f32).collect();
+            DensityGrid::new(dims.map(|d| d as usize), values)
+                .map(|g| Density::Grid(Arc::new(g)))
+                .map_err(to_py)
+        }
         _ => Err(invalid(
             "density",
             kind,
-            format!("unknown density {kind:?}: uniform, gradient or noise"),
+            format!("unknown density {kind:?}: uniform, gradient, noise or grid [nx, ny, nz, values]"),
         )),
     }
 }
