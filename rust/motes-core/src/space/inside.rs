@@ -654,8 +654,9 @@ mod tests {
         }
         assert_eq!(wrong, 0);
         let vol = m.volume().unwrap();
+        // The inscribed 24x12 UV sphere holds 4.07 of the ball's 4.19.
         assert!(
-            (vol - 4.0 / 3.0 * std::f64::consts::PI).abs() < 0.1,
+            (vol - 4.0 / 3.0 * std::f64::consts::PI).abs() < 0.15,
             "{vol}"
         );
     }
