@@ -1,9 +1,10 @@
 """``motes convert`` (issue 43): a scene's homogeneous media rewritten as discrete, with a report.
 
 * two holders (a rotated ``cube`` and a transformed ``sphere``) sharing one homogeneous medium with an rgb albedo, an
-  ``hg`` phase function and ``has_spectral_extinction``: the converted scene loads in ``scalar_rgb`` and renders; its
-  ``to_world`` box covers both holders' world boxes; the report names ``has_spectral_extinction``;
-* one cube alone: its own transform; flat and parametrised holders, other phase types, heterogeneous grids: reported;
+  ``hg`` phase function and ``has_spectral_extinction``: the converted scene loads in ``scalar_rgb`` and renders; it
+  has no ``to_world`` (the grains fill both holders, inside them); the report names ``has_spectral_extinction``;
+* a holder the grains cannot fill (a rectangle): the holders' box as to_world; flat and parametrised holders, other
+  phase types, heterogeneous grids: reported;
 * ``--medium`` picks one medium of two; the rest of the file (comments too) is kept as it was;
 * errors (missing or unparsable file, unknown ``--medium``, no medium to convert, no grain size) exit 2 with one line.
 """
@@ -108,26 +109,19 @@ def test_shared_medium_converts_loads_and_renders(tmp_path):
     assert prop(fog, "albedo").tag == "rgb" and prop(fog, "albedo").get("value") == "0.9, 0.6, 0.3"
     assert fog.find("phase").get("type") == "hg" and prop(fog, "radius_median").get("value") == "200"
     assert prop(fog, "seed").tag == "integer" and prop(fog, "scale_m").tag == "float"
-    # The to_world box covers both holders' world boxes (and is their union: axis-aligned, no rotation).
-    boxes = world_boxes(SCENE)
-    m = to_world_of(fog)
-    assert np.allclose(m[:3, :3], np.diag(np.diag(m[:3, :3])), atol=1e-6)
-    lo, hi = m[:3, 3] - np.diag(m[:3, :3]), m[:3, 3] + np.diag(m[:3, :3])
-    for shape in ("left", "right"):
-        s_lo, s_hi = boxes[shape]
-        assert np.all(lo <= s_lo + 1e-5) and np.all(hi >= s_hi - 1e-5), (shape, lo, hi, s_lo, s_hi)
-    assert np.allclose(lo, np.minimum(boxes["left"][0], boxes["right"][0]), atol=1e-5)
-    assert np.allclose(hi, np.maximum(boxes["left"][1], boxes["right"][1]), atol=1e-5)
-    # One cube alone (the crate): its own transform, rotation included.
-    crate = to_world_of(medium(out, "smoke"))
-    expect = (mi.ScalarTransform4f().translate([0, -2, 0]) @ mi.ScalarTransform4f().scale(0.4)
-              @ mi.ScalarTransform4f().rotate([1, 0, 0], 20))
-    assert np.allclose(crate, np.array(expect.matrix), atol=1e-5)
+    # No to_world: the grains fill the holders (issue 43); the report says so.
+    assert prop(fog, "to_world") is None and prop(medium(out, "smoke"), "to_world") is None
+    assert 'to_world not needed: the grains fill the shapes "left", "right"' in head[0], head
     # It loads with motes's plugins in scalar_rgb and renders at 16 px / 4 spp.
     motes.set_variant("scalar_rgb")
     scene = mi.load_file(str(out))
     media = {s.id(): s.interior_medium() for s in scene.shapes()}
     assert len(media["left"].data) > 100 and len(media["crate"].data) > 10
+    assert media["left"].data.fills_holders and media["crate"].data.fills_holders
+    # The grains lie in the holders' boxes (the fill's own tests: test_fill.py).
+    boxes = world_boxes(SCENE)
+    lo, hi = (np.asarray(v) for v in media["crate"].data.centre_box)
+    assert np.all(lo >= boxes["crate"][0] - 1e-5) and np.all(hi <= boxes["crate"][1] + 1e-5)
     img = np.array(mi.render(scene, spp=4))
     assert img.shape[:2] == (16, 16) and np.all(np.isfinite(img)) and img.mean() > 0
 
@@ -172,6 +166,24 @@ def test_flat_and_parametrised_holders_are_reported(tmp_path):
     assert 'shape "floor" (rectangle) left out: flat' in text
     assert 'shape "tower" (cube) left out: its geometry uses scene parameters ($h)' in text
     assert "to_world NOT set" in text and prop(medium(out, "fog"), "to_world") is None
+    assert "the scene loads once to_world is set" in text
+
+
+RECTANGLE = """<scene version="3.0.0">
+  <shape type="rectangle" id="pane"><transform name="to_world"><translate value="0, 0, 3"/></transform><ref name="interior" id="fog"/></shape>
+  <shape type="cube" id="box"><ref name="interior" id="fog"/></shape>
+  <medium type="homogeneous" id="fog"><float name="sigma_t" value="1"/></medium>
+</scene>
+"""
+
+
+def test_a_holder_without_an_inside_gets_the_box(tmp_path):
+    """A rectangle among the holders: the grains cannot fill it, so the box of the holders is written (the cube's
+    here: the flat pane is left out)."""
+    proc, out = convert(tmp_path, *GRAINS, scene=RECTANGLE)
+    assert proc.returncode == 0, proc.stderr
+    assert 'shape "pane" (rectangle) left out: flat' in proc.stdout
+    assert np.allclose(to_world_of(medium(out, "fog")), np.eye(4), atol=1e-5)
 
 
 def test_heterogeneous_takes_its_grids_mean(tmp_path):
@@ -198,8 +210,7 @@ def test_heterogeneous_takes_its_grids_mean(tmp_path):
     assert abs(float(prop(m, "sigma_t").get("value")) / float(grid.mean()) - 1) < 1e-5
     assert "uniform density of the volume's mean" in proc.stdout
     assert "medium lost (heterogeneous): left unchanged" in proc.stdout and medium(out, "lost").get("type") == "heterogeneous"
-    to_world = to_world_of(m)
-    assert np.allclose(to_world[:3, :3], 2 * np.eye(3), atol=1e-5) and np.allclose(to_world[:3, 3], 0, atol=1e-5)
+    assert prop(m, "to_world") is None and "to_world not needed" in proc.stdout
 
 
 @pytest.mark.parametrize("case,args,word", [

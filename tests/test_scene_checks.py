@@ -1,7 +1,8 @@
 """A ``discrete`` medium outside the shape that holds it warns at load (issue 23.3).
 
-The trap: the shape's ``to_world`` not repeated on the medium (or a particle file in other units) puts the
-particles outside the shape, and the render shows an empty medium. Loading must say so, naming ``to_world``
+The trap: a medium's ``to_world`` that does not map its local cube onto the shape (here the identity, given
+explicitly; or a particle file in other units) puts the particles outside the shape, and the render shows an
+empty medium. A medium without ``to_world`` or file fills the shapes that hold it (issue 43) and never warns. Loading must say so, naming ``to_world``
 and giving both boxes, through ``mi.load_dict``, ``mi.load_file``, ``mi.load_string`` and ``motes render``,
 on both render paths (native, and the evaluated-mode Python path with ``MOTES_NATIVE=0``); and stay quiet on
 scenes that are right.
@@ -32,10 +33,15 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 SHIFT = "<scale value=\"0.1\"/><translate x=\"3\" y=\"0\" z=\"0\"/>"
 
 
-def xml(medium_to_world: bool) -> str:
-    """A 0.2-wide cube moved to x = 3; the medium's generated particles fill the local cube [-1, 1]^3, so they
-    land inside only when the medium repeats the cube's to_world."""
-    mt = f'<transform name="to_world">{SHIFT}</transform>' if medium_to_world else ""
+#: The medium's to_world of the trap: the identity, given (without any the medium fills the cube).
+IDENTITY = '<transform name="to_world"><translate value="0, 0, 0"/></transform>'
+
+
+def xml(medium_to_world: bool | None) -> str:
+    """A 0.2-wide cube moved to x = 3; the medium's generated particles fill its local cube [-1, 1]^3 through its
+    to_world, so they land inside only when the medium repeats the cube's to_world (True; False: the identity;
+    None: no to_world, the grains fill the cube)."""
+    mt = {True: f'<transform name="to_world">{SHIFT}</transform>', False: IDENTITY, None: ""}[medium_to_world]
     return f"""<scene version="3.0.0">
   <integrator type="volpath"/>
   <sensor type="perspective">
@@ -52,12 +58,12 @@ def xml(medium_to_world: bool) -> str:
 </scene>"""
 
 
-def scene_dict(medium_to_world: bool) -> dict:
+def scene_dict(medium_to_world: bool | None) -> dict:
     t = mi.ScalarTransform4f().translate([3, 0, 0]) @ mi.ScalarTransform4f().scale(0.1)
     medium = {"type": "discrete", "id": "dust", "count": 500, "radius_median": 50.0, "scale_m": 0.01,
               "phase": {"type": "particle"}}
-    if medium_to_world:
-        medium["to_world"] = t
+    if medium_to_world is not None:
+        medium["to_world"] = t if medium_to_world else mi.ScalarTransform4f()
     return {"type": "scene", "integrator": {"type": "volpath"},
             "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8}},
             "env": {"type": "constant"},
@@ -101,6 +107,12 @@ def test_load_dict_warns_with_to_world_and_both_boxes(variant):
         warnings.simplefilter("always")
         mi.load_dict(scene_dict(medium_to_world=True))
     assert outside_messages(record) == []
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        scene = mi.load_dict(scene_dict(medium_to_world=None))
+    assert outside_messages(record) == []
+    lo, hi = scene.shapes()[0].interior_medium().data.centre_box  # filled: inside the cube
+    assert np.all(np.asarray(lo) >= [2.9, -0.1, -0.1]) and np.all(np.asarray(hi) <= [3.1, 0.1, 0.1])
 
 
 @pytest.mark.parametrize("variant", ["scalar_rgb", "llvm_ad_rgb"])
@@ -116,6 +128,7 @@ def test_load_file_and_load_string_warn(tmp_path, variant):
     with warnings.catch_warnings(record=True) as record:
         warnings.simplefilter("always")
         mi.load_string(xml(medium_to_world=True))
+        mi.load_string(xml(medium_to_world=None))
     assert outside_messages(record) == []
 
 
@@ -169,7 +182,7 @@ def test_the_advice_is_a_to_world_that_fills_the_holder():
     loads without the warning. The holder here is a sphere given by center and radius (no to_world at all)."""
     motes.set_variant("scalar_rgb")
     medium = {"type": "discrete", "id": "dust", "count": 500, "radius_median": 50.0, "scale_m": 0.01,
-              "phase": {"type": "particle"}}
+              "phase": {"type": "particle"}, "to_world": mi.ScalarTransform4f()}
 
     def scene(m):
         return {"type": "scene", "integrator": {"type": "volpath"},
@@ -184,7 +197,9 @@ def test_the_advice_is_a_to_world_that_fills_the_holder():
     advice = '<transform name="to_world"><scale value="0.5, 0.5, 0.5"/><translate value="4, 1, 0"/></transform>'
     assert advice in msg and "a mesh's own to_world does not" in msg, msg
     fixed = dict(medium, to_world=mi.ScalarTransform4f().translate([4, 1, 0]) @ mi.ScalarTransform4f().scale(0.5))
-    with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")
-        mi.load_dict(scene(fixed))
-    assert outside_messages(record) == []
+    filled = {k: v for k, v in medium.items() if k != "to_world"}  # issue 43: no to_world, it fills the ball
+    for m in (fixed, filled):
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter("always")
+            mi.load_dict(scene(m))
+        assert outside_messages(record) == []

@@ -129,9 +129,10 @@ class DiscreteMedium:
     """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete/)."""
 
     def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], tables: BinTables,
-                 settings: MediumSettings, radius_scale: float = 1.0) -> None:
+                 settings: MediumSettings, radius_scale: float = 1.0, holders: Holders | None = None) -> None:
         """radius x radius_scale in scene units (radii in um pass their scale, not a scaled copy); q_ext: each
-        bin's grey extinction efficiency (C_ext = pi r^2 q_ext)."""
+        bin's grey extinction efficiency (C_ext = pi r^2 q_ext); holders: the shapes the particles fill, to whose
+        inside the continuous fields are confined."""
     @staticmethod
     def procedural(count: float, box_: tuple[list[float], list[float]], density: tuple[str, list[float], int],
                    species: tuple[list[Psd], list[float]], cloud_seed: int, transform: list[list[float]],
@@ -202,6 +203,7 @@ class DiscreteMedium:
     # The native render path (rust/motes-py/src/native/): a handle for a C++ plugin, which keeps
     # ``owner`` alive until it releases the handle; (rays, events) it has rendered; references it holds.
     def native_handle(self, owner: object | None = None) -> int: ...
+    def native_fill(self, handle: int, owner: object | None = None) -> None: ...
     @property
     def native_counts(self) -> tuple[int, int]: ...
     @property
@@ -211,6 +213,25 @@ class DiscreteMedium:
 def bounding_box(points: F64) -> tuple[tuple[float, float, float], tuple[float, float, float]]: ...
 #: The owner given with a handle a native plugin still holds, or None (unknown or released handles).
 def native_owner(handle: int) -> object | None: ...
+def native_pending_handle(owner: object | None = None) -> int:
+    """A native handle without a core medium yet (every ray passes it) until DiscreteMedium.native_fill."""
+def mesh_open_edges(vertices: F64, faces: npt.NDArray[np.uint32]) -> int:
+    """Edges of a mesh (vertices welded by position) shared by an odd number of its faces (0: closed)."""
+
+class Holders:
+    """The closed shapes that hold a medium, in world space (rust/motes-core/src/space/inside.rs): meshes as
+    (vertices n*3, faces m*3), Mitsuba's unit sphere and unit cylinder (solid) by their 3x4 to_world."""
+
+    def __init__(self, meshes: Sequence[tuple[F64, npt.NDArray[np.uint32]]] = ...,
+                 ellipsoids: Sequence[Sequence[Sequence[float]]] = ...,
+                 cylinders: Sequence[Sequence[Sequence[float]]] = ...) -> None: ...
+    def contains(self, points: F64) -> npt.NDArray[np.bool_]: ...
+    def contains_brute(self, points: F64) -> npt.NDArray[np.bool_]: ...
+    def volume(self, seed: int = 0) -> tuple[float, bool]: ...
+    def fill(self, count: int, seed: int) -> F64: ...
+    @property
+    def bounds(self) -> tuple[list[float], list[float]]: ...
+    def __len__(self) -> int: ...
 #: Address and version of the native render path's C interface.
 NATIVE_API: int
 NATIVE_ABI: int

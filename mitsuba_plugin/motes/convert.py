@@ -13,8 +13,11 @@ medium", say why):
   ``scale`` is given), ``albedo`` 0.75 and an ``isotropic`` phase function.
 * the grain options (``GRAIN_OPTIONS``, typed as the plugin reads them) are added; a grain size (``radius_median``,
   ``psd`` or ``species``) is required.
-* ``to_world``: the discrete medium fills its own box (the local cube [-1, 1]^3 through ``to_world``), not its shape,
-  so the box of the shapes that hold it as their interior is added: one ``cube`` holder gives its own transform
+* ``to_world``: none is written where every shape that holds the medium as its interior is one the grains fill
+  (``FILLED_SHAPES``: closed meshes, ``cube``, ``sphere``, ``cylinder``): without ``to_world`` the discrete medium fills
+  the shapes that hold it, their inside, as ``homogeneous`` does (a mesh that turns out open fails at load, naming
+  itself). A given ``to_world`` is kept. Where a holder is of another type (``rectangle``, ``disk``, an instance...),
+  the box of the holders is added instead, the grains filling that box: one ``cube`` holder gives its own transform
   (exact), anything else the union of the holders' world bounding boxes (Mitsuba loads each holder alone, in
   ``scalar_rgb``, file names relative to the scene's folder). Flat holders, holders whose geometry uses ``$``
   parameters and holders Mitsuba cannot load are reported and left out; with none left, to_world is the user's.
@@ -34,6 +37,10 @@ import re
 import xml.etree.ElementTree as ET
 
 import numpy as np
+
+#: Holder types whose inside the discrete medium fills without ``to_world`` (``motes.plugins.discrete_medium``, "Filling
+#: the shapes that hold it"): meshes (closed ones) and Mitsuba's analytic sphere and cylinder.
+FILLED_SHAPES = ("obj", "ply", "serialized", "cube", "sphere", "cylinder")
 
 #: The grain options of ``motes convert``: (option, the discrete medium's parameter, its XML tag as
 #: ``_read_parameters`` reads it, help).
@@ -318,6 +325,13 @@ class _Conversion:
             self.to_world_note = "kept (given)"
             return
         holders, others = _holders(self.doc, self.m)
+        if holders and all(shape.get("type") in FILLED_SHAPES for shape in holders):
+            names = ", ".join(_shape_label(self.doc, s) for s in holders)
+            self.to_world_note = f"not needed: the grains fill the shape{'s' if len(holders) > 1 else ''} {names}"
+            for where in others:
+                self.notes.append(f"to_world: the medium is also {where}: the grains fill only the shapes whose "
+                                  "interior it is")
+            return
         for where in others:
             self.notes.append(f"to_world: the medium is also {where}: the grains fill only their box (to_world)")
         boxes = []
@@ -330,9 +344,10 @@ class _Conversion:
                 boxes.append((shape, box))
         if not boxes:
             self.to_world_note = "NOT set (no holding shape to take it from: set it to the region the grains fill)"
-            self.notes.append("to_world: not set: " + ("no shape holds this medium as its interior" if not holders
-                              else "no holding shape's box could be computed") + "; the grains fill the cube "
-                              "[-1, 1]^3 until it is set")
+            self.notes.append("to_world: not set: " + ("no shape holds this medium as its interior; the grains fill "
+                              "the cube [-1, 1]^3 until it is set" if not holders else "no holding shape's box could "
+                              "be computed, and a holder's type has no inside the grains can fill: the scene "
+                              "loads once to_world is set"))
             return
         self._add_element(self._transform_of(boxes))
 

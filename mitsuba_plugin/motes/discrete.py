@@ -384,7 +384,7 @@ class DiscreteMedium:
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                  storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True,
-                 phase: dict | None = None):
+                 phase: dict | None = None, holders=None):
         self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
         if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
             raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
@@ -398,7 +398,7 @@ class DiscreteMedium:
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
                                                     truncate_below_rad, albedo, phase_model, phase)
-        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened)
+        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened, holders)
         self._set_path_rules(grain_depth, surface_footprint)
 
     def _set_path_rules(self, grain_depth: int, surface_footprint: bool) -> None:
@@ -510,7 +510,8 @@ class DiscreteMedium:
         tables.report(self)
         return bin_of, np.asarray(tables.grey_q), tables.core_tables()
 
-    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened):
+    def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened,
+                    holders=None):
         """The Rust medium over the particles and their bins' tables, and the attributes that report it."""
         n = pos.shape[0]
         query_radius, tau_max = settings.query_radius, settings.tau_max
@@ -526,7 +527,7 @@ class DiscreteMedium:
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         # Radii in um with their scale (a scaled copy of 1e8 radii would be 800 MB).
         self._core = _motes.DiscreteMedium(pos.ravel(), r, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
-                                           _core_tables(tables, lam), settings, radius_scale=um)
+                                           _core_tables(tables, lam), settings, radius_scale=um, holders=holders)
         log.info("grid: %d particles, %.1f MB, %.1f s", n, self._core.bytes / 1e6, time.perf_counter() - t_grid)
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened

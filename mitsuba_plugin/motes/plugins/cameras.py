@@ -252,6 +252,7 @@ def attach(scene, sensor=None, integrator=None, spp: int = 0) -> list:
     objects (``discrete_medium_objects``)."""
     if not _made[0] or not (hasattr(scene, "shapes") and hasattr(scene, "sensors")):
         return []
+    _scene.fill_pending(scene)  # a scene loaded by loaders motes did not wrap (scene_checks.wrap_loaders)
     objects = _scene.discrete_medium_objects(scene)
     media = _scene.discrete_media(scene, objects)
     if media:

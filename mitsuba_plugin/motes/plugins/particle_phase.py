@@ -46,6 +46,8 @@ class ParticlePhase:
     is_motes_particle_phase = True
 
     def attach(self, medium, native=None) -> None:
+        """``medium``: the ``motes.DiscreteMedium``, or for a medium that fills its holders the
+        ``_scene.PendingFill`` that makes it (its ``result()``, read at the first call)."""
         self._medium = medium
         self._native = native
 
@@ -54,7 +56,7 @@ class ParticlePhase:
             return self._native.sample(ctx, mei, sample1, sample2, active)
         n = max(np.size(np.asarray(sample1)), np.size(np.asarray(sample2.x)), dr.width(mei.p), dr.width(mei.wi))
         p, wi = vec3(mei.p, n), vec3(mei.wi, n)
-        _require_medium(self._medium)
+        self._medium = _require_medium(self._medium)
         lam, ch = self._channels(mei, n)
         u1 = np.ascontiguousarray(np.broadcast_to(np.asarray(sample1, dtype=np.float64).ravel(), (n,)))
         u2 = np.ascontiguousarray(np.stack([np.broadcast_to(np.asarray(sample2.x, dtype=np.float64).ravel(), (n,)),
@@ -67,7 +69,7 @@ class ParticlePhase:
             return self._native.eval_pdf(ctx, mei, wo, active)
         n = max(dr.width(mei.p), dr.width(mei.wi), dr.width(wo))
         p, wi, w = vec3(mei.p, n), vec3(mei.wi, n), vec3(wo, n)
-        _require_medium(self._medium)
+        self._medium = _require_medium(self._medium)
         lam, ch = self._channels(mei, n)
         v, pdf = self._medium.core.phase_eval(p.ravel(), wi.ravel(), w.ravel(), lam, ch)
         return spectrum(v.reshape(n, ch), n), floats(pdf)
@@ -79,10 +81,12 @@ class ParticlePhase:
         return f"ParticlePhase[attached={self._medium is not None}]"
 
 
-def _require_medium(medium) -> None:
+def _require_medium(medium):
+    """The medium's data (a pending one's, made now: ``attach``), or the error of a phase function outside one."""
     if medium is None:
         raise RuntimeError('motes: <phase type="particle"/> works only inside a <medium type="discrete">, which '
                            "supplies its particles; use hg, tabphase or another phase function in other media")
+    return medium.result() if hasattr(medium, "result") else medium
 
 
 _classes: dict = {}

@@ -1,7 +1,8 @@
 """Checks of a loaded scene that catch silent mistakes with ``discrete`` media.
 
-A ``discrete`` medium takes its particle positions in scene units, after its own ``to_world``; the shape that
-holds it has a separate ``to_world``. A medium without the ``to_world`` that maps its local cube [-1, 1]^3 onto
+A ``discrete`` medium without ``to_world`` or particle file fills the shapes that hold it (checked by
+construction: no warning). One with them takes its particle positions in scene units, after its own ``to_world``;
+the shape that holds it has a separate ``to_world``. A medium with a ``to_world`` that maps its local cube [-1, 1]^3 onto
 its holders' box (a mesh's own transform does not), or a particle file in other units, puts the particles
 outside the shape, and the render shows an empty medium without a
 word. After every ``mi.load_file`` / ``mi.load_dict`` / ``mi.load_string`` (wrapped once per process by
@@ -22,7 +23,7 @@ import numpy as np
 
 from .._errors import without_traceback
 from . import cameras
-from ._scene import discrete_data
+from ._scene import discrete_data, fill_pending
 
 #: Below this share of the particles' box inside the shape's box, loading warns.
 INSIDE_WARN_SHARE = 0.5
@@ -58,7 +59,7 @@ def outside_warnings(scene) -> list[str]:
     for shape in scene.shapes():
         medium = shape.interior_medium()
         data = None if medium is None else discrete_data(medium)
-        if data is not None:
+        if data is not None and not getattr(data, "fills_holders", False):  # a filled medium lies in them
             holders.setdefault(id(data), (medium, data, []))[2].append(shape)
     for medium, data, shapes in holders.values():
         lo, hi = (np.asarray(v, dtype=np.float64) for v in data.centre_box)
@@ -75,7 +76,8 @@ def outside_warnings(scene) -> list[str]:
                 f"({share:.0%} of the particles' box inside; "
                 f"particles' box {_fmt(lo)}..{_fmt(hi)}, {boxes_of} box "
                 f"{_fmt(s_lo)}..{_fmt(s_hi)}, scene units), so "
-                "the render will show little or none of it: give the medium the to_world that maps its local cube "
+                "the render will show little or none of it: remove the medium's to_world (without one its grains fill "
+                "the shapes that hold it), or give it the to_world that maps its local cube "
                 f"[-1, 1]^3 onto the {boxes_of} box, {_box_transform(s_lo, s_hi)} (for a cube or sphere of your own, "
                 "the shape's to_world works too; a mesh's own to_world does not: its vertices are not in [-1, 1]^3; "
                 "`motes convert` writes it), or check the particle file's units")
@@ -102,6 +104,9 @@ def _wrapped(load):
             if clean is None:
                 raise
             raise RuntimeError(clean) from None
+        # Media that fill the shapes holding them get their grains now (_scene.fill_pending): a problem with the
+        # holders (an open mesh) is the loader's error.
+        fill_pending(obj)
         if hasattr(obj, "shapes") and hasattr(obj, "sensors"):  # a scene (load_dict also makes plugins)
             check_scene(obj, stacklevel=3)
             cameras.attach(obj)  # the surface-ray rule's cameras (cameras.py)

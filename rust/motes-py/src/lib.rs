@@ -1,12 +1,13 @@
 //! `motes._motes`: the compiled extension. Every function takes flat, equally long float64 arrays
 //! (broadcasting happens in the Python layer), releases the GIL, and runs rayon inside. One module per
-//! topic: [`optics`], [`psd`], [`ensemble`], [`grid`], [`medium`]; [`convert`] holds the boundary's
+//! topic: [`optics`], [`psd`], [`ensemble`], [`grid`], [`inside`], [`medium`]; [`convert`] holds the boundary's
 //! conversions and the error type, [`interrupt`] Ctrl-C, [`native`] the native render path's C ABI.
 
 mod cloud;
 mod convert;
 mod ensemble;
 mod grid;
+mod inside;
 mod interrupt;
 mod medium;
 mod native;
@@ -67,12 +68,15 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(medium::check_discrete_inputs, m)?)?;
     m.add_function(wrap_pyfunction!(medium::bounding_box, m)?)?;
     m.add_function(wrap_pyfunction!(medium::native_owner, m)?)?;
+    m.add_function(wrap_pyfunction!(medium::native_pending_handle, m)?)?;
+    m.add_function(wrap_pyfunction!(inside::mesh_open_edges, m)?)?;
     m.add("MotesError", m.py().get_type::<convert::MotesError>())?;
     m.add_class::<psd::PyPsd>()?;
     m.add_class::<ensemble::PyPhaseTable>()?;
     m.add_class::<ensemble::PyGoaCache>()?;
     m.add_class::<grid::PyParticleGrid>()?;
     m.add_class::<medium::PyDiscreteMedium>()?;
+    m.add_class::<inside::PyHolders>()?;
     m.add_class::<medium::settings::PyMediumSettings>()?;
     m.add_class::<medium::settings::PyBinTables>()?;
     m.add(

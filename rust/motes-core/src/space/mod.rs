@@ -10,10 +10,13 @@
 //! * `ray_lanes` (crate-internal): a beam's rays tested against one particle side by side (AVX-512 where
 //!   [`crate::simd`] allows).
 //! * [`motion`]: moving generated grains: a uniform velocity plus a divergence-free turbulent drift.
+//! * [`inside`]: the inside of the closed shapes that hold a medium (meshes by ray parity, analytic spheres
+//!   and cylinders), its volume, and points spread uniformly over it.
 
 pub mod cloud;
 pub mod dda;
 pub mod grid;
+pub mod inside;
 pub mod motion;
 pub mod ray;
 pub(crate) mod ray_lanes;

@@ -49,9 +49,12 @@ impl PyDiscreteMedium {
 impl PyDiscreteMedium {
     /// positions (n*3), radius (n) in scene units once multiplied by `radius_scale`; bin (n) into the
     /// optics bins of `tables` and each bin's grey extinction efficiency `q_ext` (a particle's cross
-    /// section is π r² q_ext of its bin: no column); `settings` as `MediumSettings`.
+    /// section is π r² q_ext of its bin: no column); `settings` as `MediumSettings`. `holders`
+    /// (`Holders`): the shapes whose inside the particles fill, to which the continuous fields are
+    /// confined (`motes_core::render::discrete::DiscreteMedium::confine`).
     #[new]
-    #[pyo3(signature = (positions, radius, q_ext, bin, tables, settings, radius_scale=1.0))]
+    #[pyo3(signature = (positions, radius, q_ext, bin, tables, settings, radius_scale=1.0, holders=None))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         positions: F64In,
@@ -61,6 +64,7 @@ impl PyDiscreteMedium {
         tables: &PyBinTables,
         settings: &PyMediumSettings,
         radius_scale: f64,
+        holders: Option<PyRef<'_, crate::inside::PyHolders>>,
     ) -> PyResult<Self> {
         // Borrowed, not copied (10^8 particles: 4 GB): the build holds the GIL instead of releasing it,
         // so no Python thread can change the arrays under it (its rayon workers need no GIL).
@@ -84,7 +88,7 @@ impl PyDiscreteMedium {
             let r = r[i] * radius_scale;
             std::f64::consts::PI * r * r * q[b[i] as usize]
         };
-        let medium = motes_core::render::discrete::DiscreteMedium::build(
+        let mut medium = motes_core::render::discrete::DiscreteMedium::build(
             pos,
             r,
             radius_scale,
@@ -95,6 +99,10 @@ impl PyDiscreteMedium {
             &settings.inner,
         )
         .map_err(to_py)?;
+        if let Some(h) = holders {
+            let h = h.holders();
+            medium.confine(&|p| h.contains(p));
+        }
         Ok(Self::wrap(medium))
     }
 
@@ -185,6 +193,14 @@ impl PyDiscreteMedium {
     #[pyo3(signature = (owner=None))]
     fn native_handle(&self, owner: Option<Py<PyAny>>) -> usize {
         native::handle(&self.medium, owner)
+    }
+
+    /// Set this medium as the core of the pending native handle `handle` (`native_pending_handle`),
+    /// once, with `owner` as its new owner.
+    #[pyo3(signature = (handle, owner=None))]
+    fn native_fill(&self, handle: usize, owner: Option<Py<PyAny>>) -> PyResult<()> {
+        native::fill(handle, &self.medium, owner)
+            .map_err(|e| invalid("handle", handle, e.to_string()))
     }
 
     /// How many references to the core medium live outside this object (native plugins not yet
@@ -286,4 +302,13 @@ pub(crate) fn bounding_box(py: Python<'_>, points: F64In) -> PyResult<([f64; 3],
 #[pyfunction]
 pub fn native_owner(py: Python<'_>, handle: usize) -> Option<Py<PyAny>> {
     native::owner(py, handle)
+}
+
+/// A new native handle without a core medium yet (a medium that fills the shapes holding it): the
+/// native plugins made over it let every ray pass until `DiscreteMedium.native_fill` sets its core.
+/// `owner` is what `native_owner` answers until then.
+#[pyfunction]
+#[pyo3(signature = (owner=None))]
+pub fn native_pending_handle(owner: Option<Py<PyAny>>) -> usize {
+    native::pending_handle(owner)
 }

@@ -34,7 +34,7 @@ use motes_core::render::discrete::{
 use pyo3::prelude::*;
 use std::collections::BTreeSet;
 use std::ffi::{c_char, c_void};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 mod packet;
 pub use packet::motes_packet;
@@ -106,10 +106,13 @@ pub static API: NativeApi = NativeApi {
 
 /// What a handle points at: a strong reference to the core medium, and one to the Python object that
 /// owns it (`motes.DiscreteMedium`), so that a scene whose medium is the native plugin itself (scalar
-/// variants) can still report its data for as long as the plugin lives ([`owner`]).
+/// variants) can still report its data for as long as the plugin lives ([`owner`]). A pending handle
+/// ([`pending_handle`]: a medium that fills the shapes holding it, known only once its scene has loaded)
+/// has no core until [`fill`] sets it, once; until then every ray passes it (no site) and its owner is
+/// the Python object that will fill it.
 pub struct NativeMedium {
-    core: Arc<DiscreteMedium>,
-    owner: Option<Py<PyAny>>,
+    core: OnceLock<Arc<DiscreteMedium>>,
+    owner: Mutex<Option<Py<PyAny>>>,
 }
 
 /// Handles not yet released: [`owner`] dereferences only these (its argument comes from Python).
@@ -121,12 +124,48 @@ fn live() -> std::sync::MutexGuard<'static, BTreeSet<usize>> {
 
 /// A new handle on `medium` for C++ (dropped by [`NativeApi::release`]).
 pub fn handle(medium: &Arc<DiscreteMedium>, owner: Option<Py<PyAny>>) -> usize {
+    let core = OnceLock::new();
+    let _ = core.set(Arc::clone(medium));
+    new_handle(core, owner)
+}
+
+/// A new handle without a core medium yet (see [`NativeMedium`]; [`fill`] sets it).
+pub fn pending_handle(owner: Option<Py<PyAny>>) -> usize {
+    new_handle(OnceLock::new(), owner)
+}
+
+fn new_handle(core: OnceLock<Arc<DiscreteMedium>>, owner: Option<Py<PyAny>>) -> usize {
     let h = Box::into_raw(Box::new(NativeMedium {
-        core: Arc::clone(medium),
-        owner,
+        core,
+        owner: Mutex::new(owner),
     })) as usize;
     live().insert(h);
     h
+}
+
+/// Set the core medium of the pending handle `h` (once) and its new owner. Errors: an unknown or
+/// released handle, or one that has its core already.
+pub fn fill(
+    h: usize,
+    medium: &Arc<DiscreteMedium>,
+    owner: Option<Py<PyAny>>,
+) -> Result<(), &'static str> {
+    let set = live();
+    if !set.contains(&h) {
+        return Err("not a live native medium handle");
+    }
+    // SAFETY: `h` is live (released handles leave the set before they are freed, under this lock).
+    let m = unsafe { &*(h as *const NativeMedium) };
+    m.core
+        .set(Arc::clone(medium))
+        .map_err(|_| "the native medium has its particles already")?;
+    let old = std::mem::replace(
+        &mut *m.owner.lock().unwrap_or_else(|e| e.into_inner()),
+        owner,
+    );
+    drop(set);
+    drop(old);
+    Ok(())
 }
 
 /// The owner given to the live handle `h` (None for an unknown or released handle).
@@ -137,15 +176,16 @@ pub fn owner(py: Python<'_>, h: usize) -> Option<Py<PyAny>> {
     }
     // SAFETY: `h` is live (released handles leave the set before they are freed, under this lock).
     let m = unsafe { &*(h as *const NativeMedium) };
-    m.owner.as_ref().map(|o| o.clone_ref(py))
+    let owner = m.owner.lock().unwrap_or_else(|e| e.into_inner());
+    owner.as_ref().map(|o| o.clone_ref(py))
 }
 
-/// The core medium behind a handle.
+/// The core medium behind a handle (None while it is pending).
 ///
 /// # Safety
-/// `medium` comes from [`handle`] and is alive.
-unsafe fn core<'a>(medium: *const c_void) -> &'a DiscreteMedium {
-    &(*(medium as *const NativeMedium)).core
+/// `medium` comes from [`handle`] or [`pending_handle`] and is alive.
+unsafe fn core<'a>(medium: *const c_void) -> Option<&'a DiscreteMedium> {
+    (*(medium as *const NativeMedium)).core.get().map(|a| &**a)
 }
 
 extern "C" {
@@ -179,11 +219,14 @@ pub unsafe extern "C" fn motes_set_albedo_scale(
     message: *mut c_char,
     capacity: usize,
 ) -> i32 {
-    match core(medium).set_albedo_scale(scale) {
+    let result = match core(medium) {
+        Some(m) => m.set_albedo_scale(scale).map_err(|e| e.to_string()),
+        None => Err("its particles are not made yet (they fill the shapes that hold it once its scene loads)".into()),
+    };
+    match result {
         Ok(()) => 0,
-        Err(e) => {
+        Err(text) => {
             if !message.is_null() && capacity > 0 {
-                let text = e.to_string();
                 let mut n = text.len().min(capacity - 1);
                 while !text.is_char_boundary(n) {
                     n -= 1;

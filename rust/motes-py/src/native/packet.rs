@@ -97,7 +97,9 @@ pub unsafe extern "C" fn motes_packet(
     channels: u32,
 ) {
     clear_upper_vector_state();
-    let m = core(medium);
+    let Some(m) = core(medium) else {
+        return; // a pending medium (no particles yet): no lane is written, every ray passes
+    };
     let ch = (channels as usize).clamp(1, 4);
     // Scalar variants call with one lane: arrays of one, not of sixteen (see `lanes`).
     if width == 1 {

@@ -98,6 +98,52 @@ impl ContinuousField {
         Self::with_cells(lo, cell, dims, sigma, start, members, cdf)
     }
 
+    /// The field confined to the inside of the shapes that hold its medium (`inside(p)`: a medium that
+    /// fills them, `crate::space::inside`): each cell's σ_t over the share of the cell inside them, where
+    /// its particles lie and the only part of it rays cross (the shapes bound the medium). Without it a
+    /// cell the shapes' surface cuts spreads its particles' extinction over its outside too, and a sphere
+    /// of 20 µm grains at 1 mm per unit renders 3–7 % brighter than `homogeneous`
+    /// (`tests/test_dropin.py`). The share: 1 where the cell's corners and centre are inside, else the
+    /// share of 8³ points at the centres of its sub-cells (at least one).
+    pub fn confined(mut self, inside: &(dyn Fn([f64; 3]) -> bool + Sync)) -> Self {
+        let (lo, cell, dims) = (self.frame.bounds.lo, self.frame.cell, self.frame.dims);
+        self.sigma.par_iter_mut().enumerate().for_each(|(c, s)| {
+            if *s <= 0.0 {
+                return;
+            }
+            let idx = [
+                c % dims[0],
+                (c / dims[0]) % dims[1],
+                c / (dims[0] * dims[1]),
+            ];
+            let at = |f: [f64; 3]| [0, 1, 2].map(|a| lo[a] + (idx[a] as f64 + f[a]) * cell[a]);
+            let probes = (0..9).map(|k| {
+                if k == 8 {
+                    [0.5; 3]
+                } else {
+                    [0, 1, 2].map(|a| ((k >> a) & 1) as f64)
+                }
+            });
+            if probes.into_iter().all(|f| inside(at(f))) {
+                return;
+            }
+            const N: usize = 8;
+            let hits = (0..N * N * N)
+                .filter(|&k| {
+                    let f = [k % N, (k / N) % N, k / (N * N)].map(|i| (i as f64 + 0.5) / N as f64);
+                    inside(at(f))
+                })
+                .count()
+                .max(1);
+            *s = (*s as f64 * (N * N * N) as f64 / hits as f64) as f32;
+        });
+        let (block_frame, majorant) = block_majorants(lo, cell, dims, &self.sigma);
+        self.uniform_majorant = uniform_majorant(&majorant);
+        self.block_frame = block_frame;
+        self.majorant = majorant;
+        self
+    }
+
     /// The field of cells `dims` of edges `cell` from `lo` with σ_t `sigma`, its members, each cell's
     /// first member (`start`) and their running shares (`cdf`), and its majorants (read here:
     /// `MOTES_UNIFORM_MAJORANT`).

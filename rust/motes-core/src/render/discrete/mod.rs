@@ -263,6 +263,14 @@ pub const PACKET_LANES: usize = 16;
 pub type PacketRay = ([f32; 3], [f32; 3], f32);
 
 impl DiscreteMedium {
+    /// Confine the continuous fields to the inside of the shapes that hold the medium (`inside(p)`;
+    /// `ContinuousField::confined`): a medium whose grains fill those shapes. The grains themselves are
+    /// unchanged.
+    pub fn confine(&mut self, inside: &(dyn Fn([f64; 3]) -> bool + Sync)) {
+        self.field = self.field.take().map(|f| f.confined(inside));
+        self.grains_field = self.grains_field.take().map(|f| f.confined(inside));
+    }
+
     /// Particles whose disk the τ_max floor widened beyond r_c + r_i.
     pub fn widened(&self) -> usize {
         self.widened
