@@ -67,10 +67,11 @@ def child(variant: str, count: float, res: int, spp: int, view: str, footprint: 
     render = time.perf_counter() - t0
     (data,) = discrete_media(sc)
     checked, saw = data.core.surface_counts
-    return {"view": view, "footprint": footprint, "res": res, "spp": spp, "load_s": round(load, 2),
-            "render_s": round(render, 2), "peak_gb": round(_memory.peak_resident_mb() / 1e3, 2),
-            "mean": float(img.mean()), "finite": bool(np.isfinite(img).all()),
-            "saw_field": round(saw / max(checked, 1), 3), "bricks": int(getattr(data.core, "bricks_built", 0) or 0)}
+    row = {"view": view, "footprint": footprint, "res": res, "spp": spp, "load_s": round(load, 2),
+           "render_s": round(render, 2), "peak_gb": round(_memory.peak_resident_mb() / 1e3, 2),
+           "mean": float(img.mean()), "finite": bool(np.isfinite(img).all()),
+           "saw_field": round(saw / max(checked, 1), 3)}
+    return row
 
 
 def main() -> None:
