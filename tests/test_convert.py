@@ -186,7 +186,7 @@ def test_a_holder_without_an_inside_gets_the_box(tmp_path):
     assert np.allclose(to_world_of(medium(out, "fog")), np.eye(4), atol=1e-5)
 
 
-def test_heterogeneous_takes_its_grids_mean(tmp_path):
+def test_heterogeneous_keeps_its_grid(tmp_path):
     motes.set_variant("scalar_rgb")
     grid = np.random.default_rng(1).uniform(0, 2, (4, 5, 6, 1)).astype(np.float32)
     mi.VolumeGrid(grid).write(str(tmp_path / "density.vol"))
@@ -207,10 +207,10 @@ def test_heterogeneous_takes_its_grids_mean(tmp_path):
     assert proc.returncode == 0, proc.stderr
     m = medium(out, "interior")
     assert m.get("type") == "discrete" and prop(m, "scale").get("value") == "3"
-    assert abs(float(prop(m, "sigma_t").get("value")) / float(grid.mean()) - 1) < 1e-5
-    assert "uniform density of the volume's mean" in proc.stdout
+    assert prop(m, "sigma_t").tag == "volume" and prop(m, "sigma_t").get("type") == "gridvolume"
+    assert "the gridvolume is the grains' number density" in proc.stdout
     assert "medium lost (heterogeneous): left unchanged" in proc.stdout and medium(out, "lost").get("type") == "heterogeneous"
-    assert prop(m, "to_world") is None and "to_world not needed" in proc.stdout
+    assert prop(m, "to_world") is None and "the sigma_t grid places the grains" in proc.stdout
 
 
 @pytest.mark.parametrize("case,args,word", [

@@ -21,9 +21,10 @@ medium", say why):
   (exact), anything else the union of the holders' world bounding boxes (Mitsuba loads each holder alone, in
   ``scalar_rgb``, file names relative to the scene's folder). Flat holders, holders whose geometry uses ``$``
   parameters and holders Mitsuba cannot load are reported and left out; with none left, to_world is the user's.
-* ``heterogeneous``: the discrete medium takes no density grid yet; ``sigma_t`` becomes the grid's mean (a
-  ``gridvolume``'s .vol file read by ``mi.VolumeGrid``), an albedo grid its per-channel mean. A volume that cannot
-  be read leaves the medium unchanged (reported).
+* ``heterogeneous``: a ``sigma_t`` gridvolume is kept as it is: the discrete medium takes it as the grains' number
+  density, in the volume's own box (no ``to_world`` is written; "From a heterogeneous medium" in the plugin's docs);
+  an albedo grid becomes its per-channel mean (a ``gridvolume``'s .vol file read by ``mi.VolumeGrid``). A volume
+  that cannot be read leaves the medium unchanged (reported).
 
 Everything else in the file is kept as it is (comments too; ``<default>`` and ``$name`` references untouched).
 """
@@ -261,6 +262,10 @@ class _Conversion:
 
     def _volume_property(self, child, name: str) -> None:
         value = [c for c in child if isinstance(c.tag, str) and c.get("name") == "value"]
+        if name == "sigma_t" and child.get("type") == "gridvolume":
+            self.kept.append("sigma_t (a gridvolume)")
+            self.notes.append("sigma_t: the gridvolume is the grains' number density, in its own box (its to_world)")
+            return
         if child.get("type") == "constvolume" and len(value) == 1 and name in ("sigma_t", "albedo"):
             v = copy.deepcopy(value[0])
             v.set("name", name)
@@ -323,6 +328,10 @@ class _Conversion:
     def _to_world(self) -> None:
         if _prop(self.m, "to_world") is not None:
             self.to_world_note = "kept (given)"
+            return
+        sigma_t = _prop(self.m, "sigma_t")
+        if sigma_t is not None and sigma_t.tag == "volume" and sigma_t.get("type") == "gridvolume":
+            self.to_world_note = "not needed: the sigma_t grid places the grains (its own to_world)"
             return
         holders, others = _holders(self.doc, self.m)
         if holders and all(shape.get("type") in FILLED_SHAPES for shape in holders):
@@ -522,11 +531,7 @@ def _volume_means(doc: _Document, m):
             return {}, f"its {name} grid {path} could not be read: " + " ".join(str(e).split())[:160]
         grid = grid.reshape(-1, grid.shape[-1]) if grid.ndim == 4 else grid.reshape(-1, 1)
         if name == "sigma_t":
-            mean = float(grid.mean())
-            e = ET.Element("float", {"name": name, "value": _num(mean)})
-            line = (f"heterogeneous medium {doc.label(m)}: its density volume is not supported by discrete yet; "
-                    f"converted with a uniform density of the volume's mean (sigma_t = {mean:.6g} from {path}, "
-                    "times scale)")
+            continue  # kept as it is (_Conversion._volume_property): the grains' density
         else:
             means = grid.mean(axis=0)
             e = (ET.Element("rgb", {"name": name, "value": ", ".join(_num(x) for x in means)}) if means.size == 3

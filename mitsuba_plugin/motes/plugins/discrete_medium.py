@@ -25,7 +25,11 @@ Parameter                    Type       Meaning (default)
                                         a warning says so (colour comes from ``albedo``). With ``distribution``
                                         gradient or noise it is the box's mean (without ``to_world``: the
                                         holders' box); with ``count`` or
-                                        ``filename`` an error
+                                        ``filename`` an error. Or a volume, as ``heterogeneous`` takes
+                                        it (``gridvolume``, ``constvolume``): the grains' number density
+                                        follows it (a grid interpolated trilinearly, as Mitsuba does;
+                                        its channels' mean where coloured), in the volume's own box
+                                        (its ``to_world``; no rotation): see "From a heterogeneous medium"
 ``scale``                    float      multiplies sigma_t (1; alone: sigma_t = 1 times it, as
                                         ``homogeneous``)
 ``distribution``             string     ``uniform``, ``gradient`` (concentration falling linearly along
@@ -106,9 +110,11 @@ Parameter                    Type       Meaning (default)
 ``wrap``                     boolean    grains that leave the cloud's box come back through the opposite
                                         face (periodic: a snowfall that never runs out) (false; stored only)
 ``albedo``                   float,     replaces every particle's albedo, in [0, 1] (tests, stylisation; a
-                             rgb or     drop-in ``homogeneous`` scene's colour): a float for every channel, an
+                             rgb,       drop-in ``homogeneous`` scene's colour): a float for every channel, an
                              spectrum   rgb or spectrum per channel (RGB variants: R, G, B; spectral: its value
-                                        at each tabulated wavelength) (the physical albedo; ``homogeneous``'s
+                             or volume  at each tabulated wavelength); a volume (``heterogeneous``'s): its mean
+                                        per channel over its box, with one line saying so (a grain's albedo
+                                        does not vary in space) (the physical albedo; ``homogeneous``'s
                                         default 0.75 is not taken)
 ``phase_model``              string     ``tabulated``: the grains' own phase functions (Eq. 17 per size bin);
                                         ``hg``: Henyey-Greenstein with the same g per bin and channel, the
@@ -171,6 +177,17 @@ mean transmittance exp(-sigma_t L) (``tests/test_dropin.py``; ``scripts/bench/be
 such scenes with their homogeneous originals). What differs is the grains themselves: visible where they
 are few and large, and a grey extinction. Too many grains for a stored cloud (sigma_t V / <C_ext> above
 1e9) is an error that says so: use ``storage = procedural``, larger grains or a smaller ``scale_m``.
+
+From a heterogeneous medium
+---------------------------
+A ``heterogeneous`` medium turns ``discrete`` the same way: its ``sigma_t`` volume (a ``gridvolume`` from a .vol
+file, or a ``constvolume``) times ``scale`` becomes the grains' number density, n(x) = sigma_t(x) / <C_ext>: the
+count is the grid's mean (exact for its trilinear interpolant: the mean of its values) times its box's volume over
+<C_ext>, and the grains are generated after the grid interpolated as Mitsuba interpolates it (trilinear between
+cell centres, clamped at the faces; ``motes_core::space::cloud``, ``Density::Grid``), with ``storage`` compact,
+full or procedural alike. The grid's box is the volume's own (its ``to_world``, which may translate and scale it;
+a rotated or sheared grid is an error), so the medium takes no ``to_world`` and no ``distribution`` then. A
+coloured grid's density is its channels' mean (one line says so). An ``albedo`` volume gives its mean.
 
 Filling the shapes that hold it
 -------------------------------
@@ -670,7 +687,9 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
     p.wavelengths = get("wavelengths", None, str)
     p.lam = _collected(bad, _wavelengths, p.wavelengths)
     p.seed = get("seed", 0, int, lambda v: 0 <= v < 2**64, "an integer in [0, 2^64)")
-    if "albedo" in props and props.type("albedo") not in (mi.Properties.Type.Float, mi.Properties.Type.Integer):
+    if _volume(props, "albedo") is not None:
+        p.albedo = _collected(bad, _albedo_of_volume, _volume(props, "albedo"), p.lam)
+    elif "albedo" in props and props.type("albedo") not in (mi.Properties.Type.Float, mi.Properties.Type.Integer):
         p.albedo = _channels(props, "albedo", p.lam, bad, bounded=True)  # rgb, spectrum: one per channel
     else:
         p.albedo = get("albedo", None, float, lambda v: 0 <= v <= 1, "in [0, 1]")
@@ -710,7 +729,11 @@ def _read_homogeneous_keys(props, p: SimpleNamespace, bad: list, get) -> None:
     asks for what the grains do not do, said once."""
     scale = get("scale", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (it multiplies sigma_t)")
     p.sigma_t = None
-    if "sigma_t" in props:
+    p.density = _DENSITIES.get(p.distribution, _DENSITIES["uniform"])
+    volume = _volume(props, "sigma_t")
+    if volume is not None:
+        p.sigma_t = _collected(bad, _density_of_volume, volume, p, props)
+    elif "sigma_t" in props:
         p.sigma_t = _channels(props, "sigma_t", p.lam, bad, bounded=False)
     elif scale is not None and p.lam is not None:
         p.sigma_t = np.ones(p.lam.size)  # homogeneous's default sigma_t, 1
@@ -725,6 +748,110 @@ def _read_homogeneous_keys(props, p: SimpleNamespace, bad: list, get) -> None:
             bad.append(f"discrete medium: {other} and {given} both set the grains: give one ({other}: {what}; "
                        "sigma_t: the bulk extinction per scene unit, as homogeneous takes it, times scale)")
     p.spectral_extinction = get("has_spectral_extinction", False, bool)
+
+
+def _volume(props, name: str):
+    """The parameter ``name`` where it is a volume (``heterogeneous``'s way: ``<volume name=...>``), else None."""
+    if name not in props or props.type(name) != mi.Properties.Type.Object:
+        return None
+    obj = props.get(name)
+    return obj if isinstance(obj, mi.Volume) else None
+
+
+def _volume_box(volume) -> tuple[np.ndarray, np.ndarray]:
+    box = volume.bbox()
+    return tuple(np.asarray(v, dtype=np.float64).ravel()[:3] for v in (box.min, box.max))
+
+
+def _grid_values(volume) -> np.ndarray:
+    """A ``gridvolume``'s values as (nz, ny, nx, channels) float64; a ``constvolume`` as one cell."""
+    params = mi.traverse(volume)
+    if "data" in params:
+        return np.asarray(params["data"], dtype=np.float64)
+    if volume.class_name() == "ConstVolume":
+        it = dr.zeros(mi.Interaction3f)
+        value = np.asarray(volume.eval(it), dtype=np.float64).ravel()
+        return value.reshape(1, 1, 1, -1)
+    raise ValueError(f"discrete medium: a {volume.class_name()} cannot give the grains' density: use a gridvolume "
+                     "or a constvolume")
+
+
+def _trilinear(values: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``values`` (nz, ny, nx) at points ``u`` (m, 3) in the unit box: trilinear between cell centres, clamped at
+    the faces (Mitsuba's gridvolume, and the core's ``Density::Grid``)."""
+    dims = np.array(values.shape[::-1])
+    x = np.clip(u * dims - 0.5, 0, dims - 1)
+    i0 = np.minimum(np.floor(x).astype(np.int64), dims - 1)
+    f, i1 = x - i0, np.minimum(i0 + 1, dims - 1)
+    out = np.zeros(len(u))
+    for corner in range(8):
+        b = [(corner >> a) & 1 for a in range(3)]
+        idx = [np.where(b[a], i1[:, a], i0[:, a]) for a in range(3)]
+        w = np.prod([f[:, a] if b[a] else 1 - f[:, a] for a in range(3)], axis=0)
+        out += w * values[idx[2], idx[1], idx[0]]
+    return out
+
+
+def _density_of_volume(volume, p: SimpleNamespace, props) -> np.ndarray:
+    """A ``sigma_t`` volume (module docs, "From a heterogeneous medium"): sets ``p.density`` (the core's grid) and
+    ``p.to_world`` (the volume's box), and returns the mean sigma_t per channel (before ``scale``)."""
+    for clash in ("to_world", "distribution"):
+        if clash in props:
+            raise ValueError(f"discrete medium: sigma_t is a volume, which places the grains (its own to_world) and "
+                             f"sets their density: remove the medium's {clash}")
+    values = _grid_values(volume)
+    if not (np.all(np.isfinite(values)) and np.all(values >= 0) and values.mean() > 0):
+        raise ValueError("discrete medium: the sigma_t volume's values must be finite, >= 0 and not all zero")
+    channels = values.mean(axis=(0, 1, 2))
+    grey = values.mean(axis=3)
+    lo, hi = _volume_box(volume)
+    if not np.all(hi > lo):
+        raise ValueError(f"discrete medium: the sigma_t volume's box {lo.tolist()}..{hi.tolist()} is empty")
+    # Its box places it only where its to_world neither rotates nor shears it: the volume's own values at
+    # points of the box must be the grid's at the same place.
+    rng = np.random.default_rng(1)
+    u = rng.random((64, 3))
+    pts = lo + u * (hi - lo)
+
+    def at(k: int):
+        it = dr.zeros(mi.Interaction3f)
+        it.p = mi.Point3f(*(float(c) for c in pts[k]))
+        return it
+
+    # (One point at a time: the same call in scalar and vectorised variants.)
+    theirs = None
+    if values.shape[3] == 1:
+        theirs = np.array([float(np.asarray(volume.eval_1(at(k))).ravel()[0]) for k in range(len(u))])
+    elif values.shape[3] == 3:
+        theirs = np.array([np.asarray(volume.eval_3(at(k)), dtype=np.float64).ravel()[:3].mean() for k in range(len(u))])
+    if theirs is not None and not np.allclose(theirs, _trilinear(grey, u), rtol=1e-3, atol=1e-6 * grey.max()):
+        raise ValueError("discrete medium: the sigma_t gridvolume's to_world rotates or shears it; the grains take a "
+                         "grid placed by translation and scale only")
+    if np.ptp(channels) > 1e-6 * channels.mean():
+        warnings.warn(f"discrete medium: the sigma_t volume is coloured (channel means {_fmt_channels(channels)}); "
+                      "the grains' extinction is grey, so their density follows its channels' mean (colour them "
+                      "with albedo)", stacklevel=5)
+    nz, ny, nx = grey.shape
+    p.density = ("grid", np.concatenate([[nx, ny, nz], grey.ravel()]))
+    box = np.eye(4)
+    box[:3, :3] *= (hi - lo) / 2
+    box[:3, 3] = (hi + lo) / 2
+    p.to_world, p.to_world_given = mi.ScalarTransform4f(box.tolist()), True
+    lam_size = 1 if p.lam is None else p.lam.size
+    return np.full(lam_size, float(grey.mean()))
+
+
+def _albedo_of_volume(volume, lam) -> np.ndarray:
+    """An ``albedo`` volume's mean per channel (a grain's albedo does not vary in space), said in one line."""
+    values = _grid_values(volume)
+    channels = values.mean(axis=(0, 1, 2))
+    if not np.all(np.isfinite(values) & (values >= 0) & (values <= 1)):
+        raise ValueError("discrete medium: the albedo volume's values must be in [0, 1]")
+    size = 1 if lam is None else lam.size
+    out = channels if channels.size == size else np.full(size, float(channels.mean()))
+    warnings.warn(f"discrete medium: the albedo volume is taken as its mean {_fmt_channels(out)} (a grain's albedo "
+                  "does not vary in space)", stacklevel=5)
+    return out
 
 
 def _channels(props, name: str, lam, bad: list, bounded: bool):
@@ -975,7 +1102,7 @@ def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> Discret
     query_radius, _ = _query_radius(p, corners)
     t = time.perf_counter()
     data = DiscreteMedium.procedural(p.count, species, shares, lam, box=((-1.0,) * 3, (1.0,) * 3),
-                                     density=_DENSITIES[p.distribution], noise_seed=p.seed, cloud_seed=p.seed,
+                                     density=p.density, noise_seed=p.seed, cloud_seed=p.seed,
                                      to_world=m, query_radius=query_radius,
                                      cache_bytes=None if p.cache_mb is None else max(int(p.cache_mb * 2**20), 1),
                                      turbulence=p.turbulence, turbulence_scale=_turbulence_scale(p, m), time_s=p.time,
@@ -990,7 +1117,7 @@ def _generated_particles(p: SimpleNamespace, species: list, to_world: np.ndarray
     shares = [float(s.share) for s in species]
     if not all(v >= 0 for v in shares) or sum(shares) <= 0:
         raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
-    kind, params = _DENSITIES[p.distribution]
+    kind, params = p.density
     pos, radii, sidx = _motes.generate_cloud(p.count, [-1.0] * 3, [1.0] * 3, kind, params, p.seed,
                                              [s.psd._core for s in species], shares, p.seed,
                                              to_world[:3, :4].tolist())
