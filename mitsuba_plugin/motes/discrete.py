@@ -32,7 +32,9 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
 ``grain_depth``             a path's rays see grains one by one until its ``grain_depth``-th scattering
                             event (``DEFAULT_GRAIN_DEPTH`` = 1); rays leaving that event or a later one
                             see the grains' continuous equivalent (same extinction per cell and local
-                            phase mixture; Müller et al. 2016, Sec. 4.3). Ignored when
+                            phase mixture; Müller et al. 2016, Sec. 4.3) where their pixel footprint
+                            holds ``continuous_count`` grains, as rays from surfaces (without cameras:
+                            never, they walk the grains). Ignored when
                             ``continuous_count`` is inf, which makes the medium exact
 ``surface_footprint``       rays that start at no event (a surface, a boundary, a camera) see the grains'
                             continuous equivalent where the narrowest pixel footprint they can carry

@@ -60,8 +60,11 @@ Parameter                    Type       Meaning (default)
                                         (over a mean free path or across the cloud) are rendered as a
                                         continuous medium: no pixel resolves their grains (16; inf: none)
 ``grain_depth``              integer    a path's rays walk grains one by one until its ``grain_depth``-th
-                                        scattering event, and see their continuous equivalent after (1:
-                                        grains are seen where a path meets them first; ignored when
+                                        scattering event, and after it see their continuous equivalent
+                                        where their pixel footprint holds ``continuous_count`` grains (the
+                                        rule of rays from surfaces, below; a sparse cloud of large grains,
+                                        each of whose shadows matters, is walked all along) (1: grains are
+                                        seen where a path meets them first; ignored when
                                         ``continuous_count`` is inf, which keeps every ray exact)
 ``surface_footprint``        boolean    the automatic level of detail: rays that start at no event (a
                                         camera's, a wall's shadow ray, a bounce off the floor) see the

@@ -3,10 +3,10 @@
 use crate::convert::*;
 use crate::psd::PyPsd;
 use motes_core::space::cloud::{generate, CloudSpec, Density, DensityGrid, ValueNoise};
-use std::sync::Arc;
 use motes_core::space::motion::Motion;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::prelude::*;
+use std::sync::Arc;
 
 /// The density named `kind` ("uniform", "gradient" with `params` = [axis, start, end], "noise" with
 /// `params` = [scale, octaves, contrast] and `noise_seed`, "grid" with `params` = [nx, ny, nz, then
@@ -40,11 +40,15 @@ fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
         }
         "grid" if params.len() >= 3 => {
             let dims = [0, 1, 2].map(|a| params[a]);
-            if !dims.iter().all(|&d| d >= 1.0 && d.fract() == 0.0 && d < 1e9) {
+            if !dims
+                .iter()
+                .all(|&d| d >= 1.0 && d.fract() == 0.0 && d < 1e9)
+            {
                 return Err(invalid(
                     "params",
                     format!("{dims:?}"),
-                    "a grid density's first three parameters are its dimensions (integers >= 1)".to_string(),
+                    "a grid density's first three parameters are its dimensions (integers >= 1)"
+                        .to_string(),
                 ));
             }
             let values = params[3..].iter().map(|&v| v as f32).collect();
@@ -55,7 +59,9 @@ fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
         _ => Err(invalid(
             "density",
             kind,
-            format!("unknown density {kind:?}: uniform, gradient, noise or grid [nx, ny, nz, values]"),
+            format!(
+                "unknown density {kind:?}: uniform, gradient, noise or grid [nx, ny, nz, values]"
+            ),
         )),
     }
 }

@@ -216,7 +216,9 @@ impl DensityGrid {
         for corner in 0..8 {
             let b = [0, 1, 2].map(|a| corner >> a & 1 == 1);
             let idx = [0, 1, 2].map(|a| if b[a] { i1[a] } else { i0[a] });
-            let w: f64 = (0..3).map(|a| if b[a] { f[a] } else { 1.0 - f[a] }).product();
+            let w: f64 = (0..3)
+                .map(|a| if b[a] { f[a] } else { 1.0 - f[a] })
+                .product();
             if w > 0.0 {
                 acc += w * self.value(idx);
             }
@@ -771,7 +773,8 @@ mod tests {
         assert!(DensityGrid::new(dims, vec![-1.0; 60]).is_err());
         let g = DensityGrid::new(dims, values.clone()).unwrap();
         let (lo, hi) = ([-1.0; 3], [1.0; 3]);
-        let centre = |i: [usize; 3]| [0, 1, 2].map(|a| -1.0 + 2.0 * (i[a] as f64 + 0.5) / dims[a] as f64);
+        let centre =
+            |i: [usize; 3]| [0, 1, 2].map(|a| -1.0 + 2.0 * (i[a] as f64 + 0.5) / dims[a] as f64);
         for k in 0..60 {
             let i = [k % 5, (k / 5) % 3, k / 15];
             assert!((g.at(centre(i), lo, hi) - values[k] as f64).abs() < 1e-12);
@@ -788,12 +791,17 @@ mod tests {
             cells[c[0] + 5 * (c[1] + 3 * c[2])] += v;
         }
         let mean = sum / (m * m * m) as f64;
-        assert!((mean - g.mean).abs() < 1e-3 * g.mean, "{mean} vs {}", g.mean);
+        assert!(
+            (mean - g.mean).abs() < 1e-3 * g.mean,
+            "{mean} vs {}",
+            g.mean
+        );
         let n = 200_000u64;
         let a = generate(&spec(Density::Grid(Arc::new(g)), 6), n, &IDENTITY).unwrap();
         let mut counts = vec![0.0f64; 60];
         for p in &a.centres {
-            let c = [0, 1, 2].map(|a| (((p[a] + 1.0) / 2.0 * dims[a] as f64) as usize).min(dims[a] - 1));
+            let c = [0, 1, 2]
+                .map(|a| (((p[a] + 1.0) / 2.0 * dims[a] as f64) as usize).min(dims[a] - 1));
             counts[c[0] + 5 * (c[1] + 3 * c[2])] += 1.0;
         }
         let chi2: f64 = (0..60)

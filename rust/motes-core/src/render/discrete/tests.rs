@@ -5,6 +5,7 @@ use super::flight::Grains;
 use super::lane::{at_site, site_position, PendingLane};
 use super::phase::Mixture;
 use super::*;
+use crate::render::footprint::Camera;
 use crate::render::phase_lanes::PhaseLanes;
 use crate::render::storage::Storage;
 use crate::rng::uniform;
@@ -355,12 +356,14 @@ fn local_scattering_is_unbiased_and_consistent() {
     });
 }
 
-/// A ray leaving an event at or past the grain depth sees the grains' continuous equivalent: it
-/// escapes with probability exp(−τ of that field) and interacts anywhere along the ray, not only at
-/// grains; below the grain depth, or with an infinite `continuous_count`, it walks the grains.
+/// A ray leaving an event at or past the grain depth sees the grains' continuous equivalent where its
+/// pixel footprint holds many grains (a camera far away with wide pixels): it escapes with
+/// probability exp(−τ of that field) and interacts anywhere along the ray, not only at grains; below
+/// the grain depth, without cameras (the footprint unknown), with sharp pixels, or with an infinite
+/// `continuous_count`, it walks the grains.
 #[test]
 fn rays_past_the_grain_depth_see_the_continuous_equivalent() {
-    for continuous_count in [1e12, f64::INFINITY] {
+    for continuous_count in [16.0, f64::INFINITY] {
         let m = medium_with(4000, continuous_count);
         assert_eq!(m.continuous_len(), 0); // every class discrete either way
         let (o, d) = ([[0.5f32, 0.5, -0.2]], [[0.0f32, 0.0, 1.0]]);
@@ -388,6 +391,18 @@ fn rays_past_the_grain_depth_see_the_continuous_equivalent() {
         };
         let walked = sites_from_event(2);
         assert!(distinct(&walked) < 100, "{}", distinct(&walked)); // grains only
+        let no_camera = sites_from_event(1);
+        assert!(distinct(&no_camera) < 100, "{}", distinct(&no_camera));
+        let camera = |pixel_angle: f64| View {
+            cameras: vec![Camera::new([30.0, 0.5, -40.0], pixel_angle, 0.0).unwrap()],
+            lights: Some(vec![]),
+            diffuse_surfaces: false,
+            samples_per_pixel: 0.0,
+        };
+        m.set_view(camera(1e-7));
+        let sharp = sites_from_event(1);
+        assert!(distinct(&sharp) < 100, "{}", distinct(&sharp));
+        m.set_view(camera(0.05));
         let seen = sites_from_event(1);
         match &m.grains_field {
             Some(f) => {
