@@ -66,6 +66,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(interrupt::set_exit_message, m)?)?;
     m.add_function(wrap_pyfunction!(medium::check_discrete_inputs, m)?)?;
     m.add_function(wrap_pyfunction!(medium::bounding_box, m)?)?;
+    m.add_function(wrap_pyfunction!(medium::size_bins, m)?)?;
     m.add_function(wrap_pyfunction!(medium::native_owner, m)?)?;
     m.add("MotesError", m.py().get_type::<convert::MotesError>())?;
     m.add_class::<psd::PyPsd>()?;
