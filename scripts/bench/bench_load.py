@@ -28,6 +28,9 @@ included, ~0.3 GB before any particle).
 
     .venv/bin/python scripts/bench/bench_load.py [--count 1e8] [--configs gen-discrete-compact,npz-discrete-compact]
     .venv/bin/python scripts/bench/bench_load.py --packages /tmp/base/mitsuba_plugin,mitsuba_plugin  # two builds
+
+``BENCH_LOAD_SKIP_MEMORY_CHECK=1`` skips the plugin's estimate of the memory a load needs (10^8 grains: 14 GiB),
+which refuses the load while other jobs hold memory.
 """
 
 from __future__ import annotations
@@ -70,6 +73,10 @@ def child_argsort(count: float) -> dict:
 
 def child_load(count: float, config: str, filename: str | None, variant: str) -> dict:
     motes = C.import_motes()
+    if os.environ.get("BENCH_LOAD_SKIP_MEMORY_CHECK"):
+        # The plugin refuses a load it estimates at more than the memory available (14 GiB for 10^8 grains
+        # against a measured peak of ~7.2 GB): on a machine shared with other jobs, skip that estimate.
+        motes._memory.require = lambda *a, **k: None
     motes.set_variant(variant)
     import mitsuba as mi  # noqa: PLC0415
 
