@@ -211,6 +211,9 @@ class DiscreteMedium:
 
 #: The box of points (n*3, float64): ((lo x, y, z), (hi x, y, z)), in parallel.
 def bounding_box(points: F64) -> tuple[tuple[float, float, float], tuple[float, float, float]]: ...
+#: Each radius's optics bin among increasing ``edges`` (``searchsorted(edges, radius, "right") - 1``, clipped to the
+#: bins), as ``lookup[bin]`` where given; in parallel.
+def size_bins(radius: F64, edges: F64, lookup: npt.NDArray[np.uint32] | None = None) -> npt.NDArray[np.uint32]: ...
 #: The owner given with a handle a native plugin still holds, or None (unknown or released handles).
 def native_owner(handle: int) -> object | None: ...
 def native_pending_handle(owner: object | None = None) -> int:

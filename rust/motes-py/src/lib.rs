@@ -67,6 +67,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(interrupt::set_exit_message, m)?)?;
     m.add_function(wrap_pyfunction!(medium::check_discrete_inputs, m)?)?;
     m.add_function(wrap_pyfunction!(medium::bounding_box, m)?)?;
+    m.add_function(wrap_pyfunction!(medium::size_bins, m)?)?;
     m.add_function(wrap_pyfunction!(medium::native_owner, m)?)?;
     m.add_function(wrap_pyfunction!(medium::native_pending_handle, m)?)?;
     m.add_function(wrap_pyfunction!(inside::mesh_open_edges, m)?)?;

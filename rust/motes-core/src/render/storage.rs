@@ -23,6 +23,7 @@
 
 use crate::error::{require, OpticsError};
 use crate::render::continuous::{Column, CLASS_FLAG};
+use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// How a discrete medium stores its particles (module docs).
@@ -47,6 +48,24 @@ impl Storage {
             }),
         }
     }
+}
+
+/// Each radius's optics bin among the increasing bin `edges`: numpy's
+/// `searchsorted(edges, r, side="right") - 1` clipped to the bins `0..edges.len() - 1` (one bin where
+/// there are two edges or fewer), mapped through `lookup` (a global bin per bin) where given. In
+/// parallel: at 10^8 particles numpy's one thread took ~20 s for this and the mapping.
+pub fn size_bins(radius: &[f64], edges: &[f64], lookup: Option<&[u32]>) -> Vec<u32> {
+    let last = edges.len().saturating_sub(2);
+    radius
+        .par_iter()
+        .map(|&r| {
+            let b = edges
+                .partition_point(|&e| e <= r)
+                .saturating_sub(1)
+                .min(last);
+            lookup.map_or(b as u32, |l| l[b])
+        })
+        .collect()
 }
 
 /// Radius levels per optics bin of compact storage.
@@ -80,8 +99,8 @@ enum Codes {
 
 impl Codes {
     fn new(codes: Vec<u32>) -> Self {
-        if codes.iter().all(|&c| c <= u16::MAX as u32) {
-            Codes::Narrow(codes.into_iter().map(|c| c as u16).collect())
+        if codes.par_iter().all(|&c| c <= u16::MAX as u32) {
+            Codes::Narrow(codes.into_par_iter().map(|c| c as u16).collect())
         } else {
             Codes::Wide(codes)
         }
@@ -157,23 +176,25 @@ pub(crate) fn classes(
             }
         })
         .collect();
-    // Each particle's level, numbered densely (one pass: no column of levels for 10^8 particles).
-    let codes = bin
-        .iter()
+    // Each particle's class (bin and level; in parallel), then the classes numbered densely in the
+    // order of their first particle (in place: no column of levels for 10^8 particles).
+    let mut codes: Vec<u32> = bin
+        .par_iter()
         .enumerate()
-        .map(|(i, &b)| {
-            let k = b as usize * LEVELS_PER_BIN + level_of(radius(i), b as usize);
-            if dense[k] == u32::MAX {
-                let (b, l) = (k / LEVELS_PER_BIN, k % LEVELS_PER_BIN);
-                let r = lo[b] * ((l as f64 + 0.5) * step[b]).exp();
-                dense[k] = radius_c.len() as u32;
-                radius_c.push(r);
-                c_c.push(PI * r * r * q_mean[b]);
-                bin_c.push(b as u32);
-            }
-            dense[k]
-        })
+        .map(|(i, &b)| (b as usize * LEVELS_PER_BIN + level_of(radius(i), b as usize)) as u32)
         .collect();
+    for code in codes.iter_mut() {
+        let k = *code as usize;
+        if dense[k] == u32::MAX {
+            let (b, l) = (k / LEVELS_PER_BIN, k % LEVELS_PER_BIN);
+            let r = lo[b] * ((l as f64 + 0.5) * step[b]).exp();
+            dense[k] = radius_c.len() as u32;
+            radius_c.push(r);
+            c_c.push(PI * r * r * q_mean[b]);
+            bin_c.push(b as u32);
+        }
+        *code = dense[k];
+    }
     Ok(Classes {
         codes,
         radius: radius_c,

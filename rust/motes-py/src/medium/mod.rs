@@ -297,6 +297,36 @@ pub(crate) fn bounding_box(py: Python<'_>, points: F64In) -> PyResult<([f64; 3],
     Ok(py.detach(|| motes_core::space::grid::bounding_box(p)))
 }
 
+/// Each radius's optics bin among the increasing bin `edges` (numpy's
+/// `searchsorted(edges, radius, side="right") - 1`, clipped to the bins), as `lookup[bin]` where
+/// given; in parallel (`motes_core::render::storage::size_bins`).
+#[pyfunction]
+#[pyo3(signature = (radius, edges, lookup=None))]
+pub(crate) fn size_bins<'py>(
+    py: Python<'py>,
+    radius: F64In,
+    edges: F64In,
+    lookup: Option<PyReadonlyArray1<'_, u32>>,
+) -> PyResult<Bound<'py, numpy::PyArray1<u32>>> {
+    let (r, e) = (radius.as_slice()?, edges.as_slice()?);
+    let bins = e.len().saturating_sub(1).max(1);
+    let lookup = match &lookup {
+        Some(l) => {
+            let l = l.as_slice()?;
+            if l.len() < bins {
+                return Err(invalid("lookup", l.len(), format!("one per bin ({bins})")));
+            }
+            Some(l)
+        }
+        None => None,
+    };
+    if e.is_empty() {
+        return Err(invalid("edges", 0, "at least one edge".to_string()));
+    }
+    // Borrowed arrays, the GIL held (as `DiscreteMedium.__new__`): its rayon workers need none.
+    Ok(motes_core::render::storage::size_bins(r, e, lookup).into_pyarray(py))
+}
+
 /// The owner given with a native handle that is still held by a native plugin, or None (an unknown or
 /// released handle: nothing is dereferenced then).
 #[pyfunction]

@@ -6,7 +6,7 @@ use crate::error::{require, require_len, OpticsError};
 use crate::render::continuous::{Column, CLASS_FLAG, DEFAULT_CONTINUOUS_COUNT};
 use crate::render::procedural::{ProceduralSpec, DEFAULT_CACHE_BYTES};
 use crate::render::storage::Storage;
-use crate::space::grid::{check_particles, GridSettings, DEFAULT_CELLS_PER_PARTICLE};
+use crate::space::grid::{check_particles, first_where, GridSettings, DEFAULT_CELLS_PER_PARTICLE};
 
 /// The settings of [`DiscreteMedium::build`](super::DiscreteMedium::build) and
 /// [`DiscreteMedium::procedural`](super::DiscreteMedium::procedural) (module docs of
@@ -107,10 +107,16 @@ pub(super) fn check_build_inputs(
         "finite and > 0",
     )?;
     check_particles_and_settings(p.positions, p.radius, settings)?;
-    if let Some(&b) = p.bin.iter().find(|&&b| b as usize >= bins.len()) {
+    if let Some(b) =
+        first_where(n.min(p.bin.len()), |i| p.bin[i] as usize >= bins.len()).map(|i| p.bin[i])
+    {
         require("bin (index)", b as f64, false, "< number of bins")?;
     }
-    for i in 0..n {
+    let bad = |i: usize| {
+        let c = (p.c_ext)(i);
+        !(c.is_finite() && c >= 0.0)
+    };
+    if let Some(i) = first_where(n, bad) {
         let c = (p.c_ext)(i);
         require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
     }

@@ -36,6 +36,11 @@
 //!
 //! The grid box is the centres' bounding box grown by R_max.
 //!
+//! The build runs on every core (issue 43): the counting sorts count per thread and scatter side by
+//! side, each cell's sort by radius, the class codes and the slot blocks go chunk by chunk. It makes
+//! the same grid, bit for bit, on any number of threads (`tests::parallel_builds_equal_one_thread`,
+//! and `build::tests` against the one-thread loops it replaced).
+//!
 //! ## Quantised slots (compact storage, issue 24)
 //! A sparse class's overlap slots copy each ball into every cell it overlaps (24 bytes a slot: the
 //! sphere in f32, τ and the particle's index). With [`GridSettings::quantise`] a slot is 8 bytes: the
@@ -78,7 +83,7 @@ pub use settings::{
     bounding_box, check_cross_sections, check_particles, GridSettings, DEFAULT_CELLS_PER_PARTICLE,
     FREE_PATHS_PER_CELL,
 };
-pub(crate) use settings::{size_class, SIZE_CLASSES};
+pub(crate) use settings::{first_where, size_class, SIZE_CLASSES};
 pub use subgrid::SubGrid;
 // The crate's paths for these (outside this folder only tests name them today).
 #[allow(unused_imports)]
@@ -218,11 +223,12 @@ impl ParticleGrid {
             .into_par_iter()
             .map(|j| query_radius + (p.radius)(p.id(j)))
             .reduce(|| 0.0, f64::max);
-        let mut members: Vec<Vec<u32>> = vec![Vec::new(); SIZE_CLASSES];
-        for j in 0..n {
-            let i = p.id(j) as u32;
-            members[size_class(reach_max, reach_of(&i))].push(i);
-        }
+        let members = build::buckets(
+            n,
+            SIZE_CLASSES,
+            |j| size_class(reach_max, reach_of(&(p.id(j) as u32))),
+            |j| p.id(j) as u32,
+        );
         // Volume the centres occupy, shared by the classes as the density reference.
         let volume = occupied_volume_by(n, |j| p.positions[p.id(j)]);
         let members = merge_sparse_classes(members, reach_of, volume, cells_per_particle);

@@ -4,6 +4,7 @@
 use super::Particles;
 use crate::error::{require, require_len, OpticsError};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Axis-aligned bounding box of the centres (in parallel: 10^8 centres are 2.4 GB to read).
 pub fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
@@ -36,6 +37,15 @@ pub(super) fn bounding_box_by(
                 [0, 1, 2].map(|a| x.1[a].max(y.1[a])),
             )
         })
+}
+
+/// The first index of `0..n` where `bad` holds: chunks scanned in order, side by side.
+pub(crate) fn first_where(n: usize, bad: impl Fn(usize) -> bool + Sync) -> Option<usize> {
+    const CHUNK: usize = 1 << 16;
+    (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .filter_map(|c| (c * CHUNK..((c + 1) * CHUNK).min(n)).find(|&i| bad(i)))
+        .min()
 }
 
 /// Margin by which the grid box and a particle's referencing range grow beyond R_max (relative, then
@@ -176,7 +186,7 @@ pub(super) fn is_sparse(reach_max: f64, spacing: f64) -> bool {
 /// The set of particles a ray meets is the same either way.
 pub(super) fn merge_sparse_classes(
     members: Vec<Vec<u32>>,
-    reach_of: impl Fn(&u32) -> f64,
+    reach_of: impl Fn(&u32) -> f64 + Sync,
     volume: f64,
     cells_per_particle: f64,
 ) -> Vec<Vec<u32>> {
@@ -185,7 +195,7 @@ pub(super) fn merge_sparse_classes(
     };
     let mut out: Vec<(Vec<u32>, f64)> = Vec::new();
     for ids in members.into_iter().filter(|m| !m.is_empty()) {
-        let reach_max = ids.iter().map(&reach_of).fold(0.0, f64::max);
+        let reach_max = ids.par_iter().map(&reach_of).reduce(|| 0.0, f64::max);
         match out.last_mut() {
             // Classes come largest first: the group keeps its first class's largest reach.
             // (sparse for more particles implies sparse for fewer: a dense group stays apart)
@@ -214,13 +224,20 @@ pub(super) fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync
         if n_cells as f64 > 8.0 * MAX_CELLS {
             break;
         }
-        let mut occupied = vec![0u64; n_cells.div_ceil(64)];
-        for p in (0..n).map(&at) {
+        // Marked in parallel (the same bits in any order).
+        let occupied: Vec<AtomicU64> = (0..n_cells.div_ceil(64))
+            .map(|_| AtomicU64::new(0))
+            .collect();
+        (0..n).into_par_iter().for_each(|j| {
+            let p = at(j);
             let c = [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1));
             let i = (c[2] * dims[1] + c[1]) * dims[0] + c[0];
-            occupied[i / 64] |= 1 << (i % 64);
-        }
-        let count: u64 = occupied.iter().map(|w| w.count_ones() as u64).sum();
+            occupied[i / 64].fetch_or(1 << (i % 64), Ordering::Relaxed);
+        });
+        let count: u64 = occupied
+            .iter()
+            .map(|w| w.load(Ordering::Relaxed).count_ones() as u64)
+            .sum();
         let v = (count as f64 * cell.powi(3)).min(volume);
         // Mostly occupied (a box-shaped cloud): the box it is.
         if v >= 0.9 * volume {
@@ -259,7 +276,12 @@ pub fn check_particles(
         cells_per_particle.is_finite() && cells_per_particle > 0.0,
         "finite and > 0",
     )?;
-    for (i, p) in positions.iter().enumerate() {
+    // The first particle that fails either check (found in parallel), checked as in order.
+    let bad = |i: usize| {
+        !positions[i].iter().all(|x| x.is_finite()) || !(radius[i].is_finite() && radius[i] > 0.0)
+    };
+    if let Some(i) = first_where(n, bad) {
+        let p = &positions[i];
         require(
             "positions (index of the first non-finite particle)",
             i as f64,

@@ -2,6 +2,7 @@
 //! ([`Block`]), quantised slots ([`QBlock`]) and the ray as the pre-test sees it ([`RayFrame`]).
 
 use crate::space::ray::RaySegment;
+use rayon::prelude::*;
 
 /// Relative slack of the single-precision pre-test against the exact (f64) inclusion test, in units of
 /// the coordinates' scale (|o| + the grid box's largest |coordinate|): f32 keeps ~6e-8 of that per
@@ -68,13 +69,15 @@ pub(super) struct Block {
 pub(super) struct Spheres(pub(super) Vec<Block>);
 
 impl Spheres {
-    pub(super) fn from_iter(n: usize, sphere: impl Fn(usize) -> [f32; 4]) -> Self {
+    /// The spheres `sphere(0..n)`, blocks filled in parallel.
+    pub(super) fn from_iter(n: usize, sphere: impl Fn(usize) -> [f32; 4] + Sync) -> Self {
         let mut b = vec![Block::default(); n.div_ceil(LANES)];
-        for s in 0..n {
-            let [x, y, z, r] = sphere(s);
-            let (blk, l) = (&mut b[s / LANES], s % LANES);
-            (blk.x[l], blk.y[l], blk.z[l], blk.r[l]) = (x, y, z, r);
-        }
+        b.par_iter_mut().enumerate().for_each(|(k, blk)| {
+            for l in 0..LANES.min(n - k * LANES) {
+                let [x, y, z, r] = sphere(k * LANES + l);
+                (blk.x[l], blk.y[l], blk.z[l], blk.r[l]) = (x, y, z, r);
+            }
+        });
         Spheres(b)
     }
     #[inline]

@@ -661,3 +661,128 @@ fn quantised_slots_stay_on_their_particles() {
         assert_queries_match_brute(&g, ray, 0.0);
     }
 }
+
+/// Every stored bit of a grid's classes (each list behind its length), to compare two builds.
+fn fingerprint(g: &ParticleGrid) -> Vec<u64> {
+    let mut v = vec![g.classes.len() as u64, g.n as u64, g.channels as u64];
+    let f32s = |v: &mut Vec<u64>, x: &[f32]| {
+        v.push(x.len() as u64);
+        v.extend(x.iter().map(|a| a.to_bits() as u64));
+    };
+    let u32s = |v: &mut Vec<u64>, x: &[u32]| {
+        v.push(x.len() as u64);
+        v.extend(x.iter().map(|&a| a as u64));
+    };
+    for c in &g.classes {
+        for spheres in [&c.particles, &c.inline] {
+            v.push(spheres.0.len() as u64);
+            for b in &spheres.0 {
+                for x in [&b.x, &b.y, &b.z, &b.r] {
+                    f32s(&mut v, x);
+                }
+            }
+        }
+        f32s(&mut v, &c.tau);
+        u32s(&mut v, &c.index);
+        u32s(&mut v, &c.start);
+        f32s(&mut v, &c.slot_tau);
+        u32s(&mut v, &c.slot_index);
+        match &c.quant {
+            Some(q) => {
+                v.push(q.blocks.len() as u64);
+                for b in &q.blocks {
+                    for x in [&b.x, &b.y, &b.z, &b.code] {
+                        v.extend(x.iter().map(|&a| a as u64));
+                    }
+                }
+                f32s(&mut v, &q.block_reach);
+                f32s(&mut v, &q.reach);
+                f32s(&mut v, &q.tau);
+                v.push(q.step.to_bits());
+            }
+            None => v.push(u64::MAX),
+        }
+        let f = &c.frame;
+        v.extend(
+            f.bounds
+                .lo
+                .iter()
+                .chain(&f.bounds.hi)
+                .chain(&f.cell)
+                .map(|x| x.to_bits()),
+        );
+        v.extend(f.dims.iter().map(|&d| d as u64));
+        v.extend([
+            c.channels as u64,
+            c.reach_max.to_bits(),
+            c.k as u64,
+            c.prefetch_slots as u64,
+            c.count as u64,
+            c.first_id as u64,
+        ]);
+    }
+    v
+}
+
+/// A grid built on one thread and on several is the same grid, bit for bit (cells, the particles'
+/// order within them, slots, codes, positional order): random clouds of several size classes in
+/// every layout (centre cells and overlap slots, quantised or spheres), every grain in one cell, one
+/// grain, and grains on cell faces (a lattice of the cells' own spacing).
+#[test]
+fn parallel_builds_equal_one_thread() {
+    let mut s = 23u64;
+    let n = 150_000;
+    let (random, rad) = random_particles(&mut s, n, 0.0005, 0.004);
+    let one_cell = vec![[0.25, 0.5, 0.75]; 100_000];
+    let faces: Vec<[f64; 3]> = (0..80_000)
+        .map(|i| {
+            [
+                (i % 40) as f64 * 0.025,
+                ((i / 40) % 40) as f64 * 0.025,
+                (i / 1600) as f64 * 0.02,
+            ]
+        })
+        .collect();
+    // Radii with many ties (a few values), as compact storage's classes make them.
+    let tied: Vec<f64> = (0..n).map(|i| 0.0005 * (1 + i % 7) as f64).collect();
+    let clouds: Vec<(&[[f64; 3]], &[f64])> = vec![
+        (&random, &rad),
+        (&random, &tied),
+        (&one_cell, &tied[..100_000]),
+        (&faces, &tied[..80_000]),
+        (&random[..1], &rad[..1]),
+    ];
+    for (pos, r) in clouds {
+        let cext: Vec<f64> = r.iter().map(|r| 2.0 * PI * r * r).collect();
+        for (quantise, centred) in [(true, true), (true, false), (false, false), (false, true)] {
+            let settings = GridSettings::new(0.001, DEFAULT_CELLS_PER_PARTICLE)
+                .quantised(quantise)
+                .centred(centred)
+                .by_free_path(true);
+            let build = || {
+                let g = ParticleGrid::build(pos, r, &cext, 1, &settings).unwrap();
+                let (p, order) = ParticleGrid::build(pos, r, &cext, 1, &settings)
+                    .unwrap()
+                    .positional();
+                (fingerprint(&g), fingerprint(&p), order)
+            };
+            let one = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap()
+                .install(build);
+            for threads in [2, 4] {
+                let many = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(build);
+                assert!(
+                    one == many,
+                    "{} grains, quantise {quantise}, centred {centred}, {threads} threads",
+                    pos.len()
+                );
+            }
+        }
+    }
+}
