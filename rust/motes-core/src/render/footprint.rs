@@ -508,6 +508,12 @@ impl SurfaceFootprint {
         Some(rule)
     }
 
+    /// The expected number of grains in the discrete classes over the box.
+    pub fn discrete_count(&self) -> f64 {
+        let e = [0, 1, 2].map(|a| (self.bounds.hi[a] - self.bounds.lo[a]).max(0.0));
+        self.classes.iter().map(|c| c.density).sum::<f64>() * e[0] * e[1] * e[2]
+    }
+
     /// Does a window of the cone pass: an effective count of at least `min_count`, at least twice
     /// what the disks alone hold (module docs)? Monotone in ρ and, at constant ρ, in the window's
     /// length, as the early rejection needs.

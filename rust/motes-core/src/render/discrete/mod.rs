@@ -147,6 +147,11 @@ impl BinOptics {
 /// τ_i ≤ 1, i.e. a ray through it interacts with probability at most 1 − e^{−1} = 63 %.
 pub const DEFAULT_TAU_MAX: f64 = 1.0;
 
+/// Discrete grains (expected, in the footprint rule's classes) from which rays leaving a path's
+/// `grain_depth`-th event see the grains' continuous equivalent whatever their footprint
+/// (`flight.rs`, `event_field`).
+pub const EVENT_FIELD_MIN_GRAINS: f64 = 1e5;
+
 /// Default grain depth (`DiscreteMedium::set_grain_depth`): rays leaving a path's first scattering
 /// event or a later one see the grains' continuous equivalent.
 pub const DEFAULT_GRAIN_DEPTH: u32 = 1;

@@ -209,9 +209,9 @@ impl DiscreteMedium {
         // The map is the record for rays that skip the event's particles (they walk the grains from
         // it); the path's own next calls find the event beside the lane. Rays from an event that see
         // the grains' continuous equivalent skip nothing: the lane's copy is all they need (no insert
-        // per event). Where grains are stored, a ray from it may walk them (`event_field`: a footprint
+        // per event). In a sparse cloud a ray from it may walk the grains (`event_field`: a footprint
         // that holds few of them).
-        if self.grains_field_from(e).is_none() || self.grid.is_some() {
+        if self.grains_field_from(e).is_none() || self.event_rays_may_walk() {
             events.insert(*k, *e);
         }
     }
