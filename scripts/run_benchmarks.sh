@@ -163,6 +163,13 @@ run bench_cluster           $PY $B/bench_cluster.py
 # --- A drop-in medium (issue 43) -----------------------------------------------------------------------
 run dropin                  $PY $B/bench_dropin.py
 run dropin_rotated          $PY $B/bench_dropin.py --rotated-study --spp 256
+run dropin_heterogeneous    $PY $B/bench_dropin.py --heterogeneous
+run dropin_heterogeneous_llvm $PY $B/bench_dropin.py --heterogeneous --variant llvm_ad_rgb
+run lod_sidelit             $PY $B/bench_lod.py --scenes sidelit,sidelit3mm --configs default,exact
+run lod_shipped             $PY $B/bench_lod.py --scenes cornell,lamp,dust_box,footprint,bench,house,limit,staircase --configs default,exact
+run lod_clouds              $PY $B/bench_lod.py --scenes sidelit-h5 --variants scalar_rgb --clouds 16 --res 24 --spp 64 --seeds 4
+run camera_lod              $PY $B/bench_camera_lod.py --off
+run load_1e8                $PY $B/bench_load.py --count 1e8 --configs gen-discrete-compact,npz-discrete-compact
 
 # --- Code structure (issues 12, 42) ---------------------------------------------------------------------
 run function_lengths        python3 scripts/function_lengths.py   # exits 1 while a function is over 80 lines

@@ -153,7 +153,8 @@ CASES = [
          {"sigma_t": 1.0}, medium_type="homogeneous"),
     # Warnings.
     Case("query_radius_as_large_as_box", "query_radius = 1.5 on particles filling [-1, 1]^3", "warning",
-         ["comparable to the particles' extent"], call=lambda: _load(query_radius=1.5)),
+         ["comparable to the particles' extent"],
+         call=lambda: _load(query_radius=1.5, to_world=__import__("mitsuba").ScalarTransform4f())),
     Case("prbvolpath", "rendering a discrete medium with prbvolpath", "warning", ["prbvolpath", "volpath"],
          call=lambda: _render_with("prbvolpath")),
     # The Python API.

@@ -8,6 +8,7 @@ warm-up render of the same scene, which compiles the kernels in LLVM variants).
 
     .venv/bin/python scripts/bench/bench_dropin.py [--variant scalar_rgb] [--res 32] [--spp 64] [--scenes shared,rotated,ball]
     .venv/bin/python scripts/bench/bench_dropin.py --rotated-study [--spp 256]
+    .venv/bin/python scripts/bench/bench_dropin.py --heterogeneous [--variant llvm_ad_rgb]
 
 A benchmark for later: the defaults (32 px, 64 spp) take seconds; the grey scenes' ratios are the test's check
 (within 5 %), the coloured ball's is what its grey extinction (the mean of sigma_t over the channels) makes of it.
@@ -16,7 +17,8 @@ without forward-peak truncation: how much too little extinction sigma_t would ma
 ``--rotated-study``: the rotated crate (discrete over homogeneous) with the grains of the test (scale_m = 1 cm,
 8e5 grains), with the default scale_m (1 mm, 8e3 grains), the same with continuous_count = inf (every grain
 walked), and the crate unrotated: the grains' continuous equivalent (cells aligned with the scene) over a tilted
-face (docs/rendering.md, "From a homogeneous medium").
+face (docs/rendering.md, "From a homogeneous medium"). ``--heterogeneous``: tests/test_dropin.py's puff, a
+``gridvolume`` sigma_t rendered ``heterogeneous`` and turned ``discrete`` (isotropic phase on both).
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ def main() -> None:
     ap.add_argument("--scenes", default="shared,rotated,ball")
     ap.add_argument("--rotated-study", action="store_true", help="the rotated crate's grain count and continuous "
                     "equivalent (module docs)")
+    ap.add_argument("--heterogeneous", action="store_true", help="a gridvolume puff (heterogeneous) turned discrete "
+                    "(module docs)")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
@@ -50,6 +54,9 @@ def main() -> None:
 
     if args.rotated_study:
         rotated_study(mi, T, args, variant)
+        return
+    if args.heterogeneous:
+        heterogeneous(mi, T, variant)
         return
     from motes.discrete import mean_extinction_um2  # noqa: PLC0415
     from motes.ensemble import RGB_WAVELENGTHS_UM  # noqa: PLC0415
@@ -90,6 +97,24 @@ def main() -> None:
         r = "" if ratio is None else ", ".join(f"{v:.4f}" for v in ratio)
         note = f"  ({row[6]})" if len(row) > 6 else ""
         print(f"{name:<8} {kind:<12} {mean[0]:8.5f} {mean[1]:8.5f} {mean[2]:8.5f}   {r:<22} {t_load:7.2f} {t_render:8.2f}{note}")
+
+
+def heterogeneous(mi, T, variant, seeds: int = 8) -> None:
+    """test_dropin's puff: a gridvolume sigma_t (8x5x6 Gaussian, scale 30, isotropic phase, sun and sky) rendered
+    ``heterogeneous`` and turned ``discrete``: image means over ``seeds`` renders (16 px, 64 spp) and their ratio."""
+    import tempfile  # noqa: PLC0415
+
+    with tempfile.TemporaryDirectory() as folder:
+        vol = T._smoke_vol(pathlib.Path(folder) / "puff.vol")
+        means = {}
+        for kind in ("heterogeneous", "discrete"):
+            scene = T._heterogeneous(kind, vol)
+            m = [float(np.asarray(mi.render(scene, spp=64, seed=s), dtype=np.float64)[..., :3].mean())
+                 for s in range(seeds)]
+            means[kind] = (np.mean(m), np.std(m, ddof=1) / np.sqrt(seeds))
+            print(f"{kind:<14} mean {means[kind][0]:.5f} +- {means[kind][1]:.5f}", flush=True)
+    (a, sa), (b, sb) = means["heterogeneous"], means["discrete"]
+    print(f"{variant}: discrete / heterogeneous {b / a:.4f} (z {(b - a) / np.hypot(sa, sb):+.1f})")
 
 
 def rotated_study(mi, T, args, variant) -> None:
