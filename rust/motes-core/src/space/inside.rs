@@ -148,72 +148,97 @@ fn edge_counts(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> (usize, bool) {
     (odd, oriented)
 }
 
+/// The checks of a mesh: a triangle at least, vertex indices in range, finite vertices.
+fn check_mesh(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Result<(), OpticsError> {
+    require(
+        "faces",
+        faces.len() as f64,
+        !faces.is_empty(),
+        "at least one triangle",
+    )?;
+    let nv = vertices.len();
+    for f in faces {
+        for &i in f {
+            require(
+                "faces",
+                i as f64,
+                (i as usize) < nv,
+                "vertex indices below the number of vertices",
+            )?;
+        }
+    }
+    for v in vertices {
+        require(
+            "vertices",
+            v.iter().map(|x| x.abs()).fold(0.0, f64::max),
+            v.iter().all(|x| x.is_finite()),
+            "finite",
+        )?;
+    }
+    Ok(())
+}
+
+/// The bounding box of triangles.
+fn bounds_of(tris: &[[[f64; 3]; 3]]) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for t in tris {
+        for v in t {
+            for a in 0..3 {
+                lo[a] = lo[a].min(v[a]);
+                hi[a] = hi[a].max(v[a]);
+            }
+        }
+    }
+    (lo, hi)
+}
+
+/// The 2D grid over the box's (y, z) extent: about one cell per triangle (cells per axis, cell sizes).
+fn projected_grid(lo: [f64; 3], hi: [f64; 3], triangles: usize) -> ([usize; 2], [f64; 2]) {
+    let ext = [hi[1] - lo[1], hi[2] - lo[2]];
+    let t = triangles as f64;
+    let n = if ext[0] > 0.0 && ext[1] > 0.0 {
+        let h = (ext[0] * ext[1] / t).sqrt();
+        [
+            ((ext[0] / h).ceil() as usize).clamp(1, 4096),
+            ((ext[1] / h).ceil() as usize).clamp(1, 4096),
+        ]
+    } else {
+        [1, 1]
+    };
+    let cell = [0, 1].map(|a| {
+        if ext[a] > 0.0 {
+            ext[a] / n[a] as f64
+        } else {
+            1.0
+        }
+    });
+    (n, cell)
+}
+
+/// The volume a closed mesh encloses, signed by its orientation (the divergence theorem: the sum of
+/// the tetrahedra from the origin).
+fn signed_volume(tris: &[[[f64; 3]; 3]]) -> f64 {
+    tris.iter()
+        .map(|t| {
+            let (a, b, c) = (t[0], t[1], t[2]);
+            a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                + a[2] * (b[0] * c[1] - b[1] * c[0])
+        })
+        .sum::<f64>()
+        / 6.0
+}
+
 impl Mesh {
     /// A mesh of `faces` (vertex indices) over `vertices` (world space). Errors: an index out of range,
     /// a vertex not finite, no face.
     pub fn new(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Result<Self, OpticsError> {
-        require(
-            "faces",
-            faces.len() as f64,
-            !faces.is_empty(),
-            "at least one triangle",
-        )?;
-        let nv = vertices.len();
-        for f in faces {
-            for &i in f {
-                require(
-                    "faces",
-                    i as f64,
-                    (i as usize) < nv,
-                    "vertex indices below the number of vertices",
-                )?;
-            }
-        }
-        for v in vertices {
-            require(
-                "vertices",
-                v.iter().map(|x| x.abs()).fold(0.0, f64::max),
-                v.iter().all(|x| x.is_finite()),
-                "finite",
-            )?;
-        }
+        check_mesh(vertices, faces)?;
         let tris: Vec<[[f64; 3]; 3]> = faces
             .iter()
             .map(|f| f.map(|i| vertices[i as usize]))
             .collect();
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for t in &tris {
-            for v in t {
-                for a in 0..3 {
-                    lo[a] = lo[a].min(v[a]);
-                    hi[a] = hi[a].max(v[a]);
-                }
-            }
-        }
-        // About one cell per triangle over the (y, z) box.
-        let ext = [hi[1] - lo[1], hi[2] - lo[2]];
-        let t = tris.len() as f64;
-        let n = if ext[0] > 0.0 && ext[1] > 0.0 {
-            let h = (ext[0] * ext[1] / t).sqrt();
-            [
-                ((ext[0] / h).ceil() as usize).clamp(1, 4096),
-                ((ext[1] / h).ceil() as usize).clamp(1, 4096),
-            ]
-        } else {
-            [1, 1]
-        };
-        let cell = [
-            if ext[0] > 0.0 {
-                ext[0] / n[0] as f64
-            } else {
-                1.0
-            },
-            if ext[1] > 0.0 {
-                ext[1] / n[1] as f64
-            } else {
-                1.0
-            },
-        ];
+        let (lo, hi) = bounds_of(&tris);
+        let (n, cell) = projected_grid(lo, hi, tris.len());
         let mut mesh = Mesh {
             tris,
             lo,
@@ -225,7 +250,17 @@ impl Mesh {
             signed_volume: 0.0,
             oriented: false,
         };
-        let ranges: Vec<[usize; 4]> = mesh
+        (mesh.start, mesh.items) = mesh.bin_triangles();
+        mesh.signed_volume = signed_volume(&mesh.tris);
+        mesh.oriented = edge_counts(vertices, faces).1;
+        Ok(mesh)
+    }
+
+    /// Each grid cell's triangles (those whose projected box overlaps it): per-cell starts (a prefix
+    /// sum of the counts) and the triangle indices in cell order.
+    fn bin_triangles(&self) -> (Vec<u32>, Vec<u32>) {
+        let n = self.n;
+        let ranges: Vec<[usize; 4]> = self
             .tris
             .iter()
             .map(|t| {
@@ -237,8 +272,8 @@ impl Mesh {
                     t.iter().map(|v| v[2]).fold(f64::INFINITY, f64::min),
                     t.iter().map(|v| v[2]).fold(f64::NEG_INFINITY, f64::max),
                 );
-                let (a0, b0) = mesh.cell_of(y0, z0);
-                let (a1, b1) = mesh.cell_of(y1, z1);
+                let (a0, b0) = self.cell_of(y0, z0);
+                let (a1, b1) = self.cell_of(y1, z1);
                 [a0, a1, b0, b1]
             })
             .collect();
@@ -265,20 +300,7 @@ impl Mesh {
                 }
             }
         }
-        mesh.start = count;
-        mesh.items = items;
-        mesh.signed_volume = mesh
-            .tris
-            .iter()
-            .map(|t| {
-                let (a, b, c) = (t[0], t[1], t[2]);
-                a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-                    + a[2] * (b[0] * c[1] - b[1] * c[0])
-            })
-            .sum::<f64>()
-            / 6.0;
-        mesh.oriented = edge_counts(vertices, faces).1;
-        Ok(mesh)
+        (count, items)
     }
 
     /// The grid cell of the projected point (y, z), clamped to the grid (the same formula for a

@@ -256,9 +256,20 @@ pub(super) fn inline_slots(
         });
     let (refs_start, slot_order) = counting_sort(&ref_cell, n_cells);
     drop(ref_cell);
-    // Each cell's run padded to whole blocks, so that a step tests whole blocks of its own
-    // (no lane masks, and a cell of eight never straddles two blocks). Padding lanes have NaN
-    // centres: every comparison with them is false, so they contribute to no ray.
+    padded_slots(&refs_start, &slot_order, &ref_particle, n_cells)
+}
+
+/// Each cell's run of (cell, particle) references (`refs_start`, `slot_order` into `ref_particle`)
+/// padded to whole blocks, so that a step tests whole blocks of its own (no lane masks, and a cell of
+/// eight never straddles two blocks). Padding lanes have NaN centres: every comparison with them is
+/// false, so they contribute to no ray. Returns each cell's first slot (and the end) and the slots'
+/// particles.
+fn padded_slots(
+    refs_start: &[u32],
+    slot_order: &[u32],
+    ref_particle: &[u32],
+    n_cells: usize,
+) -> (Vec<u32>, Vec<u32>) {
     let mut start = vec![0u32; n_cells + 1];
     for c in 0..n_cells {
         let len = refs_start[c + 1] - refs_start[c];
