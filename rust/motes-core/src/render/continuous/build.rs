@@ -79,7 +79,9 @@ impl ContinuousField {
         let (start, order) = counting_sort_by(&which, n_cells, |j| id(j) as u32);
         drop(which);
         let cell_volume = cell[0] * cell[1] * cell[2];
-        let (sigma, cdf) = cell_shares(&order, &start, weight, cell_volume);
+        // Each particle's extinction as rays inside the box meet it (`inside_share`).
+        let inside = |i: usize| weight(i) * inside_share(positions[i], reach(i), lo, hi);
+        let (sigma, cdf) = cell_shares(&order, &start, &inside, cell_volume);
         let (members, cdf) = match classes {
             None => (Members::Ids(order), cdf),
             Some(c) if c.iter().all(|&k| k <= u16::MAX as u32) => {
@@ -272,6 +274,30 @@ fn field_box(
         hi[a] += pad;
     }
     (lo, hi)
+}
+
+/// The share of a particle's extinction that rays inside the box [lo, hi] meet, the mean over ray
+/// directions. A grain walked one by one removes C_t,i from a beam over its disk of radius R (`reach`)
+/// perpendicular to the ray (`discrete` docs); where the disk reaches past a face of the box that holds
+/// the grains, the part beyond falls on rays outside it, which a medium held by that box never carries
+/// (a query radius of 3 mm over a 20 mm cube: 16 % of the grains' extinction; issue 43). A point
+/// spread uniformly over a disk of random orientation has a component along the face normal u R with
+/// u = ρ c, ρ of density 2ρ on [0, 1] and c uniform on [−1, 1], so the share of the disk beyond a
+/// face at distance d = u R from the centre is P(ρ c > u) = (1 − u)² / 2. The field keeps C_t,i
+/// times 1 − Σ_faces (1 − d / R)₊² / 2: its cells, which fill only the box, then remove what the
+/// grains remove from rays inside it (over a face the mean of R / 6 per unit area of face).
+pub(super) fn inside_share(p: [f64; 3], reach: f64, lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    if reach.is_nan() || reach <= 0.0 {
+        return 1.0;
+    }
+    let beyond = |d: f64| {
+        let u = (1.0 - d / reach).clamp(0.0, 1.0);
+        0.5 * u * u
+    };
+    let out: f64 = (0..3)
+        .map(|a| beyond(p[a] - lo[a]) + beyond(hi[a] - p[a]))
+        .sum();
+    (1.0 - out).max(0.0)
 }
 
 /// σ_t of each cell (its particles' summed `weight` over `cell_volume`) and each particle's running

@@ -9,7 +9,10 @@
 //! the cell's volume — and samples free flights through it exactly (piecewise-constant σ_t along a
 //! 3D-DDA: one exponential per cell crossed). What is lost is the fluctuation of the staircase around
 //! its mean, relative size 1/√N for N particles per cylinder: the grain texture that no pixel
-//! resolves when N is large. [`resolvable`] decides which classes keep it.
+//! resolves when N is large. [`resolvable`] decides which classes keep it. The cells fill only the
+//! particles' box, so each particle counts there with the share of its disk (radius R across a ray) that
+//! lies inside the box, 1 − Σ_faces (1 − d / R)₊² / 2 over random directions (`build::inside_share`):
+//! the rest of the disk falls on rays outside the box, which the grains never reach (issue 43).
 //!
 //! The discrete classes and this field are two independent processes along the ray, so the first
 //! interaction is the nearer of their two sampled distances (`discrete.rs` samples the field first

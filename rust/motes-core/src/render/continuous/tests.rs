@@ -387,3 +387,46 @@ fn picks_of_distinct_classes_match_the_list() {
 /// one ray at a time (the tests check that they are exercised).
 pub(super) static CONTINUED: std::sync::atomic::AtomicUsize =
     std::sync::atomic::AtomicUsize::new(0);
+
+/// `inside_share`: a grain's disk of radius R across a ray in a random direction lies beyond a face at
+/// distance u R from its centre by (1 − u)² / 2 of its area (Monte Carlo over directions and points of the
+/// disk), and a grain far from every face keeps all of its extinction.
+#[test]
+fn inside_share_is_the_disk_within_the_box() {
+    let mut s = 43u64;
+    let samples = 200_000;
+    for u in [0.0, 0.3, 0.7] {
+        let mut beyond = 0usize;
+        for _ in 0..samples {
+            // A direction uniform on the sphere, then a point uniform on the unit disk across it.
+            let z = 2.0 * lcg(&mut s) - 1.0;
+            let phi = 2.0 * std::f64::consts::PI * lcg(&mut s);
+            let w = [
+                (1.0 - z * z).sqrt() * phi.cos(),
+                (1.0 - z * z).sqrt() * phi.sin(),
+                z,
+            ];
+            let a = if w[0].abs() < 0.9 {
+                [1.0, 0.0, 0.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            let e1 = vec3::normalise(vec3::cross(w, a)).unwrap();
+            let e2 = vec3::cross(w, e1);
+            let (rho, psi) = (lcg(&mut s).sqrt(), 2.0 * std::f64::consts::PI * lcg(&mut s));
+            let x = rho * (psi.cos() * e1[0] + psi.sin() * e2[0]);
+            beyond += (x > u) as usize;
+        }
+        let share = super::build::inside_share([u, 5.0, 5.0], 1.0, [0.0; 3], [10.0; 3]);
+        let mc = beyond as f64 / samples as f64;
+        assert!(
+            (1.0 - share - mc).abs() < 0.004,
+            "u {u}: {} vs {mc}",
+            1.0 - share
+        );
+    }
+    assert_eq!(
+        super::build::inside_share([5.0; 3], 1.0, [0.0; 3], [10.0; 3]),
+        1.0
+    );
+}
