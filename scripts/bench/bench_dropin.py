@@ -18,7 +18,8 @@ without forward-peak truncation: how much too little extinction sigma_t would ma
 8e5 grains), with the default scale_m (1 mm, 8e3 grains), the same with continuous_count = inf (every grain
 walked), and the crate unrotated: the grains' continuous equivalent (cells aligned with the scene) over a tilted
 face (docs/rendering.md, "From a homogeneous medium"). ``--heterogeneous``: tests/test_dropin.py's puff, a
-``gridvolume`` sigma_t rendered ``heterogeneous`` and turned ``discrete`` (isotropic phase on both).
+``gridvolume`` sigma_t rendered ``heterogeneous`` and turned ``discrete`` (isotropic phase on both), by default and
+exact (``continuous_count`` = inf).
 """
 
 from __future__ import annotations
@@ -107,14 +108,16 @@ def heterogeneous(mi, T, variant, seeds: int = 8) -> None:
     with tempfile.TemporaryDirectory() as folder:
         vol = T._smoke_vol(pathlib.Path(folder) / "puff.vol")
         means = {}
-        for kind in ("heterogeneous", "discrete"):
-            scene = T._heterogeneous(kind, vol)
+        for kind, extra in (("heterogeneous", {}), ("discrete", {}), ("discrete exact", {"continuous_count": np.inf})):
+            scene = T._heterogeneous(kind.split()[0], vol, **extra)
             m = [float(np.asarray(mi.render(scene, spp=64, seed=s), dtype=np.float64)[..., :3].mean())
                  for s in range(seeds)]
             means[kind] = (np.mean(m), np.std(m, ddof=1) / np.sqrt(seeds))
             print(f"{kind:<14} mean {means[kind][0]:.5f} +- {means[kind][1]:.5f}", flush=True)
-    (a, sa), (b, sb) = means["heterogeneous"], means["discrete"]
-    print(f"{variant}: discrete / heterogeneous {b / a:.4f} (z {(b - a) / np.hypot(sa, sb):+.1f})")
+    (a, sa) = means["heterogeneous"]
+    for kind in ("discrete", "discrete exact"):
+        b, sb = means[kind]
+        print(f"{variant}: {kind} / heterogeneous {b / a:.4f} (z {(b - a) / np.hypot(sa, sb):+.1f})")
 
 
 def rotated_study(mi, T, args, variant) -> None:
