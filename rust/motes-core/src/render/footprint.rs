@@ -465,6 +465,8 @@ pub struct SurfaceFootprint {
     /// diagonal or a mean free path): rays whose footprint bound stays below it are turned away
     /// before any other work (sparse grains: nearly every ray).
     least_radius: f64,
+    /// The expected number of grains in the discrete classes over the box (read per event ray).
+    discrete_count: f64,
 }
 
 impl SurfaceFootprint {
@@ -481,12 +483,15 @@ impl SurfaceFootprint {
         if !(min_count.is_finite() && !classes.is_empty()) {
             return None;
         }
+        let e = [0, 1, 2].map(|a| (bounds.hi[a] - bounds.lo[a]).max(0.0));
+        let discrete_count = classes.iter().map(|c| c.density).sum::<f64>() * e[0] * e[1] * e[2];
         let mut rule = SurfaceFootprint {
             classes,
             bounds,
             length,
             min_count,
             least_radius: 0.0,
+            discrete_count,
         };
         // The effective count grows with the radius: bisect for where it reaches min_count.
         let e = [0, 1, 2].map(|a| (bounds.hi[a] - bounds.lo[a]).max(0.0));
@@ -510,8 +515,7 @@ impl SurfaceFootprint {
 
     /// The expected number of grains in the discrete classes over the box.
     pub fn discrete_count(&self) -> f64 {
-        let e = [0, 1, 2].map(|a| (self.bounds.hi[a] - self.bounds.lo[a]).max(0.0));
-        self.classes.iter().map(|c| c.density).sum::<f64>() * e[0] * e[1] * e[2]
+        self.discrete_count
     }
 
     /// Does a window of the cone pass: an effective count of at least `min_count`, at least twice

@@ -26,6 +26,7 @@
 use crate::error::{require, OpticsError};
 use crate::rng::{stream_bits, stream_key, unit_f64};
 use crate::space::cloud::{apply, det3, invert_affine};
+use crate::space::grid::counting_sort_by;
 use rayon::prelude::*;
 
 /// The stream of [`Holders::fill`]'s candidates under a seed ("FILL" in ASCII).
@@ -277,30 +278,19 @@ impl Mesh {
                 [a0, a1, b0, b1]
             })
             .collect();
-        let cells = n[0] * n[1];
-        let mut count = vec![0u32; cells + 1];
-        for r in &ranges {
-            for a in r[0]..=r[1] {
-                for b in r[2]..=r[3] {
-                    count[a * n[1] + b + 1] += 1;
-                }
-            }
-        }
-        for i in 0..cells {
-            count[i + 1] += count[i];
-        }
-        let mut fill = count.clone();
-        let mut items = vec![0u32; count[cells] as usize];
+        // One (cell, triangle) reference per cell a triangle's box overlaps, in triangle order; a
+        // stable counting sort by cell keeps that order within each cell.
+        let mut ref_cell = Vec::new();
+        let mut ref_tri = Vec::new();
         for (k, r) in ranges.iter().enumerate() {
             for a in r[0]..=r[1] {
                 for b in r[2]..=r[3] {
-                    let c = a * n[1] + b;
-                    items[fill[c] as usize] = k as u32;
-                    fill[c] += 1;
+                    ref_cell.push((a * n[1] + b) as u32);
+                    ref_tri.push(k as u32);
                 }
             }
         }
-        (count, items)
+        counting_sort_by(&ref_cell, n[0] * n[1], |j| ref_tri[j])
     }
 
     /// The grid cell of the projected point (y, z), clamped to the grid (the same formula for a

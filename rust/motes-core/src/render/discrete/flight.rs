@@ -397,11 +397,8 @@ impl DiscreteMedium {
         view: &View,
     ) -> Option<&ContinuousField> {
         let all = self.grains_field_from(parent)?;
-        if self.grid.is_none() {
-            return Some(all); // every particle continuous: nothing to walk
-        }
         if !self.event_rays_may_walk() {
-            return Some(all);
+            return Some(all); // nothing to walk, or too many grains for one arrangement to show
         }
         let rule = self.footprint.as_ref()?;
         rule.sees_field(view, o, d, t_max).then_some(all)
@@ -420,7 +417,7 @@ impl DiscreteMedium {
     /// The continuous equivalent of all particles when a ray that starts at no event (a surface, a
     /// boundary, a camera) carries a pixel footprint that holds many grains (an effective count over the
     /// discrete classes, `crate::render::footprint`; the ray from `o` along the unit `d` on
-    /// [0, `t_max`)): None for camera rays, without cameras, or with the rule off.
+    /// [0, `t_max`)): None without cameras, or with the rule off.
     fn surface_field(
         &self,
         parent: &Event,
