@@ -5,8 +5,9 @@ and small (Guo et al., Sec. 5). Rendered by Mitsuba's own ``volpath`` and ``volp
 ===========================  =========  ======================================================================
 Parameter                    Type       Meaning (default)
 ===========================  =========  ======================================================================
-``filename``                 string     Particle file (.npz, .npy, .csv, .ply; see ``motes.load_particles``),
-                                        positions in the medium's local units. Without it particles are
+``filename``                 string     Particle file (.npz, .npy, .csv, .ply; see ``motes.load_particles``;
+                                        a relative path is looked up in the scene file's folder), positions
+                                        in the medium's local units. Without it particles are
                                         generated: without ``to_world`` they fill the shapes that hold the
                                         medium, their inside in world space (see "Filling the shapes that
                                         hold it"); with it, the local cube [-1, 1]^3 through it:
@@ -267,6 +268,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import os
 import time
 import warnings
 from types import SimpleNamespace
@@ -279,7 +281,7 @@ from ..discrete import PHASE_TYPES, DiscreteMedium, box_of, log, mean_extinction
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
                         DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, PHASE_MODELS, STORAGES)
-from ..particle_io import load_particles
+from ..particle_io import ParticleFileError, load_particles
 from ..particles import query_radius_from_camera
 from .. import _memory, _motes, native
 from .. import psd as psd_mod
@@ -1076,15 +1078,31 @@ def _read_particles(p: SimpleNamespace, props, species: list):
     if clash:
         raise ValueError(f"discrete medium: {', '.join(clash)} set the generated particles; with filename "
                          "the particles come from the file — remove one or the other")
-    # Relative to the scene file's folder, as Mitsuba resolves meshes and textures.
-    path = str(mi.file_resolver().resolve(p.filename))
+    path = _particle_file(p.filename)
     # scale_m converts a PLY's Houdini `pscale` (radii in scene units) to micrometres.
-    pset = load_particles(path, scale_m=p.scale_m, n_species=len(species))
+    try:
+        pset = load_particles(path, scale_m=p.scale_m, n_species=len(species))
+    except ParticleFileError as exc:
+        raise ParticleFileError(f"discrete medium: filename = {p.filename!r}: {exc}") from None
     r_lo, r_hi = float(pset.radii_um.min()), float(pset.radii_um.max())
     if r_hi > 1e5 or r_lo < 1e-3:
         raise ValueError(f"discrete medium: {path}: particle radii from {r_lo:g} to {r_hi:g} um are implausible "
                          f"(field radius_um / radius in um, or a PLY pscale in scene units times scale_m = {p.scale_m:g} m)")
     return pset.positions, pset.radii_um, pset.species
+
+
+def _particle_file(name: str) -> str:
+    """``filename`` resolved as Mitsuba resolves meshes and textures: a relative name against the scene file's
+    folder, then the file resolver's other folders; never an empty name (it would resolve to a folder)."""
+    if not name.strip():
+        raise ValueError("discrete medium: filename is empty: give the particle file's path (absolute, or relative "
+                         "to the scene file's folder)")
+    path = str(mi.file_resolver().resolve(name))
+    if not os.path.isabs(path):  # in none of the resolver's folders (resolve() returns such a name unchanged)
+        folders = ", ".join(str(d) for d in mi.file_resolver())
+        raise ParticleFileError(f"discrete medium: filename = {name!r}: no such file (a relative name is looked up "
+                                f"in the scene file's folder and Mitsuba's search path: {folders})")
+    return path
 
 
 #: ``distribution`` -> the core's density (``motes_core::space::cloud``) and its parameters: a gradient from
