@@ -65,7 +65,7 @@ def local_cluster():
 def test_pass_plan_and_frames_parse():
     assert C.pass_plan(20, 8, 1) == [(8, 100003), (8, 100004), (4, 100005)]
     assert all(0 <= s < 2**32 for _, s in C.pass_plan(16, 8, 10**6))  # Mitsuba's seeds are 32-bit
-    assert C.parse_frames("3:7:2") == [3, 5, 7] and C.parse_frames("4") == [4]
+    assert list(C.parse_frames("3:7:2")) == [3, 5, 7] and list(C.parse_frames("4")) == [4]
     for bad in ("a:b", "5:3", "1:4:0", "1:2:3:4"):
         with pytest.raises(ValueError, match="frames"):
             C.parse_frames(bad)

@@ -14,6 +14,11 @@
 =====================================  ===================================================================
 
 Errors print one line (``motes: error: ...``) and exit with status 2; ``--debug`` shows the traceback.
+``motes render`` checks its options before it loads anything: ``-s``, ``--pass-spp``, ``--workers`` >= 1;
+``--frames A:B[:STEP]`` (any length: frames are taken one at a time); ``-o`` an ``.exr`` name (none: ``.exr``
+added), a folder (the default name inside it) or a pattern whose only field is ``{frame}`` with an integer
+format (sequences only). Once the scene is loaded, the film's size is checked against Dr.Jit's array size
+(2^32 values) and the memory available. Values Mitsuba's parser cannot read are shown with their element.
 Ctrl-C during ``motes render`` stops within a second (loading, table builds and the kernel in flight
 included), writes the passes done so far and exits with status 130.
 """
@@ -32,9 +37,11 @@ import warnings
 import numpy as np
 
 # exposure, reinhard and tonemap stay importable from here (motes.cli.tonemap: scripts/paper, tests).
-from ._output import exposure, progress, reinhard, tonemap, write_images  # noqa: F401
+from ._output import (check_film, check_writable, exposure, frames_summary, output_path, progress,  # noqa: F401
+                      reinhard, tonemap, write_images)
 from .convert import GRAIN_OPTIONS
-from .cluster import DEFAULT_FPS, frame_defines, frame_output, parse_frames, pass_plan
+from .cluster import (DEFAULT_FPS, frame_count, frame_defines, frame_output, parse_frames, pass_plan,
+                      samples_per_pixel)
 
 
 class _CtrlC:
@@ -114,29 +121,41 @@ def _defines(pairs) -> dict:
     return defines
 
 
+def check_render_options(args) -> None:
+    """``motes render``'s numbers and their combinations, before anything is loaded: ValueError naming the
+    option (``-s 0`` is an error, not the scene's spp)."""
+    for option, value in (("-s/--spp", args.spp), ("--pass-spp", args.pass_spp), ("--workers", args.workers)):
+        if value is not None and value < 1:
+            raise ValueError(f"{option} must be >= 1, got {value}")
+    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be > 0, got {args.fps}")
+    if args.workers is not None and args.scheduler:
+        raise ValueError("give --workers (a local cluster) or --scheduler (an existing one), not both")
+    if args.ship_files and not (args.workers or args.scheduler):
+        raise ValueError("--ship-files sends files to cluster workers: it needs --workers or --scheduler")
+
+
 def cmd_render(args) -> int:
+    check_render_options(args)
+    defines = _defines(args.define)
+    scene_path = _scene_path(args.scene)
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    # Where the (first) image goes, checked before minutes of loading: every later frame's name follows
+    # the same checked pattern.
+    out = output_path(args.output, scene_path.stem, frames[0] if frames is not None else None)
+    check_writable(out)
+
     import motes  # noqa: PLC0415
 
     variant = motes.set_variant(args.variant)
     import mitsuba as mi  # noqa: PLC0415
 
-    defines = _defines(args.define)
-    scene_path = _scene_path(args.scene)
-    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
-        raise ValueError(f"--fps must be > 0, got {args.fps}")
-    if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    if args.workers is not None and args.scheduler:
-        raise ValueError("give --workers (a local cluster) or --scheduler (an existing one), not both")
-    if args.ship_files and not (args.workers or args.scheduler):
-        raise ValueError("--ship-files sends files to cluster workers: it needs --workers or --scheduler")
     if args.workers or args.scheduler:
         from . import _distributed  # noqa: PLC0415
 
-        return _distributed.render(args, mi, variant, scene_path, defines)
-    if args.frames:
-        return _render_frames(args, mi, variant, scene_path, defines)
-    out = pathlib.Path(args.output) if args.output else pathlib.Path(scene_path.stem + ".exr")
+        return _distributed.render(args, mi, variant, scene_path, defines, frames)
+    if frames is not None:
+        return _render_frames(args, mi, variant, scene_path, defines, frames)
     _show_load_stages()
     with _CtrlC("motes: interrupted (Ctrl-C) before the first pass finished; nothing written") as ctrl_c:
         _render_one(args, mi, variant, scene_path, defines, out, ctrl_c)
@@ -154,7 +173,9 @@ def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool
     t_load = time.perf_counter() - t0
     if not quiet:
         print(f"motes: loaded in {t_load:.1f} s", file=sys.stderr)
-    spp = args.spp or scene.sensors()[0].sampler().sample_count()
+    sensor = scene.sensors()[0]
+    check_film(sensor.film(), defines)
+    spp = samples_per_pixel(args.spp, sensor.sampler().sample_count())
     plan = pass_plan(spp, args.pass_spp, args.seed)
     acc, done_spp, t1 = None, 0, time.perf_counter()
     for i, (k, seed) in enumerate(plan):
@@ -176,27 +197,28 @@ def _render_one(args, mi, variant, scene_path, defines, out, ctrl_c, quiet: bool
               f"{peak_resident_mb():.0f} MB; wrote {', '.join(written)}", file=sys.stderr)
 
 
-def _render_frames(args, mi, variant, scene_path, defines) -> int:
-    """A frame sequence in this process: ``$frame`` and ``$time`` per frame; frames on disk are skipped."""
-    frames = parse_frames(args.frames)
-    outs = {f: frame_output(args.output, scene_path.stem, f) for f in frames}
-    todo = [f for f in frames if args.overwrite or not outs[f].exists()]
-    if len(todo) < len(frames):
-        print(f"motes: {len(frames) - len(todo)} of {len(frames)} frames already on disk, skipped "
-              "(--overwrite renders them again)", file=sys.stderr)
+def _render_frames(args, mi, variant, scene_path, defines, frames: range) -> int:
+    """A frame sequence in this process: ``$frame`` and ``$time`` per frame; frames on disk are skipped.
+    Frames are taken one at a time (a range of 10^9 frames starts at once)."""
     text = scene_path.read_text()
+    total, skipped, done, shown = frame_count(frames), 0, 0, []  # shown: the first frames written
     t0 = time.perf_counter()
     with _CtrlC("motes: interrupted (Ctrl-C) before the first frame finished") as ctrl_c:
-        for i, f in enumerate(todo):
+        for f in frames:
+            out = frame_output(args.output, scene_path.stem, f)
+            if not args.overwrite and out.exists():
+                skipped += 1
+                continue
             _render_one(args, mi, variant, scene_path, frame_defines(defines, f, args.fps or DEFAULT_FPS, text),
-                        outs[f], ctrl_c, quiet=True)
-            ctrl_c.say(f"motes: interrupted (Ctrl-C) after {i + 1} of {len(todo)} frames (the frame in flight "
+                        out, ctrl_c, quiet=True)
+            done += 1
+            shown += [out] * (len(shown) < 3)
+            ctrl_c.say(f"motes: interrupted (Ctrl-C) after {done} frames, the last {out} (the frame in flight "
                        "is not written: a second run renders it)")
-            progress(i + 1, len(todo), time.perf_counter() - t0, "frames")
-    if todo:
+            progress(done, total - skipped, time.perf_counter() - t0, "frames")
+    if done:
         sys.stderr.write("\n")
-    print(f"motes: {len(todo)} frames in {time.perf_counter() - t0:.1f} s "
-          f"({', '.join(str(outs[f]) for f in todo[:3])}{' ...' if len(todo) > 3 else ''})", file=sys.stderr)
+    frames_summary(done, skipped, total, time.perf_counter() - t0, shown)
     return 0
 
 
@@ -308,7 +330,8 @@ def parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render a Mitsuba XML scene in passes with progress")
     r.add_argument("scene", help="XML scene file, or the name of a shipped scene (see 'motes scenes')")
-    r.add_argument("-o", "--output", help="output EXR (default: <scene stem>.exr)")
+    r.add_argument("-o", "--output", help="output EXR (default: <scene stem>.exr; a folder: that name inside it; "
+                   "no suffix: .exr added)")
     r.add_argument("-m", "--variant", default="llvm_ad_rgb", help="Mitsuba variant (default llvm_ad_rgb)")
     r.add_argument("-D", "--define", action="append", default=[], metavar="KEY=VALUE", help="scene parameter")
     r.add_argument("-s", "--spp", type=int, help="samples per pixel (default: the scene's)")
@@ -316,8 +339,8 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--png", action="store_true", help="also write a tone-mapped sRGB PNG beside the EXR")
     r.add_argument("--frames", metavar="A:B[:STEP]", help="render frames A..B (inclusive) with the scene parameters "
-                   "$frame and $time = frame / fps; -o may hold {frame} (default out/NAME_0001.exr); frames on disk "
-                   "are skipped")
+                   "$frame and $time = frame / fps; -o may hold {frame}, e.g. {frame:04d} (default out/NAME_0001.exr); "
+                   "frames on disk are skipped")
     r.add_argument("--fps", type=float, help=f"frames per second for $time (default {DEFAULT_FPS:g})")
     r.add_argument("--overwrite", action="store_true", help="render frames again even if their file exists")
     r.add_argument("--workers", type=int, help="render on a local Dask cluster of this many worker processes")
@@ -368,10 +391,12 @@ def one_line(e: BaseException) -> str:
     """An error as one line. Mitsuba's loader wraps a Python plugin's exception in a RuntimeError whose text
     holds the plugin's traceback: keep where (file, line) and what (the last line), drop the frames and the
     loader's source locations."""
-    import re
+    from ._errors import SOURCE_LOCATION, named_property, without_traceback  # noqa: PLC0415
 
-    from ._errors import without_traceback  # noqa: PLC0415
-
+    # Dr.Jit's "drjit.custom(...): error while performing a custom differentiable operation. (see above)"
+    # says nothing: what it refers to is its cause.
+    while e.__cause__ is not None and "(see above)" in str(e):
+        e = e.__cause__
     text = str(e)
     head, sep, tail = text.partition("Traceback (most recent call last):")
     clean = without_traceback(text)
@@ -380,7 +405,7 @@ def one_line(e: BaseException) -> str:
     elif sep:
         last = [ln for ln in tail.strip().splitlines() if ln.strip()][-1]
         text = f"{head.strip()} {last.strip()}"
-    text = re.sub(r"\[[\w.]+\.cpp:\d+\]\s*", "", text).removeprefix("motes: ")
+    text = named_property(SOURCE_LOCATION.sub("", text)).removeprefix("motes: ")
     return " ".join(text.split()) or type(e).__name__
 
 

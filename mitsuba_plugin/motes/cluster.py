@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _env
+from ._output import check_film, output_path
 
 #: Frames per second of ``motes render --frames`` ($time = frame / fps; ``frame_defines``).
 DEFAULT_FPS = 24.0
@@ -52,6 +53,16 @@ def pass_plan(spp: int, pass_spp: int, seed: int) -> list[tuple[int, int]]:
     return plan
 
 
+def samples_per_pixel(spp: int | None, scene_spp: int) -> int:
+    """The samples per pixel of a render: ``spp`` (``-s``; checked >= 1 with the other options), else the
+    scene's sampler's, which must be >= 1 too."""
+    if spp is not None:
+        return spp
+    if scene_spp < 1:
+        raise ValueError(f"the scene's sampler has sample_count {scene_spp}: give -s N (N >= 1)")
+    return scene_spp
+
+
 def merge_passes(images, counts) -> np.ndarray:
     """The average of pass images weighted by their sample counts, summed in the order given (float64)."""
     acc, total = None, 0
@@ -64,8 +75,9 @@ def merge_passes(images, counts) -> np.ndarray:
     return acc / total
 
 
-def parse_frames(spec: str) -> list[int]:
-    """``A:B[:STEP]`` (inclusive of B) or a single frame ``A``."""
+def parse_frames(spec: str) -> range:
+    """``A:B[:STEP]`` (inclusive of B) or a single frame ``A``, as a ``range``: never expanded, so that any
+    range is checked at once and its frames come one at a time (``frame_count`` counts them)."""
     parts = spec.split(":")
     try:
         nums = [int(p) for p in parts]
@@ -78,18 +90,19 @@ def parse_frames(spec: str) -> list[int]:
     a, b, step = nums[0], nums[1], nums[2] if len(nums) == 3 else 1
     if step < 1 or b < a:
         raise ValueError(f"--frames {spec!r}: need A <= B and STEP >= 1")
-    return list(range(a, b + 1, step))
+    return range(a, b + 1, step)
+
+
+def frame_count(frames: range) -> int:
+    """The number of frames of ``parse_frames``'s range (``len`` takes at most 2^63 - 1)."""
+    return max(0, (frames.stop - frames.start + frames.step - 1) // frames.step)
 
 
 def frame_output(pattern: str | None, stem: str, frame: int) -> pathlib.Path:
     """Where frame ``frame`` goes: ``pattern`` with ``{frame}`` (format specs allowed: ``{frame:05d}``)
-    filled in, or ``_0001`` inserted before the suffix when it has none; default ``out/STEM_0001.exr``."""
-    if pattern is None:
-        return pathlib.Path("out") / f"{stem}_{frame:04d}.exr"
-    if "{frame" in pattern:
-        return pathlib.Path(pattern.format(frame=frame))
-    p = pathlib.Path(pattern)
-    return p.with_name(f"{p.stem}_{frame:04d}{p.suffix or '.exr'}")
+    filled in, or ``_0001`` inserted before the suffix when it has none; default ``out/STEM_0001.exr``
+    (the rules, a folder included: ``motes._output.output_path``)."""
+    return output_path(pattern, stem, frame)
 
 
 def frame_defines(defines: dict, frame: int, fps: float, scene_text: str) -> dict:
@@ -187,7 +200,9 @@ class _SceneCache:
             if key not in self.scenes:
                 while len(self.scenes) >= self.keep:
                     self.scenes.pop(next(iter(self.scenes)))
-                self.scenes[key] = mi.load_file(path, **defines)
+                scene = mi.load_file(path, **defines)
+                check_film(scene.sensors()[0].film(), defines)
+                self.scenes[key] = scene
             return mi, self.scenes[key]
 
 
@@ -210,5 +225,5 @@ def render_image(scene: str, defines: dict, variant: str, plan, files: dict | No
     return merge_passes(imgs, [k for k, _ in plan]).astype(np.float32)
 
 
-__all__ = ["DEFAULT_FPS", "PASS_SEED_STRIDE", "frame_defines", "frame_output", "merge_passes", "parse_frames", "pass_plan",
-           "referenced_files", "render_image", "render_pass"]
+__all__ = ["DEFAULT_FPS", "PASS_SEED_STRIDE", "frame_count", "frame_defines", "frame_output", "merge_passes",
+           "parse_frames", "pass_plan", "referenced_files", "render_image", "render_pass", "samples_per_pixel"]
