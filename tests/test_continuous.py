@@ -24,9 +24,10 @@ def _medium(scene):
     return next(s.interior_medium() for s in scene.shapes() if s.interior_medium() is not None)
 
 
-def _two_sizes(count: int, continuous_count: float, albedo=None, query_radius=0.1) -> dict:
-    """A haze of small grains (continuous at the default threshold) with a few large ones (discrete)."""
-    med = {"type": "discrete", "count": count, "eta": 1.31, "scale_m": 1e-3, "size_bins": 4, "seed": 3,
+def _two_sizes(count: int, continuous_count: float, albedo=None, query_radius=0.04) -> dict:
+    """A haze of small grains (continuous at the default threshold) with a few large ones (discrete), in a
+    6 mm cube (its query disks' edge share 1.8 %, below CONTINUOUS_MAX_EDGE_SHARE)."""
+    med = {"type": "discrete", "count": count, "eta": 1.31, "scale_m": 3e-3, "size_bins": 4, "seed": 3,
            "query_radius": query_radius, "continuous_count": continuous_count, "phase": {"type": "particle"},
            "psd": json.dumps({"type": "mixture", "weights": [0.995, 0.005], "components": [
                {"type": "uniform", "r_min_um": 8.0, "r_max_um": 12.0},
@@ -51,7 +52,7 @@ def test_furnace_with_continuous_classes(variant):
     roulette, 3 SE + 1e-3)."""
     motes.set_variant(variant)
     res, spp = (24, 32) if variant.startswith("llvm") else (8, 16)
-    for med in (dict(furnace_medium(20000, 0.01, 0.05), continuous_count=1.0), _two_sizes(20000, 16.0, albedo=1.0)):
+    for med in (dict(furnace_medium(20000, 0.01, 0.04), continuous_count=1.0), _two_sizes(20000, 16.0, albedo=1.0)):
         scene = _env_scene(med, res, spp)
         assert _medium(scene).data.continuous_particles > 0
         m, se = _mean_se(scene, spp, seeds=(0,))
@@ -90,7 +91,7 @@ def test_default_criterion_by_regime():
             "phase": {"type": "particle"}}
     assert _medium(_env_scene(dust, 8, 1)).data.continuous_particles == 0
     counts = []
-    for q in (0.01, 0.1):
+    for q in (0.01, 0.04):
         counts.append(_medium(_env_scene(_two_sizes(20000, 16.0, query_radius=q), 8, 1)).data.continuous_particles)
     assert counts[0] < counts[1]
 
@@ -119,18 +120,21 @@ def test_field_removes_what_the_grains_remove_inside_their_box():
     """Issue 43: a grain walked one by one removes its C_ext over a disk of radius R across the ray, and
     near a face of the box that holds the grains part of that disk lies outside, on rays the medium never
     carries; the continuous equivalent (cells that fill the box) must leave out that share too. 3 mm
-    query disks in a 20 mm cube of grains: the field's mean optical depth along rays inside the box,
-    in random directions, within 5 % of the grains' (16 % above it when the field kept every C_ext)."""
+    query disks in a 160 mm cube of grains (an edge share of 1.75 %): the field's transmittance along
+    rays inside the box, in random directions, removes within 0.6 % of what the grains remove. In a 20 mm cube (an edge share of
+    14 %, which depends on the ray's direction and which a field cannot carry) they stay discrete whatever
+    continuous_count."""
     rng = np.random.default_rng(7)
-    n, half = 20000, 10.0
+    n, half = 20000, 80.0
     pos = rng.uniform(-half, half, (n, 3))
     radii = rng.uniform(200.0, 450.0, n)
     species = [motes.Species(motes.psd.Uniform(200.0, 450.0), complex(1.5, 0.0))]
 
-    def medium(continuous_count):
+    def medium(continuous_count, pos=pos):
         return motes.DiscreteMedium(pos, radii, np.zeros(n, dtype=np.int64), species, [0.630, 0.532, 0.467],
                                     scale_m=1e-3, query_radius=3.0, continuous_count=continuous_count)
 
+    assert medium(1e-9, pos / 8.0).continuous_particles == 0
     exact, field = medium(math.inf), medium(1e-9)  # every grain walked; every grain continuous
     assert field.continuous_particles == n and exact.continuous_particles == 0
     lo, hi = pos.min(axis=0), pos.max(axis=0)
@@ -139,5 +143,7 @@ def test_field_removes_what_the_grains_remove_inside_their_box():
     d = rng.normal(size=(m, 3))
     d /= np.linalg.norm(d, axis=1)[:, None]
     t1 = np.min(np.where(d > 0, (hi - o) / d, (lo - o) / d), axis=1)  # to the box's face
-    ratio = field.optical_depth(o, d, 0.0, t1).mean() / exact.optical_depth(o, d, 0.0, t1).mean()
-    assert abs(ratio - 1.0) < 0.05, ratio
+    # What a beam loses, 1 - T (each disk's depth is -ln(1 - C/(pi R^2)), so that it removes C: its mean
+    # optical depth is 1 % above C here, its transmittance the field's).
+    loss = [1.0 - np.exp(-m.optical_depth(o, d, 0.0, t1)).mean() for m in (field, exact)]
+    assert abs(loss[0] / loss[1] - 1.0) < 0.006, loss

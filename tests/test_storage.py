@@ -152,9 +152,10 @@ def test_more_than_65536_classes_store_wide_codes_and_walk_like_full_storage():
     motes.set_variant("scalar_rgb")
     meds = {}
     for storage in ("full", "compact"):
-        # A wide PSD over many occupied bins: small grains continuous, the largest discrete.
+        # A wide PSD over many occupied bins: small grains continuous, the largest discrete (a 6 mm cube: the
+        # query disks' edge share 1.8 %, below CONTINUOUS_MAX_EDGE_SHARE).
         meds[storage] = {"type": "discrete", "count": 60000, "radius_median": 8.0, "radius_sigma_g": 1.5,
-                         "eta": 1.31, "scale_m": 1e-3, "size_bins": 400, "seed": 3, "query_radius": 0.1,
+                         "eta": 1.31, "scale_m": 3e-3, "size_bins": 400, "seed": 3, "query_radius": 0.04,
                          "albedo": 1.0, "storage": storage, "phase": {"type": "particle"}}
     full = _medium(mi.load_dict(_env_scene(meds["full"], 4, 1))).data
     compact_scene = mi.load_dict(_env_scene(meds["compact"], 16, 16))

@@ -23,7 +23,8 @@ rms/noise: the seeds split in two halves, RMS over pixels of (a_0 - exact_1, a_1
 the side-lit cloud: ``--sidelit-spp``. The whole default run: about 12 minutes on 2 cores.
 
 Scene-name suffixes of the side-lit cloud: ``-h5`` (a 10 mm cube), ``-ball`` (grains in a ball held by a
-sphere), ``-s4`` (cloud seed 4; default 3), ``-pad4`` (the holder 4 mm larger than the grains' box).
+sphere), ``-s4`` (cloud seed 4; default 3), ``-pad4`` (the holder 4 mm larger than the grains' box), ``-q3`` (query radius
+3 mm), ``-n3000`` (3000 grains; default 300).
 ``--clouds N``: instead, default over exact for N independent clouds and the mean over them (the part one cloud's
 arrangement does not set).
 
@@ -71,9 +72,9 @@ def sidelit_particles(shape: str, count: int = SIDELIT_COUNT, seed: int = 3) -> 
 
 
 def sidelit(mi, res: int, query_radius: float, medium_extra: dict, shape: str = "cube", half: float = HALF,
-            cloud_seed: int = 3, pad: float = 0.0) -> dict:
+            cloud_seed: int = 3, pad: float = 0.0, count: int = SIDELIT_COUNT) -> dict:
     T = mi.ScalarTransform4f
-    medium = {"type": "discrete", "filename": str(sidelit_particles(shape, seed=cloud_seed)), "eta": 1.5, "scale_m": 1e-3,
+    medium = {"type": "discrete", "filename": str(sidelit_particles(shape, count, seed=cloud_seed)), "eta": 1.5, "scale_m": 1e-3,
               "to_world": T().scale(half), "phase": {"type": "particle"}, **medium_extra}
     if query_radius > 0:
         medium["query_radius"] = query_radius
@@ -126,14 +127,15 @@ def load(mi, scene: str, res: int, extra: dict):
     if scene == "rotated":
         return rotated(mi, res, extra)
     if scene.startswith("sidelit"):
-        # sidelit[3mm][-ball][-hHALF]
+        # sidelit[3mm][-ball][-hHALF][-sSEED][-padPAD][-qQUERY_RADIUS][-nCOUNT]
         parts = scene.split("-")
         half = next((float(x[1:]) for x in parts if x.startswith("h")), HALF)
         shape = "ball" if "ball" in parts else "cube"
         cloud_seed = next((int(x[1:]) for x in parts[1:] if x.startswith("s")), 3)
         pad = next((float(x[3:]) for x in parts[1:] if x.startswith("pad")), 0.0)
-        return mi.load_dict(sidelit(mi, res, 3.0 if parts[0] == "sidelit3mm" else 0.0, extra, shape, half,
-                                    cloud_seed, pad))
+        query = next((float(x[1:]) for x in parts[1:] if x.startswith("q")), 3.0 if parts[0] == "sidelit3mm" else 0.0)
+        count = next((int(x[1:]) for x in parts[1:] if x.startswith("n")), SIDELIT_COUNT)
+        return mi.load_dict(sidelit(mi, res, query, extra, shape, half, cloud_seed, pad, count))
     return xml_scene(mi, scene, res, extra)
 
 

@@ -38,7 +38,7 @@
 //! scattered ray from meeting its own particle again.
 
 use crate::error::{require, OpticsError};
-use crate::render::continuous::{ContinuousField, CLASS_FLAG};
+use crate::render::continuous::{class_is_continuous, ContinuousField, CLASS_FLAG};
 use crate::render::storage::LEVELS_PER_BIN;
 use crate::space::cloud::{det3, invert_affine, CloudSpec, Tiling};
 use crate::space::dda::{Dda, GridFrame};
@@ -397,9 +397,14 @@ pub(crate) fn build_parts(
     let count = spec.count;
     let mut classes = class_table(spec)?;
     let fine = classes.len();
-    let (volume, chord) = scene_box(spec);
+    let (volume, chord, extents) = scene_box(spec);
     let disks: Vec<(f64, f64)> = classes.iter().map(|c| disk(c.radius, c.c_ext)).collect();
-    let mut discrete = discrete_classes(&classes, &disks, count, volume, chord, continuous_count);
+    let shape = BoxShape {
+        volume,
+        chord,
+        extents,
+    };
+    let mut discrete = discrete_classes(&classes, &disks, count, &shape, continuous_count);
     let weights = push_representatives(&mut classes, &mut discrete, count, volume, &spec.q_ext);
     let fields = procedural_fields(spec, &to_cloud, mean, fine, &weights);
     let split = ClassSplit {
@@ -461,8 +466,8 @@ fn checked_cloud(spec: &ProceduralSpec) -> Result<([[f64; 4]; 3], f64), OpticsEr
     Ok((to_cloud, mean))
 }
 
-/// The box in scene units: its volume and mean chord 4V/S (edge vectors of the parallelepiped).
-fn scene_box(spec: &ProceduralSpec) -> (f64, f64) {
+/// The box in scene units: its volume, mean chord 4V/S and edge lengths (of the parallelepiped).
+fn scene_box(spec: &ProceduralSpec) -> (f64, f64, [f64; 3]) {
     let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
     let e = [0, 1, 2].map(|a| {
         let mut v = [0.0; 3];
@@ -473,7 +478,14 @@ fn scene_box(spec: &ProceduralSpec) -> (f64, f64) {
     let volume = dot(e[0], cross(e[1], e[2])).abs();
     let surface =
         2.0 * (norm(cross(e[0], e[1])) + norm(cross(e[1], e[2])) + norm(cross(e[2], e[0])));
-    (volume, 4.0 * volume / surface)
+    (volume, 4.0 * volume / surface, e.map(norm))
+}
+
+/// The cloud's box in scene units (`scene_box`).
+struct BoxShape {
+    volume: f64,
+    chord: f64,
+    extents: [f64; 3],
 }
 
 /// Which classes stay discrete: those whose size class a query cylinder holds fewer than
@@ -482,10 +494,14 @@ fn discrete_classes(
     classes: &[ClassEntry],
     disks: &[(f64, f64)],
     count: f64,
-    volume: f64,
-    chord: f64,
+    shape: &BoxShape,
     continuous_count: f64,
 ) -> Vec<bool> {
+    let BoxShape {
+        volume,
+        chord,
+        extents,
+    } = *shape;
     let sigma: f64 = classes.iter().map(|c| count * c.p * c.c_ext).sum::<f64>() / volume;
     let length = if sigma > 0.0 {
         chord.min(1.0 / sigma)
@@ -493,13 +509,19 @@ fn discrete_classes(
         chord
     };
     let reach_max = disks.iter().map(|d| d.0).fold(0.0, f64::max);
-    let mut area = [0.0f64; SIZE_CLASSES];
+    // Per class: the expected number of grains and their disks' total area.
+    let (mut grains, mut area) = ([0.0f64; SIZE_CLASSES], [0.0f64; SIZE_CLASSES]);
     for (c, d) in classes.iter().zip(disks) {
+        grains[size_class(reach_max, d.0)] += count * c.p;
         area[size_class(reach_max, d.0)] += count * c.p * PI * d.0 * d.0;
     }
     let keep_class: Vec<bool> = area
         .iter()
-        .map(|a| !continuous_count.is_finite() || a * length / volume < continuous_count)
+        .zip(&grains)
+        .map(|(a, n)| {
+            let rms_reach = (a / (PI * n.max(1e-300))).sqrt();
+            !class_is_continuous(a * length / volume, rms_reach, extents, continuous_count)
+        })
         .collect();
     disks
         .iter()

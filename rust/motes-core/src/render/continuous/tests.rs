@@ -272,14 +272,16 @@ fn cells_add_no_transmittance() {
     );
 }
 
-/// Sparse grains stay discrete, dense small-τ ones become continuous; an infinite threshold keeps all.
+/// Sparse grains stay discrete, dense small-τ ones become continuous; an infinite threshold keeps all;
+/// disks large against the box stay discrete (their edge share).
 #[test]
 fn resolvable_classes() {
-    let n = 20_000;
+    let n = 80_000;
     let pos = random_points(&mut 9, n);
-    // Half the particles with R = 0.05 (many per cylinder: 1e4 π 0.05² ≈ 79), half with R = 0.002 (0.13).
+    // Half the particles with R = 0.02 (many per cylinder of the unit cube's chord 2/3:
+    // 4e4 π 0.02² · 2/3 ≈ 34; edge share (8/9π)·0.02·3 ≈ 0.017), half with R = 0.002 (0.3).
     let reach: Vec<f64> = (0..n)
-        .map(|i| if i % 2 == 0 { 0.05 } else { 0.002 })
+        .map(|i| if i % 2 == 0 { 0.02 } else { 0.002 })
         .collect();
     let w: Vec<f64> = reach.iter().map(|r| PI * r * r * 1e-3).collect();
     let (keep, footprint) = resolvable(&pos, &|i| reach[i], &|i| w[i], 16.0);
@@ -289,11 +291,41 @@ fn resolvable_classes() {
         .0
         .iter()
         .all(|&k| k));
-    // Optically thick: the mean free path limits the cylinder (σ_t = 1e4·π·0.05²·0.5 ≈ 39 per unit).
+    // Optically thick: the mean free path limits the cylinder (σ_t = 4e4·π·0.02²·0.5 ≈ 25 per unit).
     let w_thick: Vec<f64> = reach.iter().map(|r| PI * r * r * 0.5).collect();
     let keep = resolvable(&pos, &|i| reach[i], &|i| w_thick[i], 16.0).0;
     assert!(keep.iter().all(|&k| k));
+    // Disks of R = 0.05 (edge share 0.042): 4e4 π 0.05² · 2/3 ≈ 209 per cylinder, still discrete.
+    let wide: Vec<f64> = (0..n)
+        .map(|i| if i % 2 == 0 { 0.05 } else { 0.002 })
+        .collect();
+    let keep = resolvable(&pos, &|i| wide[i], &|i| PI * wide[i] * wide[i] * 1e-3, 16.0).0;
+    assert!(keep.iter().all(|&k| k));
+    assert!((edge_share(0.05, [1.0; 3]) - 8.0 / (9.0 * PI) * 0.15).abs() < 1e-12);
 }
+/// `edge_share` against a count: grains uniform in a box, a point uniform on each one's disk normal
+/// to an axis, the share of those points outside the box's two other extents, averaged over axes.
+#[test]
+fn edge_share_matches_a_count() {
+    let (e, reach) = ([1.0, 2.0, 0.5], 0.03);
+    let mut s = 17u64;
+    let (mut outside, samples) = (0usize, 600_000usize);
+    for k in 0..samples {
+        let axis = k % 3;
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (r, phi) = (reach * lcg(&mut s).sqrt(), 2.0 * PI * lcg(&mut s));
+        let (x, y) = (e[u] * lcg(&mut s), e[v] * lcg(&mut s));
+        let (x, y) = (x + r * phi.cos(), y + r * phi.sin());
+        outside += usize::from(x < 0.0 || x > e[u] || y < 0.0 || y > e[v]);
+    }
+    let counted = outside as f64 / samples as f64;
+    let formula = edge_share(reach, e);
+    assert!(
+        (counted / formula - 1.0).abs() < 0.03,
+        "{counted} vs {formula}"
+    );
+}
+
 /// A field of few classes picks from its table of each cell's distinct classes (`picking_by` each
 /// class alone) with the same probabilities as from the list of its particles; one of many classes
 /// keeps the list alone, unless they fall in few groups.
