@@ -37,18 +37,20 @@ pub enum OpticsError {
 
 impl fmt::Display for OpticsError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let invalid =
+            |f: &mut fmt::Formatter<'_>, argument: &str, value: f64, requirement: &str| {
+                write!(
+                    f,
+                    "invalid {argument} = {}: must be {requirement}",
+                    shown(value)
+                )
+            };
         match self {
             OpticsError::InvalidArgument {
                 argument,
                 value,
                 requirement,
-            } => {
-                write!(
-                    f,
-                    "invalid {argument} = {}: must be {requirement}",
-                    shown(*value)
-                )
-            }
+            } => invalid(f, argument, *value, requirement),
             OpticsError::InvalidOption {
                 argument,
                 value,
@@ -63,13 +65,7 @@ impl fmt::Display for OpticsError {
                 argument,
                 value,
                 requirement,
-            } => {
-                write!(
-                    f,
-                    "invalid {argument} = {}: must be {requirement}",
-                    shown(*value)
-                )
-            }
+            } => invalid(f, argument, *value, requirement),
             OpticsError::OutOfMemory {
                 argument,
                 what,
