@@ -29,19 +29,106 @@ def bytes_per_particle(n: int, extent: float, reach_max: float, storage: str = "
     return BYTES_PER_PARTICLE if storage == "full" and reach_max < cell else BYTES_PER_PARTICLE_DENSE
 
 
-def available_bytes() -> int | None:
-    """Memory the system can give without swapping (Linux ``MemAvailable``), else physical memory."""
+def _proc_status_bytes(key: str) -> int | None:
+    """A ``/proc/self/status`` size (``VmSize``, ``VmData``, ``VmHWM``) in bytes, or None."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(ln.split()[1]) * 1024 for ln in f if ln.startswith(key + ":"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+
+
+def _read_int(path: str) -> int | None:
+    try:
+        with open(path) as f:
+            text = f.read().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None  # "max" (cgroup v2): no limit
+
+
+#: A cgroup limit at or above this is none (cgroup v1 writes 2^63 rounded to a page).
+_NO_LIMIT = 2**60
+
+
+def _cgroup_room(proc: str = "/proc/self/cgroup", mount: str = "/sys/fs/cgroup") -> int | None:
+    """What this process's memory cgroup still allows (its limit less its usage), v2 or v1 (``proc``: the
+    process's cgroups, ``mount``: where they are mounted); the cgroup's own folder where it is mounted at its
+    path, else the mount's root (a container's view); None where no limit is set."""
+    try:
+        with open(proc) as f:
+            lines = [ln.strip().split(":", 2) for ln in f]
+    except OSError:
+        return None
+    rooms = []
+    for _, controllers, path in (ln for ln in lines if len(ln) == 3):
+        if controllers == "":  # v2
+            base, files = mount, ("memory.max", "memory.current")
+        elif "memory" in controllers.split(","):  # v1
+            base, files = f"{mount}/memory", ("memory.limit_in_bytes", "memory.usage_in_bytes")
+        else:
+            continue
+        for folder in (base + path.rstrip("/"), base):
+            limit, used = (_read_int(f"{folder}/{name}") for name in files)
+            if limit is not None and used is not None:
+                if limit < _NO_LIMIT:
+                    rooms.append(max(limit - used, 0))
+                break
+    return min(rooms) if rooms else None
+
+
+def _rlimit_room() -> tuple[int, str] | None:
+    """The room left under RLIMIT_AS (less the address space in use, ``VmSize``) or RLIMIT_DATA (less
+    ``VmData``), the smaller; None where neither is set."""
+    try:
+        import resource  # noqa: PLC0415 - POSIX only
+    except ImportError:
+        return None
+    rooms = []
+    for name, used_key, what in (("RLIMIT_AS", "VmSize", "under the address-space limit (ulimit -v)"),
+                                 ("RLIMIT_DATA", "VmData", "under the data-segment limit (ulimit -d)")):
+        limit = getattr(resource, name, None)
+        if limit is None:
+            continue
+        soft = resource.getrlimit(limit)[0]
+        if soft != resource.RLIM_INFINITY and soft >= 0:
+            used = _proc_status_bytes(used_key) or 0
+            rooms.append((max(soft - used, 0), what))
+    return min(rooms) if rooms else None
+
+
+def available() -> tuple[int, str] | None:
+    """(bytes, what limits them): the memory this process can still allocate without swapping or being
+    refused: the least of the system's available memory (Linux ``MemAvailable``, else physical memory),
+    the room under RLIMIT_AS / RLIMIT_DATA (``ulimit -v`` / ``-d``) and under the memory cgroup's limit
+    (a container's or a job's); None where none can be read."""
+    found = []
     try:
         with open("/proc/meminfo") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
+                    found.append((int(line.split()[1]) * 1024, "(the system's MemAvailable)"))
+                    break
+    except (OSError, ValueError, IndexError):
         pass
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):
-        return None
+    if not found:
+        try:
+            found.append((int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")), "(the physical memory)"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    room = _rlimit_room()
+    if room is not None:
+        found.append(room)
+    cgroup = _cgroup_room()
+    if cgroup is not None:
+        found.append((cgroup, "under its memory cgroup's limit (a container's or a job's)"))
+    return min(found) if found else None
+
+
+def available_bytes() -> int | None:
+    """The bytes of ``available()`` (None where none can be read)."""
+    found = available()
+    return None if found is None else found[0]
 
 
 def default_cache_bytes() -> int:
@@ -56,18 +143,45 @@ def default_cache_bytes() -> int:
 def peak_resident_mb() -> float:
     """This process's peak resident memory in MiB: VmHWM on Linux (``ru_maxrss`` would include the
     parent's resident set at fork, which Linux carries over exec), else ``ru_maxrss``."""
-    try:
-        with open("/proc/self/status") as f:
-            return next(int(ln.split()[1]) for ln in f if ln.startswith("VmHWM:")) / 1024
-    except (OSError, StopIteration, ValueError):
-        import resource  # noqa: PLC0415
+    peak = _proc_status_bytes("VmHWM")
+    if peak is not None:
+        return peak / 2**20
+    import resource  # noqa: PLC0415
 
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def require(nbytes: float, what: str) -> None:
-    """Raise ``MemoryError`` naming ``what`` when ``nbytes`` exceeds the memory available."""
-    avail = available_bytes()
-    if avail is not None and nbytes > avail:
+    """Raise ``MemoryError`` naming ``what`` (the input that drives the size, and its value) when ``nbytes``
+    exceeds the memory this process can still allocate (``available``), and saying what limits it."""
+    found = available()
+    if found is not None and nbytes > found[0]:
+        avail, source = found
         raise MemoryError(f"{what} needs about {nbytes / 2**30:.1f} GiB, more than the {avail / 2**30:.1f} GiB "
-                          "of memory available")
+                          f"available {source}")
+
+
+#: Peak bytes per cell of building a grid's class: the counting sort's histogram and the cells' starts,
+#: then (overlap slots) the references' starts and the padded slots' starts side by side, and the class's
+#: own starts kept (``rust/motes-core/src/space/grid/build.rs``: at most four u32 arrays of the cells).
+BYTES_PER_GRID_CELL = 16
+#: Most cells of a grid (``motes_core::space::grid::MAX_CELLS``; asking for more is an error naming
+#: cells_per_particle).
+MAX_GRID_CELLS = 2.0e8
+
+
+def grid_cells(n: int, cells_per_particle: float) -> float:
+    """The cells a grid of ``n`` particles at ``cells_per_particle`` takes at most."""
+    return min(float(n) * float(cells_per_particle), MAX_GRID_CELLS)
+
+
+def require_medium(n: int, extent: float, reach_max: float, storage: str, cells_per_particle: float,
+                   what: str) -> None:
+    """``require`` for a discrete medium of ``n`` particles (``bytes_per_particle``) and its grid's cells
+    (``grid_cells``), naming ``cells_per_particle`` where the cells weigh more than the particles."""
+    particles = bytes_per_particle(n, extent, reach_max, storage) * float(n)
+    cells = grid_cells(n, cells_per_particle)
+    cell_bytes = BYTES_PER_GRID_CELL * cells
+    if cell_bytes > particles:
+        what = f"{what} at cells_per_particle = {cells_per_particle:g} ({cells:.3g} grid cells)"
+    require(particles + cell_bytes, what)

@@ -7,9 +7,12 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
 ``positions``               (n, 3) particle centres, scene units
 ``radii_um``                (n,) radii, micrometres
 ``species_index``           (n,) index into ``species`` (a list of ``motes.Species``; their PSDs only set
-                            the radius range of the optics bins, the radii come from ``radii_um``)
+                            the radius range of the optics bins, the radii come from ``radii_um``). A
+                            species of the host's index (eta = ``eta_medium``, no absorption) is a
+                            ValueError: its grains neither scatter nor absorb
 ``wavelength_um``           tabulated wavelengths: the RGB channels' three (in channel order), or the
-                            spectral samples (wavelengths in between are interpolated linearly)
+                            spectral samples (wavelengths in between are interpolated linearly); one
+                            outside 0.01-100 um warns (nanometres given as micrometres, most likely)
 ``scale_m``                 metres per scene unit
 ``query_radius``            r_c, scene units (``motes.query_radius_from_camera`` gives Eq. 23's)
 ``tau_max``                 cap on each particle's optical depth (``DEFAULT_TAU_MAX`` = 1): a particle
@@ -22,7 +25,9 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
 ``truncate_below_rad``      forward-peak truncation per bin (delta-M, see ``bulk_properties``); default
                             ``DEFAULT_TRUNCATE_RAD`` (0.031 rad, one bin of a 4096-value ``tabphase``,
                             as ``homogeneous_equivalent``); None or 0: none
-``cells_per_particle``      grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.125: about eight particles per cell)
+``cells_per_particle``      grid resolution (``DEFAULT_CELLS_PER_PARTICLE`` = 0.125: about eight particles per cell),
+                            at most 2e8 / n (a grid takes at most 2e8 cells; more is a ValueError naming it); the
+                            cells count in the memory estimate checked before the build (``motes._memory``)
 ``continuous_count``        size classes (factors of two in r_c + r_i) whose particles a query cylinder
                             holds at least this many of, over one mean free path or across the cloud
                             (``DEFAULT_CONTINUOUS_COUNT`` = 16), are sampled as a continuous medium of
@@ -35,7 +40,7 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
                             phase mixture; Müller et al. 2016, Sec. 4.3) where their pixel footprint
                             holds ``continuous_count`` grains, as rays from surfaces (without cameras:
                             never, they walk the grains). Ignored when
-                            ``continuous_count`` is inf, which makes the medium exact
+                            ``continuous_count`` is inf, which makes the medium exact. In [1, 2^32 - 1]
 ``surface_footprint``       rays that start at no event (a surface, a boundary, a camera) see the grains'
                             continuous equivalent where the narrowest pixel footprint they can carry
                             (from the cameras given to ``set_cameras``; the Mitsuba plugin reads them
@@ -87,7 +92,7 @@ import time
 import warnings
 
 from . import _memory, _motes
-from .ensemble import DEFAULT_TRUNCATE_RAD, Species, bulk_properties, species_list
+from .ensemble import DEFAULT_TRUNCATE_RAD, Material, Species, bulk_properties, species_list
 from .psd import Monodisperse, Uniform
 
 #: Load stages (optics tables, grid) and their times, at INFO (the `motes` command shows them).
@@ -113,6 +118,11 @@ PHASE_TYPES = ("isotropic", "hg", "tabphase")
 PROCEDURAL_RADIUS_QUANTILE = 1e-7
 #: Most particles a procedural cloud takes (its count is a Poisson mean, not stored).
 MAX_PROCEDURAL_COUNT: float = 1e15
+#: Largest ``grain_depth`` (the core counts a path's scattering events in 32 bits).
+MAX_GRAIN_DEPTH: int = 2**32 - 1
+#: Wavelengths (um) a medium takes without a warning: 10 nm to 100 um. Beyond them a value is far more likely
+#: nanometres given as micrometres (630 for 0.63) than light a renderer shows.
+PLAUSIBLE_WAVELENGTH_UM = (0.01, 100.0)
 DEFAULT_STORAGE = "compact"
 
 
@@ -139,11 +149,75 @@ def _checked_optics_inputs(species, wavelength_um, size_bins, scale_m):
     lam = np.sort(lam_in)
     if lam.ndim != 1 or lam.size == 0 or np.any(np.diff(lam) <= 0) or np.any(~np.isfinite(lam)) or np.any(lam <= 0):
         raise ValueError(f"wavelength_um must be positive, finite and distinct, got {lam_in}")
+    problem = implausible_wavelengths(lam_in, "wavelength_um")
+    if problem is not None:
+        warnings.warn(problem, UserWarning, stacklevel=3)
     if isinstance(size_bins, bool) or not isinstance(size_bins, (int, np.integer)) or not 1 <= size_bins <= 4096:
         raise ValueError(f"invalid size_bins = {size_bins!r}: must be an integer in [1, 4096]")
     if not (np.isfinite(scale_m) and scale_m > 0):
         raise ValueError(f"invalid scale_m = {scale_m}: must be finite and > 0")
     return species, lam_in, lam
+
+
+def implausible_wavelengths(lam_um, name: str) -> str | None:
+    """What is wrong with wavelengths ``lam_um`` (um) that lie outside ``PLAUSIBLE_WAVELENGTH_UM`` (nanometres
+    given as micrometres, most likely), naming ``name``; None where all are plausible. The API warns with it,
+    the plugin fails loading."""
+    lam = np.atleast_1d(np.asarray(lam_um, dtype=np.float64))
+    lo, hi = PLAUSIBLE_WAVELENGTH_UM
+    if np.all((lam >= lo) & (lam <= hi)):
+        return None
+    return (f"{name} = {', '.join(f'{x:g}' for x in lam)} um: outside {lo:g}-{hi:g} um (visible light is "
+            f"0.38-0.78 um); in nanometres? then give {', '.join(f'{x / 1e3:g}' for x in lam)}")
+
+
+def checked_grain_depth(grain_depth) -> int:
+    """``grain_depth`` as an int, or a ValueError stating its range [1, ``MAX_GRAIN_DEPTH``]."""
+    ok = not isinstance(grain_depth, bool) and isinstance(grain_depth, (int, np.integer))
+    if not (ok and 1 <= grain_depth <= MAX_GRAIN_DEPTH):
+        raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer in [1, {MAX_GRAIN_DEPTH}]")
+    return int(grain_depth)
+
+
+def species_shares(species, shares=None) -> list[float]:
+    """Each species' share (``shares``, default each species' own ``share``), checked (one per species,
+    finite, >= 0, one > 0) and divided by the largest: shares are relative, and 1e308 and 1e308 are an even
+    split whose sum would overflow."""
+    raw = [sp.share for sp in species] if shares is None else list(np.atleast_1d(shares))
+    try:
+        w = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"invalid share = {raw!r}: one number per species") from None
+    if w.ndim != 1 or w.size != len(species) or not np.all(np.isfinite(w) & (w >= 0)) or not np.any(w > 0):
+        raise ValueError(f"invalid share = {w.tolist()}: one per species ({len(species)}), finite, >= 0, "
+                         "at least one > 0")
+    return (w / w.max()).tolist()
+
+
+def check_not_index_matched(species, eta_medium: float) -> None:
+    """A ValueError for a species whose grains have the host's index (eta = eta_medium, eta_k = 0): such a
+    sphere neither scatters (no index step, so no refraction and no diffraction: a_n = b_n = 0) nor absorbs,
+    and a medium of it would be empty. Indices near eta_medium are taken: their weak scattering is what the
+    optics compute (anomalous-diffraction-like, mostly forward)."""
+    for k, sp in enumerate(species):
+        if isinstance(sp.eta, Material):
+            continue  # tabulated, wavelength-dependent: never one number
+        eta = np.atleast_1d(np.asarray(sp.eta, dtype=np.complex128))
+        if np.all((eta.real == eta_medium) & (eta.imag == 0)):
+            where = f"species[{k}] " if len(species) > 1 else ""
+            raise ValueError(f"{where}eta = {eta[0].real:g} equals eta_medium = {eta_medium:g} with eta_k = 0: grains "
+                             "of their host's index neither scatter nor absorb (the medium would be empty); give "
+                             "eta or eta_medium another value")
+
+
+def check_scale(scale_m: float, r_max_um: float) -> None:
+    """A ValueError naming ``scale_m`` where the largest grain (``r_max_um``) in scene units, r 1e-6 / scale_m,
+    or its cross section overflows (scale_m = 1e-300)."""
+    reach = r_max_um * 1e-6 / scale_m
+    if not np.isfinite(np.pi * reach * reach):
+        raise ValueError(f"invalid scale_m = {scale_m:g}: the largest grain ({r_max_um:g} um) would be "
+                         f"{r_max_um * 1e-6 / scale_m:.3g} scene units across, beyond any finite extinction; "
+                         "scale_m is metres per scene unit (1e-3: a unit is a millimetre)")
 
 
 def _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed=0, storage=DEFAULT_STORAGE,
@@ -174,14 +248,15 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     if idx.size and (int(idx.min()) < 0 or int(idx.max()) >= len(species)):
         bad = int(np.flatnonzero((idx < 0) | (idx >= len(species)))[0])
         raise ValueError(f"species_index[{bad}] = {idx[bad]}: unknown species (have {len(species)})")
-    if r.size == n:
-        lo_box, hi_box = box_of(pos)
-        extent = float(np.max(hi_box - lo_box))
-        reach_max = settings.query_radius + float(r.max()) * 1e-6 / scale_m
-        _memory.require(_memory.bytes_per_particle(n, extent, reach_max, settings.storage) * n,
-                        f"a discrete medium of {n} particles")
-    # The core's own rules, checked now rather than after minutes of optics tables.
+    # The core's own rules (cells_per_particle's range among them), checked now rather than after minutes of
+    # optics tables, and before the estimate that depends on them.
     _motes.check_discrete_inputs(pos.ravel(), r, settings)
+    check_scale(scale_m, float(r.max()))
+    lo_box, hi_box = box_of(pos)
+    extent = float(np.max(hi_box - lo_box))
+    reach_max = settings.query_radius + float(r.max()) * 1e-6 / scale_m
+    _memory.require_medium(n, extent, reach_max, settings.storage, settings.cells_per_particle,
+                           f"a discrete medium of {n} particles")
     return pos, r, idx, species, lam_in, lam
 
 
@@ -319,9 +394,8 @@ def mean_extinction_um2(species, wavelength_um, *, shares=None, size_bins: int =
     what a bin's Q_ext varies across the PSD's far tails. A bulk extinction sigma_t (1/m) is then
     n <C_ext> 1e-12 with n grains per m^3."""
     species, lam_in, lam = _checked_optics_inputs(species, wavelength_um, size_bins, 1.0)
-    w = np.asarray([sp.share for sp in species] if shares is None else np.atleast_1d(shares), dtype=np.float64)
-    if w.size != len(species) or not np.all(np.isfinite(w) & (w >= 0)) or w.sum() <= 0:
-        raise ValueError(f"invalid shares = {w.tolist()}: one per species, >= 0, with a positive sum")
+    w = np.asarray(species_shares(species, shares))
+    check_not_index_matched(species, eta_medium)
     if truncate_below_rad is not None and truncate_below_rad <= 0:
         truncate_below_rad = None
     tables = _BinTables(lam, np.searchsorted(lam, lam_in), eta_medium, method, truncate_below_rad, None)
@@ -388,11 +462,11 @@ class DiscreteMedium:
                  storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True,
                  phase: dict | None = None, holders=None):
         self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
-        if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
-            raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
+        grain_depth = checked_grain_depth(grain_depth)
         settings = _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed, storage)
         pos, r, idx, species, lam_in, lam = _checked_inputs(
             positions, radii_um, species_index, species, wavelength_um, size_bins, scale_m, settings)
+        check_not_index_matched(species, eta_medium)
         if truncate_below_rad is not None and truncate_below_rad <= 0:
             truncate_below_rad = None
 
@@ -583,14 +657,14 @@ class DiscreteMedium:
         as the constructor's; each species' ``size_bins`` optics bins are log-spaced over its PSD's support."""
         self = cls.__new__(cls)
         self.storage = "procedural"
-        if isinstance(grain_depth, bool) or not isinstance(grain_depth, (int, np.integer)) or not 1 <= grain_depth < 2**32:
-            raise ValueError(f"invalid grain_depth = {grain_depth!r}: must be an integer >= 1")
+        grain_depth = checked_grain_depth(grain_depth)
         if not (np.isfinite(count) and 1 <= count <= MAX_PROCEDURAL_COUNT):
             raise ValueError(f"invalid count = {count!r}: a procedural cloud takes 1 to {MAX_PROCEDURAL_COUNT:g} particles")
         species, lam_in, lam = _checked_optics_inputs(species, wavelength_um, size_bins, scale_m)
-        shares = [float(v) for v in np.atleast_1d(shares)]
-        if len(shares) != len(species) or not all(np.isfinite(v) and v >= 0 for v in shares) or sum(shares) <= 0:
-            raise ValueError(f"invalid shares = {shares}: one per species, >= 0, with a positive sum")
+        shares = species_shares(species, shares)
+        check_not_index_matched(species, eta_medium)
+        check_scale(scale_m, max(float(sp.psd.quantile(np.array([1.0 - PROCEDURAL_RADIUS_QUANTILE]))[0])
+                                 for sp in species))
         if cache_bytes is None:
             cache_bytes = _memory.default_cache_bytes()
         if isinstance(cache_bytes, bool) or not isinstance(cache_bytes, (int, np.integer)) or cache_bytes < 1:

@@ -43,9 +43,11 @@ Parameter                    Type       Meaning (default)
                                         "r_max_um": 50}``; replaces the two above
 ``material``                 string     ``ice`` or ``water`` (tabulated indices); or give ``eta``:
 ``eta``, ``eta_k``           float      particle refractive index n + i k (1.31, 0)
-``eta_medium``               float      index of the host medium (1.0)
+``eta_medium``               float      index of the host medium (1.0). eta equal to it with eta_k 0 is an
+                                        error: grains of their host's index neither scatter nor absorb (an
+                                        index near it gives a faint, mostly forward-scattering medium)
 ``species``                  string     JSON list of species for mixtures, each ``{"psd": {...}, "material":
-                                        "ice"}`` or ``{"psd": ..., "eta": [n, k]}``, optional ``"share"``;
+                                        "ice"}`` or ``{"psd": ..., "eta": [n, k]}``, optional ``"share"`` (relative);
                                         replaces psd/material/eta. Files give each particle's species index
 ``scale_m``                  float      metres per scene unit (the units after ``to_world``), so that um radii
                                         and positions combine (1e-3)
@@ -56,7 +58,10 @@ Parameter                    Type       Meaning (default)
 ``tau_max``                  float      cap on each particle's optical depth (1): a particle whose disk
                                         r_c + r_i would be more opaque gets a wider disk; each disk removes
                                         exactly its C_ext from a beam (see Notes)
-``cells_per_particle``       float      grid resolution (0.125: about eight particles per cell)
+``cells_per_particle``       float      grid resolution (0.125: about eight particles per cell); at most
+                                        2e8 / count (a grid takes at most 2e8 cells), or with storage =
+                                        procedural 2^22 over a brick's grains; the grid's cells count in the
+                                        memory estimate (16 bytes each to build)
 ``continuous_count``         float      size classes with at least this many particles per query cylinder
                                         (over a mean free path or across the cloud) are rendered as a
                                         continuous medium: no pixel resolves their grains (16; inf: none)
@@ -66,7 +71,8 @@ Parameter                    Type       Meaning (default)
                                         rule of rays from surfaces, below; a sparse cloud of large grains,
                                         each of whose shadows matters, is walked all along) (1: grains are
                                         seen where a path meets them first; ignored when
-                                        ``continuous_count`` is inf, which keeps every ray exact)
+                                        ``continuous_count`` is inf, which keeps every ray exact); at most
+                                        2^32 - 1
 ``surface_footprint``        boolean    the automatic level of detail: rays that start at no event (a
                                         camera's, a wall's shadow ray, a bounce off the floor) see the
                                         grains' continuous equivalent where the narrowest pixel footprint
@@ -100,7 +106,8 @@ Parameter                    Type       Meaning (default)
                                         given, else 0.0313 (one bin of a 4096-value tabphase, as
                                         ``homogeneous_equivalent``); 0: none
 ``wavelengths``              string     tabulated wavelengths in um, comma-separated (spectral variants:
-                                        8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467)
+                                        8 from 0.38 to 0.78; RGB variants: 0.630, 0.532, 0.467); one
+                                        outside 0.01-100 um is an error (nanometres, most likely)
 ``seed``                     integer    seed of generated positions and free flights (0)
 ``time``                     float      seconds since the cloud was at rest; generated grains move with (0):
 ``velocity``                 vector     uniform velocity, scene units per second ("0, 0, 0")
@@ -280,7 +287,8 @@ import numpy as np
 from ..discrete import PHASE_TYPES, DiscreteMedium, box_of, log, mean_extinction_um2
 from ..ensemble import DEFAULT_TRUNCATE_RAD, RGB_WAVELENGTHS_UM, SPECTRAL_WAVELENGTHS_UM, Material, Species, pixel_footprint_rad
 from ..discrete import (DEFAULT_CELLS_PER_PARTICLE, DEFAULT_CONTINUOUS_COUNT, DEFAULT_GRAIN_DEPTH,
-                        DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_PROCEDURAL_COUNT, PHASE_MODELS, STORAGES)
+                        DEFAULT_STORAGE, DEFAULT_TAU_MAX, MAX_GRAIN_DEPTH, MAX_PROCEDURAL_COUNT, PHASE_MODELS,
+                        STORAGES, implausible_wavelengths, species_shares)
 from ..particle_io import ParticleFileError, load_particles
 from ..particles import query_radius_from_camera
 from .. import _memory, _motes, native
@@ -495,9 +503,7 @@ class _Build:
                 p.count = _count_of_extinction(p, species, lam, self.truncate if self.truncate > 0 else None, volume,
                                                f"the inside of {names}")
             pos = holders.fill(p.count, p.seed).reshape(-1, 3)
-            shares = [float(s.share) for s in species]
-            if not all(v >= 0 for v in shares) or sum(shares) <= 0:
-                raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
+            shares = species_shares(species)
             # Radii and species as a generated cloud draws them (its positions are not used).
             _, radii, sidx = _motes.generate_cloud(p.count, [-1.0] * 3, [1.0] * 3, "uniform", [], p.seed,
                                                    [sp.psd._core for sp in species], shares, p.seed,
@@ -684,7 +690,8 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
         p.truncate = None
     p.tau_max = get("tau_max", DEFAULT_TAU_MAX, float)
     p.continuous = get("continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
-    p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: v >= 1, "an integer >= 1")
+    p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: 1 <= v <= MAX_GRAIN_DEPTH,
+                        f"an integer in [1, {MAX_GRAIN_DEPTH}]")
     p.surface_footprint = get("surface_footprint", True, bool)
     p.cache_mb = get("cache_mb", None, float, lambda v: np.isfinite(v) and v > 0, "finite and > 0 (megabytes)")
     if "cache_mb" in props and p.storage != "procedural":
@@ -710,6 +717,11 @@ def _read_motion(props, p: SimpleNamespace, bad: list, get) -> None:
                              "finite and > 0 (scene units)")
     p.wrap = get("wrap", False, bool)
     p.moving = bool(np.any(p.velocity != 0) or p.turbulence > 0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        shift = p.velocity * p.time
+    if not np.all(np.isfinite(shift)):
+        bad.append(f"discrete medium: velocity = {_fmt_channels(p.velocity)} times time = {p.time:g} s overflows: the grains "
+                   "would move beyond any finite position (lower velocity or time)")
     if p.filename is not None and (p.moving or "time" in props):
         bad.append("discrete medium: time, velocity and turbulence move generated grains; a particle file "
                    "is read as it is (one file per frame: filename=\"grains_$frame.npz\")")
@@ -965,21 +977,25 @@ def _vector(props, name: str) -> np.ndarray:
     return v
 
 
+#: How a parameter's type reads in a message.
+_KIND_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "a boolean"}
+
+
 def _get(props, name, default, kind, check=None, allowed="", bad: list | None = None):
     """Read a property (so Mitsuba counts it as used), check its type and range. A problem raises a
     ValueError, or with ``bad`` is added to it (and the default returned)."""
     if name not in props:
         return default
-    value = props.get(name)
+    value = given = props.get(name)
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         value = float(value)
     elif kind is int and isinstance(value, float) and value.is_integer():
-        value = int(value)
+        value = int(value)  # an integer given as a float (1e308 too: checked, and shown, as given)
     problem = None
     if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        problem = f"discrete medium: parameter '{name}' must be a {kind.__name__}, got {value!r}"
+        problem = f"discrete medium: parameter '{name}' must be {_KIND_NAMES.get(kind, kind.__name__)}, got {given!r}"
     elif check is not None and not check(value):
-        problem = f"discrete medium: invalid {name} = {value!r}: must be {allowed}"
+        problem = f"discrete medium: invalid {name} = {given!r}: must be {allowed}"
     if problem is None:
         return value
     if bad is None:
@@ -1057,8 +1073,12 @@ def _particles(p: SimpleNamespace, props, species: list):
 def _checked_to_world(p: SimpleNamespace) -> np.ndarray:
     """``to_world`` as a 4x4 array, checked to be finite and invertible."""
     m = np.array(p.to_world.matrix, dtype=np.float64)
-    if not (np.all(np.isfinite(m)) and abs(np.linalg.det(m[:3, :3])) > 1e-12 * max(np.abs(m[:3, :3]).max(), 1e-300) ** 3):
-        raise ValueError("discrete medium: to_world is singular or not finite (a zero scale?)")
+    if not np.all(np.isfinite(m)):
+        raise ValueError("discrete medium: to_world is not finite (Mitsuba keeps transforms in single precision: "
+                         "a scale or translation beyond 3.4e38 is infinite)")
+    a = m[:3, :3] / max(np.abs(m[:3, :3]).max(), 1e-300)  # its determinant without overflow (a scale of 1e30)
+    if not abs(np.linalg.det(a)) > 1e-12:
+        raise ValueError("discrete medium: to_world is singular (a zero scale?)")
     return m
 
 
@@ -1116,9 +1136,7 @@ def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> Discret
     whole cloud (its to_world translated by velocity x time), grain by grain as a stored cloud's."""
     m = _checked_to_world(p).copy()
     m[:3, 3] += p.velocity * p.time
-    shares = [float(s.share) for s in species]
-    if not all(v >= 0 for v in shares) or sum(shares) <= 0:
-        raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
+    shares = species_shares(species)
     corners = np.array([[(-1.0, 1.0)[(i >> a) & 1] for a in range(3)] for i in range(8)]) @ m[:3, :3].T + m[:3, 3]
     query_radius, _ = _query_radius(p, corners)
     t = time.perf_counter()
@@ -1135,9 +1153,7 @@ def _procedural(p: SimpleNamespace, species: list, lam, common: dict) -> Discret
 def _generated_particles(p: SimpleNamespace, species: list, to_world: np.ndarray):
     """``count`` particles in the local cube [-1, 1]^3 after ``distribution``, mapped by ``to_world``
     (generated in the core, tile by tile: ``motes_core::space::cloud``): positions, radii (um), species."""
-    shares = [float(s.share) for s in species]
-    if not all(v >= 0 for v in shares) or sum(shares) <= 0:
-        raise ValueError("discrete medium: species shares must be >= 0 with a positive sum")
+    shares = species_shares(species)
     kind, params = p.density
     pos, radii, sidx = _motes.generate_cloud(p.count, [-1.0] * 3, [1.0] * 3, kind, params, p.seed,
                                              [s.psd._core for s in species], shares, p.seed,
@@ -1163,7 +1179,8 @@ def _query_radius(p: SimpleNamespace, pos: np.ndarray):
     user_radius = query_radius is not None
     query_radius = 0.0 if query_radius is None else query_radius
     extent = float(np.min(np.subtract(*box_of(pos)[::-1]))) if len(pos) > 1 else 0.0
-    if extent > 0 and query_radius > 0.25 * extent:
+    # (A radius beyond what the renderer holds, single precision, is the core's error, said alone.)
+    if extent > 0 and query_radius <= float(np.finfo(np.float32).max) and query_radius > 0.25 * extent:
         # stacklevel 3: the caller of the plugin's constructor, past this function and __init__.
         warnings.warn(f"discrete medium: query_radius = {query_radius:g} is comparable to the particles' extent "
                       f"({extent:g} scene units): disks reaching out of the box lose their extinction there", stacklevel=3)
@@ -1180,6 +1197,9 @@ def _wavelengths(wavelengths: str | None) -> np.ndarray:
         raise ValueError(f"discrete medium: parameter 'wavelengths' must be numbers in um, got {wavelengths!r}") from None
     if mi.is_rgb and lam.size != 3:
         raise ValueError("discrete medium: RGB variants need exactly 3 wavelengths (R, G, B)")
+    problem = implausible_wavelengths(lam, "wavelengths")
+    if problem is not None:
+        raise ValueError(f"discrete medium: invalid {problem}")
     return lam
 
 

@@ -12,7 +12,7 @@
 use motes_core::space::ray::RaySegment;
 use motes_core::OpticsError;
 use numpy::{PyArray1, PyReadonlyArray1};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyMemoryError, PyValueError};
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
@@ -48,6 +48,15 @@ pub(crate) fn to_py(e: OpticsError) -> PyErr {
         OpticsError::InvalidOption {
             argument, value, ..
         } => invalid(argument, value, message),
+        OpticsError::OutOfRange {
+            argument, value, ..
+        } => invalid(argument, value, message),
+        // A MemoryError (the Python layer's own estimates raise it too), naming what drives the size.
+        OpticsError::OutOfMemory { argument, .. } => Python::attach(|py| {
+            let err = PyMemoryError::new_err(message);
+            let _ = err.value(py).setattr("argument", argument);
+            err
+        }),
     }
 }
 

@@ -172,10 +172,10 @@ impl<'a> Ensemble<'a> {
         eta_medium: f64,
         opts: &'a BulkOptions,
     ) -> Result<Self, OpticsError> {
-        let total_share = check_ensemble(species, number_density_m3, opts)?;
+        let fractions = check_ensemble(species, number_density_m3, opts)?;
         let nodes = radius_nodes(
             species,
-            total_share,
+            &fractions,
             number_density_m3,
             wavelength_um,
             eta_medium,
@@ -581,12 +581,12 @@ fn node_intensity(
         .collect()
 }
 
-/// The checks of an ensemble's inputs; returns the species' total share.
+/// The checks of an ensemble's inputs; returns each species' fraction of the particles.
 fn check_ensemble(
     species: &[Species],
     number_density_m3: f64,
     opts: &BulkOptions,
-) -> Result<f64, OpticsError> {
+) -> Result<Vec<f64>, OpticsError> {
     require(
         "number_density_m3",
         number_density_m3,
@@ -600,7 +600,6 @@ fn check_ensemble(
         opts.mie_dx.is_finite() && opts.mie_dx >= 0.0,
         "finite and >= 0",
     )?;
-    let total_share: f64 = species.iter().map(|s| s.share).sum();
     for s in species {
         require(
             "share",
@@ -610,15 +609,23 @@ fn check_ensemble(
         )?;
         s.psd.validate()?;
     }
-    require("share (sum)", total_share, total_share > 0.0, "> 0")?;
-    Ok(total_share)
+    let largest = species.iter().map(|s| s.share).fold(0.0, f64::max);
+    require(
+        "share",
+        largest,
+        largest > 0.0,
+        "> 0 for at least one species",
+    )?;
+    Ok(super::share_fractions(
+        &species.iter().map(|s| s.share).collect::<Vec<_>>(),
+    ))
 }
 
 /// Every (species, radius node) with its number weight per m³ (Eq. 16–17's radius integral), the
 /// ripple in x resolved where the species is computed by Mie.
 fn radius_nodes(
     species: &[Species],
-    total_share: f64,
+    fractions: &[f64],
     number_density_m3: f64,
     wavelength_um: f64,
     eta_medium: f64,
@@ -626,7 +633,7 @@ fn radius_nodes(
 ) -> Result<Vec<(Particle, f64)>, OpticsError> {
     let k = 2.0 * PI * eta_medium / wavelength_um;
     let mut nodes: Vec<(Particle, f64)> = Vec::new();
-    for s in species {
+    for (s, fraction) in species.iter().zip(fractions) {
         let ripple = RippleResolution {
             wavenumber_per_um: k,
             dx: opts.mie_dx,
@@ -641,7 +648,7 @@ fn radius_nodes(
             if wi > 0.0 {
                 nodes.push((
                     Particle::new(ri, wavelength_um, s.eta, eta_medium)?,
-                    number_density_m3 * s.share / total_share * wi,
+                    number_density_m3 * fraction * wi,
                 ));
             }
         }

@@ -99,6 +99,17 @@ fn an_bn(n: usize, x: f64, m: C64, dn: C64, rb: (f64, f64), rb_prev: (f64, f64))
 impl MieCoefficients {
     pub fn new(x: f64, m: C64) -> Self {
         let nmax = series_length(x);
+        if m == C64::new(1.0, 0.0) {
+            // A sphere of its medium's index is no sphere: a_n = b_n = 0 exactly (the recurrences
+            // would give rounding noise, Q_ext ~ 1e-25, and a phase function of it).
+            let zero = vec![C64::new(0.0, 0.0); nmax];
+            return MieCoefficients {
+                x,
+                m,
+                a: zero.clone(),
+                b: zero,
+            };
+        }
         let mx = m * x;
         let d = log_derivative_downward(mx, log_derivative_start(nmax, mx));
         let rb = riccati_bessel_upward(x, nmax);
@@ -288,7 +299,10 @@ impl MieIntensitySums {
             }
             total += 2.0 * acc;
         }
-        total
+        // A sum of squares, evaluated as a quadratic form in the coefficients: where the intensity is
+        // tiny against the terms (deep minima, index-matched spheres) it rounds to a few 1e-16 of them,
+        // of either sign. Clamped here, at its source, so that a phase table never holds a negative.
+        total.max(0.0)
     }
 }
 
@@ -402,6 +416,28 @@ mod tests {
                 (got / direct - 1.0).abs() < 1e-11,
                 "theta {theta}: {got} vs {direct}"
             );
+        }
+    }
+
+    /// A sphere of its medium's index has no coefficients (Q = 0 exactly, not rounding noise), and the
+    /// intensity sums never go negative, there or near it (issue 44: a phase table of −4e-17).
+    #[test]
+    fn index_matched_sphere_scatters_nothing_and_sums_stay_non_negative() {
+        let c = MieCoefficients::new(300.0, C64::new(1.0, 0.0));
+        assert_eq!((c.q_ext(), c.q_sca()), (0.0, 0.0));
+        for m in [
+            C64::new(1.0, 0.0),
+            C64::new(1.0 + 1e-9, 0.0),
+            C64::new(1.0001, 0.0),
+        ] {
+            let mut sums = MieIntensitySums::new(series_length(300.0));
+            for x in [250.0, 270.0, 300.0] {
+                sums.add(&MieCoefficients::new(x, m), 1.0);
+            }
+            for k in 0..=2000 {
+                let mu = (std::f64::consts::PI * k as f64 / 2000.0).cos();
+                assert!(sums.intensity(mu) >= 0.0, "{m} at mu {mu}");
+            }
         }
     }
 

@@ -37,12 +37,14 @@
 //! Each particle is known by (tile, index in tile), whichever brick found it: the key that keeps a
 //! scattered ray from meeting its own particle again.
 
-use crate::error::{require, OpticsError};
+use crate::error::{require, shown, OpticsError};
 use crate::render::continuous::{class_is_continuous, ContinuousField, CLASS_FLAG};
 use crate::render::storage::LEVELS_PER_BIN;
 use crate::space::cloud::{det3, invert_affine, CloudSpec, Tiling};
 use crate::space::dda::{Dda, GridFrame};
-use crate::space::grid::{size_class, GridSettings, ParticleGrid, Site, SIZE_CLASSES};
+use crate::space::grid::{
+    size_class, GridSettings, ParticleGrid, Site, CELLS_DRIVER, SIZE_CLASSES,
+};
 use crate::space::motion::Motion;
 use crate::space::ray::RaySegment;
 use crate::space::vec3::{cross, dot};
@@ -65,6 +67,10 @@ const MAX_BRICK_CANDIDATES: f64 = 1e7;
 /// Most centres of discrete grains (at the density's peak) one inclusion ball may hold: 10^10 grains
 /// of 80 µm in a 12 cm cube with r_c 0.2 mm hold 530 and render (bricks of ~10 MB); 10^12 hold 53 000.
 const MAX_BALL_NEIGHBOURS: f64 = 2000.0;
+
+/// Most cells of a brick's grid (2^22: 64 MB to build at most; a brick of 65536 grains at the default
+/// resolution has 8192).
+const MAX_BRICK_CELLS: f64 = 4_194_304.0;
 
 /// A procedural cloud's distribution and the optics bins its radii fall in.
 #[derive(Clone, Debug)]
@@ -103,7 +109,7 @@ pub(crate) struct ClassEntry {
 /// level (module docs), then one representative per bin (codes from `classes.len()`: a bin's
 /// continuous classes as one, cross section their mean).
 pub(crate) fn class_table(spec: &ProceduralSpec) -> Result<Vec<ClassEntry>, OpticsError> {
-    let total: f64 = spec.cloud.species.iter().map(|s| s.0).sum();
+    let fractions = spec.cloud.share_fractions();
     require(
         "bin_edges_um (species)",
         spec.bin_edges_um.len() as f64,
@@ -112,7 +118,7 @@ pub(crate) fn class_table(spec: &ProceduralSpec) -> Result<Vec<ClassEntry>, Opti
         "one list of edges and one first bin per species",
     )?;
     let mut out = Vec::new();
-    for (s, (share, psd)) in spec.cloud.species.iter().enumerate() {
+    for (s, ((_, psd), fraction)) in spec.cloud.species.iter().zip(&fractions).enumerate() {
         let edges = &spec.bin_edges_um[s];
         require(
             "bin_edges_um",
@@ -148,7 +154,7 @@ pub(crate) fn class_table(spec: &ProceduralSpec) -> Result<Vec<ClassEntry>, Opti
                 } else {
                     cdf(lo * ((l + 1) as f64 * step).exp())
                 };
-                let p = share / total * (z - a).max(0.0);
+                let p = fraction * (z - a).max(0.0);
                 if p > 0.0 {
                     let r = lo * ((l as f64 + 0.5) * step).exp() * spec.scene_per_um;
                     out.push(ClassEntry {
@@ -458,6 +464,22 @@ fn checked_cloud(spec: &ProceduralSpec) -> Result<([[f64; 4]; 3], f64), OpticsEr
         spec.transform.iter().flatten().all(|x| x.is_finite()),
         "a finite transform",
     )?;
+    // The box's volume in the cloud's coordinates and in scene units (|det| times it) set the grains'
+    // number density: a box or transform of 1e200 overflows them, one of 1e-200 underflows them.
+    let box_volume: f64 = (0..3).map(|a| hi[a] - lo[a]).product();
+    require(
+        "box",
+        box_volume,
+        box_volume.is_finite() && box_volume > 0.0,
+        "a box whose volume (the product of its sides) is finite and > 0",
+    )?;
+    let scene_volume = scene_box(spec).0;
+    require(
+        "to_world",
+        det3(&spec.transform),
+        scene_volume.is_finite() && scene_volume > 0.0,
+        "a transform whose determinant keeps the box's volume in scene units finite and > 0",
+    )?;
     let to_cloud = invert_affine(&spec.transform).ok_or(OpticsError::InvalidArgument {
         argument: "to_world",
         value: 0.0,
@@ -731,6 +753,11 @@ impl ProceduralGrains {
         expected: f64,
         cache_bytes: usize,
     ) -> Result<Self, OpticsError> {
+        if let Some((motion, time)) = &spec.motion {
+            // Each grain moves when its brick is built, where no error can be returned: the motion's
+            // terms checked here, for the farthest grain the box holds.
+            motion.check_reach(extent, *time)?;
+        }
         let reach_cloud = cloud_reach(&to_cloud, reach_scene, extent);
         // Tiles are generated as far out as a ball plus the drift can carry a grain into a brick.
         let drift = spec.motion.as_ref().map_or(0.0, |(m, _)| m.drift_bound());
@@ -757,10 +784,25 @@ impl ProceduralGrains {
             "count",
             spec.count,
             generated <= MAX_BRICK_CANDIDATES && neighbours <= MAX_BALL_NEIGHBOURS,
-            "low enough that a discrete grain's inclusion ball holds at most 2000 others' centres \
-             (and a brick generates at most 10^7 candidates): lower count or query_radius, or \
-             continuous_count so that such grains are continuous",
+            "low enough that a discrete grain's inclusion ball (its radius in scene units, \
+             radius_um x 1e-6 / scale_m, plus query_radius) holds at most 2000 others' centres \
+             (and a brick generates at most 10^7 candidates): lower count or query_radius, raise \
+             scale_m, or lower continuous_count so that such grains are continuous",
         )?;
+        // Each brick's grid: about `generated` particles at cells_per_particle cells each, bounded
+        // so that building one on every thread at once takes a few MB (`build_brick`).
+        let most = MAX_BRICK_CELLS / generated.max(1.0);
+        if settings.cells_per_particle > most {
+            return Err(OpticsError::OutOfRange {
+                argument: CELLS_DRIVER,
+                value: settings.cells_per_particle,
+                requirement: format!(
+                    "in (0, {}] for this procedural cloud, whose bricks hold about \
+                     {generated:.0} grains each (a brick's grid takes at most {MAX_BRICK_CELLS:e} cells)",
+                    shown(most)
+                ),
+            });
+        }
         // Bricks over tile indices −halo .. dims + halo (a ring of tiles whose own particles are none).
         let dims = [0, 1, 2].map(|a| (tiling.dims[a] + 2 * halo[a]).div_ceil(per_brick[a]));
         let brick_edge = [0, 1, 2].map(|a| tiling.size[a] * per_brick[a] as f64);
@@ -864,7 +906,11 @@ impl ProceduralGrains {
         }
         let radius: Vec<f64> = code.iter().map(|&k| self.grid_radius[k as usize]).collect();
         let c_ext: Vec<f64> = code.iter().map(|&k| self.grid_c[k as usize]).collect();
-        let mut grid = ParticleGrid::from_checked(&pos, &radius, &c_ext, 1, &self.settings);
+        // A brick's particles are bounded (`MAX_BRICK_CANDIDATES`) and so are its cells
+        // (`MAX_BRICK_CELLS`, checked at load): its grid's memory is a few MB, which a render
+        // cannot do without (there is no error path out of a free flight).
+        let mut grid = ParticleGrid::from_checked(&pos, &radius, &c_ext, 1, &self.settings)
+            .expect("a brick's grid of bounded cells");
         grid.release_stored();
         let bytes = grid.bytes() + code.len() * 12 + 64;
         Brick {

@@ -239,7 +239,14 @@ impl Density {
             start + end > 0.0,
             "> 0 where start is 0 (a zero density)",
         )?;
-        Ok(Density::Gradient { axis, start, end })
+        // A relative density: scaled to a largest value of 1, so that its mean over the box
+        // ((start + end) / 2) cannot overflow (start = end = 1e308).
+        let largest = start.max(end);
+        Ok(Density::Gradient {
+            axis,
+            start: start / largest,
+            end: end / largest,
+        })
     }
 
     pub(crate) fn at(&self, p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
@@ -356,8 +363,18 @@ impl CloudSpec {
                 "finite and >= 0",
             )?;
         }
-        let total: f64 = self.species.iter().map(|s| s.0).sum();
-        require("share (sum)", total, total > 0.0, "> 0")
+        let largest = self.species.iter().map(|s| s.0).fold(0.0, f64::max);
+        require(
+            "share",
+            largest,
+            largest > 0.0,
+            "> 0 for at least one species",
+        )
+    }
+
+    /// Each species' fraction of the particles ([`crate::ensemble::share_fractions`]).
+    pub(crate) fn share_fractions(&self) -> Vec<f64> {
+        crate::ensemble::share_fractions(&self.species.iter().map(|s| s.0).collect::<Vec<_>>())
     }
 
     /// The tiles of a Poisson cloud of `expected` particles (about [`CANDIDATES_PER_TILE`] candidates
@@ -415,10 +432,10 @@ impl CloudSpec {
         samplers: Option<&[RadiusSampler]>,
         mut emit: impl FnMut(Grain),
     ) -> usize {
-        let total_share: f64 = self.species.iter().map(|s| s.0).sum();
+        let fractions = self.share_fractions();
         self.visit_candidates(tiling, t, |centre, u| {
             if let Some(samplers) = samplers {
-                let species = pick_species(&self.species, total_share, u[4]);
+                let species = pick_species(&fractions, u[4]);
                 let radius_um = samplers[species].draw(u[5], u[6]);
                 emit(Grain {
                     centre,
@@ -465,17 +482,16 @@ impl CloudSpec {
     }
 }
 
-/// The species whose share interval holds u·total.
-fn pick_species(species: &[(f64, Psd)], total: f64, u: f64) -> usize {
+/// The species whose interval of the fractions ([`CloudSpec::share_fractions`]) holds u.
+fn pick_species(fractions: &[f64], u: f64) -> usize {
     let mut acc = 0.0;
-    let target = u * total;
-    for (i, (share, _)) in species.iter().enumerate() {
-        acc += share;
-        if target < acc {
+    for (i, f) in fractions.iter().enumerate() {
+        acc += f;
+        if u < acc {
             return i;
         }
     }
-    species.iter().rposition(|s| s.0 > 0.0).unwrap_or(0)
+    fractions.iter().rposition(|&f| f > 0.0).unwrap_or(0)
 }
 
 /// A stored cloud: N particles in tile order, centres mapped by `transform` (3×4, row-major: x' = A x + b).

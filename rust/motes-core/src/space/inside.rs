@@ -251,7 +251,7 @@ impl Mesh {
             signed_volume: 0.0,
             oriented: false,
         };
-        (mesh.start, mesh.items) = mesh.bin_triangles();
+        (mesh.start, mesh.items) = mesh.bin_triangles()?;
         mesh.signed_volume = signed_volume(&mesh.tris);
         mesh.oriented = edge_counts(vertices, faces).1;
         Ok(mesh)
@@ -259,7 +259,7 @@ impl Mesh {
 
     /// Each grid cell's triangles (those whose projected box overlaps it): per-cell starts (a prefix
     /// sum of the counts) and the triangle indices in cell order.
-    fn bin_triangles(&self) -> (Vec<u32>, Vec<u32>) {
+    fn bin_triangles(&self) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
         let n = self.n;
         let ranges: Vec<[usize; 4]> = self
             .tris
@@ -290,7 +290,7 @@ impl Mesh {
                 }
             }
         }
-        counting_sort_by(&ref_cell, n[0] * n[1], |j| ref_tri[j])
+        counting_sort_by(&ref_cell, n[0] * n[1], |j| ref_tri[j], "meshes (triangles)")
     }
 
     /// The grid cell of the projected point (y, z), clamped to the grid (the same formula for a

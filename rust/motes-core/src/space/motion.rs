@@ -22,7 +22,7 @@
 //! A smooth seeded displacement is what a renderer can afford for 10⁸ grains per frame: one curl
 //! evaluation per grain and frame, no time integration.
 
-use crate::error::{require, OpticsError};
+use crate::error::{require, shown, OpticsError};
 use crate::rng::splitmix64;
 use crate::space::cloud::{apply, det3, invert_affine, ValueNoise};
 use rayon::prelude::*;
@@ -33,6 +33,9 @@ pub const CURL_STEP: f64 = 1e-3;
 pub const PATTERN_SPEED: f64 = 1.0;
 /// Direction of the slide (unit vector, irrational-looking so that no lattice axis is favoured).
 const PATTERN_DIR: [f64; 3] = [0.381_966, 0.618_034, 0.688_191];
+/// Largest noise coordinate |q| the drift takes: the curl's step ([`CURL_STEP`]) is still ~200 ulps
+/// of it (beyond, the differences round to zero and the grains stop drifting).
+pub const MAX_NOISE_COORDINATE: f64 = 1e12;
 /// Stream tag of the potential's seeds.
 const MOTION_STREAM: u64 = 0x6D6F_7469_6F6E;
 
@@ -66,6 +69,12 @@ impl Motion {
             turbulence,
             turbulence.is_finite() && turbulence >= 0.0,
             "finite and >= 0",
+        )?;
+        require(
+            "turbulence",
+            turbulence,
+            drift_of(turbulence).is_finite(),
+            "small enough that the grains' drift (up to 17.5 x turbulence) stays finite",
         )?;
         require(
             "turbulence_scale",
@@ -110,7 +119,7 @@ impl Motion {
     /// |W(t) − W(0)| ≤ 10√3; one per cent more covers the central differences.
     pub fn drift_bound(&self) -> f64 {
         if self.potential.is_some() {
-            self.turbulence * 10.0 * 3f64.sqrt() * 1.01
+            drift_of(self.turbulence)
         } else {
             0.0
         }
@@ -149,23 +158,82 @@ impl Motion {
     }
 
     /// Every grain of `centres` moved from its rest position to its position at time `t`, in parallel.
+    /// Checked first ([`Self::check_reach`]): each term of x(t) (module docs) for the farthest grain, so
+    /// that no grain ends up nowhere and the message names the input that would have sent it there.
     pub fn apply(&self, centres: &mut [[f64; 3]], t: f64) -> Result<(), OpticsError> {
-        require("time", t, t.is_finite(), "finite (seconds)")?;
+        let farthest = centres
+            .par_iter()
+            .map(|c| c.iter().fold(0.0f64, |m, x| m.max(x.abs())))
+            .reduce(|| 0.0, f64::max);
+        self.check_reach(farthest, t)?;
         centres
             .par_iter_mut()
             .with_min_len(4096)
             .for_each(|c| *c = self.position(*c, t));
-        // velocity × time can overflow (1e300 m/s for 1e10 s): no grain may end up nowhere.
-        match centres.iter().flatten().find(|x| !x.is_finite()) {
-            Some(&x) => require(
-                "velocity",
-                x,
-                false,
-                "small enough that velocity x time stays finite",
-            ),
-            None => Ok(()),
-        }
+        Ok(())
     }
+
+    /// The checks of [`Self::apply`] for grains whose farthest rest coordinate is `farthest` (scene
+    /// units) at time `t`: |x(t)| <= |x0| + |v t| + the drift's bound stays finite (velocity x time
+    /// overflows at 1e300 m/s for 1e10 s), and where there is turbulence its noise coordinates
+    /// q = x / L + t w stay below [`MAX_NOISE_COORDINATE`], where the curl's central differences
+    /// still resolve (beyond it the grains would silently stop drifting). Each names its input.
+    pub fn check_reach(&self, farthest: f64, t: f64) -> Result<(), OpticsError> {
+        require("time", t, t.is_finite(), "finite (seconds)")?;
+        require(
+            "positions",
+            farthest,
+            farthest.is_finite(),
+            "finite coordinates",
+        )?;
+        let (v, shift) = self
+            .velocity
+            .iter()
+            .map(|v| (*v, (v * t).abs()))
+            .fold((0.0, 0.0), |a, b| if b.1 >= a.1 { b } else { a });
+        let moved = farthest + shift;
+        if !moved.is_finite() {
+            return Err(OpticsError::OutOfRange {
+                argument: "velocity",
+                value: v,
+                requirement: format!(
+                    "small enough that the grains' positions plus velocity x time (time = {} s) \
+                     stay finite",
+                    shown(t)
+                ),
+            });
+        }
+        if self.potential.is_some() {
+            require(
+                "turbulence",
+                self.turbulence,
+                (moved + self.drift_bound()).is_finite(),
+                "small enough that the grains' positions plus their drift (up to 17.5 x turbulence) \
+                 stay finite",
+            )?;
+            require(
+                "time",
+                t,
+                t.abs() * PATTERN_SPEED <= MAX_NOISE_COORDINATE,
+                "at most 1e12 s where turbulence moves the grains (its pattern, sliding at one noise \
+                 cell per second, is resolved to 1e-3 of a cell)",
+            )?;
+            let q = (moved + self.drift_bound()) / self.scale;
+            require(
+                "turbulence_scale",
+                self.scale,
+                q <= MAX_NOISE_COORDINATE,
+                "at least 1e-12 of the grains' largest coordinate (the drift is resolved to 1e-3 of \
+                 turbulence_scale, which a coordinate of more than 1e12 of it rounds away)",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// The bound on the drift of a turbulence of amplitude `turbulence` ([`Motion::drift_bound`]).
+fn drift_of(turbulence: f64) -> f64 {
+    turbulence * 10.0 * 3f64.sqrt() * 1.01
 }
 
 #[cfg(test)]
@@ -182,6 +250,37 @@ mod tests {
         }
         let t = Motion::new([0.0; 3], 0.3, 0.5, 7).unwrap();
         assert_eq!(t.position([0.1, 0.2, 0.3], 0.0), [0.1, 0.2, 0.3]);
+    }
+
+    /// An overflow names the input that causes it (issue 44: turbulence's was blamed on velocity).
+    #[test]
+    fn overflows_name_their_input() {
+        let arg = |r: Result<(), OpticsError>| match r.unwrap_err() {
+            OpticsError::InvalidArgument { argument, .. }
+            | OpticsError::OutOfRange { argument, .. } => argument,
+            e => panic!("{e}"),
+        };
+        let e = Motion::new([0.0; 3], 1e308, 1.0, 1)
+            .map(|_| ())
+            .unwrap_err();
+        assert!(matches!(
+            e,
+            OpticsError::InvalidArgument {
+                argument: "turbulence",
+                ..
+            }
+        ));
+        let mut c = vec![[0.5, 0.0, 0.0]; 3];
+        let v = Motion::new([1e300, 0.0, 0.0], 0.0, 1.0, 1).unwrap();
+        assert_eq!(arg(v.apply(&mut c, 1e10)), "velocity");
+        let s = Motion::new([0.0; 3], 1.0, 1e-300, 1).unwrap();
+        assert_eq!(arg(s.apply(&mut c, 1.0)), "turbulence_scale");
+        let slow = Motion::new([0.0; 3], 1.0, 1.0, 1).unwrap();
+        assert_eq!(arg(slow.apply(&mut c, 1e300)), "time");
+        assert_eq!(c, vec![[0.5, 0.0, 0.0]; 3]); // nothing moved
+        let ok = Motion::new([1.0, 0.0, 0.0], 1e200, 1e200, 1).unwrap();
+        ok.apply(&mut c, 2.0).unwrap();
+        assert!(c.iter().flatten().all(|x| x.is_finite()));
     }
 
     /// The drift's displacement field is divergence-free (finite differences over x0), smooth in

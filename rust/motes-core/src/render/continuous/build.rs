@@ -2,6 +2,7 @@
 //! tables and the majorants.
 
 use super::{Column, ContinuousField, Members, CLASS_FLAG};
+use crate::error::OpticsError;
 use crate::space::dda::GridFrame;
 use crate::space::grid::counting_sort_by;
 use rayon::prelude::*;
@@ -47,14 +48,15 @@ impl ContinuousField {
     /// inclusion radii `reach` and extinction cross sections `weight` (scene units), all indexed by
     /// original index (a subset is selected, not copied: 10^8 particles). With `classes` (each
     /// particle's class code, by original index) the field keeps the classes instead of the indices
-    /// (compact storage).
+    /// (compact storage). Its cells' arrays are allocated fallibly ([`OpticsError::OutOfMemory`]
+    /// naming `count`, which sets their number).
     pub fn build(
         positions: &[[f64; 3]],
         reach: Column,
         weight: Column,
         ids: Option<&[u32]>,
         classes: Option<&[u32]>,
-    ) -> Self {
+    ) -> Result<Self, OpticsError> {
         let n = ids.map_or(positions.len(), <[u32]>::len);
         let id = |j: usize| ids.map_or(j, |v| v[j] as usize);
         let (lo, hi) = field_box(n, |j| positions[id(j)], |j| reach(id(j)));
@@ -76,7 +78,7 @@ impl ContinuousField {
             .into_par_iter()
             .map(|j| cell_of(&positions[id(j)]) as u32)
             .collect();
-        let (start, order) = counting_sort_by(&which, n_cells, |j| id(j) as u32);
+        let (start, order) = counting_sort_by(&which, n_cells, |j| id(j) as u32, "count")?;
         drop(which);
         let cell_volume = cell[0] * cell[1] * cell[2];
         // Each particle's extinction as rays inside the box meet it (`inside_share`).
@@ -97,7 +99,7 @@ impl ContinuousField {
                 cdf,
             ),
         };
-        Self::with_cells(lo, cell, dims, sigma, start, members, cdf)
+        Ok(Self::with_cells(lo, cell, dims, sigma, start, members, cdf))
     }
 
     /// The field confined to the inside of the shapes that hold its medium (`inside(p)`: a medium that

@@ -18,7 +18,7 @@ fn field_is_the_mean_of_the_particles() {
     let reach = vec![0.01; n];
     let w: Vec<f64> = (0..n).map(|_| 1e-5 * (0.5 + lcg(&mut s))).collect();
     let ids: Vec<u32> = (0..n as u32).collect();
-    let f = ContinuousField::build(&pos, &|i| reach[i], &|i| w[i], Some(&ids), None);
+    let f = ContinuousField::build(&pos, &|i| reach[i], &|i| w[i], Some(&ids), None).unwrap();
     let sigma = w.iter().sum::<f64>(); // volume 1
     let ray = RaySegment::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0], 0.0, 3.0);
     let tau = f.optical_depth(&ray);
@@ -78,7 +78,8 @@ fn packet_free_flights_match_one_ray_at_a_time() {
         &|_| 1e-4,
         None,
         None,
-    );
+    )
+    .unwrap();
     let largest = f.majorant.iter().fold(0.0f64, |x, &m| x.max(m as f64));
     let inv_cell = f.inv_cell;
     let continued_before = CONTINUED.load(Ordering::Relaxed);
@@ -183,7 +184,7 @@ fn delta_tracking_samples_the_exact_free_flight() {
     let reach = vec![0.01; n];
     let w = vec![3e-5; n];
     let ids: Vec<u32> = (0..n as u32).collect();
-    let mut f = ContinuousField::build(&pos, &|i| reach[i], &|i| w[i], Some(&ids), None);
+    let mut f = ContinuousField::build(&pos, &|i| reach[i], &|i| w[i], Some(&ids), None).unwrap();
     // Both ways: the blocks' majorants, and the whole field's (which this gradient's field would
     // not choose, but is as exact).
     let largest = f.majorant.iter().fold(0.0f64, |x, &m| x.max(m as f64));
@@ -198,14 +199,15 @@ fn delta_tracking_samples_the_exact_free_flight() {
         &|_| 3e-5,
         None,
         None,
-    );
+    )
+    .unwrap();
     assert!(even.uniform_majorant.is_some());
     delta_tracking_matches_exact(&even, &mut s);
     // All particles in one corner block of a large box: blocks.
     let mut corner = random_points(&mut s, 20_000);
     corner.iter_mut().for_each(|p| *p = p.map(|x| 0.05 * x));
     corner.push([1.0; 3]);
-    let crowded = ContinuousField::build(&corner, &|_| 0.01, &|_| 3e-5, None, None);
+    let crowded = ContinuousField::build(&corner, &|_| 0.01, &|_| 3e-5, None, None).unwrap();
     assert!(crowded.uniform_majorant.is_none());
 }
 
@@ -255,7 +257,7 @@ fn cells_add_no_transmittance() {
     let n = 200_000;
     let pos = random_points(&mut s, n);
     let w = vec![3.0 / n as f64; n]; // σ_t = 3 per unit length in the unit cube
-    let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, None);
+    let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, None).unwrap();
     let (mut tau, mut tr) = (0.0, 0.0);
     let rays = 4000;
     for _ in 0..rays {
@@ -340,6 +342,7 @@ fn picks_of_distinct_classes_match_the_list() {
             .map(|_| (lcg(&mut s) * classes_count as f64) as u32)
             .collect();
         let mut f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes))
+            .unwrap()
             .picking_by(|k| k);
         assert_eq!(f.picks.is_some(), classes_count <= 16, "{classes_count}");
         let Some(table) = f.picks.take() else {
@@ -367,7 +370,7 @@ fn picks_of_distinct_classes_match_the_list() {
     // of its own.
     let classes: Vec<u32> = (0..n).map(|_| (lcg(&mut s) * 5000.0) as u32).collect();
     let group = |k: u32| (k & 0xFFFF) % 4;
-    let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+    let f = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes)).unwrap();
     let f = f.picking_by(|k| k);
     assert!(f.picks.is_none());
     let mut f = f.picking_by(group);
@@ -410,7 +413,8 @@ fn picks_of_distinct_classes_match_the_list() {
         assert!(!kept.is_empty() || m.is_empty());
         assert!(kept.iter().all(|k| m.contains(k)), "cell {c}");
     }
-    let untabled = ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes));
+    let untabled =
+        ContinuousField::build(&pos, &|_| 0.001, &|i| w[i], None, Some(&classes)).unwrap();
     let bytes = untabled.bytes();
     assert_eq!(untabled.forget_members().bytes(), bytes);
 }

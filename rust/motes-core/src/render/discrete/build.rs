@@ -65,13 +65,16 @@ fn build_walk(
     continuous_count: f64,
     classes: Option<&[u32]>,
     centre_cells: Option<bool>,
-) -> (
-    Option<ParticleGrid>,
-    Option<ContinuousField>,
-    Vec<bool>,
-    Option<SurfaceFootprint>,
-    Option<Vec<u32>>,
-) {
+) -> Result<
+    (
+        Option<ParticleGrid>,
+        Option<ContinuousField>,
+        Vec<bool>,
+        Option<SurfaceFootprint>,
+        Option<Vec<u32>>,
+    ),
+    OpticsError,
+> {
     let WalkColumns {
         reach,
         grid_radius,
@@ -86,18 +89,20 @@ fn build_walk(
     // copies: a subset of 10^8 particles would be 40 bytes each).
     let centred = settings.centre_cells && centre_cells_for(discrete_ids.len(), centre_cells);
     let settings = &settings.centred(centred);
-    let grid = (!discrete_ids.is_empty()).then(|| {
-        ParticleGrid::from_particles(
-            &Particles {
-                positions,
-                ids: (!field_ids.is_empty()).then_some(&discrete_ids[..]),
-                radius: grid_radius,
-                c_ext: &|i, _| grid_c(i),
-                channels: 1,
-            },
-            settings,
-        )
-    });
+    let grid = (!discrete_ids.is_empty())
+        .then(|| {
+            ParticleGrid::from_particles(
+                &Particles {
+                    positions,
+                    ids: (!field_ids.is_empty()).then_some(&discrete_ids[..]),
+                    radius: grid_radius,
+                    c_ext: &|i, _| grid_c(i),
+                    channels: 1,
+                },
+                settings,
+            )
+        })
+        .transpose()?;
     // Compact storage: particles named by position (no index kept).
     let (grid, order) = match (grid, classes) {
         (Some(g), Some(_)) => {
@@ -115,11 +120,13 @@ fn build_walk(
     // Weighted by C_t,i, the extinction each disk removes from a beam (π R² (1 − e^{−τ_i})), not by
     // τ_i π R²: the mean transmittance of the discrete rays is e^{−n C L} (`discrete` docs). The field
     // selects its particles from the full columns (every particle continuous: all of them).
-    let field = (!field_ids.is_empty()).then(|| {
-        let ids = (!discrete_ids.is_empty()).then_some(&field_ids[..]);
-        ContinuousField::build(positions, reach, c_ext, ids, classes)
-    });
-    (grid, field, keep, footprint, order)
+    let field = (!field_ids.is_empty())
+        .then(|| {
+            let ids = (!discrete_ids.is_empty()).then_some(&field_ids[..]);
+            ContinuousField::build(positions, reach, c_ext, ids, classes)
+        })
+        .transpose()?;
+    Ok((grid, field, keep, footprint, order))
 }
 
 /// The surface-ray rule (`crate::render::footprint`) of a procedural cloud: its discrete classes'
@@ -307,7 +314,7 @@ impl DiskTable {
         positions: &[[f64; 3]],
         settings: &MediumSettings,
         switches: &BuildSwitches,
-    ) -> StoredWalk {
+    ) -> Result<StoredWalk, OpticsError> {
         let (n, query_radius) = (positions.len(), settings.query_radius);
         let ((t_radius, t_c), table_disks) = (self.radius_and_c_ext(), &self.disks);
         let code_of = |i: usize| self.classes.as_ref().map_or(i, |c| c.codes[i] as usize);
@@ -352,7 +359,7 @@ impl DiskTable {
             settings.continuous_count,
             self.codes(),
             switches.centre_cells,
-        );
+        )?;
         let reach_max = (0..n).into_par_iter().map(reach).reduce(|| 0.0, f64::max);
         // Every particle's continuous equivalent, for rays past the grain depth (weighted by C_t,i as
         // the continuous classes are); none when the medium must stay exact. When every particle is
@@ -360,9 +367,10 @@ impl DiskTable {
         // `grains_field_from`).
         let all_continuous = grid.is_none();
         let grains_field = (settings.continuous_count.is_finite() && !all_continuous)
-            .then(|| ContinuousField::build(positions, &reach, &p_c, None, self.codes()));
+            .then(|| ContinuousField::build(positions, &reach, &p_c, None, self.codes()))
+            .transpose()?;
         let (field, grains_field) = self.picking_by_bin(field, grains_field);
-        StoredWalk {
+        Ok(StoredWalk {
             grid,
             field,
             grains_field,
@@ -371,7 +379,7 @@ impl DiskTable {
             order,
             widened,
             reach_max,
-        }
+        })
     }
 
     /// The fields as compact storage picks from them: an interaction in a field reads only its
@@ -478,7 +486,7 @@ impl DiscreteMedium {
         check_build_inputs(&p, &bins, &lambda, settings)?;
         let switches = BuildSwitches::from_env();
         let table = DiskTable::new(&p, bins.len(), settings)?;
-        let w = table.walk(positions, settings, &switches);
+        let w = table.walk(positions, settings, &switches)?;
         let optics = table.optics(bin, &w.keep, w.order, positions.len());
         let (coincide, event_box) = event_geometry(positions, w.reach_max);
         let walkable = Walkable {

@@ -138,7 +138,20 @@ pub(super) fn check_procedural_inputs(
         c_ext: &|_| 1.0,
         bin: &[0],
     };
-    check_build_inputs(&stand_in, bins, lambda, settings)?;
+    // The stand-in's one particle would bound cells_per_particle by a grid of one particle: a procedural
+    // cloud's grids are its bricks', whose range `ProceduralGrains` checks once it knows their size.
+    let cells = settings.cells_per_particle;
+    require(
+        "cells_per_particle",
+        cells,
+        cells.is_finite() && cells > 0.0,
+        "finite and > 0",
+    )?;
+    let stand_in_settings = MediumSettings {
+        cells_per_particle: DEFAULT_CELLS_PER_PARTICLE,
+        ..*settings
+    };
+    check_build_inputs(&stand_in, bins, lambda, &stand_in_settings)?;
     require_len("q_ext", spec.q_ext.len(), bins.len(), "one per bin")?;
     for &q in &spec.q_ext {
         require("q_ext", q, q.is_finite() && q >= 0.0, "finite and >= 0")?;

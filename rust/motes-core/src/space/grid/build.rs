@@ -3,10 +3,11 @@
 
 use super::settings::{
     bounding_box_by, cell_spacing, is_sparse, BOX_MARGIN, CENTRE_CELLS_FACTOR,
-    FREE_PATH_CELLS_PER_PARTICLE_MAX, MAX_CELLS_PER_AXIS,
+    FREE_PATH_CELLS_PER_PARTICLE_MAX, MAX_CELLS, MAX_CELLS_PER_AXIS,
 };
 use super::slots::{lattice_point, QBlock, QSlots, Spheres, LANES, LATTICE_PER_CELL, PADDING_SLOT};
 use super::{GridSettings, Particles, SubGrid};
+use crate::error::{try_filled, OpticsError};
 use crate::space::dda::GridFrame;
 use rayon::prelude::*;
 
@@ -14,9 +15,16 @@ use rayon::prelude::*;
 /// cached and the prefetches only cost).
 pub(super) const PREFETCH_SLOTS_ABOVE_BYTES: usize = 4 << 20;
 
-/// Counting sort of items by key (O(N)): the start of each key's run and the items in key order.
-pub(super) fn counting_sort(keys: &[u32], n_keys: usize) -> (Vec<u32>, Vec<u32>) {
-    counting_sort_by(keys, n_keys, |i| i as u32)
+/// The input that sets a grid's number of cells, which an allocation of its cells that fails names.
+pub(crate) const CELLS_DRIVER: &str = "cells_per_particle";
+
+/// Counting sort of items by key (O(N)): the start of each key's run and the items in key order. The
+/// keys are a grid's cells (an allocation that fails names [`CELLS_DRIVER`]).
+pub(super) fn counting_sort(
+    keys: &[u32],
+    n_keys: usize,
+) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
+    counting_sort_by(keys, n_keys, |i| i as u32, CELLS_DRIVER)
 }
 
 /// Items per chunk below which a parallel pass over items is not worth its threads.
@@ -40,12 +48,15 @@ impl SharedOut {
 /// order of their indices). In parallel: each of up to one chunk per thread counts its keys, the
 /// counts' prefix sums give each chunk its slots in each key's run (chunks in order), and the chunks
 /// scatter their items side by side: the same result as one thread's. Chunks are fewer where their
-/// histograms (`n_keys` counts each) would outweigh the items.
+/// histograms (`n_keys` counts each) would outweigh the items. The arrays of `n_keys` (a grid's cells,
+/// up to 2·10⁸) are allocated fallibly: a failure is an [`OpticsError::OutOfMemory`] naming `driver`,
+/// the input that sets `n_keys`.
 pub(crate) fn counting_sort_by(
     keys: &[u32],
     n_keys: usize,
     item: impl Fn(usize) -> u32 + Sync,
-) -> (Vec<u32>, Vec<u32>) {
+    driver: &'static str,
+) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
     let n = keys.len();
     let chunks = rayon::current_num_threads()
         .min(n / PAR_CHUNK_MIN)
@@ -56,14 +67,14 @@ pub(crate) fn counting_sort_by(
     let mut fill: Vec<Vec<u32>> = keys
         .par_chunks(len)
         .map(|ks| {
-            let mut h = vec![0u32; n_keys];
+            let mut h = try_filled(n_keys, 0u32, driver, "a counting sort's histogram")?;
             for &c in ks {
                 h[c as usize] += 1;
             }
-            h
+            Ok(h)
         })
-        .collect();
-    let mut start = vec![0u32; n_keys + 1];
+        .collect::<Result<_, OpticsError>>()?;
+    let mut start = try_filled(n_keys + 1, 0u32, driver, "the cells' starts")?;
     let mut acc = 0u32;
     for c in 0..n_keys {
         start[c] = acc;
@@ -88,7 +99,7 @@ pub(crate) fn counting_sort_by(
                 fill[c as usize] = at + 1;
             }
         });
-    (start, order)
+    Ok((start, order))
 }
 
 /// The items `item(0..n)` in `buckets` (at most 256) lists by `bucket(0..n)`, each list in the order
@@ -197,7 +208,7 @@ pub(super) fn inline_slots(
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
-) -> (Vec<u32>, Vec<u32>) {
+) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
     let n_cells = dims[0] * dims[1] * dims[2];
     let cell_index = |idx: [usize; 3]| (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0];
     // Cell ranges (per axis) overlapped by each stored particle's inclusion ball, then a second
@@ -228,7 +239,12 @@ pub(super) fn inline_slots(
         })
         .collect();
     let refs: usize = counts.iter().sum();
-    let (mut ref_cell, mut ref_particle) = (vec![0u32; refs], vec![0u32; refs]);
+    // A reference per cell each ball overlaps: cells finer than the balls make many.
+    let what = "the cells' references to the balls overlapping them";
+    let (mut ref_cell, mut ref_particle) = (
+        try_filled(refs, 0u32, CELLS_DRIVER, what)?,
+        try_filled(refs, 0u32, CELLS_DRIVER, what)?,
+    );
     let mut parts = Vec::with_capacity(counts.len());
     let (mut cells_left, mut particles_left) = (&mut ref_cell[..], &mut ref_particle[..]);
     for &k in &counts {
@@ -254,7 +270,7 @@ pub(super) fn inline_slots(
                 }
             }
         });
-    let (refs_start, slot_order) = counting_sort(&ref_cell, n_cells);
+    let (refs_start, slot_order) = counting_sort(&ref_cell, n_cells)?;
     drop(ref_cell);
     padded_slots(&refs_start, &slot_order, &ref_particle, n_cells)
 }
@@ -269,13 +285,14 @@ fn padded_slots(
     slot_order: &[u32],
     ref_particle: &[u32],
     n_cells: usize,
-) -> (Vec<u32>, Vec<u32>) {
-    let mut start = vec![0u32; n_cells + 1];
+) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
+    let mut start = try_filled(n_cells + 1, 0u32, CELLS_DRIVER, "the cells' starts")?;
     for c in 0..n_cells {
         let len = refs_start[c + 1] - refs_start[c];
         start[c + 1] = start[c] + len.div_ceil(LANES as u32) * LANES as u32;
     }
-    let mut slot_particle = vec![PADDING_SLOT; start[n_cells] as usize];
+    let slots = start[n_cells] as usize;
+    let mut slot_particle = try_filled(slots, PADDING_SLOT, CELLS_DRIVER, "the cells' slots")?;
     run_groups(&mut slot_particle, &start)
         .into_par_iter()
         .for_each(|(c0, c1, group)| {
@@ -287,7 +304,7 @@ fn padded_slots(
                 }
             }
         });
-    (start, slot_particle)
+    Ok((start, slot_particle))
 }
 
 /// Each slot's copy of its particle's sphere (padding: NaN centres, which no test passes).
@@ -575,7 +592,14 @@ impl ClassLayout {
         let volume = volume_hint
             .unwrap_or(ext[0] * ext[1] * ext[2])
             .max(ext[0] * ext[1] * ext[2] * 1e-9);
-        let (k, cell) = class_cells(settings, volume, n, free_path_cell, reach_max);
+        let (k, mut cell) = class_cells(settings, volume, n, free_path_cell, reach_max);
+        // Cells sized by the occupied volume of a cloud that fills a sliver of its box (two tight
+        // clusters far apart) could number far more over the box than the particles ask for: no
+        // grid takes more than MAX_CELLS, coarser cells then (wider cells keep either layout valid).
+        let box_cells = ext[0] * ext[1] * ext[2] / cell.powi(3);
+        if box_cells > MAX_CELLS {
+            cell *= (box_cells / MAX_CELLS).cbrt();
+        }
         // Compact storage quantises a class's centres to a lattice of its cells (`QSlots`): from here
         // on the particles are those lattice points, the box grown by two steps to hold them.
         let step = settings.quantise.then(|| cell / LATTICE_PER_CELL as f64);
@@ -672,17 +696,17 @@ fn storage_order(
     n: usize,
     position: impl Fn(usize) -> [f64; 3] + Sync,
     reach: impl Fn(usize) -> f64 + Sync,
-) -> (Vec<u32>, Vec<u32>) {
+) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
     let cells: Vec<u32> = (0..n)
         .into_par_iter()
         .map(|i| layout.cell_of(position(i)) as u32)
         .collect();
-    let (centre_start, mut order) = counting_sort(&cells, layout.cells());
+    let (centre_start, mut order) = counting_sort(&cells, layout.cells())?;
     drop(cells);
     if layout.step.is_some() && layout.k == 1 {
         sort_runs_descending(&mut order, &centre_start, |j| reach(j as usize));
     }
-    (centre_start, order)
+    Ok((centre_start, order))
 }
 
 /// Each cell's first slot (and the end) and, k = 0, the stored particle of each slot: centre cells'
@@ -695,12 +719,14 @@ fn class_slots(
     order: &[u32],
     at: &(impl Fn(usize) -> [f64; 3] + Sync),
     reach: impl Fn(usize) -> f64 + Sync,
-) -> (Vec<u32>, Vec<u32>) {
+) -> Result<(Vec<u32>, Vec<u32>), OpticsError> {
     if layout.k == 1 {
-        return (centre_start, Vec::new());
+        return Ok((centre_start, Vec::new()));
     }
     let (lo, cell, dims) = (layout.lo, layout.cell, layout.dims);
-    let (start, mut slot_particle) = inline_slots(at, &reach, order, lo, cell, dims);
+    // The centre cells' starts are not needed past here (a k = 0 class's cells are its slots').
+    drop(centre_start);
+    let (start, mut slot_particle) = inline_slots(at, &reach, order, lo, cell, dims)?;
     if layout.step.is_some() {
         let key = |j: &u32| match *j {
             PADDING_SLOT => -1.0,
@@ -708,7 +734,7 @@ fn class_slots(
         };
         sort_runs_descending(&mut slot_particle, &start, |j| key(&j));
     }
-    (start, slot_particle)
+    Ok((start, slot_particle))
 }
 
 impl SubGrid {
@@ -720,7 +746,7 @@ impl SubGrid {
         settings: &GridSettings,
         volume_hint: Option<f64>,
         free_path_cell: Option<f64>,
-    ) -> Self {
+    ) -> Result<Self, OpticsError> {
         let (n, channels) = (ids.len(), p.channels);
         // The class's particle j: the caller's ids[j], read where needed (no copies of the columns).
         let position = |j: usize| p.positions[ids[j] as usize];
@@ -737,8 +763,8 @@ impl SubGrid {
         );
         // Each particle's centre as stored, computed where needed (no copy of the positions).
         let at = |i: usize| layout.stored(position(i));
-        let (centre_start, order) = storage_order(&layout, n, position, reach);
-        let (start, slot_particle) = class_slots(&layout, centre_start, &order, &at, reach);
+        let (centre_start, order) = storage_order(&layout, n, position, reach)?;
+        let (start, slot_particle) = class_slots(&layout, centre_start, &order, &at, reach)?;
         let slot_of = (layout.k == 0).then_some(&slot_particle[..]);
         let quant = build_qslots(
             position, reach, tau, channels, &order, &start, slot_of, &layout,
@@ -771,7 +797,7 @@ impl SubGrid {
         // Quantised slots read τ by code.
         let slot_tau_of: &[f32] = if quant.is_some() { &[] } else { &tau };
         let (slot_tau, slot_index) = slot_hits(&slot_particle, slot_tau_of, &index, channels);
-        SubGrid {
+        Ok(SubGrid {
             particles,
             tau,
             index,
@@ -787,7 +813,7 @@ impl SubGrid {
             prefetch_slots,
             count: n,
             first_id: 0,
-        }
+        })
     }
 }
 
@@ -856,14 +882,14 @@ mod tests {
         for (keys, n_keys) in &cases {
             let want = counting_sort_serial(keys, *n_keys);
             for threads in [1, 2, 3, 8] {
-                let got = in_pool(threads, || counting_sort(keys, *n_keys));
+                let got = in_pool(threads, || counting_sort(keys, *n_keys).unwrap());
                 assert!(
                     got == want,
                     "{} keys of {n_keys}, {threads} threads",
                     keys.len()
                 );
                 let by = in_pool(threads, || {
-                    counting_sort_by(keys, *n_keys, |i| 7 * i as u32)
+                    counting_sort_by(keys, *n_keys, |i| 7 * i as u32, "n").unwrap()
                 });
                 assert_eq!(by.0, want.0);
                 assert!(by.1.iter().zip(&want.1).all(|(a, b)| *a == 7 * b));
@@ -1007,7 +1033,7 @@ mod tests {
             let want = inline_slots_serial(|i| pos[i], |i| reach[i], &order, lo, cell, dims);
             for threads in [1, 2, 4] {
                 let got = in_pool(threads, || {
-                    inline_slots(&|i| pos[i], &|i| reach[i], &order, lo, cell, dims)
+                    inline_slots(&|i| pos[i], &|i| reach[i], &order, lo, cell, dims).unwrap()
                 });
                 assert!(got == want, "{n} balls, {threads} threads");
             }

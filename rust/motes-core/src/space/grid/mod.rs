@@ -78,10 +78,10 @@ mod subgrid;
 mod walk;
 
 pub use beam::BEAM_RAYS;
-pub(crate) use build::counting_sort_by;
+pub(crate) use build::{counting_sort_by, CELLS_DRIVER};
 pub use settings::{
-    bounding_box, check_cross_sections, check_particles, GridSettings, DEFAULT_CELLS_PER_PARTICLE,
-    FREE_PATHS_PER_CELL,
+    bounding_box, check_cells_per_particle, check_cross_sections, check_particles, GridSettings,
+    DEFAULT_CELLS_PER_PARTICLE, FREE_PATHS_PER_CELL, MAX_CELLS,
 };
 pub(crate) use settings::{first_where, size_class, SIZE_CLASSES};
 pub use subgrid::SubGrid;
@@ -182,20 +182,19 @@ impl ParticleGrid {
     ) -> Result<Self, OpticsError> {
         check_particles(positions, radius, settings)?;
         check_cross_sections(c_ext, positions.len(), channels)?;
-        Ok(Self::from_checked(
-            positions, radius, c_ext, channels, settings,
-        ))
+        Self::from_checked(positions, radius, c_ext, channels, settings)
     }
 
     /// [`ParticleGrid::build`] from inputs that passed [`check_particles`] (or are derived from such
-    /// inputs, finite and positive by construction).
+    /// inputs, finite and positive by construction). Fails only where the memory of its cells is not
+    /// there ([`OpticsError::OutOfMemory`]).
     pub(crate) fn from_checked(
         positions: &[[f64; 3]],
         radius: &[f64],
         c_ext: &[f64],
         channels: usize,
         settings: &GridSettings,
-    ) -> Self {
+    ) -> Result<Self, OpticsError> {
         Self::from_particles(
             &Particles {
                 positions,
@@ -210,8 +209,12 @@ impl ParticleGrid {
 
     /// [`Self::from_checked`] over the particles `p` (checked inputs), read through its columns: a
     /// grid of a subset of a medium's particles, reporting their indices, with no copies (the class
-    /// lists aside: four bytes a particle).
-    pub(crate) fn from_particles(p: &Particles, settings: &GridSettings) -> Self {
+    /// lists aside: four bytes a particle). Its cells' arrays are allocated fallibly
+    /// ([`OpticsError::OutOfMemory`] naming `cells_per_particle`).
+    pub(crate) fn from_particles(
+        p: &Particles,
+        settings: &GridSettings,
+    ) -> Result<Self, OpticsError> {
         let GridSettings {
             query_radius,
             cells_per_particle,
@@ -230,7 +233,7 @@ impl ParticleGrid {
             |j| p.id(j) as u32,
         );
         // Volume the centres occupy, shared by the classes as the density reference.
-        let volume = occupied_volume_by(n, |j| p.positions[p.id(j)]);
+        let volume = occupied_volume_by(n, |j| p.positions[p.id(j)])?;
         let members = merge_sparse_classes(members, reach_of, volume, cells_per_particle);
         let free_path_cell = settings
             .free_path_cells
@@ -244,13 +247,13 @@ impl ParticleGrid {
                 settings,
                 Some(volume),
                 free_path_cell,
-            ));
+            )?);
         }
-        ParticleGrid {
+        Ok(ParticleGrid {
             classes,
             channels: p.channels,
             n,
-        }
+        })
     }
 
     pub fn len(&self) -> usize {

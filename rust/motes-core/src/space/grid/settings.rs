@@ -1,8 +1,9 @@
 //! How a grid is laid over its particles: its settings, the cells' size, the size classes and the
 //! checks of its inputs.
 
+use super::build::CELLS_DRIVER;
 use super::Particles;
-use crate::error::{require, require_len, OpticsError};
+use crate::error::{require, require_len, shown, OpticsError};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -64,8 +65,15 @@ pub(super) const CENTRE_CELLS_FACTOR: f64 = 0.25;
 /// Most cells per axis (the counting sorts index cells with u32).
 pub(super) const MAX_CELLS_PER_AXIS: usize = 1 << 20;
 
-/// Most cells in all (a sparse cloud of 2e8 particles at one cell each: 800 MB of cell starts).
-pub(super) const MAX_CELLS: f64 = 2.0e8;
+/// Most cells in all (a sparse cloud of 2e8 particles at one cell each: 800 MB of cell starts). A
+/// setting that asks for more (`cells_per_particle` times the particles) is an error naming it
+/// ([`check_cells_per_particle`]); the clamps below it only bound the internal choices (the occupancy
+/// grid, the cells sized by the free path, a cloud that fills a sliver of its box).
+pub const MAX_CELLS: f64 = 2.0e8;
+
+/// Largest length or coordinate a grid takes (scene units): the largest f32, the precision its slots and
+/// the renderer keep them in (beyond it a centre or a disk would be infinite there).
+pub const MAX_LENGTH: f64 = f32::MAX as f64;
 
 /// Default grid resolution, in cells per particle: about eight particles per cell. A step tests its
 /// cell's spheres eight per pre-test in whole blocks, so larger cells than the paper's one particle
@@ -212,7 +220,10 @@ pub(super) fn merge_sparse_classes(
 /// slanted column, a noise density or a Houdini sim covers a fraction of its bounding box; sized by the
 /// box, its occupied cells would hold several times the intended particles each (a column around the
 /// default scene's beam: ~40 instead of ~8 per cell).
-pub(super) fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync) -> f64 {
+pub(super) fn occupied_volume_by(
+    n: usize,
+    at: impl Fn(usize) -> [f64; 3] + Sync,
+) -> Result<f64, OpticsError> {
     let (lo, hi) = bounding_box_by(n, &at);
     let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-12));
     let mut volume = ext[0] * ext[1] * ext[2];
@@ -225,9 +236,16 @@ pub(super) fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync
             break;
         }
         // Marked in parallel (the same bits in any order).
-        let occupied: Vec<AtomicU64> = (0..n_cells.div_ceil(64))
-            .map(|_| AtomicU64::new(0))
-            .collect();
+        let words = n_cells.div_ceil(64);
+        let mut occupied: Vec<AtomicU64> = Vec::new();
+        occupied
+            .try_reserve_exact(words)
+            .map_err(|_| OpticsError::OutOfMemory {
+                argument: "count",
+                what: "the grid's occupancy bits",
+                bytes: words as f64 * 8.0,
+            })?;
+        occupied.extend((0..words).map(|_| AtomicU64::new(0)));
         (0..n).into_par_iter().for_each(|j| {
             let p = at(j);
             let c = [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1));
@@ -245,7 +263,7 @@ pub(super) fn occupied_volume_by(n: usize, at: impl Fn(usize) -> [f64; 3] + Sync
         }
         volume = v;
     }
-    volume
+    Ok(volume)
 }
 
 /// The checks of a particle set and its grid settings, each naming its argument: done once, where the
@@ -267,26 +285,20 @@ pub fn check_particles(
     require(
         "query_radius",
         query_radius,
-        query_radius.is_finite() && query_radius >= 0.0,
-        "finite and >= 0",
+        (0.0..=MAX_LENGTH).contains(&query_radius),
+        "finite, >= 0 and at most 3.4e38 scene units (the renderer's single precision)",
     )?;
-    require(
-        "cells_per_particle",
-        cells_per_particle,
-        cells_per_particle.is_finite() && cells_per_particle > 0.0,
-        "finite and > 0",
-    )?;
+    check_cells_per_particle(cells_per_particle, n as f64)?;
     // The first particle that fails either check (found in parallel), checked as in order.
-    let bad = |i: usize| {
-        !positions[i].iter().all(|x| x.is_finite()) || !(radius[i].is_finite() && radius[i] > 0.0)
-    };
+    let in_range = |p: &[f64; 3]| p.iter().all(|x| x.abs() <= MAX_LENGTH);
+    let bad = |i: usize| !(in_range(&positions[i]) && radius[i].is_finite() && radius[i] > 0.0);
     if let Some(i) = first_where(n, bad) {
         let p = &positions[i];
         require(
             "positions (index of the first non-finite particle)",
             i as f64,
-            p.iter().all(|x| x.is_finite()),
-            "finite coordinates",
+            in_range(p),
+            "finite coordinates, at most 3.4e38 in magnitude (the renderer's single precision)",
         )?;
         require(
             "radius",
@@ -294,6 +306,26 @@ pub fn check_particles(
             radius[i].is_finite() && radius[i] > 0.0,
             "finite and > 0",
         )?;
+    }
+    Ok(())
+}
+
+/// The check of a grid's resolution for `n` particles: finite, > 0, and at most [`MAX_CELLS`] cells in
+/// all (`n` × `cells_per_particle`; more would take gigabytes of cells, or before this check were
+/// capped without a word). `n`: the particles of one grid (a stored medium's, or a procedural
+/// cloud's brick's).
+pub fn check_cells_per_particle(cells_per_particle: f64, n: f64) -> Result<(), OpticsError> {
+    let most = MAX_CELLS / n.max(1.0);
+    if !(cells_per_particle > 0.0 && cells_per_particle <= most) {
+        return Err(OpticsError::OutOfRange {
+            argument: CELLS_DRIVER,
+            value: cells_per_particle,
+            requirement: format!(
+                "finite and in (0, {}] for {n} particles: a grid takes at most {MAX_CELLS:e} \
+                 cells (particles x cells_per_particle; the default is {DEFAULT_CELLS_PER_PARTICLE})",
+                shown(most)
+            ),
+        });
     }
     Ok(())
 }
@@ -311,4 +343,34 @@ pub fn check_cross_sections(c_ext: &[f64], n: usize, channels: usize) -> Result<
         require("c_ext", c, c.is_finite() && c >= 0.0, "finite and >= 0")?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cells a setting asks for are bounded by an error naming it and its range, not a silent cap.
+    #[test]
+    fn cells_per_particle_beyond_the_grid_is_an_error_stating_the_range() {
+        check_cells_per_particle(DEFAULT_CELLS_PER_PARTICLE, 1e9).unwrap();
+        check_cells_per_particle(2e4, 1e4).unwrap();
+        for (bad, n) in [
+            (1e15, 1e4),
+            (2.0001e4, 1e4),
+            (f64::INFINITY, 1.0),
+            (0.0, 1.0),
+            (-1.0, 1.0),
+        ] {
+            let e = check_cells_per_particle(bad, n).unwrap_err();
+            let text = e.to_string();
+            assert!(
+                text.contains("cells_per_particle") && text.contains("(0, "),
+                "{text}"
+            );
+        }
+        assert!(check_cells_per_particle(1e15, 1e4)
+            .unwrap_err()
+            .to_string()
+            .contains("(0, 20000"));
+    }
 }
