@@ -250,10 +250,10 @@ def test_film_larger_than_memory_names_its_size(monkeypatch):
     """A film that fits Dr.Jit's arrays but not the memory available: MemoryError naming its size and -D."""
     motes.set_variant("scalar_rgb")
     film = mi.load_dict({"type": "hdrfilm", "width": 10000, "height": 10000})
-    monkeypatch.setattr(motes._memory, "available_bytes", lambda: 2**30)
+    monkeypatch.setattr(motes._memory, "available", lambda: (2**30, "(a test)"))
     with pytest.raises(MemoryError, match=r"10000 x 10000 pixels \(-D res=10000\).*GiB"):
         _output.check_film(film, {"res": "10000", "spp": "4"})
-    monkeypatch.setattr(motes._memory, "available_bytes", lambda: 2**40)
+    monkeypatch.setattr(motes._memory, "available", lambda: (2**40, "(a test)"))
     _output.check_film(film, {"res": "10000"})
 
 

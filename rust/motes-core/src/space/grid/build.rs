@@ -2,7 +2,7 @@
 //! slots.
 
 use super::settings::{
-    bounding_box_by, cell_spacing, is_sparse, BOX_MARGIN, CENTRE_CELLS_FACTOR,
+    bounding_box_by, cell_spacing, is_sparse, BOX_MARGIN, CELLS_DRIVER, CENTRE_CELLS_FACTOR,
     FREE_PATH_CELLS_PER_PARTICLE_MAX, MAX_CELLS, MAX_CELLS_PER_AXIS,
 };
 use super::slots::{lattice_point, QBlock, QSlots, Spheres, LANES, LATTICE_PER_CELL, PADDING_SLOT};
@@ -14,9 +14,6 @@ use rayon::prelude::*;
 /// Slot data above which a traversal prefetches every block of a batch (below it the blocks stay
 /// cached and the prefetches only cost).
 pub(super) const PREFETCH_SLOTS_ABOVE_BYTES: usize = 4 << 20;
-
-/// The input that sets a grid's number of cells, which an allocation of its cells that fails names.
-pub(crate) const CELLS_DRIVER: &str = "cells_per_particle";
 
 /// Counting sort of items by key (O(N)): the start of each key's run and the items in key order. The
 /// keys are a grid's cells (an allocation that fails names [`CELLS_DRIVER`]).

@@ -78,12 +78,12 @@ mod subgrid;
 mod walk;
 
 pub use beam::BEAM_RAYS;
-pub(crate) use build::{counting_sort_by, CELLS_DRIVER};
+pub(crate) use build::counting_sort_by;
 pub use settings::{
     bounding_box, check_cells_per_particle, check_cross_sections, check_particles, GridSettings,
     DEFAULT_CELLS_PER_PARTICLE, FREE_PATHS_PER_CELL, MAX_CELLS,
 };
-pub(crate) use settings::{first_where, size_class, SIZE_CLASSES};
+pub(crate) use settings::{first_where, size_class, CELLS_DRIVER, SIZE_CLASSES};
 pub use subgrid::SubGrid;
 // The crate's paths for these (outside this folder only tests name them today).
 #[allow(unused_imports)]

@@ -1,11 +1,13 @@
 //! How a grid is laid over its particles: its settings, the cells' size, the size classes and the
 //! checks of its inputs.
 
-use super::build::CELLS_DRIVER;
 use super::Particles;
 use crate::error::{require, require_len, shown, OpticsError};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The input that sets a grid's number of cells, which an allocation of its cells that fails names.
+pub(crate) const CELLS_DRIVER: &str = "cells_per_particle";
 
 /// Axis-aligned bounding box of the centres (in parallel: 10^8 centres are 2.4 GB to read).
 pub fn bounding_box(positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
