@@ -1,4 +1,4 @@
-"""Procedural clouds (issue 24.3, ``rust/motes-core/src/render/procedural.rs``): ``storage = procedural``
+"""Procedural clouds (issue 24.3, ``rust/motes-core/src/render/procedural/``): ``storage = procedural``
 stores no particle; each brick of the cloud is generated from (seed, tile) when a ray first needs it. The
 same particles on every ray whatever the cache keeps, memory that does not follow the count, the same
 transmittance as a stored cloud of the same distribution, a furnace of 1, errors that name the parameter."""

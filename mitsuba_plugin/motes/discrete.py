@@ -645,7 +645,7 @@ class DiscreteMedium:
                    cache_bytes: int | None = None, phase_model: str = "tabulated", turbulence: float = 0.0,
                    turbulence_scale: float = 1.0, time_s: float = 0.0,
                    surface_footprint: bool = True, phase: dict | None = None) -> "DiscreteMedium":
-        """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural.rs``):
+        """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural/``):
         ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
         ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
         ``shares``; no particle is stored: each brick of the cloud is generated from ``cloud_seed`` when a

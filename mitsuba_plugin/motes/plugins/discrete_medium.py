@@ -162,7 +162,7 @@ continuous medium with the same extinction per cell and the cell's phase mixture
 with the discrete classes (the nearer of the two sampled interactions). What it drops is the grain
 texture of relative size 1/sqrt(N) (BENCHMARKS.md, "Rendering accuracy").
 
-``storage = procedural`` stores no particle (``rust/motes-core/src/render/procedural.rs``): the continuous
+``storage = procedural`` stores no particle (``rust/motes-core/src/render/procedural/``): the continuous
 classes are the density field's expected extinction, and the grains that stay discrete are generated
 brick by brick, from ``seed`` and the brick's tiles, when a ray first reaches a brick; the same grains in
 every render and pass. Loading costs nothing whatever ``count``; a render costs the bricks it visits.
