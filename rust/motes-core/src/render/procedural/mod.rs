@@ -538,6 +538,24 @@ fn procedural_grains(
     )?))
 }
 
+/// Each brick's grid: about `generated` particles at `cells_per_particle` cells each, bounded so that
+/// building one on every thread at once takes a few MB (`build_brick`).
+fn check_brick_cells(cells_per_particle: f64, generated: f64) -> Result<(), OpticsError> {
+    let most = MAX_BRICK_CELLS / generated.max(1.0);
+    if cells_per_particle > most {
+        return Err(OpticsError::OutOfRange {
+            argument: CELLS_DRIVER,
+            value: cells_per_particle,
+            requirement: format!(
+                "in (0, {}] for this procedural cloud, whose bricks hold about \
+                 {generated:.0} grains each (a brick's grid takes at most {MAX_BRICK_CELLS:e} cells)",
+                shown(most)
+            ),
+        });
+    }
+    Ok(())
+}
+
 impl ProceduralGrains {
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -589,20 +607,7 @@ impl ProceduralGrains {
              (and a brick generates at most 10^7 candidates): lower count or query_radius, raise \
              scale_m, or lower continuous_count so that such grains are continuous",
         )?;
-        // Each brick's grid: about `generated` particles at cells_per_particle cells each, bounded
-        // so that building one on every thread at once takes a few MB (`build_brick`).
-        let most = MAX_BRICK_CELLS / generated.max(1.0);
-        if settings.cells_per_particle > most {
-            return Err(OpticsError::OutOfRange {
-                argument: CELLS_DRIVER,
-                value: settings.cells_per_particle,
-                requirement: format!(
-                    "in (0, {}] for this procedural cloud, whose bricks hold about \
-                     {generated:.0} grains each (a brick's grid takes at most {MAX_BRICK_CELLS:e} cells)",
-                    shown(most)
-                ),
-            });
-        }
+        check_brick_cells(settings.cells_per_particle, generated)?;
         // Bricks over tile indices −halo .. dims + halo (a ring of tiles whose own particles are none).
         let dims = [0, 1, 2].map(|a| (tiling.dims[a] + 2 * halo[a]).div_ceil(per_brick[a]));
         let brick_edge = [0, 1, 2].map(|a| tiling.size[a] * per_brick[a] as f64);
