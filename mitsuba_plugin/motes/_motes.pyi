@@ -129,10 +129,13 @@ class DiscreteMedium:
     """The discrete medium as the renderer queries it (rust/motes-core/src/render/discrete/)."""
 
     def __init__(self, positions: F64, radius: F64, q_ext: F64, bin: npt.NDArray[np.uint32], tables: BinTables,
-                 settings: MediumSettings, radius_scale: float = 1.0, holders: Holders | None = None) -> None:
+                 settings: MediumSettings, radius_scale: float = 1.0, holders: Holders | None = None,
+                 density: tuple[str, list[float], int, list[float], list[float], list[list[float]]] | None = None
+                 ) -> None:
         """radius x radius_scale in scene units (radii in um pass their scale, not a scaled copy); q_ext: each
         bin's grey extinction efficiency (C_ext = pi r^2 q_ext); holders: the shapes the particles fill, to whose
-        inside the continuous fields are confined."""
+        inside the continuous fields are confined; density: (kind, params, noise seed, box lo, box hi, transform
+        3x4), the density the particles were drawn from, which then spreads the grains' continuous equivalent."""
     @staticmethod
     def procedural(count: float, box_: tuple[list[float], list[float]], density: tuple[str, list[float], int],
                    species: tuple[list[Psd], list[float]], cloud_seed: int, transform: list[list[float]],

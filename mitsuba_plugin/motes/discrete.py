@@ -71,6 +71,11 @@ queries (``rust/motes-core/src/render/discrete/mod.rs`` documents the model).
                             "tabphase", "values": [...]}`` (values on a regular grid of cos(theta) from
                             -1, backward, to 1, forward, as Mitsuba's ``tabphase``); None: the grains'
                             own (default). Extinction and albedo stay the grains'
+``density``                 the density the particles were drawn from (a generated cloud): (kind, params,
+                            noise seed, as ``generate_cloud``; the cloud's box lo and hi; its to_world,
+                            3x4). The grains' continuous equivalent then follows it instead of their
+                            counts in cells of 64, which flatten a concentrated density
+                            (``DiscreteMedium::see_density`` in the Rust core); None: the counts
 ==========================  ==========================================================================
 
 Each particle's extinction cross section is ``pi r^2 Q_ext`` with its bin's mean efficiency over the
@@ -460,7 +465,7 @@ class DiscreteMedium:
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                  storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True,
-                 phase: dict | None = None, holders=None):
+                 phase: dict | None = None, holders=None, density=None):
         self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
         grain_depth = checked_grain_depth(grain_depth)
         settings = _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed, storage)
@@ -474,7 +479,8 @@ class DiscreteMedium:
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
                                                     truncate_below_rad, albedo, phase_model, phase)
-        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened, holders)
+        self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened, holders,
+                         density)
         self._set_path_rules(grain_depth, surface_footprint)
 
     def _set_path_rules(self, grain_depth: int, surface_footprint: bool) -> None:
@@ -590,7 +596,7 @@ class DiscreteMedium:
         return bin_of, np.asarray(tables.grey_q), tables.core_tables()
 
     def _build_core(self, pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened,
-                    holders=None):
+                    holders=None, density=None):
         """The Rust medium over the particles and their bins' tables, and the attributes that report it."""
         n = pos.shape[0]
         query_radius, tau_max = settings.query_radius, settings.tau_max
@@ -606,7 +612,8 @@ class DiscreteMedium:
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         # Radii in um with their scale (a scaled copy of 1e8 radii would be 800 MB).
         self._core = _motes.DiscreteMedium(pos.ravel(), r, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
-                                           _core_tables(tables, lam), settings, radius_scale=um, holders=holders)
+                                           _core_tables(tables, lam), settings, radius_scale=um, holders=holders,
+                                           density=density)
         log.info("grid: %d particles, %.1f MB, %.1f s", n, self._core.bytes / 1e6, time.perf_counter() - t_grid)
         #: Particles whose disk the tau_max cap widened beyond query_radius + r_i.
         self.widened = self._core.widened

@@ -471,7 +471,7 @@ class _Build:
         pos, radii, sidx = _particles(p, props, species)
         query_radius, user_radius = _query_radius(p, pos)
         return DiscreteMedium(pos, radii, sidx, species, lam, query_radius=query_radius, warn_widened=user_radius,
-                              storage=p.storage, **common)
+                              storage=p.storage, density=_density_drawn_from(p), **common)
 
     def filled(self, shapes: list) -> DiscreteMedium:
         """The data with the grains filling ``shapes`` (their union, in world space); none: the local cube [-1, 1]^3
@@ -1068,6 +1068,16 @@ def _particles(p: SimpleNamespace, props, species: list):
     log.info("particles: %d %s in %.1f s", len(pos), "read" if p.filename is not None else "generated",
              time.perf_counter() - t_particles)
     return pos, radii, sidx
+
+
+def _density_drawn_from(p: SimpleNamespace):
+    """The density generated grains were drawn from (``DiscreteMedium``'s ``density``: their continuous equivalent
+    follows it); None for grains read from a file or moved since."""
+    if p.filename is not None or (p.moving and p.time != 0):
+        return None
+    kind, params = p.density
+    m = _checked_to_world(p)
+    return kind, [float(x) for x in params], int(p.seed), [-1.0] * 3, [1.0] * 3, m[:3, :4].tolist()
 
 
 def _checked_to_world(p: SimpleNamespace) -> np.ndarray:

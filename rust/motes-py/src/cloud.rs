@@ -11,7 +11,7 @@ use std::sync::Arc;
 /// The density named `kind` ("uniform", "gradient" with `params` = [axis, start, end], "noise" with
 /// `params` = [scale, octaves, contrast] and `noise_seed`, "grid" with `params` = [nx, ny, nz, then
 /// the nx·ny·nz values, x fastest]).
-fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
+pub(crate) fn density(kind: &str, params: &[f64], noise_seed: u64) -> PyResult<Density> {
     let want = |n: usize| -> PyResult<()> {
         if params.len() == n {
             Ok(())

@@ -51,10 +51,13 @@ impl PyDiscreteMedium {
     /// optics bins of `tables` and each bin's grey extinction efficiency `q_ext` (a particle's cross
     /// section is π r² q_ext of its bin: no column); `settings` as `MediumSettings`. `holders`
     /// (`Holders`): the shapes whose inside the particles fill, to which the continuous fields are
-    /// confined (`motes_core::render::discrete::DiscreteMedium::confine`).
+    /// confined (`motes_core::render::discrete::DiscreteMedium::confine`). `density` (kind, params,
+    /// noise seed as `generate_cloud`, the cloud's box lo and hi, its transform 3×4): the density the
+    /// particles were drawn from, which then spreads the grains' continuous equivalent
+    /// (`DiscreteMedium::see_density`).
     #[new]
-    #[pyo3(signature = (positions, radius, q_ext, bin, tables, settings, radius_scale=1.0, holders=None))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (positions, radius, q_ext, bin, tables, settings, radius_scale=1.0, holders=None, density=None))]
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
     fn new(
         py: Python<'_>,
         positions: F64In,
@@ -65,6 +68,7 @@ impl PyDiscreteMedium {
         settings: &PyMediumSettings,
         radius_scale: f64,
         holders: Option<PyRef<'_, crate::inside::PyHolders>>,
+        density: Option<(String, Vec<f64>, u64, [f64; 3], [f64; 3], [[f64; 4]; 3])>,
     ) -> PyResult<Self> {
         // Borrowed, not copied (10^8 particles: 4 GB): the build holds the GIL instead of releasing it,
         // so no Python thread can change the arrays under it (its rayon workers need no GIL).
@@ -102,6 +106,12 @@ impl PyDiscreteMedium {
         if let Some(h) = holders {
             let h = h.holders();
             medium.confine(&|p| h.contains(p));
+        }
+        if let Some((kind, params, noise_seed, lo, hi, transform)) = density {
+            let d = crate::cloud::density(&kind, &params, noise_seed)?;
+            medium
+                .see_density(&d, (lo, hi), &transform)
+                .map_err(to_py)?;
         }
         Ok(Self::wrap(medium))
     }

@@ -265,6 +265,49 @@ impl ContinuousField {
         self.members.len() == 0
     }
 
+    /// Each member's share of the field's extinction, σ_t × cell volume × its share of its cell, as a
+    /// pick returns members (`f(member, extinction × volume)`, once per cell it is in).
+    pub fn member_extinction(&self, mut f: impl FnMut(u32, f64)) {
+        let volume = self.cell_volume();
+        let mut shares = |c: usize, cdf: &mut dyn Iterator<Item = (u32, u32)>| {
+            let total = self.sigma[c] as f64 * volume;
+            let mut below = 0u32;
+            for (member, up) in cdf {
+                f(
+                    member,
+                    total * (up - below.min(up)) as f64 / u16::MAX as f64,
+                );
+                below = up;
+            }
+        };
+        for c in 0..self.sigma.len() {
+            if self.sigma[c] <= 0.0 {
+                continue;
+            }
+            if let Some((first, packed)) = &self.picks {
+                let run = &packed[first[c] as usize..first[c + 1] as usize];
+                shares(
+                    c,
+                    &mut run.iter().map(|&x| (CLASS_FLAG | (x & 0xFFFF), x >> 16)),
+                );
+                continue;
+            }
+            let (a, b) = self.range(c);
+            match &self.members {
+                Members::Classes(v) => shares(
+                    c,
+                    &mut v[a..b]
+                        .iter()
+                        .map(|&x| (CLASS_FLAG | (x & 0xFFFF), x >> 16)),
+                ),
+                _ => shares(
+                    c,
+                    &mut (a..b).map(|j| (self.members.get(j), self.cdf[j] as u32)),
+                ),
+            }
+        }
+    }
+
     pub fn dims(&self) -> [usize; 3] {
         self.frame.dims
     }

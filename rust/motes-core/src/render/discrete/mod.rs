@@ -116,7 +116,9 @@ use crate::error::{require, OpticsError};
 use crate::render::continuous::ContinuousField;
 use crate::render::enclosure::Enclosure;
 use crate::render::footprint::{SurfaceFootprint, View};
+use crate::render::procedural::DensityCells;
 use crate::render::storage::ParticleOptics;
+use crate::space::cloud::{det3, invert_affine, Density};
 use crate::space::dda::Bounds3;
 use crate::space::ray::RaySegment;
 use batch::Pending;
@@ -272,6 +274,56 @@ pub const PACKET_LANES: usize = 16;
 pub type PacketRay = ([f32; 3], [f32; 3], f32);
 
 impl DiscreteMedium {
+    /// The grains' continuous equivalent (what rays past the grain depth and rays the footprint rules
+    /// let through see) spread by the density the grains were drawn from, `density` over the cloud's
+    /// box `cloud` mapped by `transform`, instead of by their counts in cells: each bin keeps the
+    /// extinction the counts gave it. Cells of 64 grains flatten a concentrated density, and rays
+    /// leaving an event in a density's tail met the extinction of its denser part: a gridvolume puff
+    /// of 2.7·10⁴ grains rendered 1.8 % darker than every grain walked (z −3.5); a procedural cloud's
+    /// fields, built this way, rendered it as exact (`scripts/bench/bench_dropin.py --heterogeneous`).
+    /// Only for grains that still follow the density (not moved since).
+    pub fn see_density(
+        &mut self,
+        density: &Density,
+        cloud: ([f64; 3], [f64; 3]),
+        transform: &[[f64; 4]; 3],
+    ) -> Result<(), OpticsError> {
+        let Some(counted) = &self.grains_field else {
+            return Ok(());
+        };
+        let to_cloud = invert_affine(transform).ok_or(OpticsError::InvalidArgument {
+            argument: "to_world",
+            value: 0.0,
+            requirement: "an invertible transform",
+        })?;
+        let (lo, hi) = cloud;
+        let mean = density.mean(lo, hi);
+        let volume = det3(transform).abs() * (0..3).map(|a| hi[a] - lo[a]).product::<f64>();
+        require(
+            "density",
+            mean,
+            mean > 0.0 && volume > 0.0 && volume.is_finite(),
+            "a density whose mean over a box of finite, positive volume is > 0",
+        )?;
+        // Per bin: its first member (what a pick returns) and its extinction × volume.
+        let mut by_bin: Vec<Option<(u32, f64)>> = Vec::new();
+        counted.member_extinction(|member, ext| {
+            let bin = self.optics.bin[self.optics.code(member)] as usize;
+            if by_bin.len() <= bin {
+                by_bin.resize(bin + 1, None);
+            }
+            by_bin[bin].get_or_insert((member, 0.0)).1 += ext;
+        });
+        let (members, weight): (Vec<u32>, Vec<f64>) = by_bin
+            .into_iter()
+            .flatten()
+            .map(|(member, ext)| (member, ext / volume))
+            .unzip();
+        let cells = DensityCells::new(density, cloud, transform, to_cloud, mean);
+        self.grains_field = Some(cells.field(members, &weight));
+        Ok(())
+    }
+
     /// Confine the continuous fields to the inside of the shapes that hold the medium (`inside(p)`;
     /// `ContinuousField::confined`): a medium whose grains fill those shapes. The grains themselves are
     /// unchanged.

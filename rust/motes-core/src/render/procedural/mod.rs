@@ -41,7 +41,7 @@ mod classes;
 
 use crate::error::{require, shown, OpticsError};
 use crate::render::continuous::{ContinuousField, CLASS_FLAG};
-use crate::space::cloud::{det3, invert_affine, CloudSpec, Tiling};
+use crate::space::cloud::{det3, invert_affine, CloudSpec, Density, Tiling};
 use crate::space::dda::{Dda, GridFrame};
 use crate::space::grid::{GridSettings, ParticleGrid, Site, CELLS_DRIVER};
 use crate::space::motion::Motion;
@@ -421,9 +421,85 @@ const FIELD_CELLS: usize = 64;
 /// Sub-samples per axis of the density in each field cell.
 const FIELD_SAMPLES: usize = 2;
 
-/// The continuous classes' field and every class's, over the box's bounding box in scene units; the
-/// density mapped back to the cloud's coordinates (zero outside the box), averaged over
-/// FIELD_SAMPLES³ points per cell. `fine`: the code of the first bin's representative.
+/// A density's cells in scene units: the bounding box of the cloud's box [`lo`, `hi`] through
+/// `transform`, FIELD_CELLS along its longest side, and the mean density over a cell relative to the
+/// box's mean `mean`: the density mapped back to the cloud's coordinates (`to_cloud`; zero outside the
+/// box), averaged over FIELD_SAMPLES³ points per cell. What a procedural cloud's fields and a
+/// generated cloud's grains' equivalent (`DiscreteMedium::see_density`) spread their extinction by.
+pub(crate) struct DensityCells<'a> {
+    pub corners: Vec<[f64; 3]>,
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+    pub dims: [usize; 3],
+    density: &'a Density,
+    cloud: ([f64; 3], [f64; 3]),
+    to_cloud: [[f64; 4]; 3],
+    mean: f64,
+}
+
+impl<'a> DensityCells<'a> {
+    pub fn new(
+        density: &'a Density,
+        cloud: ([f64; 3], [f64; 3]),
+        transform: &[[f64; 4]; 3],
+        to_cloud: [[f64; 4]; 3],
+        mean: f64,
+    ) -> Self {
+        let (lo, hi) = cloud;
+        let corners: Vec<[f64; 3]> = (0..8)
+            .map(|i| {
+                let p = [0, 1, 2].map(|a| if i >> a & 1 == 1 { hi[a] } else { lo[a] });
+                apply(transform, p)
+            })
+            .collect();
+        let (mut flo, mut fhi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for c in &corners {
+            for a in 0..3 {
+                flo[a] = flo[a].min(c[a]);
+                fhi[a] = fhi[a].max(c[a]);
+            }
+        }
+        let fext = [0, 1, 2].map(|a| (fhi[a] - flo[a]).max(1e-12));
+        let longest = fext.iter().fold(0.0f64, |a, &b| a.max(b));
+        let dims = fext.map(|x| ((x / longest * FIELD_CELLS as f64).round() as usize).max(1));
+        DensityCells {
+            corners,
+            lo: flo,
+            hi: fhi,
+            dims,
+            density,
+            cloud,
+            to_cloud,
+            mean,
+        }
+    }
+
+    /// The mean density over the cell [a, b] relative to the box's mean.
+    pub fn relative(&self, a: [f64; 3], b: [f64; 3]) -> f64 {
+        let (lo, hi) = self.cloud;
+        let m = FIELD_SAMPLES;
+        let mut sum = 0.0;
+        for k in 0..m * m * m {
+            let idx = [k % m, (k / m) % m, k / (m * m)];
+            let p = [0, 1, 2].map(|x| a[x] + (b[x] - a[x]) * (idx[x] as f64 + 0.5) / m as f64);
+            let q = apply(&self.to_cloud, p);
+            if (0..3).all(|x| q[x] >= lo[x] && q[x] <= hi[x]) {
+                sum += self.density.at(q, lo, hi);
+            }
+        }
+        sum / (m * m * m) as f64 / self.mean
+    }
+
+    /// The field whose cells hold `members` in proportion to `weight` (extinction per unit volume at
+    /// the box's mean density), their σ_t following the density (`ContinuousField::from_density`).
+    pub fn field(&self, members: Vec<u32>, weight: &[f64]) -> ContinuousField {
+        let rel = |a, b| self.relative(a, b);
+        ContinuousField::from_density(self.lo, self.hi, self.dims, rel, members, weight)
+    }
+}
+
+/// The continuous classes' field and every class's ([`DensityCells`]). `fine`: the code of the first
+/// bin's representative.
 fn procedural_fields(
     spec: &ProceduralSpec,
     to_cloud: &[[f64; 4]; 3],
@@ -431,45 +507,15 @@ fn procedural_fields(
     fine: usize,
     weights: &BinWeights,
 ) -> FieldParts {
-    let (lo, hi) = (spec.cloud.lo, spec.cloud.hi);
-    let density = &spec.cloud.density;
-    let corners: Vec<[f64; 3]> = (0..8)
-        .map(|i| {
-            let p = [0, 1, 2].map(|a| if i >> a & 1 == 1 { hi[a] } else { lo[a] });
-            apply(&spec.transform, p)
-        })
-        .collect();
-    let (mut flo, mut fhi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for c in &corners {
-        for a in 0..3 {
-            flo[a] = flo[a].min(c[a]);
-            fhi[a] = fhi[a].max(c[a]);
-        }
-    }
-    let fext = [0, 1, 2].map(|a| (fhi[a] - flo[a]).max(1e-12));
-    let longest = fext.iter().fold(0.0f64, |a, &b| a.max(b));
-    let dims = fext.map(|x| ((x / longest * FIELD_CELLS as f64).round() as usize).max(1));
-    let rel = |a: [f64; 3], b: [f64; 3]| -> f64 {
-        let m = FIELD_SAMPLES;
-        let mut sum = 0.0;
-        for k in 0..m * m * m {
-            let idx = [k % m, (k / m) % m, k / (m * m)];
-            let p = [0, 1, 2].map(|x| a[x] + (b[x] - a[x]) * (idx[x] as f64 + 0.5) / m as f64);
-            let q = apply(to_cloud, p);
-            if (0..3).all(|x| q[x] >= lo[x] && q[x] <= hi[x]) {
-                sum += density.at(q, lo, hi);
-            }
-        }
-        sum / (m * m * m) as f64 / mean
-    };
+    let cloud = (spec.cloud.lo, spec.cloud.hi);
+    let cells = DensityCells::new(&spec.cloud.density, cloud, &spec.transform, *to_cloud, mean);
     let bins = weights.cont.len();
     let reps: Vec<u32> = (0..bins).map(|b| CLASS_FLAG | (fine + b) as u32).collect();
     let field_count: f64 = spec.count * weights.p_cont.iter().sum::<f64>();
-    let field = (field_count > 0.0)
-        .then(|| ContinuousField::from_density(flo, fhi, dims, rel, reps.clone(), &weights.cont));
-    let all_field = ContinuousField::from_density(flo, fhi, dims, rel, reps, &weights.all);
+    let field = (field_count > 0.0).then(|| cells.field(reps.clone(), &weights.cont));
+    let all_field = cells.field(reps, &weights.all);
     FieldParts {
-        corners,
+        corners: cells.corners,
         field,
         all_field,
         field_count,
