@@ -30,7 +30,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import motes
-from motes.particle_io import ParticleFileError
+from motes.particle_io import MIN_RADIUS_UM, ParticleFileError
 
 from conftest import hsettings
 
@@ -181,6 +181,9 @@ CASES = [
          file("inf.csv", csv().replace(b"4.0", b"inf"))),
     Case("csv_negative_radius", "CSV with radius -2.5", "particles", ["particle 1", "field radius is -2.5"],
          file("neg.csv", csv().replace(b"2.5", b"-2.5"))),
+    Case("csv_subnormal_radius", "CSV with radius 1e-320 (used to fail later, in the grid, without the file's name)",
+         "particles", ["particle 1", "field radius is 1e-320", "at least 1e-09 micrometres"],
+         file("tiny.csv", csv().replace(b"2.5", b"1e-320"))),
     Case("csv_short_row", "CSV with a row of 3 values", "particles", ["line 3", "3 values, expected 4"],
          file("row.csv", csv().replace(b",2.5\n", b"\n"))),
     Case("csv_blank_line", "CSV with a blank line between rows", "particles", ["line 3 is empty"],
@@ -419,12 +422,13 @@ number = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-
 @given(values=st.lists(st.tuples(number, number, number, number), min_size=1, max_size=4))
 def test_csv_numbers_are_read_exactly_or_named(tmp_path_factory, values):
     """Any numbers in a CSV's columns: read exactly (repr round-trips) when coordinates are finite and radii
-    finite and > 0; else refused naming the first bad particle and field, as the module documents."""
+    finite and at least MIN_RADIUS_UM; else refused naming the first bad particle and field, as the module
+    documents."""
     rows = np.array(values, dtype=np.float64)
     path = tmp_path_factory.mktemp("num") / "n.csv"
     path.write_bytes(csv(rows))
     bad_pos = np.argwhere(~np.isfinite(rows[:, :3]))
-    bad_r = np.flatnonzero(~(np.isfinite(rows[:, 3]) & (rows[:, 3] > 0)))
+    bad_r = np.flatnonzero(~(np.isfinite(rows[:, 3]) & (rows[:, 3] >= MIN_RADIUS_UM)))
     if len(bad_pos):
         i, k = bad_pos[0]
         with pytest.raises(ParticleFileError, match=f"particle {i}: field {'xyz'[k]} is"):

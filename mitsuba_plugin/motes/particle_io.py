@@ -53,6 +53,9 @@ class ParticleFileError(ValueError):
 
 #: Particles checked per step (bounds the validation's temporaries to a few MB).
 _CHUNK = 1 << 20
+#: The smallest radius a particle file may give (micrometres; 1e-15 m, a nucleus): smaller ones are not particles,
+#: and their cross sections underflow on the way to scene units.
+MIN_RADIUS_UM = 1e-9
 
 
 def _fail(path, message: str):
@@ -81,10 +84,11 @@ def _validate(path, pos, radii, species, n_species) -> ParticleSet:
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])
             _fail(path, f"particle {a + i}: field {'xyz'[k]} is {pos[a + i, k]} (must be finite)")
-        bad = ~(np.isfinite(radii[sl]) & (radii[sl] > 0))
+        bad = ~(np.isfinite(radii[sl]) & (radii[sl] >= MIN_RADIUS_UM))
         if bad.any():
             i = a + int(np.flatnonzero(bad)[0])
-            _fail(path, f"particle {i}: field radius is {radii[i]} (must be finite and > 0 micrometres)")
+            _fail(path, f"particle {i}: field radius is {radii[i]} (must be finite and at least {MIN_RADIUS_UM:g} "
+                        "micrometres: radii are in micrometres)")
         sp = np.asarray(species[sl], dtype=np.float64)
         bad = ~(np.isfinite(sp) & (sp == np.round(sp)) & (sp >= 0) & (sp < limit))
         if bad.any():
