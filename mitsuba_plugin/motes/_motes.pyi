@@ -62,6 +62,11 @@ def henyey_greenstein(g: float, theta: F64) -> F64:
     """Henyey-Greenstein phase function (1/sr) with asymmetry g in (-1, 1) at angles theta (radians)."""
 def material_index(name: str, wavelength_um: F64) -> C128: ...
 def core_hash() -> str: ...
+def density_at(kind: str, params: Sequence[float], noise_seed: int, points: F64, lo: Sequence[float],
+               hi: Sequence[float]) -> F64:
+    """The density ``kind`` (params as ``generate_cloud``; "grid" with [nx, ny, nz, values x fastest]) at the flat
+    ``points`` (n*3, the cloud's coordinates) over the box [lo, hi]: a grid interpolates trilinearly between
+    cell centres, clamped at the faces, as Mitsuba's gridvolume."""
 def generate_cloud(count: int, lo: Sequence[float], hi: Sequence[float], kind: str, params: Sequence[float],
                    noise_seed: int, psds: Sequence[Psd], shares: Sequence[float], seed: int,
                    transform: Sequence[Sequence[float]]) -> tuple[F64, F64, npt.NDArray[np.uint32]]:

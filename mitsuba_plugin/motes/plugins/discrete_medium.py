@@ -793,22 +793,6 @@ def _grid_values(volume) -> np.ndarray:
                      "or a constvolume")
 
 
-def _trilinear(values: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """``values`` (nz, ny, nx) at points ``u`` (m, 3) in the unit box: trilinear between cell centres, clamped at
-    the faces (Mitsuba's gridvolume, and the core's ``Density::Grid``)."""
-    dims = np.array(values.shape[::-1])
-    x = np.clip(u * dims - 0.5, 0, dims - 1)
-    i0 = np.minimum(np.floor(x).astype(np.int64), dims - 1)
-    f, i1 = x - i0, np.minimum(i0 + 1, dims - 1)
-    out = np.zeros(len(u))
-    for corner in range(8):
-        b = [(corner >> a) & 1 for a in range(3)]
-        idx = [np.where(b[a], i1[:, a], i0[:, a]) for a in range(3)]
-        w = np.prod([f[:, a] if b[a] else 1 - f[:, a] for a in range(3)], axis=0)
-        out += w * values[idx[2], idx[1], idx[0]]
-    return out
-
-
 def _density_of_volume(volume, p: SimpleNamespace, props) -> np.ndarray:
     """A ``sigma_t`` volume (module docs, "From a heterogeneous medium"): sets ``p.density`` (the core's grid) and
     ``p.to_world`` (the volume's box), and returns the mean sigma_t per channel (before ``scale``)."""
@@ -841,15 +825,17 @@ def _density_of_volume(volume, p: SimpleNamespace, props) -> np.ndarray:
         theirs = np.array([float(np.asarray(volume.eval_1(at(k))).ravel()[0]) for k in range(len(u))])
     elif values.shape[3] == 3:
         theirs = np.array([np.asarray(volume.eval_3(at(k)), dtype=np.float64).ravel()[:3].mean() for k in range(len(u))])
-    if theirs is not None and not np.allclose(theirs, _trilinear(grey, u), rtol=1e-3, atol=1e-6 * grey.max()):
+    nz, ny, nx = grey.shape
+    grid = np.concatenate([[nx, ny, nz], grey.ravel()])
+    ours = _motes.density_at("grid", grid, 0, np.ascontiguousarray(u, dtype=np.float64).ravel(), [0.0] * 3, [1.0] * 3)
+    if theirs is not None and not np.allclose(theirs, ours, rtol=1e-3, atol=1e-6 * grey.max()):
         raise ValueError("discrete medium: the sigma_t gridvolume's to_world rotates or shears it; the grains take a "
                          "grid placed by translation and scale only")
     if np.ptp(channels) > 1e-6 * channels.mean():
         warnings.warn(f"discrete medium: the sigma_t volume is coloured (channel means {_fmt_channels(channels)}); "
                       "the grains' extinction is grey, so their density follows its channels' mean (colour them "
                       "with albedo)", stacklevel=5)
-    nz, ny, nx = grey.shape
-    p.density = ("grid", np.concatenate([[nx, ny, nz], grey.ravel()]))
+    p.density = ("grid", grid)
     box = np.eye(4)
     box[:3, :3] *= (hi - lo) / 2
     box[:3, 3] = (hi + lo) / 2

@@ -129,6 +129,27 @@ pub(crate) fn generate_cloud<'py>(
     ))
 }
 
+/// The density named `kind` (`params`, `noise_seed` as `generate_cloud`) at `points` (n*3, in the
+/// cloud's coordinates), over the box [lo, hi]: relative values, as the generator draws by them (a
+/// grid's trilinear interpolation between cell centres, clamped at the faces, as Mitsuba's
+/// `gridvolume`).
+#[pyfunction]
+#[pyo3(signature = (kind, params, noise_seed, points, lo, hi))]
+pub(crate) fn density_at<'py>(
+    py: Python<'py>,
+    kind: &str,
+    params: Vec<f64>,
+    noise_seed: u64,
+    points: F64In<'py>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+) -> PyResult<F64Out<'py>> {
+    let d = density(kind, &params, noise_seed)?;
+    let pts = points_view(points.as_slice()?)?;
+    let out: Vec<f64> = pts.iter().map(|&q| d.at(q, lo, hi)).collect();
+    Ok(out.into_pyarray(py))
+}
+
 /// A `Vec<[f64; 3]>` as the flat `Vec<f64>` of its coordinates, without a copy.
 fn flatten(v: Vec<[f64; 3]>) -> Vec<f64> {
     let mut v = std::mem::ManuallyDrop::new(v);

@@ -61,6 +61,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(default_wavelengths, m)?)?;
     m.add_function(wrap_pyfunction!(simd_walk, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::generate_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::density_at, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::value_noise, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::move_grains, m)?)?;
     m.add_function(wrap_pyfunction!(interrupt::exit_on_wakeup, m)?)?;

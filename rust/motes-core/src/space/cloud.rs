@@ -249,7 +249,8 @@ impl Density {
         })
     }
 
-    pub(crate) fn at(&self, p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    /// The (relative) density at `p` in the cloud's box [lo, hi], as the generator draws by it.
+    pub fn at(&self, p: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
         match self {
             Density::Uniform => 1.0,
             Density::Gradient { axis, start, end } => {
