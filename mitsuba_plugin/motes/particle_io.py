@@ -16,8 +16,8 @@
 ``ValueError``) naming the file and the element (particle index or file line) and field: a path that is not a
 regular file (missing, unreadable, a directory, a FIFO — checked before and after opening, so nothing blocks),
 non-finite coordinates, radii below MIN_RADIUS_UM (1e-9 um), unknown species, empty sets, and files whose body
-disagrees with their header (a PLY's element counts and property types, a .npy array's shape, too few or extra rows or bytes,
-checked before anything of the declared size is allocated). Pickled data is never loaded. Nothing else
+disagrees with their header (a PLY's element counts and property types, a .npy array's shape, too few or extra
+rows or bytes, checked before anything of the declared size is allocated). Pickled data is never loaded. Nothing else
 escapes from a bad file; ``docs/python-api.md`` ("Particle files") lists the rules. PLY and .npy are read here
 rather than by meshio and ``numpy.load``, which take a header's counts and shapes on trust (a short file read
 short; a huge count allocated before the read failed); numpy still parses the headers and the rows.
