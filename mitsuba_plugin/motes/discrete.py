@@ -265,13 +265,15 @@ def _checked_inputs(positions, radii_um, species_index, species, wavelength_um, 
     return pos, r, idx, species, lam_in, lam
 
 
-def _bin_optics(sp: Species, lo: float, hi: float, lam, eta_medium, method, truncate_below_rad, goa_cache):
+def _bin_optics(sp: Species, lo: float, hi: float, lam, eta_medium, method, truncate_below_rad, goa_cache,
+                mueller: bool = False):
     """One radius bin [lo, hi] of species ``sp``: its extinction efficiency per wavelength and its bulk
-    properties (``goa_cache``: the GOA ray geometry every bin shares)."""
+    properties (``goa_cache``: the GOA ray geometry every bin shares; ``mueller``: with its polarisation)."""
     psd = Monodisperse(lo) if hi <= lo else Uniform(lo, hi)
     area = np.pi * psd.mean(2)  # <pi r^2>, um^2
+    extra = {"mueller": True} if mueller else {}
     bulk = bulk_properties(Species(psd, sp.eta), 1.0, lam, eta_medium, method, truncate_below_rad=truncate_below_rad,
-                           goa_cache=goa_cache)
+                           goa_cache=goa_cache, **extra)
     # n = 1 / m^3: sigma (1/m) is the mean cross section in m^2.
     return bulk["sigma_t"] * 1e12 / area, bulk
 
@@ -280,7 +282,8 @@ class _BinTables:
     """The optics bins of a medium as they are added (one ``add`` per radius bin of a species): each bin's
     grey Q_ext, albedo per wavelength and phase tables, and what the medium reports about them."""
 
-    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model="tabulated", phase=None):
+    def __init__(self, lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model="tabulated", phase=None,
+                 polarized=False):
         if phase_model not in PHASE_MODELS:
             raise ValueError(f"invalid phase_model = {phase_model!r}: must be one of {', '.join(PHASE_MODELS)}")
         if phase is not None and phase_model != "tabulated":
@@ -290,6 +293,10 @@ class _BinTables:
         self.phase_model = phase_model
         #: The user's phase function for every bin (``phase_table``), or None: the grains' own.
         self.phase = None if phase is None else phase_table(phase)
+        #: Polarised variants: the grains' Mueller ratios beside their phase tables, where the phase function is
+        #: theirs (a user's phase function and Henyey-Greenstein depolarise, as Mitsuba's own do).
+        self.polarized = bool(polarized) and phase is None and phase_model == "tabulated"
+        self.mueller = []
         self.truncate_below_rad = truncate_below_rad
         self.albedo = _checked_albedo(albedo, rank.size)
         if self.albedo is not None and self.albedo.ndim == 1:  # per channel -> per tabulated wavelength
@@ -304,7 +311,7 @@ class _BinTables:
     def add(self, k: int, sp: Species, lo: float, hi: float) -> int:
         """The bin [lo, hi] um of species ``k``; returns its global index."""
         q_t, bulk = _bin_optics(sp, lo, hi, self.lam, self.eta_medium, self.method, self.truncate_below_rad,
-                                self.goa_cache)
+                                self.goa_cache, self.polarized)
         self.grey_q.append(float(np.mean(q_t)))
         if self.albedo is None:
             self.albedos.append(np.clip(bulk["albedo"], 0.0, 1.0))
@@ -321,6 +328,8 @@ class _BinTables:
                 theta, row = self.phase(bulk["theta"])
             self.theta.append(theta)
             self.f.append(row)
+            if self.polarized:  # (r12, r33, r34) rows on theta, as the core's BinTables take them
+                self.mueller.append(np.asarray(bulk["mueller"][len(g)], dtype=np.float64).ravel())
             self.offsets.append(self.offsets[-1] + theta.size)
             g.append(_motes.PhaseTable(theta, row).mean_cosine())
         self.radius_um.append((lo, hi))
@@ -342,8 +351,8 @@ class _BinTables:
         medium.n_bins = len(self.grey_q)
 
     def core_tables(self):
-        """(albedos, theta, f, offsets) as the core's constructors take them."""
-        return self.albedos, self.theta, self.f, self.offsets
+        """(albedos, theta, f, offsets, mueller or None) as the core's constructors take them."""
+        return self.albedos, self.theta, self.f, self.offsets, (self.mueller if self.polarized else None)
 
 
 def _checked_albedo(albedo, channels: int):
@@ -417,10 +426,11 @@ def mean_extinction_um2(species, wavelength_um, *, shares=None, size_bins: int =
 
 def _core_tables(tables, lam) -> _motes.BinTables:
     """The core's ``BinTables`` of (albedos, theta, f, offsets) per bin and the tabulated wavelengths (um)."""
-    albedos, theta, f, offsets = tables
+    albedos, theta, f, offsets, mueller = tables
     return _motes.BinTables(np.ascontiguousarray(np.concatenate(albedos)), np.ascontiguousarray(np.concatenate(theta)),
                             np.ascontiguousarray(np.concatenate(f)), np.asarray(offsets, dtype=np.uint64),
-                            np.ascontiguousarray(lam * 1e3))
+                            np.ascontiguousarray(lam * 1e3),
+                            None if mueller is None else np.ascontiguousarray(np.concatenate(mueller)))
 
 
 def _camera_tuple(position, pixel_angle, aperture, axis=(0.0, 0.0, 0.0), pixel_width=0.0) -> tuple:
@@ -465,7 +475,7 @@ class DiscreteMedium:
                  albedo: float | None = None, tau_max: float = DEFAULT_TAU_MAX, warn_widened: bool = False,
                  continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                  storage: str = DEFAULT_STORAGE, phase_model: str = "tabulated", surface_footprint: bool = True,
-                 phase: dict | None = None, holders=None, density=None):
+                 phase: dict | None = None, holders=None, density=None, polarized: bool = False):
         self.storage = storage  # checked by the core (``Storage::parse``: a MotesError naming it)
         grain_depth = checked_grain_depth(grain_depth)
         settings = _settings(query_radius, tau_max, cells_per_particle, continuous_count, seed, storage)
@@ -478,7 +488,7 @@ class DiscreteMedium:
         _checked_albedo(albedo, lam.size)
         rank = np.searchsorted(lam, lam_in)  # channel c is tabulated wavelength rank[c]
         bin_of, grey_q, tables = self._optics_tables(r, idx, species, lam, rank, int(size_bins), eta_medium, method,
-                                                    truncate_below_rad, albedo, phase_model, phase)
+                                                    truncate_below_rad, albedo, phase_model, phase, polarized)
         self._build_core(pos, r, idx, lam_in, lam, bin_of, grey_q, tables, scale_m, settings, warn_widened, holders,
                          density)
         self._set_path_rules(grain_depth, surface_footprint)
@@ -568,11 +578,11 @@ class DiscreteMedium:
         return self._core.lights
 
     def _optics_tables(self, r, idx, species, lam, rank, size_bins, eta_medium, method, truncate_below_rad, albedo,
-                       phase_model, phase=None):
+                       phase_model, phase=None, polarized=False):
         """Each particle's optics bin and grey Q_ext, and the per-bin tables the core takes (albedos, theta, f, offsets)."""
         n = r.size
         bin_of = np.zeros(n, dtype=np.uint32)
-        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model, phase)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model, phase, polarized)
         for k, sp in enumerate(species):
             # One species (the common case): every particle, without index arrays (1e8 particles).
             sel = slice(None) if len(species) == 1 else np.flatnonzero(idx == k)
@@ -651,7 +661,8 @@ class DiscreteMedium:
                    continuous_count: float = DEFAULT_CONTINUOUS_COUNT, grain_depth: int = DEFAULT_GRAIN_DEPTH,
                    cache_bytes: int | None = None, phase_model: str = "tabulated", turbulence: float = 0.0,
                    turbulence_scale: float = 1.0, time_s: float = 0.0,
-                   surface_footprint: bool = True, phase: dict | None = None) -> "DiscreteMedium":
+                   surface_footprint: bool = True, phase: dict | None = None,
+                   polarized: bool = False) -> "DiscreteMedium":
         """A procedural cloud (``storage = "procedural"``; ``rust/motes-core/src/render/procedural/``):
         ``count`` expected particles in ``box`` (the cloud's own coordinates, mapped by the 4x4
         ``to_world``) after ``density`` = (kind, params) as ``_motes.generate_cloud`` takes it, species by
@@ -684,7 +695,7 @@ class DiscreteMedium:
             raise ValueError(f"to_world must be a finite 4x4 matrix, got shape {m.shape}")
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in box)
         rank = np.searchsorted(lam, lam_in)
-        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model, phase)
+        tables = _BinTables(lam, rank, eta_medium, method, truncate_below_rad, albedo, phase_model, phase, polarized)
         edges_all, first = _procedural_bins(tables, species, size_bins)
         tables.report(self)
         kind, params = density

@@ -5,8 +5,9 @@ It is compiled against the Mitsuba and Dr.Jit wheels installed next to motes, on
 version, Dr.Jit version), into ``<cache>/native/<key>/plugins/`` (``$MOTES_CACHE_DIR`` or
 ``~/.cache/motes``; the README's set-up command builds it, otherwise the first render does, ~20 s). It
 needs ``g++`` (``$CXX``) and the nanobind 2.9 headers (a dependency of motes). ``motes.set_variant`` /
-``import motes`` use it for ``scalar_rgb``, ``scalar_spectral``, ``llvm_ad_rgb`` and ``llvm_ad_spectral``
-unless ``MOTES_NATIVE=0``; elsewhere, or when it cannot be built (a warning says why), the plugins fall
+``import motes`` use it for ``scalar_rgb``, ``scalar_spectral``, ``llvm_ad_rgb``, ``llvm_ad_spectral`` and
+the polarised variants ``scalar_spectral_polarized``, ``llvm_ad_spectral_polarized`` and
+``llvm_ad_mono_polarized`` unless ``MOTES_NATIVE=0``; elsewhere, or when it cannot be built (a warning says why), the plugins fall
 back to the evaluated-mode Python path, which needs Dr.Jit's evaluated ("wavefront") mode.
 """
 
@@ -24,9 +25,10 @@ import tempfile
 from .. import _env
 
 #: Variants the native library is built for.
-NATIVE_VARIANTS = ("scalar_rgb", "scalar_spectral", "llvm_ad_rgb", "llvm_ad_spectral")
+NATIVE_VARIANTS = ("scalar_rgb", "scalar_spectral", "llvm_ad_rgb", "llvm_ad_spectral", "scalar_spectral_polarized",
+                   "llvm_ad_spectral_polarized", "llvm_ad_mono_polarized")
 #: Plugin names it registers (one library, one symlink per name).
-PLUGIN_NAMES = ("motes_discrete_native", "motes_particle_native")
+PLUGIN_NAMES = ("motes_discrete_native", "motes_particle_native", "motes_tabphase_polarized")
 SOURCE = pathlib.Path(__file__).with_name("motes_native.cpp")
 #: The wheels are built for AVX2/FMA/F16C/BMI; Dr.Jit lays out small static arrays (a scalar Color3f) as
 #: SIMD packets when these are on, so the plugin must be compiled with the same flags or scalar variants

@@ -9,7 +9,9 @@
 // ======================  ========  =========================================================
 // api                     integer   address of the Rust core's NativeApi (motes._motes.NATIVE_API)
 // medium                  integer   a strong reference to the core medium (DiscreteMedium.native_handle())
-// channel_nm_0..2         float     RGB variants: the wavelength of each channel, nm
+// channel_nm_0..2         float     RGB and mono variants: the wavelength of each channel, nm
+// polarizing              boolean   polarised variants: the grains' Mueller matrices (true), or a
+//                                   depolarizer of their phase function (false: a user's phase, HG)
 // description             string    what `to_string` reports (the Python plugin's summary)
 // ======================  ========  =========================================================
 //
@@ -43,9 +45,23 @@
 // has no null collisions (Embree stops at the site: a dense cloud's rays no longer reach its walls).
 // Phase function: `sample` (one call: the direction, its weights and pdf; spectral variants, whose four
 // channels do not fit the record, evaluate the direction with a second call) and `eval_pdf`.
+//
+// Polarised variants (issue 45): `eval_pdf` returns the grains' Mueller matrix (Bohren & Huffman's F11,
+// F12, F33, F34 of the site's mixture, from Rust, `PHASE_MUELLER`) rotated from the scattering plane's
+// Stokes frames into Mitsuba's: light arrives along -wo and leaves along wi (swapped in importance
+// transport, as Mitsuba's polarised BSDFs swap them), the frames' x axes are the in-plane directions
+// cross(n, d) with n the scattering plane's normal (BH's "parallel" axes, so Q keeps BH's sign), and
+// `mueller::rotate_mueller_basis` takes them to `mueller::stokes_basis` of each direction (Eradiate's
+// `tabphase_polarized` does the same). `sample` draws the direction and pdf from F11 (unchanged) and
+// evaluates the matrix there. Free flights are unpolarised.
 #include <mitsuba/core/properties.h>
 #include <mitsuba/render/medium.h>
 #include <mitsuba/render/phase.h>
+#include <mitsuba/render/mueller.h>
+#include <mitsuba/core/distr_1d.h>
+#include <cmath>
+#include <sstream>
+#include <vector>
 #include <drjit/tensor.h>
 #include <drjit-core/jit.h>
 #include <algorithm>
@@ -64,8 +80,9 @@ struct MotesNativeApi {
     void (*release)(const void *medium);
     int32_t (*set_albedo_scale)(const void *medium, double scale, char *message, size_t capacity);
 };
-static constexpr uint32_t MOTES_NATIVE_ABI = 3;
-enum MotesOp : uint32_t { FreeFlight = 0, PhaseSample = 2, PhaseEval = 3 };
+static constexpr uint32_t MOTES_NATIVE_ABI = 4;
+enum MotesOp : uint32_t { FreeFlight = 0, PhaseSample = 2, PhaseEval = 3, PhaseMueller = 4, PhaseSampleDirection = 5 };
+static constexpr uint32_t MOTES_OPS = 6;
 /// sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 static constexpr float MOTES_MAJORANT = 1e20f;
 /// Per-lane wavelengths travel as u16 in units of 1/50 nm (native.rs).
@@ -78,6 +95,27 @@ struct MotesPayload {
     uint32_t op = 0, channels = 1;
     const double *lambda = nullptr;
 };
+
+/// A sphere's Mueller matrix from Bohren & Huffman's elements `f` = (F11, F12, F33, F34) in the scattering
+/// plane's Stokes frames, rotated into Mitsuba's (polarised variants; the file's notes): light arrives along
+/// -wo and leaves along wi, swapped in importance transport.
+template <typename Float, typename Spectrum, typename UnpolarizedSpectrum, typename Context, typename Vector3f>
+Spectrum motes_sphere_mueller(const UnpolarizedSpectrum f[4], const Context &ctx, const Vector3f &wi,
+                              const Vector3f &wo) {
+    Spectrum m = dr::zeros<Spectrum>();
+    m(0, 0) = f[0]; m(0, 1) = f[1]; m(1, 0) = f[1]; m(1, 1) = f[0];
+    m(2, 2) = f[2]; m(2, 3) = f[3]; m(3, 2) = -f[3]; m(3, 3) = f[2];
+    bool radiance = ctx.mode == TransportMode::Radiance;
+    Vector3f wo_hat = radiance ? wo : wi, wi_hat = radiance ? wi : wo;
+    Vector3f d_in = -wo_hat, d_out = wi_hat;
+    Vector3f n = dr::cross(d_in, d_out);
+    Float n2 = dr::squared_norm(n);
+    // At θ = 0 and π the plane is undefined; a sphere's matrix is then the same in any (F12 = F34 = 0).
+    n = dr::select(n2 > 1e-12f, n * dr::rsqrt(dr::maximum(n2, 1e-30f)), coordinate_system(d_in).first);
+    Vector3f x_in = dr::normalize(dr::cross(n, d_in)), x_out = dr::normalize(dr::cross(n, d_out));
+    return mueller::rotate_mueller_basis(m, d_in, x_in, mueller::stokes_basis(d_in), d_out, x_out,
+                                         mueller::stokes_basis(d_out));
+}
 
 /// Called by the generated kernel once per packet of Width lanes.
 template <size_t Width>
@@ -96,7 +134,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
     const MotesNativeApi *api = nullptr;
     const void *medium = nullptr;
     double lambda[4] = { 0, 0, 0, 0 };
-    MotesPayload payload[4];
+    MotesPayload payload[MOTES_OPS];
     void *func = nullptr;
     std::string description;
 
@@ -112,12 +150,13 @@ template <typename Float, typename Spectrum> struct MotesCall {
             Throw("%s: the Rust core speaks native ABI %u, this plugin %u: rebuild it (motes.native.build())",
                   who, api->abi, MOTES_NATIVE_ABI);
         description = props.get<std::string>("description", std::string(who) + "[]");
-        bool rgb = is_rgb_v<Spectrum>;
-        if (rgb)
+        // RGB and mono variants: the channels' wavelengths, shared by every lane.
+        bool shared = !is_spectral_v<Spectrum>;
+        if (shared)
             for (size_t c = 0; c < Channels; ++c)
                 lambda[c] = props.get<ScalarFloat>("channel_nm_" + std::to_string(c));
-        for (uint32_t op = 0; op < 4; ++op)
-            payload[op] = MotesPayload{ api, medium, op, (uint32_t) Channels, rgb ? lambda : nullptr };
+        for (uint32_t op = 0; op < MOTES_OPS; ++op)
+            payload[op] = MotesPayload{ api, medium, op, (uint32_t) Channels, shared ? lambda : nullptr };
         if constexpr (dr::is_llvm_v<Float>) {
             switch (jit_llvm_vector_width()) {  // one instantiation per SIMD width the JIT may use
                 case 1: func = (void *) motes_packet_fn<1>; break;
@@ -163,9 +202,9 @@ template <typename Float, typename Spectrum> struct MotesCall {
     /// One native call of operation `op` on the lanes `active`: the twelve inputs are the record's
     /// o, tnear, d, time, tfar (floats) and mask, id, flags (u32).
     Out call(uint32_t op, Mask active, const Vector3f &o, Float tnear, const Vector3f &d, Float time,
-             Float tfar, UInt32 mask, UInt32 id) const {
+             Float tfar, UInt32 mask, UInt32 id, uint32_t flag = 0) const {
         if constexpr (dr::is_llvm_v<Float>) {
-            UInt32 flags = dr::zeros<UInt32>();
+            UInt32 flags = UInt32(flag);
             Mask coherent = false;
             // Lanes outside the enclosing symbolic loop/call mask (finished paths, other media) are
             // skipped: combine `active` with Dr.Jit's mask stack, as Mitsuba's own ray tracers do.
@@ -190,7 +229,7 @@ template <typename Float, typename Spectrum> struct MotesCall {
             auto get = [&](int k) { float x; std::memcpy(&x, &rec[k], 4); return x; };
             put(0, o.x()); put(1, o.y()); put(2, o.z()); put(3, tnear);
             put(4, d.x()); put(5, d.y()); put(6, d.z()); put(7, time); put(8, tfar);
-            rec[9] = mask; rec[10] = id; rec[11] = 0;
+            rec[9] = mask; rec[10] = id; rec[11] = flag;
             for (int k = 12; k < 20; ++k) rec[k] = 0;
             rec[18] = (uint32_t) -1;  // geom_id: Rust writes 0 where it returns the lane
             if (active)
@@ -293,14 +332,17 @@ public:
         m_flags = +PhaseFunctionFlags::Anisotropic;
         m_components.push_back(m_flags);
         m_call.init(props, "motes_particle_native");
+        m_polarizing = props.get<bool>("polarizing", false);
     }
 
     std::tuple<Vector3f, Spectrum, Float> sample(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
                                                  Float sample1, const Point2f &sample2,
                                                  Mask active) const override {
         auto [w0, w1] = Call::packed_wavelengths(mi.wavelengths);
-        auto r = m_call.call(PhaseSample, active, mi.p, sample1, mi.wi, sample2.x(), sample2.y(), w0, w1);
-        if constexpr (Call::Channels <= 3) {
+        constexpr bool polarized = is_polarized_v<Spectrum>;
+        auto r = m_call.call(polarized ? PhaseSampleDirection : PhaseSample, active, mi.p, sample1, mi.wi,
+                             sample2.x(), sample2.y(), w0, w1);
+        if constexpr (Call::Channels <= 3 && !polarized) {
             // Direction (octahedral), weights and pdf in one call.
             Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
             Mask ok = active && r.hit && pdf > 0.f;
@@ -315,17 +357,22 @@ public:
             Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.prim), 0.f);
             Mask ok = active && r.hit && pdf > 0.f;
             auto [value, pdf_eval] = eval_pdf(ctx, mi, wo, ok);
-            Spectrum weight = dr::select(ok, Spectrum(value) / dr::select(ok, pdf, 1.f), Spectrum(0.f));
+            Spectrum weight = dr::select(ok, value / dr::select(ok, pdf, 1.f), dr::zeros<Spectrum>());
             return { dr::select(ok, wo, Vector3f(0.f, 0.f, 1.f)), weight, dr::select(ok, pdf, 0.f) };
         }
     }
 
-    std::pair<Spectrum, Float> eval_pdf(const PhaseFunctionContext &, const MediumInteraction3f &mi,
+    std::pair<Spectrum, Float> eval_pdf(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
                                         const Vector3f &wo, Mask active) const override {
         auto [w0, w1] = Call::packed_wavelengths(mi.wavelengths);
+        if constexpr (is_polarized_v<Spectrum>) {
+            if (m_polarizing)
+                return eval_mueller(ctx, mi, wo, active, w0, w1);
+        }
         auto r = m_call.call(PhaseEval, active, mi.p, wo.x(), mi.wi, wo.y(), wo.z(), w0, w1);
         Float pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
-        return { Spectrum(Call::channels_of(r)), pdf };
+        // Polarised variants without the grains' matrices: a depolarizer, as Mitsuba's own phase functions.
+        return { depolarizer<Spectrum>(Spectrum(Call::channels_of(r))), pdf };
     }
 
     std::string to_string() const override { return m_call.description; }
@@ -333,7 +380,144 @@ public:
 
 private:
     using Call = MotesCall<Float, Spectrum>;
+
+    /// The grains' Mueller matrix towards `wo` in Mitsuba's Stokes frames, and the pdf (file notes).
+    std::pair<Spectrum, Float> eval_mueller(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
+                                            const Vector3f &wo, Mask active, const UInt32 &w0,
+                                            const UInt32 &w1) const {
+        UnpolarizedSpectrum f[4];
+        Float pdf;
+        if constexpr (Call::Channels == 1) {
+            // One channel: F11, F12, F33, F34 in one call.
+            auto r = m_call.call(PhaseMueller, active, mi.p, wo.x(), mi.wi, wo.y(), wo.z(), w0, w1, 0);
+            Float v[4] = { r.t, r.u, r.v, dr::reinterpret_array<Float>(r.prim) };
+            for (int e = 0; e < 4; ++e)
+                f[e] = UnpolarizedSpectrum(dr::select(r.hit, v[e], 0.f));
+            pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
+        } else {
+            // Element e of every channel per call; the first evaluates, the others read it again.
+            for (uint32_t e = 0; e < 4; ++e) {
+                auto r = m_call.call(PhaseMueller, active, mi.p, wo.x(), mi.wi, wo.y(), wo.z(), w0, w1, e);
+                f[e] = Call::channels_of(r);
+                if (e == 0)
+                    pdf = dr::select(r.hit, dr::reinterpret_array<Float>(r.inst), 0.f);
+            }
+        }
+        Spectrum m = motes_sphere_mueller<Float, Spectrum>(f, ctx, mi.wi, wo);
+        return { dr::select(active, m, dr::zeros<Spectrum>()), pdf };
+    }
+
     Call m_call;
+    bool m_polarizing = false;
+    MI_TRAVERSE_CB(Base)
+};
+
+/// `motes_tabphase_polarized`: a tabulated phase function with a sphere ensemble's polarisation, for the
+/// continuous equivalent of a `discrete` medium in polarised variants (motes.homogeneous_equivalent with
+/// polarized=True). Mainline Mitsuba's `tabphase` depolarises.
+///
+/// ======  ======  ==============================================================================
+/// values  string  F11 on a regular grid of cos(theta) from -1 (backward) to 1 (forward), as `tabphase`
+/// m12     string  F12 / F11 on the same grid (Bohren & Huffman's elements; 0 where omitted)
+/// m33     string  F33 / F11 (1 where omitted)
+/// m34     string  F34 / F11 (0 where omitted)
+/// ======  ======  ==============================================================================
+///
+/// Sampling and pdf are `tabphase`'s (F11, normalised); in polarised variants `eval_pdf` returns the matrix
+/// of `motes_sphere_mueller` with the ratios interpolated linearly, `sample` that matrix over the pdf.
+template <typename Float, typename Spectrum>
+class MotesTabphasePolarized final : public PhaseFunction<Float, Spectrum> {
+public:
+    MI_IMPORT_BASE(PhaseFunction, m_flags, m_components)
+    MI_IMPORT_TYPES(PhaseFunctionContext)
+    using FloatStorage = DynamicBuffer<Float>;
+
+    MotesTabphasePolarized(const Properties &props) : Base(props) {
+        std::vector<ScalarFloat> f = parse(props, "values", {});
+        if (f.size() < 2)
+            Throw("motes_tabphase_polarized: 'values' needs at least two numbers, got %zu", f.size());
+        for (ScalarFloat v : f)
+            if (!(v >= 0.f) || !std::isfinite(v))
+                Throw("motes_tabphase_polarized: 'values' must be finite and >= 0, got %f", v);
+        m_distr = ContinuousDistribution<Float>(ScalarVector2f(-1.f, 1.f), f.data(), f.size());
+        const char *names[3] = { "m12", "m33", "m34" };
+        ScalarFloat fill[3] = { 0.f, 1.f, 0.f };
+        for (int k = 0; k < 3; ++k) {
+            std::vector<ScalarFloat> r = parse(props, names[k], std::vector<ScalarFloat>(f.size(), fill[k]));
+            if (r.size() != f.size())
+                Throw("motes_tabphase_polarized: '%s' has %zu values, 'values' %zu", names[k], r.size(), f.size());
+            for (ScalarFloat v : r)
+                if (!(std::abs(v) <= 1.f + 1e-5f))
+                    Throw("motes_tabphase_polarized: '%s' holds %f: ratios to F11 lie in [-1, 1]", names[k], v);
+            m_ratio[k] = dr::load<FloatStorage>(r.data(), r.size());
+        }
+        m_size = (uint32_t) f.size();
+        m_flags = +PhaseFunctionFlags::Anisotropic;
+        m_components.push_back(m_flags);
+    }
+
+    std::tuple<Vector3f, Spectrum, Float> sample(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
+                                                 Float /* sample1 */, const Point2f &sample2,
+                                                 Mask active) const override {
+        // cos θ = dot(wo, -wi): θ between the light's directions before and after (file notes).
+        auto [cos_theta, pdf_mu] = m_distr.sample_pdf(sample2.x(), active);
+        Float sin_theta = dr::safe_sqrt(1.f - cos_theta * cos_theta);
+        auto [s, c] = dr::sincos(dr::TwoPi<Float> * sample2.y());
+        Vector3f wo = Frame3f(-mi.wi).to_world(Vector3f(sin_theta * c, sin_theta * s, cos_theta));
+        auto [value, pdf] = eval_pdf(ctx, mi, wo, active);
+        Spectrum weight = dr::select(pdf > 0.f, value / dr::select(pdf > 0.f, pdf, 1.f), dr::zeros<Spectrum>());
+        return { wo, weight, pdf };
+    }
+
+    std::pair<Spectrum, Float> eval_pdf(const PhaseFunctionContext &ctx, const MediumInteraction3f &mi,
+                                        const Vector3f &wo, Mask active) const override {
+        Float cos_theta = dr::clip(-dr::dot(wo, mi.wi), -1.f, 1.f);
+        Float pdf = dr::select(active, m_distr.eval_pdf_normalized(cos_theta, active) * dr::InvTwoPi<Float>, 0.f);
+        if constexpr (is_polarized_v<Spectrum>) {
+            Float x = (cos_theta + 1.f) * .5f * (m_size - 1);
+            UInt32 i = dr::clip(UInt32(x), 0u, m_size - 2);
+            Float t = x - Float(i);
+            UnpolarizedSpectrum f[4];
+            f[0] = UnpolarizedSpectrum(pdf);
+            for (int k = 0; k < 3; ++k) {
+                Float a = dr::gather<Float>(m_ratio[k], i, active), b = dr::gather<Float>(m_ratio[k], i + 1u, active);
+                f[k + 1] = UnpolarizedSpectrum(pdf * dr::lerp(a, b, t));
+            }
+            return { motes_sphere_mueller<Float, Spectrum>(f, ctx, mi.wi, wo), pdf };
+        } else {
+            return { Spectrum(pdf), pdf };
+        }
+    }
+
+    std::string to_string() const override { return "MotesTabphasePolarized[" + std::to_string(m_size) + " values]"; }
+    MI_DECLARE_CLASS(MotesTabphasePolarized)
+
+private:
+    /// A string property of comma- or space-separated numbers (`fallback` when it is absent).
+    static std::vector<ScalarFloat> parse(const Properties &props, const std::string &name,
+                                          std::vector<ScalarFloat> fallback) {
+        if (!props.has_property(name))
+            return fallback;
+        std::vector<ScalarFloat> out;
+        std::string text = props.get<std::string>(name);
+        for (char &ch : text)
+            if (ch == ',')
+                ch = ' ';
+        std::istringstream in(text);
+        std::string word;
+        while (in >> word) {
+            try {
+                out.push_back((ScalarFloat) std::stod(word));
+            } catch (const std::exception &) {
+                Throw("motes_tabphase_polarized: '%s' holds \"%s\", not a number", name, word);
+            }
+        }
+        return out;
+    }
+
+    ContinuousDistribution<Float> m_distr;
+    FloatStorage m_ratio[3];
+    uint32_t m_size = 0;
     MI_TRAVERSE_CB(Base)
 };
 
@@ -351,6 +535,26 @@ static void motes_register(std::string_view name, PluginRegisterFn fn) {
     fn(name, "scalar_spectral", Cls<float, Spectrum<float, 4>>::Type, motes_make<Cls, float, Spectrum<float, 4>>);
     fn(name, "llvm_ad_rgb", Cls<LF, Color<LF, 3>>::Type, motes_make<Cls, LF, Color<LF, 3>>);
     fn(name, "llvm_ad_spectral", Cls<LF, Spectrum<LF, 4>>::Type, motes_make<Cls, LF, Spectrum<LF, 4>>);
+    using SP = MuellerMatrix<Spectrum<float, 4>>;
+    using LSP = MuellerMatrix<Spectrum<LF, 4>>;
+    using LMP = MuellerMatrix<Color<LF, 1>>;
+    fn(name, "scalar_spectral_polarized", Cls<float, SP>::Type, motes_make<Cls, float, SP>);
+    fn(name, "llvm_ad_spectral_polarized", Cls<LF, LSP>::Type, motes_make<Cls, LF, LSP>);
+    fn(name, "llvm_ad_mono_polarized", Cls<LF, LMP>::Type, motes_make<Cls, LF, LMP>);
+}
+
+/// `f` of the first variant's medium that `obj` is, or `none` (the variants registered above).
+template <typename Obj, typename F, typename R>
+static R motes_for_medium(Obj *obj, F f, R none) {
+    using LF = dr::DiffArray<JitBackend::LLVM, float>;
+    if (auto m = dynamic_cast<MotesDiscreteNative<float, Color<float, 3>> *>(obj)) return f(m);
+    if (auto m = dynamic_cast<MotesDiscreteNative<float, Spectrum<float, 4>> *>(obj)) return f(m);
+    if (auto m = dynamic_cast<MotesDiscreteNative<LF, Color<LF, 3>> *>(obj)) return f(m);
+    if (auto m = dynamic_cast<MotesDiscreteNative<LF, Spectrum<LF, 4>> *>(obj)) return f(m);
+    if (auto m = dynamic_cast<MotesDiscreteNative<float, MuellerMatrix<Spectrum<float, 4>>> *>(obj)) return f(m);
+    if (auto m = dynamic_cast<MotesDiscreteNative<LF, MuellerMatrix<Spectrum<LF, 4>>> *>(obj)) return f(m);
+    if (auto m = dynamic_cast<MotesDiscreteNative<LF, MuellerMatrix<Color<LF, 1>>> *>(obj)) return f(m);
+    return none;
 }
 
 // Registers the variants built here (MI_EXPORT_PLUGIN would instantiate all 13), for the plugin name this
@@ -358,6 +562,8 @@ static void motes_register(std::string_view name, PluginRegisterFn fn) {
 extern "C" MI_EXPORT void init_plugin(std::string_view name, PluginRegisterFn fn) {
     if (name == "motes_particle_native")
         motes_register<MotesParticleNative>(name, fn);
+    else if (name == "motes_tabphase_polarized")
+        motes_register<MotesTabphasePolarized>(name, fn);
     else
         motes_register<MotesDiscreteNative>(name, fn);
 }
@@ -365,31 +571,13 @@ extern "C" MI_EXPORT void init_plugin(std::string_view name, PluginRegisterFn fn
 /// The core medium handle of a `motes_discrete_native` object (its address, as Python's `.ptr`), or null for
 /// any other object: how Python finds the data of a scene whose medium is this plugin (scalar variants).
 extern "C" MI_EXPORT const void *motes_native_medium_handle(const Object *obj) {
-    using LF = dr::DiffArray<JitBackend::LLVM, float>;
-    if (auto m = dynamic_cast<const MotesDiscreteNative<float, Color<float, 3>> *>(obj))
-        return m->handle();
-    if (auto m = dynamic_cast<const MotesDiscreteNative<float, Spectrum<float, 4>> *>(obj))
-        return m->handle();
-    if (auto m = dynamic_cast<const MotesDiscreteNative<LF, Color<LF, 3>> *>(obj))
-        return m->handle();
-    if (auto m = dynamic_cast<const MotesDiscreteNative<LF, Spectrum<LF, 4>> *>(obj))
-        return m->handle();
-    return nullptr;
+    return motes_for_medium(const_cast<Object *>(obj), [](auto *m) { return m->handle(); }, (const void *) nullptr);
 }
 
 /// Set whether a `motes_discrete_native` object lets integrators clip a ray at its site (Mitsuba's
 /// `is_homogeneous` flag; see the file's notes): 1 if `obj` is one, else 0 (nothing changed).
 extern "C" MI_EXPORT int motes_native_set_clips_rays(Object *obj, int on) {
-    using LF = dr::DiffArray<JitBackend::LLVM, float>;
-    if (auto m = dynamic_cast<MotesDiscreteNative<float, Color<float, 3>> *>(obj))
-        return m->set_clips_rays(on != 0), 1;
-    if (auto m = dynamic_cast<MotesDiscreteNative<float, Spectrum<float, 4>> *>(obj))
-        return m->set_clips_rays(on != 0), 1;
-    if (auto m = dynamic_cast<MotesDiscreteNative<LF, Color<LF, 3>> *>(obj))
-        return m->set_clips_rays(on != 0), 1;
-    if (auto m = dynamic_cast<MotesDiscreteNative<LF, Spectrum<LF, 4>> *>(obj))
-        return m->set_clips_rays(on != 0), 1;
-    return 0;
+    return motes_for_medium(obj, [on](auto *m) { return m->set_clips_rays(on != 0), 1; }, 0);
 }
 
 /// The Mitsuba version this library was compiled against (checked by motes/native/__init__.py).

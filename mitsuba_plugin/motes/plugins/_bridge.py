@@ -61,6 +61,35 @@ def spectrum(a: np.ndarray, n: int):
     return mi.UnpolarizedSpectrum(*(float(a[0, c]) for c in range(size)))
 
 
+def depolarized(value):
+    """``value`` (an ``UnpolarizedSpectrum``) as the variant's ``Spectrum``: in polarised variants a depolarizer
+    (only its (0, 0) element), as Mitsuba's own phase functions return."""
+    if mi.is_polarized:
+        return mi.mueller.depolarizer(value)
+    return value
+
+
+def mueller_spectrum(elements: np.ndarray, n: int, ctx, mei, wo):
+    """The Mueller matrix (a polarised variant's ``Spectrum``) of grains whose Bohren & Huffman elements F11, F12,
+    F33, F34 per channel are ``elements`` (n, channels, 4), in Mitsuba's Stokes frames: as the native plugin
+    (``motes_native.cpp``, "Polarised variants") builds it — light arrives along -wo and leaves along wi (swapped
+    in importance transport), the scattering plane's in-plane axes rotated into ``mueller.stokes_basis``."""
+    f = [spectrum(elements[:, :, k], n) for k in range(4)]
+    m = dr.zeros(mi.Spectrum, n) if is_jit() else dr.zeros(mi.Spectrum)
+    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = f[0], f[1], f[1], f[0]
+    m[2, 2], m[2, 3], m[3, 2], m[3, 3] = f[2], f[3], -f[3], f[2]
+    wi = mei.wi
+    radiance = ctx.mode == mi.TransportMode.Radiance
+    wo_hat, wi_hat = (wo, wi) if radiance else (wi, wo)
+    d_in, d_out = -wo_hat, mi.Vector3f(wi_hat)
+    normal = dr.cross(d_in, d_out)
+    n2 = dr.squared_norm(normal)
+    normal = dr.select(n2 > 1e-12, normal * dr.rsqrt(dr.maximum(n2, 1e-30)), mi.coordinate_system(d_in)[0])
+    x_in, x_out = dr.normalize(dr.cross(normal, d_in)), dr.normalize(dr.cross(normal, d_out))
+    return mi.mueller.rotate_mueller_basis(m, d_in, x_in, mi.mueller.stokes_basis(d_in), d_out, x_out,
+                                           mi.mueller.stokes_basis(d_out))
+
+
 def channel_wavelengths(medium, mei, n: int):
     """(flat wavelengths in nm, channels): per lane in spectral variants, shared in RGB ones."""
     if mi.is_spectral:

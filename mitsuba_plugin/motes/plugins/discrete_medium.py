@@ -349,7 +349,8 @@ class DiscreteMediumPlugin:
         common = dict(scale_m=p.scale_m, size_bins=p.size_bins, eta_medium=p.eta_medium, method=p.method,
                       truncate_below_rad=truncate if truncate > 0 else None, cells_per_particle=p.cells, seed=p.seed,
                       albedo=p.albedo, tau_max=p.tau_max, continuous_count=p.continuous, grain_depth=p.grain_depth,
-                      phase_model=p.phase_model, surface_footprint=p.surface_footprint, phase=p.phase)
+                      phase_model=p.phase_model, surface_footprint=p.surface_footprint, phase=p.phase,
+                      polarized=bool(mi.is_polarized))
         cameras.note_medium()  # the loaders and mi.render set the scene's cameras on it (cameras.attach)
         phase = self.phase_function()
         if not getattr(phase, "is_motes_particle_phase", False):
@@ -364,14 +365,14 @@ class DiscreteMediumPlugin:
             if native_in_use():
                 pending.handles = [_motes.native_pending_handle(pending) for _ in range(2)]
                 self._native, self._native_phase = _native_objects(pending.handles, lam, bool(self.m_sample_emitters),
-                                                                   self.to_string())
+                                                                   self.to_string(), _polarizing(p))
             phase.attach(pending, self._native_phase)
         else:
             data = self._data = build.built(props)
             if native_in_use():
                 handles = [data.core.native_handle(data) for _ in range(2)]
                 self._native, self._native_phase = _native_objects(handles, lam, bool(self.m_sample_emitters),
-                                                                   self.to_string())
+                                                                   self.to_string(), _polarizing(p))
             phase.attach(data, self._native_phase)
         self._stats = dict(_NO_EVALUATED_CALLS)
         # Editable through mi.traverse (a one-element tensor: Mitsuba updates it in place).
@@ -1205,22 +1206,31 @@ def native_in_use() -> bool:
     return mi.variant() in native.loaded_variants()
 
 
-def _native_objects(handles: list, lam_um, sample_emitters: bool, description: str):
+def _polarizing(p: SimpleNamespace) -> bool:
+    """Whether the medium's phase function returns the grains' Mueller matrices: in polarised variants, where
+    the phase function is the grains' own (a user's ``phase`` and ``phase_model = "hg"`` depolarise, as
+    Mitsuba's own phase functions do)."""
+    return bool(mi.is_polarized) and p.phase is None and p.phase_model == "tabulated"
+
+
+def _native_objects(handles: list, lam_um, sample_emitters: bool, description: str, polarizing: bool = False):
     """The native phase function and medium over two native handles (``handles``: on a built Rust medium, each a
     reference to it and to its data, ``native_data``; or pending ones, ``_scene.PendingFill``) of a medium whose
-    channels are at ``lam_um`` (``motes/native/motes_native.cpp``)."""
+    channels are at ``lam_um`` (``motes/native/motes_native.cpp``); ``polarizing``: ``_polarizing``."""
     from .. import _motes
 
     def common(handle):
         d = {"api": int(_motes.NATIVE_API), "medium": int(handle)}
         if mi.is_rgb:
             d.update({f"channel_nm_{c}": float(x) * 1e3 for c, x in enumerate(lam_um)})
+        elif not mi.is_spectral:  # monochrome: the middle tabulated wavelength (_bridge.channel_wavelengths)
+            d["channel_nm_0"] = float(np.asarray(lam_um)[np.asarray(lam_um).size // 2]) * 1e3
         return d
 
     # Mitsuba's own loader: the wrapped one (scene_checks) would fill a pending medium it returned as one used alone.
     load_dict = getattr(mi.load_dict, "__wrapped__", mi.load_dict)
     phase = load_dict({"type": "motes_particle_native", "description": f"ParticlePhase[of {description}]",
-                       **common(handles[0])})
+                       "polarizing": bool(polarizing), **common(handles[0])})
     medium = load_dict({"type": "motes_discrete_native", "sample_emitters": sample_emitters, "phase": phase,
                            "description": description, **common(handles[1])})
     return medium, phase

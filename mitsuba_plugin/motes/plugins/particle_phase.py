@@ -19,6 +19,10 @@ Notes
   wavelengths (spectral variants interpolate between the tabulated wavelengths).
 * Every call is one batch to Rust (numpy in, numpy out); in LLVM variants it needs the evaluated
   ("wavefront") mode that ``motes.set_variant`` switches on.
+* Polarised variants: where the grains' phase function is their own, ``eval_pdf`` returns their Mueller matrix
+  (Bohren & Huffman's F11, F12, F33, F34 of the site's mixture, rotated into Mitsuba's Stokes frames:
+  ``_bridge.mueller_spectrum``) and ``sample`` that matrix over the pdf of the direction it drew from F11;
+  elsewhere (a user's phase function, ``phase_model = "hg"``) a depolarizer, as Mitsuba's own phase functions.
 * On the native render path (``motes/native/motes_native.cpp``, which this plugin hands its calls to in
   symbolic mode) the values and weights are ``albedo_c f_c`` and ``albedo_c f_c / pdf`` instead, and the
   medium's sigma_s equals sigma_t at every site: the path carries the same product (``discrete``'s notes,
@@ -31,7 +35,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, floats, spectrum, vec3, vector3
+from ._bridge import (bind_to_variant, channel_wavelengths, depolarized, floats, mueller_spectrum, spectrum, symbolic_mode,
+                      vec3, vector3)
 
 
 class ParticlePhase:
@@ -62,7 +67,12 @@ class ParticlePhase:
         u2 = np.ascontiguousarray(np.stack([np.broadcast_to(np.asarray(sample2.x, dtype=np.float64).ravel(), (n,)),
                                             np.broadcast_to(np.asarray(sample2.y, dtype=np.float64).ravel(), (n,))], axis=1).ravel())
         wo, w, pdf = self._medium.core.phase_sample(p.ravel(), wi.ravel(), lam, ch, u1, u2)
-        return vector3(wo.reshape(n, 3)), spectrum(w.reshape(n, ch), n), floats(pdf)
+        if self._polarizing():  # the weight is the matrix there over the pdf (the sampling is F11's)
+            wo_v = vector3(wo.reshape(n, 3))
+            m = self._mueller(ctx, mei, wo_v, p, wi, wo.reshape(n, 3).astype(np.float32), lam, ch, n)
+            inv = np.where(pdf > 0, 1.0 / np.where(pdf > 0, pdf, 1.0), 0.0)
+            return wo_v, m * floats(inv), floats(pdf)
+        return vector3(wo.reshape(n, 3)), depolarized(spectrum(w.reshape(n, ch), n)), floats(pdf)
 
     def eval_pdf(self, ctx, mei, wo, active=True):
         if self._native is not None and symbolic_mode():
@@ -71,8 +81,19 @@ class ParticlePhase:
         p, wi, w = vec3(mei.p, n), vec3(mei.wi, n), vec3(wo, n)
         self._medium = _require_medium(self._medium)
         lam, ch = self._channels(mei, n)
+        if self._polarizing():
+            elements, pdf = self._medium.core.phase_mueller(p.ravel(), wi.ravel(), w.ravel(), lam, ch)
+            return mueller_spectrum(elements.reshape(n, ch, 4), n, ctx, mei, wo), floats(pdf)
         v, pdf = self._medium.core.phase_eval(p.ravel(), wi.ravel(), w.ravel(), lam, ch)
-        return spectrum(v.reshape(n, ch), n), floats(pdf)
+        return depolarized(spectrum(v.reshape(n, ch), n)), floats(pdf)
+
+    def _polarizing(self) -> bool:
+        """Polarised variants whose grains carry their Mueller matrices (``discrete``'s ``_polarizing``)."""
+        return bool(mi.is_polarized) and self._medium.core.polarizes
+
+    def _mueller(self, ctx, mei, wo_v, p, wi, wo, lam, ch, n):
+        elements, _ = self._medium.core.phase_mueller(p.ravel(), wi.ravel(), wo.ravel(), lam, ch)
+        return mueller_spectrum(elements.reshape(n, ch, 4), n, ctx, mei, wo_v)
 
     def _channels(self, mei, n):
         return channel_wavelengths(self._medium, mei, n)

@@ -44,6 +44,7 @@ fn medium() -> DiscreteMedium {
     let bins = vec![BinOptics {
         albedo: vec![0.97, 0.98, 0.99],
         phase: vec![table(0.84), table(0.82), table(0.8)],
+        mueller: Vec::new(),
     }];
     let settings = MediumSettings {
         query_radius: 0.0,

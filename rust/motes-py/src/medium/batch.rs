@@ -104,24 +104,33 @@ impl PyDiscreteMedium {
         lambda: F64In,
         channels: usize,
     ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
-        let (pp, a, b, lam) = (
-            vec3s(&p, "p")?,
-            vec3s(&wi, "wi")?,
-            vec3s(&wo, "wo")?,
-            lambda.as_slice()?.to_vec(),
-        );
-        if a.len() != pp.len() || b.len() != pp.len() || !per_lane(&lam, channels, pp.len()) {
-            return Err(PyValueError::new_err(
-                "p, wi, wo and lambda must describe the same lanes",
-            ));
-        }
-        let lanes: Vec<PhaseEvalLane> = pp
-            .into_iter()
-            .zip(a.into_iter().zip(b))
-            .map(|(p, (wi, wo))| PhaseEvalLane { p, wi, wo })
-            .collect();
+        let (lanes, lam) = eval_lanes(&p, &wi, &wo, &lambda, channels)?;
         let (v, pdf) = py.detach(|| self.medium.phase_eval(&lanes, &lam, channels));
         Ok((v.into_pyarray(py), pdf.into_pyarray(py)))
+    }
+
+    /// Mueller elements of the events at `p` (polarised variants): (values n*channels*4, the elements
+    /// F11, F12, F33, F34 of each channel; pdf n).
+    fn phase_mueller<'py>(
+        &self,
+        py: Python<'py>,
+        p: F32In,
+        wi: F32In,
+        wo: F32In,
+        lambda: F64In,
+        channels: usize,
+    ) -> PyResult<(F64Out<'py>, F64Out<'py>)> {
+        let (lanes, lam) = eval_lanes(&p, &wi, &wo, &lambda, channels)?;
+        let (v, pdf) = py
+            .detach(|| self.medium.phase_mueller(&lanes, &lam, channels))
+            .map_err(to_py)?;
+        Ok((v.into_pyarray(py), pdf.into_pyarray(py)))
+    }
+
+    /// Whether the medium's grains polarise (its bins carry Mueller ratios).
+    #[getter]
+    fn polarizes(&self) -> bool {
+        self.medium.polarizes()
     }
 
     /// Eq. 24 at points (f64 n*3): (sigma_s n*channels, Q = sigma_s f at cos θ = `mu`, n*channels).
@@ -205,4 +214,31 @@ fn sampled(
         w.into_pyarray(py),
         pdf.into_pyarray(py),
     )
+}
+
+/// The lanes of an evaluation (`phase_eval`, `phase_mueller`) and their wavelengths.
+fn eval_lanes(
+    p: &F32In,
+    wi: &F32In,
+    wo: &F32In,
+    lambda: &F64In,
+    channels: usize,
+) -> PyResult<(Vec<PhaseEvalLane>, Vec<f64>)> {
+    let (pp, a, b, lam) = (
+        vec3s(p, "p")?,
+        vec3s(wi, "wi")?,
+        vec3s(wo, "wo")?,
+        lambda.as_slice()?.to_vec(),
+    );
+    if a.len() != pp.len() || b.len() != pp.len() || !per_lane(&lam, channels, pp.len()) {
+        return Err(PyValueError::new_err(
+            "p, wi, wo and lambda must describe the same lanes",
+        ));
+    }
+    let lanes = pp
+        .into_iter()
+        .zip(a.into_iter().zip(b))
+        .map(|(p, (wi, wo))| PhaseEvalLane { p, wi, wo })
+        .collect();
+    Ok((lanes, lam))
 }

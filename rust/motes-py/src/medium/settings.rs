@@ -3,7 +3,7 @@
 //! (`BinTables`). Each is checked once, where it is made, so a bad value fails before any build.
 
 use crate::convert::*;
-use motes_core::render::discrete::{BinOptics, MediumSettings};
+use motes_core::render::discrete::{BinOptics, MediumSettings, MuellerRatios};
 use motes_core::render::storage::Storage;
 use numpy::PyReadonlyArray1;
 use pyo3::exceptions::PyValueError;
@@ -92,7 +92,7 @@ impl PyMediumSettings {
 
 /// Each optics bin's albedo and phase function per tabulated wavelength, from flat arrays: albedo
 /// (bins*K), phase tables as flat theta/f with offsets (bins*K + 1) ending at len(theta), lambda (K
-/// wavelengths in nm, increasing).
+/// wavelengths in nm, increasing); optionally `mueller`, the tables' polarisation (`add_mueller`).
 #[pyclass(name = "BinTables", module = "motes._motes", frozen)]
 pub(crate) struct PyBinTables {
     pub(crate) bins: Vec<BinOptics>,
@@ -102,15 +102,20 @@ pub(crate) struct PyBinTables {
 #[pymethods]
 impl PyBinTables {
     #[new]
+    #[pyo3(signature = (albedo, theta, f, offsets, lambda, mueller=None))]
     fn new(
         albedo: F64In,
         theta: F64In,
         f: F64In,
         offsets: PyReadonlyArray1<'_, u64>,
         lambda: F64In,
+        mueller: Option<F64In>,
     ) -> PyResult<Self> {
         let lambda = lambda.as_slice()?.to_vec();
-        let bins = bin_optics(&albedo, &theta, &f, &offsets, lambda.len())?;
+        let mut bins = bin_optics(&albedo, &theta, &f, &offsets, lambda.len())?;
+        if let Some(m) = mueller {
+            add_mueller(&mut bins, m.as_slice()?, offsets.as_slice()?, lambda.len())?;
+        }
         Ok(PyBinTables { bins, lambda })
     }
 
@@ -118,6 +123,27 @@ impl PyBinTables {
     fn __len__(&self) -> usize {
         self.bins.len()
     }
+}
+
+/// The Mueller ratios of every table (polarised variants): `m` holds, table after table (as `offsets`
+/// cut `theta`), three rows F12/F11, F33/F11, F34/F11 of that table's length.
+fn add_mueller(bins: &mut [BinOptics], m: &[f64], off: &[u64], k: usize) -> PyResult<()> {
+    if m.len() != 3 * off.last().copied().unwrap_or(0) as usize {
+        return Err(PyValueError::new_err(
+            "mueller must hold three ratios per phase-table node (3 * len(theta))",
+        ));
+    }
+    for (t, b) in (0..).step_by(k).zip(bins.iter_mut()) {
+        b.mueller = (t..t + k)
+            .map(|t| {
+                let (a, e) = (3 * off[t] as usize, 3 * off[t + 1] as usize);
+                let n = (e - a) / 3;
+                let rows = &m[a..e];
+                MuellerRatios::new(&rows[..n], &rows[n..2 * n], &rows[2 * n..]).map_err(to_py)
+            })
+            .collect::<PyResult<_>>()?;
+    }
+    Ok(())
 }
 
 /// The bins of flat arrays as `PyBinTables::new` takes them, `k` wavelengths each.
@@ -156,6 +182,7 @@ fn bin_optics(
             Ok(BinOptics {
                 albedo: al[bi * k..(bi + 1) * k].to_vec(),
                 phase: (bi * k..(bi + 1) * k).map(table).collect::<PyResult<_>>()?,
+                mueller: Vec::new(),
             })
         })
         .collect()

@@ -14,6 +14,14 @@
 //! | `FREE_FLIGHT`   | o, d, tfar = t_max; wavelengths (see below)    | tfar = t of the site (hit lanes only)    |
 //! | `PHASE_SAMPLE`  | o = p, d = wi, tnear = u1, time, tfar = u2     | up to 3 channels: tfar, u = wo (octahedral), v, prim_id, geom_id = weights, inst_id = pdf; 4: tfar, u, v = wo, prim_id = pdf |
 //! | `PHASE_EVAL`    | o = p, d = wi, tnear, time, tfar = wo          | values in tfar, u, v, prim_id; inst_id = pdf |
+//! | `PHASE_MUELLER` | as `PHASE_EVAL`; flags = element e (0–3)       | one channel: F11, F12, F33, F34 in tfar, u, v, prim_id; more: element e of each channel there; inst_id = pdf |
+//! | `PHASE_SAMPLE_DIRECTION` | as `PHASE_SAMPLE`                     | tfar, u, v = wo, prim_id = pdf (whatever the channels) |
+//!
+//! `PHASE_MUELLER` (polarised variants) evaluates a lane afresh for e = 0 and reads the same evaluation
+//! again for e = 1–3 with the same inputs (`DiscreteMedium::packet_phase_mueller`); the elements are
+//! those of Bohren & Huffman in the scattering plane's Stokes frames, which the C++ plugin rotates into
+//! Mitsuba's. `PHASE_SAMPLE_DIRECTION` leaves the weights to an evaluation that follows (polarised
+//! variants, whose weights are matrices).
 //!
 //! No operation places an event: a lane's site becomes its event where the lane's next call starts at
 //! it, and the phase function's values and weights carry the site's albedo (`DiscreteMedium`'s
@@ -40,13 +48,15 @@ mod packet;
 pub use packet::motes_packet;
 
 /// Version of this interface; the C++ plugin refuses another (2: `set_albedo_scale`; 3: no commit,
-/// phase samples with their weights).
-pub const NATIVE_ABI: u32 = 3;
+/// phase samples with their weights; 4: polarisation, `PHASE_MUELLER` and `PHASE_SAMPLE_DIRECTION`).
+pub const NATIVE_ABI: u32 = 4;
 
 pub const FREE_FLIGHT: u32 = 0;
 // 1 was the commit of ABI 2.
 pub const PHASE_SAMPLE: u32 = 2;
 pub const PHASE_EVAL: u32 = 3;
+pub const PHASE_MUELLER: u32 = 4;
+pub const PHASE_SAMPLE_DIRECTION: u32 = 5;
 
 /// Wavelength units per nm in the packed per-lane wavelengths.
 const LAMBDA_UNITS_PER_NM: f64 = 50.0;

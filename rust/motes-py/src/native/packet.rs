@@ -159,8 +159,10 @@ unsafe fn run<const N: usize>(
     };
     match op {
         FREE_FLIGHT => packet.free_flights(),
-        PHASE_SAMPLE => packet.phase_sample(),
+        PHASE_SAMPLE => packet.phase_sample(false),
+        PHASE_SAMPLE_DIRECTION => packet.phase_sample(true),
         PHASE_EVAL => packet.phase_eval(),
+        PHASE_MUELLER => packet.phase_mueller(),
         _ => {}
     }
 }
@@ -217,8 +219,9 @@ impl<const N: usize> Packet<'_, N> {
         }
     }
 
-    /// Sample the phase functions of the packet's events (layout in the module docs).
-    fn phase_sample(&self) {
+    /// Sample the phase functions of the packet's events (layout in the module docs); `direction_only`:
+    /// the direction and pdf, whatever the channels (`PHASE_SAMPLE_DIRECTION`).
+    fn phase_sample(&self, direction_only: bool) {
         let l = self.gather(|i| PhaseSampleLane {
             p: self.r.v3(Field::Ox, i),
             wi: self.r.v3(Field::Dx, i),
@@ -237,11 +240,12 @@ impl<const N: usize> Packet<'_, N> {
             &mut wo,
             &mut weight[..self.width * self.ch],
             &mut pdf,
-            self.ch > 3, // four weights do not fit the record: C++ evaluates the direction next
+            // Four weights do not fit the record, nor do matrices: C++ evaluates the direction next.
+            direction_only || self.ch > 3,
         );
         let ch = self.ch;
         self.answer(|i| {
-            if ch <= 3 {
+            if ch <= 3 && !direction_only {
                 let [x, y] = octahedral(wo[i]);
                 self.r.set_f(Field::Tfar, i, x);
                 self.r.set_f(Field::U, i, y);
@@ -264,9 +268,9 @@ impl<const N: usize> Packet<'_, N> {
         });
     }
 
-    /// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
-    fn phase_eval(&self) {
-        let l = self.gather(|i| PhaseEvalLane {
+    /// Lane `i` of an evaluation (`PHASE_EVAL`, `PHASE_MUELLER`: module docs).
+    fn eval_lane(&self, i: usize) -> PhaseEvalLane {
+        PhaseEvalLane {
             p: self.r.v3(Field::Ox, i),
             wi: self.r.v3(Field::Dx, i),
             wo: [
@@ -274,13 +278,51 @@ impl<const N: usize> Packet<'_, N> {
                 self.r.f(Field::Time, i),
                 self.r.f(Field::Tfar, i),
             ],
-        });
+        }
+    }
+
+    /// Evaluate the phase functions of the packet's events: values per channel, pdf in inst_id.
+    fn phase_eval(&self) {
+        let l = self.gather(|i| self.eval_lane(i));
         let (mut v, mut pdf) = ([[0.0; 4]; N], [0.0; N]);
         let v = v.as_flattened_mut();
         self.m
             .packet_phase_eval(&l[..self.width], self.lam, self.ch, v, &mut pdf);
         self.answer(|i| {
             write_channels(self.r, i, &v[i * self.ch..(i + 1) * self.ch]);
+            self.r.set_f(Field::InstId, i, pdf[i]);
+        });
+    }
+}
+
+impl<const N: usize> Packet<'_, N> {
+    /// The Mueller elements of the packet's events (layout in the module docs): element `flags` of each
+    /// channel, or all four of the only channel.
+    fn phase_mueller(&self) {
+        let l = self.gather(|i| self.eval_lane(i));
+        let first = (0..self.width).find(|&i| self.is_active(i));
+        let element = first
+            .map_or(0, |i| self.r.u(Field::Flags, i) as usize)
+            .min(3);
+        let (mut v, mut pdf) = ([[[0.0; 4]; 4]; N], [0.0; N]);
+        let v = v.as_flattened_mut();
+        self.m.packet_phase_mueller(
+            &l[..self.width],
+            self.lam,
+            self.ch,
+            element > 0,
+            &mut v[..self.width * self.ch],
+            &mut pdf,
+        );
+        let ch = self.ch;
+        self.answer(|i| {
+            let rows = &v[i * ch..(i + 1) * ch];
+            if ch == 1 {
+                write_channels(self.r, i, &rows[0]);
+            } else {
+                let e: [f64; 4] = std::array::from_fn(|c| rows.get(c).map_or(0.0, |r| r[element]));
+                write_channels(self.r, i, &e[..ch]);
+            }
             self.r.set_f(Field::InstId, i, pdf[i]);
         });
     }

@@ -102,6 +102,7 @@ mod events;
 mod flight;
 mod lane;
 mod local;
+mod mueller;
 mod packet;
 mod packet_state;
 mod phase;
@@ -109,6 +110,7 @@ mod settings;
 
 pub use crate::space::vec3::octahedral;
 pub use build::particle_disk;
+pub use mueller::{Elements, MuellerRatios};
 pub use settings::{check_particles_and_settings, MediumSettings};
 
 use crate::ensemble::phase_table::PhaseTable;
@@ -136,12 +138,17 @@ pub struct BinOptics {
     pub albedo: Vec<f64>,
     /// Phase function per tabulated wavelength.
     pub phase: Vec<PhaseTable>,
+    /// Polarisation: F12/F11, F33/F11, F34/F11 on the nodes of each of `phase`'s tables, or empty where
+    /// the bin depolarises (`mueller.rs`).
+    pub mueller: Vec<MuellerRatios>,
 }
 
 impl BinOptics {
     /// Heap bytes of the bin's albedos and phase tables.
     pub fn bytes(&self) -> usize {
-        self.albedo.capacity() * 8 + self.phase.iter().map(PhaseTable::bytes).sum::<usize>()
+        self.albedo.capacity() * 8
+            + self.phase.iter().map(PhaseTable::bytes).sum::<usize>()
+            + self.mueller.iter().map(MuellerRatios::bytes).sum::<usize>()
     }
 }
 

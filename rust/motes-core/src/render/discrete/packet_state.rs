@@ -57,6 +57,8 @@ pub(super) struct PacketState {
     /// Each lane's last committed event ([`LaneEvents`]).
     pub(super) recent: [Option<([u32; 3], Event)>; PACKET_LANES],
     pub(super) sampled: [Option<SampledLane>; PACKET_LANES],
+    /// Each lane's last Mueller evaluation (`mueller.rs`: one evaluation, read one element per call).
+    pub(super) mueller: [Option<super::mueller::MuellerLane>; PACKET_LANES],
     /// Each lane's last free flight (origin, direction, where its site lies) where it ended at a site
     /// (whether that blocks it for certain, [`DiscreteMedium::set_enclosure`], is asked only where an
     /// evaluation towards it follows).
@@ -100,6 +102,7 @@ impl Default for PacketState {
             events: EventMap::new(PACKET_EVENT_CAPACITY),
             recent: [None; PACKET_LANES],
             sampled: [None; PACKET_LANES],
+            mueller: [None; PACKET_LANES],
             blocked: [None; PACKET_LANES],
             epoch: 0,
             view: Arc::new(View::default()),

@@ -81,7 +81,13 @@ impl DiscreteMedium {
 
     /// `v` (one value per channel of `lam`, brackets `ls`) times the event's albedo: the one remembered
     /// with it where it was remembered at these wavelengths, else the site's.
-    fn times_albedo(&self, e: &Event, lam: &[f64], ls: &[(usize, usize, f64)], v: &mut [f64]) {
+    pub(super) fn times_albedo(
+        &self,
+        e: &Event,
+        lam: &[f64],
+        ls: &[(usize, usize, f64)],
+        v: &mut [f64],
+    ) {
         let known =
             lam.len() <= MAX_CHANNELS && lam.first().map(|&l| l as f32) == Some(e.albedo_nm);
         for (c, x) in v.iter_mut().enumerate() {
@@ -273,15 +279,9 @@ impl DiscreteMedium {
         scattered: bool,
     ) -> f64 {
         v.iter_mut().for_each(|x| *x = 0.0);
-        let dirs =
-            normalise(lane.wi.map(|x| -(x as f64))).zip(normalise(lane.wo.map(|x| x as f64)));
-        let Some((w_in, w_out)) = dirs else {
+        let Some((e, mu)) = self.eval_event(events, lane) else {
             return 0.0;
         };
-        let Some(e) = self.event_or_geometry(events, lane.p, w_in) else {
-            return 0.0;
-        };
-        let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
         let pi = event_channels(&e, lam.len());
         let mixture = self.event_mixture(&e, ls, &pi);
         let pdf = self.mixture_phase(&mixture, mu, v);
@@ -289,6 +289,20 @@ impl DiscreteMedium {
             self.times_albedo(&e, lam, ls, v);
         }
         pdf
+    }
+
+    /// The event an evaluation lane is at and μ = cos θ between its directions (None: a direction of no
+    /// length, or no event there).
+    pub(super) fn eval_event<'e>(
+        &self,
+        events: &'e impl Events,
+        lane: &PhaseEvalLane,
+    ) -> Option<(Cow<'e, Event>, f64)> {
+        let w_in = normalise(lane.wi.map(|x| -(x as f64)))?;
+        let w_out = normalise(lane.wo.map(|x| x as f64))?;
+        let e = self.event_or_geometry(events, lane.p, w_in)?;
+        let mu = (w_in[0] * w_out[0] + w_in[1] * w_out[1] + w_in[2] * w_out[2]).clamp(-1.0, 1.0);
+        Some((e, mu))
     }
 
     /// One lane of [`Self::phase_sample`]: the sample (its weights times the event's albedo with
@@ -394,7 +408,7 @@ impl DiscreteMedium {
 
     /// The mixture of an event's particles, each weighing its τ (`discrete` docs), at the channels'
     /// wavelength brackets `ls`, sampled with channel probabilities `pi`.
-    fn event_mixture<'a>(
+    pub(super) fn event_mixture<'a>(
         &'a self,
         e: &'a Event,
         ls: &'a [(usize, usize, f64)],
@@ -409,7 +423,7 @@ impl DiscreteMedium {
     }
 
     /// The remembered event at `p`, or else the site found from the geometry (uniform channels).
-    fn event_or_geometry<'e>(
+    pub(super) fn event_or_geometry<'e>(
         &self,
         events: &'e impl Events,
         p: [f32; 3],

@@ -238,10 +238,12 @@ fn medium_with_albedo(n: usize, continuous_count: f64, albedo: [f64; 2]) -> Disc
         BinOptics {
             albedo: vec![1.0, 0.9],
             phase: vec![table(0.3), table(0.5)],
+            mueller: Vec::new(),
         },
         BinOptics {
             albedo: albedo.to_vec(),
             phase: vec![table(-0.2), table(0.8)],
+            mueller: Vec::new(),
         },
     ];
     let bin: Vec<u32> = (0..n).map(|i| (i % 2) as u32).collect();
@@ -768,6 +770,7 @@ fn packets_walked_as_beams_find_each_rays_own_site() {
     let bins = vec![BinOptics {
         albedo: vec![0.9, 0.8],
         phase: vec![table(0.3), table(0.5)],
+        mueller: Vec::new(),
     }];
     let settings = MediumSettings {
         query_radius: 0.004,
@@ -958,4 +961,72 @@ fn grains_equivalent_follows_the_density_drawn_from() {
         |x: f64| field.optical_depth(&RaySegment::new([x, -0.5, 0.5], [0.0, 1.0, 0.0], 0.0, 2.0));
     let ratio = depth(0.1) / depth(0.9);
     assert!((ratio / (1.2 / 2.8) - 1.0).abs() < 0.01, "{ratio}");
+}
+
+/// Polarisation (`mueller.rs`): a mixture's F11 is the unpolarised mixture's value and pdf, and each
+/// other element is the particles' F11 × ratio weighed as F11 is — checked against single particles'
+/// phase functions combined by hand. A bin without ratios depolarises (its elements beyond F11 are 0).
+#[test]
+fn mixture_mueller_weighs_elements_as_the_phase_function() {
+    let mut m = medium(4000);
+    let rows = |r: [f64; 3]| {
+        let n = 2001;
+        MuellerRatios::new(&vec![r[0]; n], &vec![r[1]; n], &vec![r[2]; n]).unwrap()
+    };
+    let ratios = [[-0.5, 0.3, 0.1], [0.2, -0.4, 0.05]];
+    for (b, r) in m.bins.iter_mut().zip(ratios) {
+        b.mueller = vec![rows(r), rows(r)];
+    }
+    let ls: Vec<_> = [480.0, 550.0, 600.0, 700.0].map(|l| m.bracket(l)).to_vec();
+    let pi = [0.1, 0.2, 0.3, 0.4];
+    let (a, b) = (0u32, 1u32); // bins 0 and 1
+    let (both, only_a, only_b) = ([a, b], [a], [b]);
+    let mix = |members| Mixture {
+        members,
+        scale: |j| m.optics.tau(j),
+        ls: &ls,
+        pi: &pi,
+    };
+    for k in 0..=40 {
+        let mu = -1.0 + 2.0 * k as f64 / 40.0;
+        let (mut v, mut e) = ([0.0; 4], [[0.0; 4]; 4]);
+        let p = m.mixture_phase(&mix(&both), mu, &mut v);
+        let pe = m.mixture_mueller(&mix(&both), mu, &mut e);
+        assert!((p - pe).abs() <= 1e-12 * p, "pdf {p} vs {pe}");
+        for c in 0..4 {
+            let (mut fa, mut fb) = ([0.0; 4], [0.0; 4]);
+            m.mixture_phase(&mix(&only_a), mu, &mut fa);
+            m.mixture_phase(&mix(&only_b), mu, &mut fb);
+            let w = |j: u32| m.optics.tau(j) * m.albedo_at(j, ls[c]);
+            let (wa, wb) = (w(a), w(b));
+            assert!((e[c][0] - v[c]).abs() <= 1e-12 * v[c], "F11 {e:?} vs {v:?}");
+            for k in 0..3 {
+                let want = (wa * fa[c] * ratios[0][k] + wb * fb[c] * ratios[1][k]) / (wa + wb);
+                assert!(
+                    (e[c][k + 1] - want).abs() <= 1e-6 * v[c],
+                    "element {k} channel {c}: {} vs {want}",
+                    e[c][k + 1]
+                );
+            }
+        }
+    }
+    // Without ratios: a depolarizer.
+    m.bins[1].mueller.clear();
+    let mut e = [[0.0; 4]; 4];
+    m.mixture_mueller(&mix(&only_b), 0.3, &mut e);
+    assert!(e.iter().all(|row| row[0] > 0.0 && row[1..] == [0.0; 3]));
+}
+
+/// Ratios are checked (finite, within [−1, 1] up to rounding, rows of one length), clamped, and kept in
+/// the phase table's node order (increasing μ: the reverse of θ's).
+#[test]
+fn mueller_ratios_are_checked_and_reversed() {
+    let r = MuellerRatios::new(&[0.1, 0.2, 1.0 + 1e-9], &[1.0, 0.0, -1.0], &[0.0; 3]).unwrap();
+    assert_eq!(r.len(), 3);
+    assert_eq!(r.at((0, 0.0)), [1.0, -1.0, 0.0]); // θ = π first
+    let mid = r.at((1, 0.5));
+    assert!((mid[0] - 0.15).abs() < 1e-7 && (mid[1] - 0.5).abs() < 1e-7);
+    assert!(MuellerRatios::new(&[1.1], &[0.0], &[0.0]).is_err());
+    assert!(MuellerRatios::new(&[f64::NAN], &[0.0], &[0.0]).is_err());
+    assert!(MuellerRatios::new(&[0.0, 0.0], &[0.0], &[0.0]).is_err());
 }
