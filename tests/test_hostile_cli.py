@@ -296,3 +296,15 @@ def table() -> str:
 
 if __name__ == "__main__":
     sys.exit(print(table()))
+
+
+@pytest.mark.parametrize("spec", ["-5:-1", "-5:3", "-10:-2:4", "-3:-3"])
+def test_negative_frame_ranges_need_no_equals_sign(spec):
+    """``--frames -5:-1`` (argparse reads a value starting with '-' as an option: it needed ``--frames=-5:-1``)."""
+    from motes.cli import _negative_frames_joined
+
+    argv = _negative_frames_joined(["render", "scene.xml", "--frames", spec, "-s", "1"])
+    args = parser().parse_args(argv)
+    assert args.frames == spec and args.spp == 1
+    frames = C.parse_frames(args.frames)
+    assert frames[0] == int(spec.split(":")[0])

@@ -29,6 +29,7 @@ import argparse
 import pathlib
 import shutil
 import signal
+import re
 import socket
 import sys
 import time
@@ -415,7 +416,21 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"{text if text.startswith('motes:') else f'motes: {category.__name__}: {text}'}\n"
 
 
+def _negative_frames_joined(argv: list[str]) -> list[str]:
+    """``--frames -5:-1`` as ``--frames=-5:-1``: argparse reads a value that starts with '-' as an option."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--frames" and i + 1 < len(argv) and re.fullmatch(r"-\d+:-?\d+(:-?\d+)?", argv[i + 1]):
+            out.append(f"--frames={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv=None) -> int:
+    argv = _negative_frames_joined(list(sys.argv[1:] if argv is None else argv))
     args = parser().parse_args(argv)
     formatwarning, warnings.formatwarning = warnings.formatwarning, _one_line_warning
     try:
