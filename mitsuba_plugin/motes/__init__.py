@@ -12,6 +12,7 @@ real index, so the relative index is ``eta / eta_medium`` and the size parameter
 ``goa_amplitudes``          Geometrical-optics S1, S2: diffraction + ray orders p = 0..p_max
 ``cross_sections``          dict of ``ext``, ``sca``, ``abs`` (um^2) and ``g``
 ``phase_function``          f_p(theta) of Eq. 1, normalised so that the integral over the sphere is 1
+``mueller_matrix``          F11, F12, F33, F34 (Bohren-Huffman), F11 = ``phase_function``
 ``size_parameter``          alpha for given radius, wavelength and host index
 ``resolve_method``          which theory ("mie"/"goa") a method picks for each particle
 ``clear_goa_cache``         free the GOA ray geometry these functions keep between calls
@@ -60,6 +61,7 @@ from ._optics import (
     goa_cache_info,
     goa_extinction_efficiency,
     mie_amplitudes,
+    mueller_matrix,
     phase_function,
     resolve_method,
     size_parameter,
@@ -103,6 +105,7 @@ __all__ = [
     "goa_cache_info",
     "goa_extinction_efficiency",
     "mie_amplitudes",
+    "mueller_matrix",
     "phase_function",
     "resolve_method",
     "size_parameter",

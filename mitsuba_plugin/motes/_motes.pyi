@@ -25,6 +25,10 @@ def cross_sections(radius_um: F64, wavelength_um: F64, eta_re: F64, eta_im: F64,
 def phase_function(radius_um: F64, wavelength_um: F64, eta_re: F64, eta_im: F64, eta_medium: F64,
                    theta: F64, method: str, hybrid_radius_um: float, p_max: int, regularise: bool,
                    edge_correction: bool) -> F64: ...
+def mueller_matrix(radius_um: F64, wavelength_um: F64, eta_re: F64, eta_im: F64, eta_medium: F64,
+                   theta: F64, method: str, hybrid_radius_um: float, p_max: int, regularise: bool,
+                   edge_correction: bool, normalize: bool) -> npt.NDArray[np.float64]:
+    """(n, 4): F11, F12, F33, F34 (Bohren & Huffman), F11 = phase_function when normalize."""
 def clear_goa_cache() -> None: ...
 def goa_cache_info() -> tuple[int, int]: ...
 def goa_extinction_efficiency(alpha: F64, eta_re: F64, eta_im: F64, p_max: int, regularise: bool,
@@ -45,7 +49,9 @@ def bulk_properties(psd_specs: list[str], shares: list[float], eta_re: F64, eta_
                     number_density_m3: float, eta_medium: float, method: str, hybrid_radius_um: float,
                     p_max: int, max_log_step: float, mie_dx: float | None, theta: F64, with_phase: bool,
                     truncate_below_rad: float, refine_tol: float, refine_max_nodes: int,
-                    goa_cache: GoaCache | None) -> tuple[F64, F64, F64, F64, npt.NDArray[np.float64], F64, F64, F64]: ...
+                    goa_cache: GoaCache | None, mueller: bool
+                    ) -> tuple[F64, F64, F64, F64, npt.NDArray[np.float64], F64, F64, F64, npt.NDArray[np.float64] | None]:
+    """The last element: with ``mueller``, (n_wavelengths, 3, n_theta) ratios F12/F11, F33/F11, F34/F11."""
 class GoaCache:
     """GOA ray geometry shared by several bulk_properties calls (a medium's size bins)."""
     def __init__(self) -> None: ...

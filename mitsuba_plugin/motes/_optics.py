@@ -147,6 +147,31 @@ def phase_function(radius_um, wavelength_um, eta, theta, method: Method = "auto"
     return f.reshape(shape)
 
 
+def mueller_matrix(radius_um, wavelength_um, eta, theta, method: Method = "auto", eta_medium=1.0, *,
+                   hybrid_radius_um=HYBRID_RADIUS_UM, p_max=3, regularise=True, edge_correction=True,
+                   normalize=True):
+    """Single-particle Mueller matrix elements of a sphere, shape ``theta.shape + (4,)`` (broadcast like
+    ``phase_function``): ``[..., 0:4] = F11, F12, F33, F34`` in Bohren & Huffman's convention (1983, §4.4)::
+
+        F11 = (|S2|^2 + |S1|^2) / 2      F12 = (|S2|^2 - |S1|^2) / 2
+        F33 = Re(S2 S1*)                  F34 = Im(S2 S1*)
+
+    with the amplitudes ``(S1, S2)`` of ``mie_amplitudes`` / ``goa_amplitudes`` (``method`` as in
+    ``phase_function``). The full matrix is ``[[F11, F12, 0, 0], [F12, F11, 0, 0], [0, 0, F33, F34],
+    [0, 0, -F34, F33]]``. motes uses m = n + i k (absorbing kappa >= 0) and exp(-i omega t) like Bohren &
+    Huffman; codes with m = n - i k (e.g. miepython) have conjugate amplitudes and the opposite F34.
+    For Rayleigh scattering F12 < 0 at 90 degrees: the degree of linear polarisation is -F12/F11.
+
+    ``normalize=True``: all four are divided by the normaliser of ``phase_function``, so that F11 equals
+    ``phase_function(...)`` exactly (1/sr, integral of F11 over the sphere = 1); a particle that scatters
+    nothing (eta = eta_medium) gives (1/(4 pi), 0, 1/(4 pi), 0). ``normalize=False``: the raw
+    dimensionless values of the amplitudes."""
+    shape, cols = _particle_args(radius_um, wavelength_um, eta, eta_medium, theta)
+    m = _motes.mueller_matrix(*cols, _method(method), float(hybrid_radius_um), _p_max(p_max), _flag("regularise", regularise), _flag("edge_correction", edge_correction),
+                              _flag("normalize", normalize))
+    return m.reshape(shape + (4,))
+
+
 def resolve_method(radius_um, wavelength_um, eta, method: Method = "auto", eta_medium=1.0, *,
                    hybrid_radius_um=HYBRID_RADIUS_UM, p_max=3):
     """The theory (``"mie"`` or ``"goa"``) that ``method`` uses for each particle, as a string array."""

@@ -17,7 +17,18 @@
                     1 for Mie up to grid error, slightly below 1 for GOA, which keeps p <= p_max)
 ``peak_fraction``   with ``truncate_below_rad``: the fraction F of scattering folded into unscattered
                     transmission (0 otherwise)
+``mueller``         only with ``mueller=True``: shape (n_wavelengths, 3, n_theta), the ensemble's Mueller
+                    ratios F12/F11, F33/F11, F34/F11 at the angles ``theta`` (row i aligned with
+                    ``phase[i]``), see below
 ==================  ===================================================================================
+
+Polarisation (``mueller=True``): the ensemble's Mueller matrix is, in Bohren & Huffman's convention
+(1983, section 4.4; F34 for m = n + i kappa), ``phase * [[1, r12, 0, 0], [r12, 1, 0, 0], [0, 0, r33, r34],
+[0, 0, -r34, r33]]`` with ``r12, r33, r34 = mueller[i]``: each element summed over the radius nodes with
+the weights of Eq. 17 (the Mie nodes in coefficient space, the others from S1, S2) and divided by the same
+sum of F11 (``mueller_matrix`` gives a single particle's). They are evaluated exactly at every angle of
+``theta``, always lie in [-1, 1], and are (0, 1, 0) where F11 sums to 0 (never NaN). Forward-peak
+truncation clips F11 only: the ratios stay those of the untruncated ensemble.
 
 Forward-peak truncation (``truncate_below_rad=theta_c``, e.g. ``pixel_footprint_rad(fov, width)``):
 scattering by less than theta_c cannot be told from no scattering at the pixel's resolution, so the
@@ -120,6 +131,7 @@ DEFAULT_TRUNCATE_RAD: float = float(np.arccos(1.0 - 2.0 / 4095.0))
 
 _CACHE_FORMAT = 1
 _KEYS = ("wavelength_um", "sigma_t", "sigma_s", "sigma_a", "albedo", "g", "theta", "phase", "energy_ratio", "peak_fraction")
+_MUELLER_KEYS = _KEYS + ("mueller",)
 
 
 def cache_dir() -> pathlib.Path | None:
@@ -138,10 +150,10 @@ def _cache_key(payload: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _cache_load(path: pathlib.Path) -> dict | None:
+def _cache_load(path: pathlib.Path, keys: tuple = _KEYS) -> dict | None:
     try:
         with np.load(path) as z:
-            return {k: z[k] for k in _KEYS}
+            return {k: z[k] for k in keys}
     except (OSError, ValueError, KeyError, EOFError):
         return None  # missing or damaged entry: recompute (and overwrite)
 
@@ -151,7 +163,7 @@ def _cache_store(path: pathlib.Path, result: dict) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{k: result[k] for k in _KEYS})
+            np.savez(f, **result)
         os.replace(tmp, path)  # atomic: readers never see a half-written table
     except OSError:
         pass  # a read-only or full disk only costs the rebuild next time
@@ -171,7 +183,7 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
                     theta=None, phase: bool = True, max_log_step: float = 0.05, mie_dx: float | None = None, p_max: int = 3,
                     hybrid_radius_um: float = HYBRID_RADIUS_UM, truncate_below_rad: float | None = None,
                     refine_tol: float = 0.0, refine_max_nodes: int = 200_000, cache: bool = True,
-                    goa_cache=None) -> dict:
+                    goa_cache=None, mueller: bool = False) -> dict:
     """Bulk coefficients and the ensemble phase function of a cloud of ``species`` (see module docs).
 
     Results are cached on disk (``cache_dir()``), keyed by every argument, each species' PSD spec and
@@ -186,7 +198,12 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
     ``mie_dx`` is the largest step in size parameter x = k r of the radius quadrature where Mie is used
     (2 < x <= 600; the step grows in proportion to x above 300): ``None`` is the core's default (0.02,
     fine enough to average Mie's ripple and keep the tables within 1 % at every angle, backscatter
-    included); 0 uses the panels in ln r alone."""
+    included); 0 uses the panels in ln r alone.
+
+    ``mueller=True`` adds ``"mueller"``, the ensemble's Mueller ratios F12/F11, F33/F11, F34/F11 at the
+    angles ``theta`` (shape (n_wavelengths, 3, n_theta); see the module docs: Bohren & Huffman's
+    convention, untouched by ``truncate_below_rad``). It needs ``phase=True``; ``mueller=False`` results
+    are the same with or without it."""
     species = species_list(species)
     lam = np.atleast_1d(np.asarray(wavelength_um, dtype=np.float64))
     if lam.ndim != 1 or lam.size == 0:
@@ -202,28 +219,34 @@ def bulk_properties(species, number_density_m3: float, wavelength_um, eta_medium
         raise ValueError(f"invalid truncate_below_rad = {truncate_below_rad}: must be in [0, pi)")
     if truncate_below_rad is not None and not phase:
         raise ValueError("truncate_below_rad needs phase=True (the peak is measured on the phase function)")
+    if not isinstance(mueller, (bool, np.bool_)):
+        raise ValueError(f"mueller must be True or False, got {mueller!r}")
+    if mueller and not phase:
+        raise ValueError("mueller=True needs phase=True (the ratios are given at the phase function's angles)")
     payload = {
         "species": [[s.psd.spec(), [[float(e.real), float(e.imag)] for e in row], float(s.share)] for s, row in zip(species, eta)],
         "n0": float(number_density_m3), "lam": lam.tolist(), "eta_medium": float(eta_medium), "method": str(method),
         "theta": th.tolist(), "phase": bool(phase), "max_log_step": float(max_log_step), "mie_dx": mie_dx if mie_dx is None else float(mie_dx), "p_max": int(p_max),
         "hybrid_radius_um": float(hybrid_radius_um), "truncate": cut, "refine_tol": float(refine_tol),
-        "refine_max_nodes": int(refine_max_nodes),
+        "refine_max_nodes": int(refine_max_nodes), "mueller": bool(mueller),
     }
     where = cache_dir() if cache else None
     path = where / f"bulk-{_cache_key(payload)}.npz" if where is not None else None
     if path is not None and path.exists():
-        hit = _cache_load(path)
+        hit = _cache_load(path, _MUELLER_KEYS if mueller else _KEYS)
         if hit is not None:
             return hit
-    st, ss, sa, g, ph, ratio, th, frac = _motes.bulk_properties(
+    st, ss, sa, g, ph, ratio, th, frac, mm = _motes.bulk_properties(
         [s.psd._json() for s in species], [float(s.share) for s in species],
         np.ascontiguousarray(eta.real.ravel()), np.ascontiguousarray(eta.imag.ravel()), lam,
         float(number_density_m3), float(eta_medium), _method(method), float(hybrid_radius_um), _p_max(p_max),
         float(max_log_step), mie_dx if mie_dx is None else float(mie_dx), th, bool(phase), cut, float(refine_tol), int(refine_max_nodes),
-        goa_cache)
+        goa_cache, bool(mueller))
     albedo = np.divide(ss, st, out=np.zeros_like(st), where=st > 0)
     result = {"wavelength_um": lam, "sigma_t": st, "sigma_s": ss, "sigma_a": sa, "albedo": albedo, "g": g,
               "theta": th, "phase": ph, "energy_ratio": ratio, "peak_fraction": frac}
+    if mueller:
+        result["mueller"] = mm
     if path is not None:
         _cache_store(path, result)
     return result

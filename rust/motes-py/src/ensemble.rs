@@ -7,7 +7,7 @@ use crate::psd::psd;
 use motes_core::optics::goa::GoaOptions;
 use motes_core::optics::Method;
 use num_complex::Complex64 as C64;
-use numpy::IntoPyArray;
+use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 
 pub(crate) type BulkOut<'py> = (
@@ -19,11 +19,14 @@ pub(crate) type BulkOut<'py> = (
     F64Out<'py>,
     F64Out<'py>,
     F64Out<'py>,
+    Option<Bound<'py, numpy::PyArray3<f64>>>,
 );
 
 /// Bulk properties (Eq. 16–17) per wavelength. `eta_re/eta_im` are (n_species × n_wavelengths), row-major.
 /// `theta` empty: the phase function on the internal grid; otherwise at those angles (g and the
-/// normalisation still from the internal grid, `motes_core::ensemble::bulk_spectral`).
+/// normalisation still from the internal grid, `motes_core::ensemble::bulk_spectral`). `mueller`: the
+/// last element is the ensemble's Mueller ratios (n_wavelengths × 3 × n_theta: F12/F11, F33/F11,
+/// F34/F11 at the angles of the phase function), else None.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn bulk_properties<'py>(
@@ -46,6 +49,7 @@ pub(crate) fn bulk_properties<'py>(
     refine_tol: f64,
     refine_max_nodes: usize,
     goa_cache: Option<PyRef<'_, PyGoaCache>>,
+    mueller: bool,
 ) -> PyResult<BulkOut<'py>> {
     use motes_core::ensemble::{self, BulkOptions, PhaseAngles};
     let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
@@ -86,6 +90,7 @@ pub(crate) fn bulk_properties<'py>(
         refine_tol,
         refine_max_nodes,
         goa_cache: goa_cache.map(|c| c.cache.clone()),
+        mueller,
     };
     let out = interruptible(py, || {
         ensemble::bulk_spectral(
@@ -146,6 +151,18 @@ fn bulk_out<'py>(
     } else {
         numpy::PyArray2::from_vec2(py, &out.phase)?
     };
+    // (wavelength, ratio, angle), C order.
+    let mueller = if out.mueller.is_empty() {
+        None
+    } else {
+        let nt = out.theta.len();
+        let flat: Vec<f64> = out
+            .mueller
+            .iter()
+            .flat_map(|m| (0..3).flat_map(move |k| m.iter().map(move |r| r[k])))
+            .collect();
+        Some(flat.into_pyarray(py).reshape([nl, 3, nt])?)
+    };
     Ok((
         col(|b| b.sigma_t),
         col(|b| b.sigma_s),
@@ -155,6 +172,7 @@ fn bulk_out<'py>(
         col(|b| b.energy_ratio),
         out.theta.clone().into_pyarray(py),
         out.peak_fraction.clone().into_pyarray(py),
+        mueller,
     ))
 }
 

@@ -51,6 +51,7 @@ fn _motes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(optics::goa_cache_info, m)?)?;
     m.add_function(wrap_pyfunction!(optics::cross_sections, m)?)?;
     m.add_function(wrap_pyfunction!(optics::phase_function, m)?)?;
+    m.add_function(wrap_pyfunction!(optics::mueller_matrix, m)?)?;
     m.add_function(wrap_pyfunction!(optics::goa_extinction_efficiency, m)?)?;
     m.add_function(wrap_pyfunction!(optics::policy_constants, m)?)?;
     m.add_function(wrap_pyfunction!(optics::resolve_method, m)?)?;

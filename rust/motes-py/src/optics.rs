@@ -6,7 +6,7 @@ use crate::interrupt::interruptible;
 use motes_core::optics::goa::GoaOptions;
 use motes_core::optics::{self, GoaCache, Method, ParticleColumns, Theory};
 use num_complex::Complex64 as C64;
-use numpy::{IntoPyArray, PyArray1};
+use numpy::{IntoPyArray, PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -182,32 +182,92 @@ particle_pyfunction! {
     }
 }
 
-particle_pyfunction! {
-    /// Normalised phase function f_p(θ) (sr⁻¹), ∫ f dΩ = 1.
-    fn phase_function<'py>(
-        py,
-        cols,
-        theta: F64In,
-        method: &str,
-        hybrid_radius_um: f64,
-        p_max: u32,
-        regularise: bool,
-        edge_correction: bool,
-    ) -> F64Out<'py> {
-        let method = Method::parse(method, hybrid_radius_um).map_err(to_py)?;
-        let theta = theta.as_array().to_vec();
-        let opts = options(p_max, true, regularise, edge_correction);
-        let f = interruptible(py, || {
-            optics::phase_function_batch(
-                &cols.view(),
-                &theta,
-                method,
-                &opts,
+/// The arguments of a per-element batch with a method (`phase_function_batch`, `mueller_batch`): the
+/// particles, the angles, the method parsed and the GOA options.
+pub(crate) struct MethodArgs {
+    cols: Columns,
+    theta: Vec<f64>,
+    method: Method,
+    opts: GoaOptions,
+}
+
+impl MethodArgs {
+    /// Runs `batch` on them with the GIL released, on the free functions' GOA cache.
+    fn run<T: Send>(
+        &self,
+        py: Python<'_>,
+        batch: impl Fn(
+                &ParticleColumns,
+                &[f64],
+                Method,
+                &GoaOptions,
+                Option<&GoaCache>,
+            ) -> Result<Vec<T>, motes_core::OpticsError>
+            + Send
+            + Sync,
+    ) -> PyResult<Vec<T>> {
+        interruptible(py, || {
+            batch(
+                &self.cols.view(),
+                &self.theta,
+                self.method,
+                &self.opts,
                 Some(&FREE_FUNCTION_GOA),
             )
         })?
-        .map_err(to_py)?;
-        Ok(f.into_pyarray(py))
+        .map_err(to_py)
+    }
+}
+
+/// A [`particle_pyfunction!`] of particles at angles with a method: its Python arguments go on with
+/// `theta, method, hybrid_radius_um, p_max, regularise, edge_correction`, which reach the body as the
+/// [`MethodArgs`] named second; the other arguments follow as written.
+macro_rules! method_pyfunction {
+    (
+        $(#[$attr:meta])*
+        fn $name:ident<$lt:lifetime>($py:ident, $args:ident $(, $arg:ident: $ty:ty)* $(,)?)
+            -> $ret:ty $body:block
+    ) => {
+        particle_pyfunction! {
+            $(#[$attr])*
+            fn $name<$lt>(
+                $py,
+                cols,
+                theta: F64In,
+                method: &str,
+                hybrid_radius_um: f64,
+                p_max: u32,
+                regularise: bool,
+                edge_correction: bool
+                $(, $arg: $ty)*
+            ) -> $ret {
+                let $args = MethodArgs {
+                    cols,
+                    theta: theta.as_array().to_vec(),
+                    method: Method::parse(method, hybrid_radius_um).map_err(to_py)?,
+                    opts: options(p_max, true, regularise, edge_correction),
+                };
+                $body
+            }
+        }
+    };
+}
+
+method_pyfunction! {
+    /// Normalised phase function f_p(θ) (sr⁻¹), ∫ f dΩ = 1.
+    fn phase_function<'py>(py, args) -> F64Out<'py> {
+        Ok(args.run(py, optics::phase_function_batch)?.into_pyarray(py))
+    }
+}
+
+method_pyfunction! {
+    /// Mueller elements (n, 4): F11, F12, F33, F34 in Bohren & Huffman's convention, normalised so that
+    /// F11 = f_p (`normalize`) or raw (`optics::mueller_batch`).
+    fn mueller_matrix<'py>(py, args, normalize: bool) -> Bound<'py, numpy::PyArray2<f64>> {
+        let m = args.run(py, |c, t, m, o, g| optics::mueller_batch(c, t, m, o, g, normalize))?;
+        let n = m.len();
+        let flat: Vec<f64> = m.into_iter().flatten().collect();
+        flat.into_pyarray(py).reshape([n, 4])
     }
 }
 

@@ -6,7 +6,9 @@
 //! * `σ_x = N0 Σ_s c_s ∫ C_x(r; m_s) dP_s(r)` for x = t, a (Eq. 16), `σ_s = σ_t − σ_a`, in m⁻¹;
 //! * the ensemble phase function (Eq. 17, second line): `f(θ) ∝ N0 Σ_s c_s ∫ (|S1|²+|S2|²)/(2k²) dP_s`,
 //!   normalised on the internal angle grid so that ∫ f dΩ = 1 — no per-particle normalisation is needed;
-//! * `g = ∫ f cos θ dΩ` on the same grid.
+//! * `g = ∫ f cos θ dΩ` on the same grid;
+//! * with [`BulkOptions::mueller`], the ensemble's Mueller ratios F12/F11, F33/F11, F34/F11: each element
+//!   (Bohren & Huffman §4.4) summed like the numerator of Eq. 17, then divided ([`SpectralBulk::mueller`]).
 //!
 //! The normalisation, g, the energy ratio and the forward-peak truncation always come from the internal
 //! grid ([`default_angles`], refined when asked); a caller's own angles ([`PhaseAngles::At`]) only choose
@@ -23,7 +25,10 @@ use crate::cancel;
 use crate::ensemble::psd::{Psd, RippleResolution};
 use crate::error::{require, require_len, require_min_len, OpticsError};
 use crate::optics::goa::GoaOptions;
-use crate::optics::mie::{series_length, MieCoefficients, MieIntensitySums};
+use crate::optics::mie::{
+    mueller_elements, series_length, CoefficientSums, MieCoefficients, MieIntensitySums,
+    MieMuellerSums,
+};
 use crate::optics::{self, GoaCache, GoaRays, Method, Particle, Theory};
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
@@ -56,6 +61,8 @@ pub struct BulkOptions {
     pub refine_max_nodes: usize,
     /// GOA ray geometry shared with the caller's other computations (None: this computation's own).
     pub goa_cache: Option<Arc<GoaCache>>,
+    /// Also the ensemble's Mueller ratios F12/F11, F33/F11, F34/F11 ([`SpectralBulk::mueller`]).
+    pub mueller: bool,
 }
 
 /// Default [`BulkOptions::mie_dx`]. Mie's ripple (resonances in x = k r far narrower than a panel of
@@ -165,6 +172,8 @@ struct Ensemble<'a> {
 }
 
 impl<'a> Ensemble<'a> {
+    /// The nodes of the ensemble, without the sums of Eq. 16 (`ext` and `abs` 0 until
+    /// [`Self::with_cross_sections`]).
     fn new(
         species: &[Species],
         number_density_m3: f64,
@@ -181,9 +190,23 @@ impl<'a> Ensemble<'a> {
             eta_medium,
             opts,
         )?;
+        Ok(Ensemble {
+            nodes,
+            opts,
+            ext: 0.0,
+            abs: 0.0,
+            mie: OnceLock::new(),
+            goa: opts.goa_cache.clone().unwrap_or_default(),
+        })
+    }
+
+    /// With the sums of Eq. 16 over the nodes.
+    fn with_cross_sections(mut self) -> Self {
+        let opts = self.opts;
         // Per-node values are computed in parallel but summed in node order, so results are bitwise
         // reproducible whatever the thread scheduling.
-        let per_node: Vec<(f64, f64)> = nodes
+        let per_node: Vec<(f64, f64)> = self
+            .nodes
             .par_iter()
             .map(|(p, w)| {
                 if cancel::requested() {
@@ -197,17 +220,10 @@ impl<'a> Ensemble<'a> {
                 (w * ce, w * ca)
             })
             .collect();
-        let (ext, abs) = per_node
+        (self.ext, self.abs) = per_node
             .iter()
             .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-        Ok(Ensemble {
-            nodes,
-            opts,
-            ext,
-            abs,
-            mie: OnceLock::new(),
-            goa: opts.goa_cache.clone().unwrap_or_default(),
-        })
+        self
     }
 
     /// Whether a node is summed in coefficient space (Mie, x ≤ [`MIE_RIPPLE_X_MAX`]).
@@ -220,33 +236,79 @@ impl<'a> Ensemble<'a> {
     /// Deterministic: nodes are summed in fixed chunks, in order, then the chunk sums in order (bitwise
     /// reproducible); the value at an angle does not depend on the other angles.
     fn intensity(&self, theta: &[f64]) -> Vec<f64> {
-        let n = theta.len();
         let add =
             |a: Vec<f64>, b: Vec<f64>| a.iter().zip(&b).map(|(x, y)| x + y).collect::<Vec<f64>>();
-        let direct: Vec<&(Particle, f64)> = self
-            .nodes
-            .iter()
-            .filter(|(p, _)| !self.in_sums(p))
-            .collect();
-        let chunks: Vec<Vec<f64>> = direct
-            .par_chunks(16)
-            .map(|chunk| {
-                chunk
-                    .iter()
-                    .map(|node| {
-                        node_intensity(node, theta, self.opts, self.goa_rays(&node.0).as_deref())
-                    })
-                    .fold(vec![0.0; n], add)
-            })
-            .collect();
-        let direct = chunks.into_iter().fold(vec![0.0; n], add);
-        match self.mie.get_or_init(|| self.mie_sums()) {
+        let direct = self.sum_direct(
+            theta.len(),
+            0.0,
+            |x, y| x + y,
+            |node, rays| {
+                node_values(node, theta, self.opts, rays, 0.0, |w, k2, s1, s2| {
+                    w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2)
+                })
+            },
+        );
+        match self
+            .mie
+            .get_or_init(|| self.mie_sums(|w, k| w / (2.0 * k * k)))
+        {
             Some(sums) => {
                 let mie: Vec<f64> = theta.par_iter().map(|t| sums.intensity(t.cos())).collect();
                 add(direct, mie)
             }
             None => direct,
         }
+    }
+
+    /// The ensemble's Mueller ratios `[F12/F11, F33/F11, F34/F11]` at each angle: the four elements
+    /// ([`mueller_elements`], Bohren & Huffman §4.4) summed over the nodes with Eq. 17's weights `w/k²`
+    /// (direct nodes from their amplitudes, Mie nodes up to [`MIE_RIPPLE_X_MAX`] in coefficient space,
+    /// [`MieMuellerSums`]), then divided ([`mueller_ratios`]). Deterministic like [`Self::intensity`].
+    fn mueller(&self, theta: &[f64]) -> Vec<[f64; 3]> {
+        let mut sums = self.sum_direct(theta.len(), [0.0; 4], add4, |node, rays| {
+            node_values(node, theta, self.opts, rays, [0.0; 4], |w, k2, s1, s2| {
+                mueller_elements(s1, s2).map(|f| w * f / k2)
+            })
+        });
+        if let Some(mie) = self.mie_sums::<MieMuellerSums>(|w, k| w / (k * k)) {
+            let vals: Vec<[f64; 4]> = theta.par_iter().map(|t| mie.elements(t.cos())).collect();
+            for (s, v) in sums.iter_mut().zip(vals) {
+                *s = add4(*s, v);
+            }
+        }
+        sums.into_iter().map(mueller_ratios).collect()
+    }
+
+    /// Σ over the nodes not summed in coefficient space of `per_node`'s values at `n` angles: fixed
+    /// chunks of 16 nodes summed in order, then the chunk sums in order (bitwise reproducible).
+    fn sum_direct<T: Copy + Send + Sync>(
+        &self,
+        n: usize,
+        zero: T,
+        add: fn(T, T) -> T,
+        per_node: impl Fn(&(Particle, f64), Option<&GoaRays>) -> Vec<T> + Sync,
+    ) -> Vec<T> {
+        let add_all = |a: Vec<T>, b: Vec<T>| {
+            a.iter()
+                .zip(&b)
+                .map(|(x, y)| add(*x, *y))
+                .collect::<Vec<T>>()
+        };
+        let direct: Vec<&(Particle, f64)> = self
+            .nodes
+            .iter()
+            .filter(|(p, _)| !self.in_sums(p))
+            .collect();
+        let chunks: Vec<Vec<T>> = direct
+            .par_chunks(16)
+            .map(|chunk| {
+                chunk
+                    .iter()
+                    .map(|node| per_node(node, self.goa_rays(&node.0).as_deref()))
+                    .fold(vec![zero; n], add_all)
+            })
+            .collect();
+        chunks.into_iter().fold(vec![zero; n], add_all)
     }
 
     /// The shared GOA rays of a node's relative index (None for a Mie node).
@@ -256,8 +318,13 @@ impl<'a> Ensemble<'a> {
             .then(|| self.goa.rays(p.relative_index(), p_max))
     }
 
-    /// The coefficient-space sums of the Mie nodes, weights `w/(2k²)`; 16 fixed groups summed in order.
-    fn mie_sums(&self) -> Option<MieIntensitySums> {
+    /// The coefficient-space sums of the Mie nodes, node weights `weight(w, k)`; 16 fixed groups
+    /// summed in order (made a few at a time, as many as threads, so that at most that many groups'
+    /// sums are held at once; the result does not depend on how many).
+    fn mie_sums<S: CoefficientSums + Send>(
+        &self,
+        weight: impl Fn(f64, f64) -> f64 + Sync,
+    ) -> Option<S> {
         let mie: Vec<&(Particle, f64)> =
             self.nodes.iter().filter(|(p, _)| self.in_sums(p)).collect();
         if mie.is_empty() {
@@ -270,28 +337,46 @@ impl<'a> Ensemble<'a> {
                 .max()
                 .unwrap_or(0)
         };
-        let groups: Vec<MieIntensitySums> = mie
-            .par_chunks(mie.len().div_ceil(16))
-            .map(|group| {
-                let mut sums = MieIntensitySums::new(size(group));
-                for (p, w) in group {
-                    if cancel::requested() {
-                        break;
+        let groups: Vec<&[&(Particle, f64)]> = mie.chunks(mie.len().div_ceil(16)).collect();
+        let mut total = S::with_len(size(&mie));
+        for batch in groups.chunks(rayon::current_num_threads().max(1)) {
+            let sums: Vec<S> = batch
+                .par_iter()
+                .map(|group| {
+                    let mut sums = S::with_len(size(group));
+                    for (p, w) in group.iter() {
+                        if cancel::requested() {
+                            break;
+                        }
+                        sums.add_sphere(
+                            &MieCoefficients::new(p.size_parameter(), p.relative_index()),
+                            weight(*w, p.k()),
+                        );
                     }
-                    let k = p.k();
-                    sums.add(
-                        &MieCoefficients::new(p.size_parameter(), p.relative_index()),
-                        w / (2.0 * k * k),
-                    );
-                }
-                sums
-            })
-            .collect();
-        let mut total = MieIntensitySums::new(size(&mie));
-        for g in &groups {
-            total.merge(g);
+                    sums
+                })
+                .collect();
+            for g in &sums {
+                total.merge_from(g);
+            }
         }
         Some(total)
+    }
+}
+
+/// Element-wise sum of two Mueller element vectors.
+fn add4(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]]
+}
+
+/// `[F12/F11, F33/F11, F34/F11]` of summed elements `[F11, F12, F33, F34]`, each clamped to [−1, 1]
+/// (it holds for every sphere, hence for their sums, up to rounding); `[0, 1, 0]` (no polarisation
+/// change) where F11 is not > 0 — no scattering at all — so never NaN.
+pub fn mueller_ratios(f: [f64; 4]) -> [f64; 3] {
+    if f[0] > 0.0 && f[0].is_finite() {
+        [f[1], f[2], f[3]].map(|v| (v / f[0]).clamp(-1.0, 1.0))
+    } else {
+        [0.0, 1.0, 0.0]
     }
 }
 
@@ -367,7 +452,8 @@ pub fn bulk(
     opts: &BulkOptions,
 ) -> Result<Bulk, OpticsError> {
     check_angles(theta)?;
-    let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?;
+    let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?
+        .with_cross_sections();
     Ok(tabulate(&ens, theta).0)
 }
 
@@ -392,7 +478,8 @@ pub fn bulk_at(
     if let Some(q) = query {
         check_angles(q)?;
     }
-    let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?;
+    let ens = Ensemble::new(species, number_density_m3, wavelength_um, eta_medium, opts)?
+        .with_cross_sections();
     let (b, total) = tabulate(&ens, grid);
     let (b, cut) = if truncate_below_rad > 0.0 && !b.theta.is_empty() {
         let cut = Truncation::measure(&b, &b.theta, truncate_below_rad)?;
@@ -445,6 +532,11 @@ pub struct SpectralBulk {
     pub theta: Vec<f64>,
     /// f(θ) per wavelength on `theta`, sr⁻¹.
     pub phase: Vec<Vec<f64>>,
+    /// With [`BulkOptions::mueller`]: per wavelength, at each angle of `theta`, the ensemble's Mueller
+    /// ratios `[F12/F11, F33/F11, F34/F11]` (Bohren & Huffman §4.4; Eq. 17's weighted sums over the radius
+    /// nodes, divided; [`mueller_ratios`]), evaluated exactly at those angles. They are those of the
+    /// untruncated ensemble: forward-peak truncation clips F11 only. Empty otherwise.
+    pub mueller: Vec<Vec<[f64; 3]>>,
 }
 
 /// [`bulk_at`] at each wavelength `wavelength_um[j]` with the species `species[j]` (the same PSDs and
@@ -514,11 +606,26 @@ pub fn bulk_spectral(
         .collect::<Result<Vec<_>, _>>()?;
     let (bulk, peak_fraction): (Vec<Bulk>, Vec<f64>) = results.into_iter().unzip();
     let (theta, phase) = on_union_grid(&bulk);
+    // The Mueller ratios once the common grid is known, exactly at its angles; each wavelength's nodes
+    // again (without their cross sections), one wavelength at a time.
+    let mueller = if opts.mueller {
+        wavelength_um
+            .iter()
+            .zip(species)
+            .map(|(&l, s)| {
+                let ens = Ensemble::new(s, number_density_m3, l, eta_medium, opts)?;
+                Ok(ens.mueller(&theta))
+            })
+            .collect::<Result<Vec<_>, OpticsError>>()?
+    } else {
+        Vec::new()
+    };
     Ok(SpectralBulk {
         bulk,
         peak_fraction,
         theta,
         phase,
+        mueller,
     })
 }
 
@@ -563,21 +670,23 @@ fn resample_linear_mu(theta: &[f64], f: &[f64], target: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-/// One node's weighted intensity `w (|S1|²+|S2|²)/(2k²)` at every angle.
-fn node_intensity(
+/// `value(w, k², S1, S2)` of one node `(p, w)` at every angle (`zero` everywhere once cancelled).
+fn node_values<T: Clone>(
     (p, w): &(Particle, f64),
     theta: &[f64],
     opts: &BulkOptions,
     rays: Option<&GoaRays>,
-) -> Vec<f64> {
+    zero: T,
+    value: impl Fn(f64, f64, C64, C64) -> T,
+) -> Vec<T> {
     if cancel::requested() {
-        return vec![0.0; theta.len()];
+        return vec![zero; theta.len()];
     }
     let theory = opts.method.theory(p, opts.goa.p_max);
     let k2 = p.k() * p.k();
     optics::particle_amplitudes(p, theory, rays, theta, &opts.goa)
         .into_iter()
-        .map(|(s1, s2)| w * (s1.norm_sqr() + s2.norm_sqr()) / (2.0 * k2))
+        .map(|(s1, s2)| value(*w, k2, s1, s2))
         .collect()
 }
 
@@ -854,6 +963,7 @@ mod tests {
             refine_tol: 0.0,
             refine_max_nodes: 0,
             goa_cache: None,
+            mueller: false,
         }
     }
 

@@ -214,6 +214,35 @@ impl MieAngularSeries {
     }
 }
 
+/// Weighted sums over spheres of products of their Mie coefficients ([`MieIntensitySums`],
+/// [`MieMuellerSums`]): made for a largest series length, added to sphere by sphere, merged.
+pub trait CoefficientSums: Sized {
+    /// Empty sums for spheres of series length up to `n_max` ([`series_length`]).
+    fn with_len(n_max: usize) -> Self;
+    /// Adds one sphere with weight `w`.
+    fn add_sphere(&mut self, c: &MieCoefficients, w: f64);
+    /// Adds the sums of `other` (of any size up to this one's).
+    fn merge_from(&mut self, other: &Self);
+}
+
+macro_rules! coefficient_sums {
+    ($t:ty) => {
+        impl CoefficientSums for $t {
+            fn with_len(n_max: usize) -> Self {
+                Self::new(n_max)
+            }
+            fn add_sphere(&mut self, c: &MieCoefficients, w: f64) {
+                self.add(c, w)
+            }
+            fn merge_from(&mut self, other: &Self) {
+                self.merge(other)
+            }
+        }
+    };
+}
+coefficient_sums!(MieIntensitySums);
+coefficient_sums!(MieMuellerSums);
+
 /// Weighted sums over many spheres (one wavelength) of the products of their Mie coefficients, from which
 /// `Σ_i w_i (|S1|² + |S2|²)` follows at any angle — the numerator of the ensemble phase function
 /// (paper Eq. 17) — at O(N²) per sphere and per angle instead of O(N) per sphere *and* angle.
@@ -271,18 +300,7 @@ impl MieIntensitySums {
     /// `Σ w (|S1|² + |S2|²)` at `μ = cos θ`.
     pub fn intensity(&self, mu: f64) -> f64 {
         let n = self.n;
-        let (mut pi, mut tau) = (vec![0.0; n], vec![0.0; n]);
-        let (mut pi_prev, mut p) = (0.0f64, 1.0f64);
-        for i in 0..n {
-            let nf = i as f64 + 1.0;
-            if i > 0 {
-                let next = ((2.0 * nf - 1.0) * mu * p - nf * pi_prev) / (nf - 1.0);
-                pi_prev = p;
-                p = next;
-            }
-            pi[i] = p;
-            tau[i] = nf * mu * p - (nf + 1.0) * pi_prev;
-        }
+        let (pi, tau) = angular_functions(n, mu);
         let mut total = 0.0;
         for i in 0..n {
             let (a, b) = (pi[i], tau[i]);
@@ -303,6 +321,155 @@ impl MieIntensitySums {
         // tiny against the terms (deep minima, index-matched spheres) it rounds to a few 1e-16 of them,
         // of either sign. Clamped here, at its source, so that a phase table never holds a negative.
         total.max(0.0)
+    }
+}
+
+/// The angular functions `π_n`, `τ_n` (n = 1..=`n`) at `μ = cos θ` by the upward recurrence of
+/// [`MieAngularSeries::amplitudes`].
+fn angular_functions(n: usize, mu: f64) -> (Vec<f64>, Vec<f64>) {
+    let (mut pi, mut tau) = (vec![0.0; n], vec![0.0; n]);
+    let (mut pi_prev, mut p) = (0.0f64, 1.0f64);
+    for i in 0..n {
+        let nf = i as f64 + 1.0;
+        if i > 0 {
+            let next = ((2.0 * nf - 1.0) * mu * p - nf * pi_prev) / (nf - 1.0);
+            pi_prev = p;
+            p = next;
+        }
+        pi[i] = p;
+        tau[i] = nf * mu * p - (nf + 1.0) * pi_prev;
+    }
+    (pi, tau)
+}
+
+/// The Mueller elements `[F11, F12, F33, F34]` of amplitudes `(S1, S2)` in Bohren & Huffman's convention
+/// (BH 1983 §4.4, Eq. 3.16 for a sphere): `F11 = (|S2|² + |S1|²)/2`, `F12 = (|S2|² − |S1|²)/2`,
+/// `F33 = Re(S2 S1*)`, `F34 = Im(S2 S1*)`. With BH's `m = n + iκ` (this crate's), a code using
+/// `m = n − iκ` has conjugate amplitudes and the opposite F34.
+#[inline]
+pub fn mueller_elements(s1: C64, s2: C64) -> [f64; 4] {
+    let (i1, i2) = (s1.norm_sqr(), s2.norm_sqr());
+    let c = s2 * s1.conj();
+    [0.5 * (i2 + i1), 0.5 * (i2 - i1), c.re, c.im]
+}
+
+/// Weighted sums over many spheres (one wavelength) of the products of their Mie coefficients, from which
+/// the four Mueller elements `Σ_i w_i [F11, F12, F33, F34]` ([`mueller_elements`]) follow at any angle:
+/// the polarised counterpart of [`MieIntensitySums`], O(N²) per sphere and per angle.
+///
+/// With `A_n = c_n a_n`, `B_n = c_n b_n` (Eq. 26–27: `S1 = Σ A_n π_n + B_n τ_n`, `S2 = Σ B_n π_n + A_n τ_n`)
+/// and the sums `P_nm = Σ w A_n A_m*`, `Q_nm = Σ w B_n B_m*` (Hermitian), `R_nm = Σ w A_n B_m*`:
+/// * `2 F11 = Σ Re(P+Q)_nm (π_n π_m + τ_n τ_m) + 2 Re R_nm (π_n τ_m + τ_n π_m)`,
+/// * `2 F12 = Σ Re(Q−P)_nm (π_n π_m − τ_n τ_m) + 2 Re R_nm (τ_n π_m − π_n τ_m)`,
+/// * `F33 = Σ Re R_nm (π_n π_m + τ_n τ_m) + Re(P+Q)_nm π_n τ_m`,
+/// * `F34 = Σ Im R_nm (τ_n τ_m − π_n π_m) + Im(Q−P)_nm π_n τ_m`.
+///
+/// `Re(P+Q)`, `Re(Q−P)` are symmetric (upper triangles kept), `Im(Q−P)` antisymmetric (strict upper
+/// triangle kept), `R` has no symmetry (kept whole).
+#[derive(Clone, Debug)]
+pub struct MieMuellerSums {
+    n: usize,
+    /// Σ w Re(P + Q), upper triangle.
+    u: Vec<f64>,
+    /// Σ w Re(Q − P), upper triangle.
+    d: Vec<f64>,
+    /// Σ w Im(Q − P), strict upper triangle.
+    e: Vec<f64>,
+    /// Σ w Re R and Σ w Im R, whole.
+    r_re: Vec<f64>,
+    r_im: Vec<f64>,
+}
+
+impl MieMuellerSums {
+    /// Empty sums for spheres of series length up to `n_max` ([`series_length`]).
+    pub fn new(n_max: usize) -> Self {
+        let z = vec![0.0; n_max * n_max];
+        MieMuellerSums {
+            n: n_max,
+            u: z.clone(),
+            d: z.clone(),
+            e: z.clone(),
+            r_re: z.clone(),
+            r_im: z,
+        }
+    }
+
+    /// Adds one sphere with weight `w`.
+    pub fn add(&mut self, c: &MieCoefficients, w: f64) {
+        let k = c.a.len();
+        assert!(k <= self.n, "series length {k} beyond the sums' {}", self.n);
+        let s = c.weighted();
+        let (a, b) = (&s.wa, &s.wb);
+        for i in 0..k {
+            let (wa, wb) = (a[i] * w, b[i] * w);
+            let row = i * self.n;
+            for j in 0..k {
+                let r = wa * b[j].conj();
+                self.r_re[row + j] += r.re;
+                self.r_im[row + j] += r.im;
+                if j >= i {
+                    let (p, q) = (wa * a[j].conj(), wb * b[j].conj());
+                    self.u[row + j] += p.re + q.re;
+                    self.d[row + j] += q.re - p.re;
+                    self.e[row + j] += q.im - p.im;
+                }
+            }
+        }
+    }
+
+    /// Adds the sums of `other` (of any size up to this one's).
+    pub fn merge(&mut self, other: &MieMuellerSums) {
+        assert!(other.n <= self.n);
+        for i in 0..other.n {
+            let (a, b) = (i * self.n, i * other.n);
+            for j in 0..other.n {
+                self.r_re[a + j] += other.r_re[b + j];
+                self.r_im[a + j] += other.r_im[b + j];
+                if j >= i {
+                    self.u[a + j] += other.u[b + j];
+                    self.d[a + j] += other.d[b + j];
+                    self.e[a + j] += other.e[b + j];
+                }
+            }
+        }
+    }
+
+    /// `Σ w [F11, F12, F33, F34]` at `μ = cos θ` (F11 clamped at 0 against rounding, as
+    /// [`MieIntensitySums::intensity`]).
+    pub fn elements(&self, mu: f64) -> [f64; 4] {
+        let n = self.n;
+        let (pi, tau) = angular_functions(n, mu);
+        let (mut t11, mut t12, mut f33, mut f34) = (0.0, 0.0, 0.0, 0.0);
+        for i in 0..n {
+            let (pi_i, tau_i) = (pi[i], tau[i]);
+            let row = i * n;
+            // R over the whole row.
+            for j in 0..n {
+                let (pp, tt) = (pi_i * pi[j], tau_i * tau[j]);
+                let (pt, tp) = (pi_i * tau[j], tau_i * pi[j]);
+                let (rr, ri) = (self.r_re[row + j], self.r_im[row + j]);
+                t11 += 2.0 * rr * (pt + tp);
+                t12 += 2.0 * rr * (tp - pt);
+                f33 += rr * (pp + tt);
+                f34 += ri * (tt - pp);
+            }
+            // The symmetric parts: the diagonal once, off-diagonal pairs (i, j) and (j, i) together.
+            let (u, d) = (self.u[row + i], self.d[row + i]);
+            t11 += u * (pi_i * pi_i + tau_i * tau_i);
+            t12 += d * (pi_i * pi_i - tau_i * tau_i);
+            f33 += u * pi_i * tau_i;
+            for j in i + 1..n {
+                let (pp, tt) = (pi_i * pi[j], tau_i * tau[j]);
+                let (pt, tp) = (pi_i * tau[j], tau_i * pi[j]);
+                let (u, d, e) = (self.u[row + j], self.d[row + j], self.e[row + j]);
+                t11 += 2.0 * u * (pp + tt);
+                t12 += 2.0 * d * (pp - tt);
+                f33 += u * (pt + tp);
+                // Antisymmetric: Im(Q−P)_ij π_i τ_j + Im(Q−P)_ji π_j τ_i = e_ij (π_i τ_j − τ_i π_j).
+                f34 += e * (pt - tp);
+            }
+        }
+        [(0.5 * t11).max(0.0), 0.5 * t12, f33, f34]
     }
 }
 
@@ -385,22 +552,35 @@ mod tests {
         assert!(((c.q_ext() - c.q_sca()) / qabs - 1.0).abs() < 1e-4);
     }
 
+    /// Spheres (x, m, weight) of the sums tests: clear, weakly and strongly absorbing, a bubble.
+    const SPHERES: [(f64, C64, f64); 5] = [
+        (3.7, C64::new(1.33, 0.0), 0.3),
+        (41.2, C64::new(1.31, 1e-4), 1.7),
+        (0.4, C64::new(2.0, 0.5), 5.0),
+        (17.0, C64::new(0.75, 0.0), 0.9),
+        (9.3, C64::new(1.5, 0.2), 2.2),
+    ];
+
+    /// The sums of `spheres` (x, m, weight): the first added to sums of its own size, merged into sums
+    /// of the largest size, the others added there.
+    fn summed<S: CoefficientSums>(spheres: &[(f64, C64, f64)]) -> S {
+        let n_max = spheres.iter().map(|s| series_length(s.0)).max().unwrap();
+        let mut sums = S::with_len(n_max);
+        let (x, m, w) = spheres[0];
+        let mut part = S::with_len(series_length(x));
+        part.add_sphere(&MieCoefficients::new(x, m), w);
+        sums.merge_from(&part);
+        for &(x, m, w) in &spheres[1..] {
+            sums.add_sphere(&MieCoefficients::new(x, m), w);
+        }
+        sums
+    }
+
     /// The coefficient-product sums give the same summed intensity as the amplitudes, at every angle.
     #[test]
     fn intensity_sums_match_amplitudes() {
-        let spheres = [
-            (3.7, C64::new(1.33, 0.0), 0.3),
-            (41.2, C64::new(1.31, 1e-4), 1.7),
-            (0.4, C64::new(2.0, 0.5), 5.0),
-        ];
-        let n_max = spheres.iter().map(|s| series_length(s.0)).max().unwrap();
-        let mut sums = MieIntensitySums::new(n_max);
-        let mut half = MieIntensitySums::new(series_length(3.7));
-        half.add(&MieCoefficients::new(3.7, C64::new(1.33, 0.0)), 0.3);
-        sums.merge(&half);
-        for &(x, m, w) in &spheres[1..] {
-            sums.add(&MieCoefficients::new(x, m), w);
-        }
+        let spheres = SPHERES;
+        let sums: MieIntensitySums = summed(&spheres);
         for theta in [0.0, 0.01, 0.7, 1.5707963, 2.9, 3.1, std::f64::consts::PI] {
             let direct: f64 = spheres
                 .iter()
@@ -417,6 +597,44 @@ mod tests {
                 "theta {theta}: {got} vs {direct}"
             );
         }
+    }
+
+    /// The coefficient-space Mueller sums give the weighted sums of the four elements of the amplitudes
+    /// (`mueller_elements` of S1, S2 from Eq. 26–27) at every angle, absorbing spheres and a bubble
+    /// included, merged sums too; errors relative to F11 (F12, F33, F34 cross zero).
+    #[test]
+    fn mueller_sums_match_amplitude_products() {
+        let spheres = SPHERES;
+        let sums: MieMuellerSums = summed(&spheres);
+        let mut saw_f34 = false;
+        for theta in [
+            0.0,
+            0.01,
+            0.7,
+            1.5707963,
+            2.2,
+            2.9,
+            3.1,
+            std::f64::consts::PI,
+        ] {
+            let mu = f64::cos(theta);
+            let mut direct = [0.0; 4];
+            for &(x, m, w) in &spheres {
+                let (s1, s2) = MieCoefficients::new(x, m).weighted().amplitudes(mu);
+                for (d, v) in direct.iter_mut().zip(mueller_elements(s1, s2)) {
+                    *d += w * v;
+                }
+            }
+            let got = sums.elements(mu);
+            for k in 0..4 {
+                assert!(
+                    (got[k] - direct[k]).abs() < 1e-11 * direct[0],
+                    "theta {theta} element {k}: {got:?} vs {direct:?}"
+                );
+            }
+            saw_f34 |= direct[3].abs() > 1e-3 * direct[0];
+        }
+        assert!(saw_f34, "the test must exercise a non-zero F34");
     }
 
     /// A sphere of its medium's index has no coefficients (Q = 0 exactly, not rounding noise), and the

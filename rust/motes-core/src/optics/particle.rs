@@ -5,7 +5,7 @@
 use crate::cancel;
 use crate::error::{require, OpticsError};
 use crate::optics::goa::{self, GoaGeometry, GoaOptions};
-use crate::optics::mie::MieCoefficients;
+use crate::optics::mie::{mueller_elements, MieCoefficients};
 use crate::quadrature::gauss_legendre;
 use num_complex::Complex64 as C64;
 use rayon::prelude::*;
@@ -770,6 +770,67 @@ pub fn phase_function_batch(
     opts: &GoaOptions,
     cache: Option<&GoaCache>,
 ) -> Result<Vec<f64>, OpticsError> {
+    per_element_batch(cols, theta, method, opts, cache, true, |norm, s1, s2| {
+        if norm > 0.0 {
+            (s1.norm_sqr() + s2.norm_sqr()) / norm
+        } else {
+            1.0 / (4.0 * PI)
+        }
+    })
+}
+
+/// The Mueller elements `[F11, F12, F33, F34]` of every element in Bohren & Huffman's convention
+/// ([`mueller_elements`], BH 1983 §4.4). `normalize`: all four divided by the normaliser of
+/// [`phase_function_batch`] over 2, so that F11 is f_p exactly (sr⁻¹); a particle that scatters nothing
+/// gets `[1/4π, 0, 1/4π, 0]` (f_p's isotropic fallback, ratios 0, 1, 0). Otherwise the raw values of the
+/// amplitudes (dimensionless).
+pub fn mueller_batch(
+    cols: &ParticleColumns,
+    theta: &[f64],
+    method: Method,
+    opts: &GoaOptions,
+    cache: Option<&GoaCache>,
+    normalize: bool,
+) -> Result<Vec<[f64; 4]>, OpticsError> {
+    per_element_batch(
+        cols,
+        theta,
+        method,
+        opts,
+        cache,
+        normalize,
+        |norm, s1, s2| {
+            if !normalize {
+                return mueller_elements(s1, s2);
+            }
+            if norm > 0.0 {
+                // F11 by the very expression of f_p (bitwise equal); the others scaled alike (2/norm).
+                let c = s2 * s1.conj();
+                [
+                    (s1.norm_sqr() + s2.norm_sqr()) / norm,
+                    (s2.norm_sqr() - s1.norm_sqr()) / norm,
+                    2.0 * c.re / norm,
+                    2.0 * c.im / norm,
+                ]
+            } else {
+                let iso = 1.0 / (4.0 * PI);
+                [iso, 0.0, iso, 0.0]
+            }
+        },
+    )
+}
+
+/// A value per element from the particle's amplitudes there and (with `with_norm`) its phase
+/// normaliser `∫ (|S1|²+|S2|²) dΩ` (0 when not asked for); particles grouped, groups in parallel.
+fn per_element_batch<T: Copy + Default + Send>(
+    cols: &ParticleColumns,
+    theta: &[f64],
+    method: Method,
+    opts: &GoaOptions,
+    cache: Option<&GoaCache>,
+    with_norm: bool,
+    value: impl Fn(f64, C64, C64) -> T + Sync,
+) -> Result<Vec<T>, OpticsError> {
     cols.check_lengths(Some(theta.len()))?;
     check_theta(theta)?;
     check_options(opts)?;
@@ -777,7 +838,7 @@ pub fn phase_function_batch(
     let geos = geometries(&groups, opts, cache, |p| {
         method.theory(p, opts.p_max) == Theory::Goa
     });
-    let per_group: Vec<Vec<(usize, f64)>> = groups
+    let per_group: Vec<Vec<(usize, T)>> = groups
         .par_iter()
         .map(|(p, idx)| {
             if cancel::requested() {
@@ -789,25 +850,20 @@ pub fn phase_function_batch(
             } else {
                 None
             };
-            let norm = phase_normaliser(p, theory, geo, opts);
+            let norm = if with_norm {
+                phase_normaliser(p, theory, geo, opts)
+            } else {
+                0.0
+            };
             let th: Vec<f64> = idx.iter().map(|&i| theta[i]).collect();
             let amps = particle_amplitudes(p, theory, geo, &th, opts);
             idx.iter()
                 .zip(amps)
-                .map(|(&i, (s1, s2))| {
-                    (
-                        i,
-                        if norm > 0.0 {
-                            (s1.norm_sqr() + s2.norm_sqr()) / norm
-                        } else {
-                            1.0 / (4.0 * PI)
-                        },
-                    )
-                })
+                .map(|(&i, (s1, s2))| (i, value(norm, s1, s2)))
                 .collect()
         })
         .collect();
-    let mut out = vec![0.0; theta.len()];
+    let mut out = vec![T::default(); theta.len()];
     for g in per_group {
         for (i, v) in g {
             out[i] = v;
