@@ -74,3 +74,14 @@ def medium_xml(kind: str, props, phase: str = "", attrs: str = 'name="interior"'
     lines += [inner + phase] if phase else []
     return "\n".join(lines + [f"{indent}</medium>"]) + "\n"
 
+
+def interactions_at_origin(mi, dr, wi):
+    """A function n -> n medium interactions at the origin with incident direction ``wi`` (phase-function
+    tests: ``sample``/``eval_pdf`` of a `particle` phase attached to a site there)."""
+    def mei_of(n):
+        mei = dr.zeros(mi.MediumInteraction3f, n)
+        mei.wi = wi
+        mei.sh_frame = mi.Frame3f(mei.wi)
+        mei.p = mi.Point3f(0, 0, 0)
+        return mei
+    return mei_of

@@ -14,6 +14,7 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 import drjit as dr  # noqa: E402
+from _scenes import interactions_at_origin  # noqa: E402
 
 
 def discrete(count=5000, **kw):
@@ -110,12 +111,7 @@ def test_particle_phase_chi2_mixture():
     ctx = mi.PhaseFunctionContext()
     wi = mi.Vector3f(0.3, -0.2, 0.9327379)
 
-    def mei_of(n):
-        mei = dr.zeros(mi.MediumInteraction3f, n)
-        mei.wi = wi
-        mei.sh_frame = mi.Frame3f(mei.wi)
-        mei.p = mi.Point3f(0, 0, 0)
-        return mei
+    mei_of = interactions_at_origin(mi, dr, wi)
 
     def sample(s):
         n = dr.width(s)

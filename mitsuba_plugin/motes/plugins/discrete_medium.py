@@ -245,9 +245,24 @@ there, so a shadow ray's site is never remembered). Events also carry the path's
 phase function picks the channel it samples in proportion to it and colour weights stay bounded over
 hundreds of bounces. Random numbers for the free flights come from the core (counter-based, reproducible).
 
+Polarisation
+------------
+In the polarised variants (``scalar_spectral_polarized``, ``llvm_ad_spectral_polarized``,
+``llvm_ad_mono_polarized``) the grains scatter with their Mueller matrices: each bin keeps its ensemble's
+F12/F11, F33/F11 and F34/F11 (Bohren & Huffman) beside its phase table, a site mixes its grains' elements
+as it mixes their phase functions, and the phase function returns the matrix rotated from the scattering
+plane's Stokes frames into Mitsuba's (``motes/native/motes_native.cpp``, "Polarised variants"). Sampling
+draws from F11 as in the other variants; free flights are unpolarised. A user's ``<phase>`` (hg, tabphase,
+isotropic) and ``phase_model = "hg"`` depolarise, as Mitsuba's own phase functions do. The continuous
+equivalent carries the same matrices (its events mix the bins' tables), and
+``motes.homogeneous_equivalent(..., polarized=True)`` gives a ``homogeneous`` medium with
+``motes_tabphase_polarized``, which does too. Mitsuba's ``stokes`` integrator around ``volpath`` renders
+the Stokes components.
+
 Render paths
 ------------
-In ``llvm_ad_rgb``, ``llvm_ad_spectral``, ``scalar_rgb`` and ``scalar_spectral`` this plugin parses and
+In ``llvm_ad_rgb``, ``llvm_ad_spectral``, ``scalar_rgb``, ``scalar_spectral`` and the three polarised
+variants above this plugin parses and
 validates its parameters and builds the particles and optics, then hands every call to the native C++
 medium and phase function (``motes/native/motes_native.cpp``), which run inside Mitsuba's default symbolic
 kernels: one call into Rust per SIMD packet, events kept per thread, free flights seeded by a hash of the

@@ -172,16 +172,6 @@ impl DiscreteMedium {
     }
 }
 
-/// A lane's last Mueller evaluation in the packet interface: the inputs (as `SampledLane` keys them)
-/// and what they gave, so that the calls reading its elements one at a time evaluate it once.
-#[derive(Clone, Copy)]
-pub(super) struct MuellerLane {
-    inputs: [[u32; 3]; 3],
-    lambda: [u64; MAX_CHANNELS],
-    values: [Elements; MAX_CHANNELS],
-    pdf: f64,
-}
-
 impl DiscreteMedium {
     /// The Mueller elements of the phase functions at each lane's `p` (batch interface, `phase_eval`'s
     /// polarised twin): (n × channels × 4 elements F11, F12, F33, F34, pdfs), without the albedo.
@@ -238,7 +228,7 @@ impl DiscreteMedium {
     ) {
         use super::channels::PacketWaves;
         use super::lane::{at_site, same_direction};
-        use super::packet_state::SampledLane;
+        use super::packet_state::{MuellerLane, SampledLane};
         let channels = channels.min(MAX_CHANNELS);
         self.with_packet_state(|st| {
             let waves = PacketWaves::new(self, lambda, channels, &mut st.brackets);

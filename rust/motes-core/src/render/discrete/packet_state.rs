@@ -49,6 +49,17 @@ impl SampledLane {
     }
 }
 
+/// A lane's last Mueller evaluation (`mueller.rs`, `packet_phase_mueller`): the inputs (as [`SampledLane`]
+/// keys them) and what they gave, so that the calls reading its elements one at a time evaluate it once.
+#[derive(Clone, Copy)]
+pub(super) struct MuellerLane {
+    pub(super) inputs: [[u32; 3]; 3],
+    pub(super) lambda: [u64; MAX_CHANNELS],
+    /// Per channel F11, F12, F33, F34 (`mueller::Elements`).
+    pub(super) values: [[f64; 4]; MAX_CHANNELS],
+    pub(super) pdf: f64,
+}
+
 /// One thread's state of the packet interface for one medium: the pending sites of its last packet of
 /// free flights, its events, and its lanes' last phase-function samples.
 pub(super) struct PacketState {
@@ -58,7 +69,7 @@ pub(super) struct PacketState {
     pub(super) recent: [Option<([u32; 3], Event)>; PACKET_LANES],
     pub(super) sampled: [Option<SampledLane>; PACKET_LANES],
     /// Each lane's last Mueller evaluation (`mueller.rs`: one evaluation, read one element per call).
-    pub(super) mueller: [Option<super::mueller::MuellerLane>; PACKET_LANES],
+    pub(super) mueller: [Option<MuellerLane>; PACKET_LANES],
     /// Each lane's last free flight (origin, direction, where its site lies) where it ended at a site
     /// (whether that blocks it for certain, [`DiscreteMedium::set_enclosure`], is asked only where an
     /// evaluation towards it follows).
