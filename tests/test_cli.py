@@ -71,11 +71,13 @@ def test_render_writes_exr_and_png(tmp_path):
         assert stage in r.stderr, r.stderr
 
 
-def test_equivalent_xml_loads_in_mitsuba(tmp_path, capsys):
+@pytest.mark.parametrize("variant,extra", [("scalar_rgb", []), ("scalar_spectral_polarized", ["--polarized"])])
+def test_equivalent_xml_loads_in_mitsuba(tmp_path, capsys, variant, extra):
     mi = pytest.importorskip("mitsuba")
-    assert main(["equivalent", "--density", "1e9", "--radius-median", "20"]) == 0
+    assert main(["equivalent", "--density", "1e9", "--radius-median", "20", *extra]) == 0
     xml = capsys.readouterr().out
-    motes.set_variant("scalar_rgb")
+    assert ("motes_tabphase_polarized" in xml) == bool(extra)
+    motes.set_variant(variant)
     scene = f'<scene version="3.0.0"><shape type="cube"><bsdf type="null"/>{xml}</shape></scene>'
     assert mi.load_string(scene) is not None
 

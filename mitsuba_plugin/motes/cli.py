@@ -303,7 +303,8 @@ def cmd_equivalent(args) -> int:
 
     species = motes.Species(motes.LogNormal(args.radius_median, args.radius_sigma_g),
                             motes.Material(args.material) if args.material else _index(args))
-    d = motes.homogeneous_equivalent(species, args.density, scale_m=args.scale_m, tabphase_size=args.tabphase_size)
+    d = motes.homogeneous_equivalent(species, args.density, scale_m=args.scale_m, tabphase_size=args.tabphase_size,
+                                     polarized=args.polarized)
     from motes.equivalent import equivalent_xml  # noqa: PLC0415
 
     print(equivalent_xml(d, args.name))
@@ -374,6 +375,8 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--scale-m", type=float, default=1.0, help="metres per scene unit")
     e.add_argument("--tabphase-size", type=int, default=4096)
     e.add_argument("--name", default="interior")
+    e.add_argument("--polarized", action="store_true", help="phase motes_tabphase_polarized: the grains' Mueller "
+                   "matrix in polarised variants (tabphase depolarises)")
     e.set_defaults(run=cmd_equivalent)
     c = sub.add_parser("convert", help="rewrite a scene's homogeneous (and heterogeneous) media as discrete, "
                        "with a report of what could not be matched")

@@ -117,6 +117,16 @@ def fig19(d):
     return lines
 
 
+def sky(d):
+    lines = table("grains", "DoLP, 99th percentile", "there, angle from the sun", "single scattering's −F12/F11 there",
+                  "render s")
+    for r in d["rows"]:
+        lines.append(f"| {r['label']} | {r['dolp_p99']:.3f} | {r['angle_of_max_deg']:.1f}° | "
+                     f"{r['single_scattering_dolp_there']:+.3f} | {r['render_s']:.1f} |")
+    lines.append(f"\nThe smallest grains polarise most 90 ± 10° from the sun: {verdict(d['max_at_90_deg'])}.")
+    return lines
+
+
 #: What the numbers mean, per figure (no numbers here: those come from the JSON files).
 NOTES = {
     "fig10_lamp": "EPT finds light only when a chain of refractions and reflections through the spheres' delta "
@@ -140,6 +150,9 @@ NOTES = {
                    "rises as cells get finer than two grains each.",
     "fig18_staircase": "Beyond eta_i ~ 1e-3 (absorption length 44 um against 0.8 mm grains) the grains are opaque "
                        "and more absorption changes only their surface reflection, so the sweep stops there.",
+    "sky_polarisation": "Multiple scattering (max_depth 4) adds unpolarised light, so the rendered DoLP stays "
+                        "below single scattering's where that is large; where the sky is dim (the droplets' far "
+                        "side) Monte Carlo noise in S1 and S2 inflates the 99th percentile.",
     "fig19_house": "Beyond sigma_g ~ 2.4 the extinction-weighted radii reach the paper's cap r_max = 2 mm, which "
                    "narrows them again, and the graininess stops growing; the sweep stops there. The bimodal rows' "
                    "haze (the small mode, mostly continuous) lowers the graininess of the sky at equal mean.",
@@ -171,6 +184,10 @@ SECTIONS = [
      "“The scattering effects become increasingly prominent as r_g grows”; σ_g “is responsible for the level of "
      "graininess”; a bimodal cloud shows “both haziness from massive small particles and graininess from a handful "
      "of large particles”.", fig19),
+    ("sky_polarisation", "SKY — polarisation (beyond the paper's figures)", None,
+     "a framework “considering diffraction, polarization, a wide range of PSDs”, with amplitudes S1 and S2 for "
+     "“perpendicular and parallel polarizations” (Sec. 3), though it shows no polarised image. Here: sunlit grains "
+     "overhead in `llvm_ad_spectral_polarized` with Mitsuba's `stokes` integrator.", sky),
 ]
 
 
@@ -199,8 +216,8 @@ def main() -> int:
         md += [f"## {title}", "", f"![{title}]({rel}/{name}.png)", ""]
         if name == "fig12_13_cornell" and (folder / "fig13_phase.png").exists():
             md += [f"![The grains' phase function and the Henyey–Greenstein of the same g]({rel}/fig13_phase.png)", ""]
-        md += [f"Scene `{scene}` (`motes render {scene}`); script `.venv/bin/python scripts/paper/{name}.py`.", "",
-               f"The paper: {claim}", ""]
+        where = f"Scene `{scene}` (`motes render {scene}`); script" if scene else "Script"
+        md += [f"{where} `.venv/bin/python scripts/paper/{name}.py`.", "", f"The paper: {claim}", ""]
         if d is None:
             md += ["(not rendered yet)", ""]
             continue

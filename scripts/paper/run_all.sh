@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 mkdir -p out
-for s in fig10_lamp fig12_13_cornell fig14_limit fig16_footprint fig17_bench fig18_staircase fig19_house; do
+for s in fig10_lamp fig12_13_cornell fig14_limit fig16_footprint fig17_bench fig18_staircase fig19_house sky_polarisation; do
   echo "== scripts/paper/$s.py"
   .venv/bin/python "scripts/paper/$s.py" "$@" | tee "out/$s.log" || echo "!! $s: a check did not hold (see out/$s.log)"
 done
