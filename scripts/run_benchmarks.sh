@@ -171,6 +171,12 @@ run lod_clouds              $PY $B/bench_lod.py --scenes sidelit-h5 --variants s
 run camera_lod              $PY $B/bench_camera_lod.py --off
 run load_1e8                $PY $B/bench_load.py --count 1e8 --configs gen-discrete-compact,npz-discrete-compact
 
+# --- Polarisation (issue 45) ----------------------------------------------------------------------------
+run mueller_goa_vs_mie      $PY scripts/figures/mueller_goa_vs_mie.py
+run polarisation_checks     $PY scripts/figures/polarisation_checks.py
+run polarized_cost          $PY $B/bench_polarized.py --scene dust_box --res 96 --spp 16
+run sky_polarisation        $PY scripts/paper/sky_polarisation.py --spp 64 --res 128
+
 # --- Code structure (issues 12, 42) ---------------------------------------------------------------------
 run function_lengths        python3 scripts/function_lengths.py   # exits 1 while a function is over 80 lines
 run layers_and_sizes        python3 scripts/check_layers.py --sizes
