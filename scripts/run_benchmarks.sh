@@ -175,7 +175,7 @@ run load_1e8                $PY $B/bench_load.py --count 1e8 --configs gen-discr
 run mueller_goa_vs_mie      $PY scripts/figures/mueller_goa_vs_mie.py
 run polarisation_checks     $PY scripts/figures/polarisation_checks.py
 run polarized_cost          $PY $B/bench_polarized.py --scene dust_box --res 96 --spp 16
-run sky_polarisation        $PY scripts/paper/sky_polarisation.py --spp 64 --res 128
+run sky_polarisation        $PY scripts/paper/sky_polarisation.py --spp 128 --res 160
 
 # --- Code structure (issues 12, 42) ---------------------------------------------------------------------
 run function_lengths        python3 scripts/function_lengths.py   # exits 1 while a function is over 80 lines
