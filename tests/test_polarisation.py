@@ -283,3 +283,45 @@ def test_motes_tabphase_polarized_names_bad_values():
                        (dict(values="1, x"), "not a number")):
         with pytest.raises(Exception, match=match):
             mi.load_dict({"type": "motes_tabphase_polarized", **bad})
+
+
+def test_importance_transport_swaps_the_directions():
+    """In importance transport light arrives along -wi and leaves along wo (Mitsuba's polarised BSDFs'
+    convention): the matrix for (wi = a, wo = b) is radiance transport's for (wi = b, wo = a), in the C++
+    `motes_tabphase_polarized` and in the evaluated path's `mueller_spectrum` alike; and it is not the same
+    matrix as radiance transport's for (a, b), so the swap is seen."""
+    motes.set_variant("llvm_ad_mono_polarized")
+    from motes.plugins._bridge import mueller_spectrum
+
+    mu = np.linspace(-1, 1, 129)
+    text = lambda v: ", ".join(f"{x:.7g}" for x in v)  # noqa: E731
+    phase = mi.load_dict({"type": "motes_tabphase_polarized", "values": text(0.75 * (1 + mu**2)),
+                          "m12": text(-(1 - mu**2) / (1 + mu**2)), "m33": text(2 * mu / (1 + mu**2)),
+                          "m34": text(0.3 * (1 - mu**2))})
+    rng = np.random.default_rng(3)
+    a, b = (rng.normal(size=(64, 3)) for _ in range(2))
+    a, b = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in (a, b))
+    elements = rng.uniform(-0.5, 0.5, size=(64, 1, 4))
+    elements[..., 0] = 1.0
+
+    def matrices(mode, wi, wo):
+        mei = _mei_at(wi)
+        ctx = mi.PhaseFunctionContext()
+        ctx.mode = mode
+        wo_v = mi.Vector3f(*(mi.Float(wo[:, k]) for k in range(3)))
+        return np.asarray(phase.eval_pdf(ctx, mei, wo_v)[0]), np.asarray(mueller_spectrum(elements, 64, ctx, mei, wo_v))
+
+    imp = matrices(mi.TransportMode.Importance, a, b)
+    rad_swapped = matrices(mi.TransportMode.Radiance, b, a)
+    rad = matrices(mi.TransportMode.Radiance, a, b)
+    for m_imp, m_swapped, m_rad in zip(imp, rad_swapped, rad):
+        np.testing.assert_allclose(m_imp, m_swapped, atol=1e-5)
+        assert np.abs(m_imp - m_rad).max() > 0.05
+
+
+def _mei_at(wi):
+    mei = dr.zeros(mi.MediumInteraction3f, wi.shape[0])
+    mei.wi = mi.Vector3f(*(mi.Float(wi[:, k]) for k in range(3)))
+    mei.sh_frame = mi.Frame3f(mei.wi)
+    mei.p = mi.Point3f(0, 0, 0)
+    return mei
