@@ -264,3 +264,14 @@ def test_a_medium_no_shape_holds_keeps_the_local_cube_and_says_so():
                            "to_world": mi.ScalarTransform4f()})
     np.testing.assert_array_equal(np.asarray(alone.data.positions), np.asarray(placed.data.positions))
     assert not alone.data.fills_holders
+
+
+@pytest.mark.parametrize("variant", ["scalar_rgb", "llvm_ad_rgb"])
+def test_a_filled_medium_says_what_it_holds(variant):
+    """`str()` of a medium that fills its holder reports its particles once the scene has loaded — also in the
+    scalar variants, where the scene's medium is the native C++ object made before the fill."""
+    motes.set_variant(variant)
+    scene = mi.load_dict({"type": "scene", "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": {
+        "type": "discrete", "count": 500, "radius_median": 50, "scale_m": 0.01, "phase": {"type": "particle"}}}})
+    text = str(scene.shapes()[0].interior_medium())
+    assert "particles=500" in text and "fills the shapes" not in text, text

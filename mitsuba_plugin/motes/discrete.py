@@ -725,6 +725,11 @@ class DiscreteMedium:
     def __len__(self) -> int:
         return len(self._core)
 
+    def summary(self) -> str:
+        """What the ``discrete`` plugin's ``str()`` reports (both render paths)."""
+        return (f"DiscreteMedium[particles={len(self)}, bins={self.n_bins}, query_radius={self.query_radius:g}, "
+                f"scale_m={self.scale_m:g}, bytes={self.bytes}]")
+
     @property
     def core(self):
         """The Rust medium (``motes._motes.DiscreteMedium``)."""

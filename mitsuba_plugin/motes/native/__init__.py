@@ -125,6 +125,8 @@ def build(force: bool = False, verbose: bool = False) -> pathlib.Path:
     library.motes_native_medium_handle.argtypes = [ctypes.c_void_p]
     library.motes_native_set_clips_rays.restype = ctypes.c_int
     library.motes_native_set_clips_rays.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    library.motes_native_set_description.restype = ctypes.c_int
+    library.motes_native_set_description.argtypes = [ctypes.c_void_p, ctypes.c_char_p]
     _library = library
     return folder
 
@@ -165,6 +167,16 @@ def set_clips_rays(obj, on: bool) -> bool:
     return bool(_library.motes_native_set_clips_rays(obj.ptr, int(bool(on))))
 
 
+def set_description(obj, text: str) -> bool:
+    """What a native ``discrete`` medium object's ``str()`` reports from now on (a medium that fills its holders
+    learns its particles after it was made): True if ``obj`` is one (else nothing changes)."""
+    import mitsuba as mi
+
+    if _library is None or not isinstance(obj, mi.Object):
+        return False
+    return bool(_library.motes_native_set_description(obj.ptr, text.encode()))
+
+
 def simd() -> str:
     """The particle walk the core runs on this CPU: ``"avx2"`` (AVX2 + FMA, eight spheres per pre-test) or
     ``"sse"`` (CPUs without them, or ``MOTES_SIMD=sse``); both find the same particles."""
@@ -203,5 +215,5 @@ def loaded_variants() -> frozenset[str]:
     return frozenset(_loaded)
 
 
-__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "loaded_variants", "medium_handle", "simd",
+__all__ = ["NATIVE_VARIANTS", "NativeBuildError", "available", "build", "failure", "folder", "load", "loaded_variants", "medium_handle", "set_description", "simd",
            "requested"]

@@ -312,6 +312,8 @@ public:
     const void *handle() const { return m_call.medium; }
     /// Let integrators clip a ray at its site (motes_native_set_clips_rays).
     void set_clips_rays(bool on) { m_is_homogeneous = on; }
+    /// What `to_string` reports (motes_native_set_description: a filled medium's particles).
+    void set_description(const char *text) { m_call.description = text; }
     MI_DECLARE_CLASS(MotesDiscreteNative)
 
 private:
@@ -578,6 +580,11 @@ extern "C" MI_EXPORT const void *motes_native_medium_handle(const Object *obj) {
 /// `is_homogeneous` flag; see the file's notes): 1 if `obj` is one, else 0 (nothing changed).
 extern "C" MI_EXPORT int motes_native_set_clips_rays(Object *obj, int on) {
     return motes_for_medium(obj, [on](auto *m) { return m->set_clips_rays(on != 0), 1; }, 0);
+}
+
+/// Set what a `motes_discrete_native` object's `to_string` reports: 1 if `obj` is one, else 0.
+extern "C" MI_EXPORT int motes_native_set_description(Object *obj, const char *text) {
+    return motes_for_medium(obj, [text](auto *m) { return m->set_description(text), 1; }, 0);
 }
 
 /// The Mitsuba version this library was compiled against (checked by motes/native/__init__.py).

@@ -99,11 +99,13 @@ def fill_pending(obj) -> None:
                 groups.setdefault(id(pending), (pending, []))[1].append(shape)
             others.append(shape.exterior_medium())
     for pending, holders in groups.values():
-        pending.fill(holders)
+        data = pending.fill(holders)
+        for shape in holders:  # a native medium (scalar variants' scene object) says what it now holds
+            native.set_description(shape.interior_medium(), data.summary())
     for medium in others:
         pending = pending_of(medium)
         if pending is not None:
-            pending.fill([])
+            native.set_description(medium, pending.fill([]).summary())
 
 
 def data_of(medium) -> DiscreteMedium | None:

@@ -464,8 +464,7 @@ class DiscreteMediumPlugin:
         d = self._data if self._motes_pending is None else self._motes_pending.data
         if d is None:
             return "DiscreteMedium[fills the shapes that hold it]"
-        return (f"DiscreteMedium[particles={len(d)}, bins={d.n_bins}, query_radius={d.query_radius:g}, "
-                f"scale_m={d.scale_m:g}, bytes={d.bytes}]")
+        return d.summary()
 
 
 class _Build:
