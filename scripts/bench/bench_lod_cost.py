@@ -1,9 +1,10 @@
 """The level of detail's cost cliff (issue 43, open): a haze of 0.5 um grains (the sky gallery's middle panel,
 `scripts/paper/sky_polarisation.py`, unpolarised here: llvm_ad_spectral) rendered at a few (res, spp). Doubling
-spp doubles the rays, but each ray costs about ten times more; a finer film does the same. The likely cause (not
-yet traced): the camera rule (walk the grains where a pixel's footprint holds fewer than 2.5 spp of them) flips
-rays from the grains' field to walking them, although no pixel can see one such grain (each adds C_ext / footprint
-area ~ 1e-5 to 2e-4 of optical depth to its pixel here): the rule counts grains, not what each one shows.
+spp doubles the rays, but each ray costs about ten times more; a finer film does the same. Likely (not yet traced)
+the camera rule (walk the grains where a pixel's footprint holds fewer than 2.5 spp of them) sends the camera rays
+from the grains' field to walking this dense haze there. That is what the rule asks for (a pixel's light then
+carries the grains' Poisson texture, relative ~1/sqrt(N), which more samples would resolve); what is open is the
+cost of walking ~1e4 grains per mm^3.
 Prints seconds, the medium's ray and event counts per setting.
 
     .venv/bin/python scripts/bench/bench_lod_cost.py
