@@ -1,11 +1,12 @@
 """The level of detail's cost cliff (issue 43, open): a haze of 0.5 um grains (the sky gallery's middle panel,
 `scripts/paper/sky_polarisation.py`, unpolarised here: llvm_ad_spectral) rendered at a few (res, spp). Doubling
-spp doubles the rays, but each ray costs about ten times more; a finer film does the same. Likely (not yet traced)
-the camera rule (walk the grains where a pixel's footprint holds fewer than 2.5 spp of them) sends the camera rays
-from the grains' field to walking this dense haze there. That is what the rule asks for (a pixel's light then
+spp doubles the rays, but each ray costs about ten times more; a finer film does the same. The camera rule (walk
+the grains where a pixel's footprint holds fewer than 2.5 spp of them) sends a tenth of the camera rays from the
+grains' field to walking this dense haze there (the last column). That is what the rule asks for (a pixel's light then
 carries the grains' Poisson texture, relative ~1/sqrt(N), which more samples would resolve); what is open is the
 cost of walking ~1e4 grains per mm^3.
-Prints seconds, the medium's ray and event counts per setting.
+Prints seconds, the medium's ray and event counts per setting, and the share of rays from no event (camera rays
+among them) that saw the field.
 
     .venv/bin/python scripts/bench/bench_lod_cost.py
 """
@@ -41,8 +42,10 @@ def main() -> None:
         np.asarray(mi.render(scene, spp=spp, seed=1))
         seconds = time.perf_counter() - t
         st = medium.stats
+        checked, saw = medium.data.core.surface_counts  # rays from no event: how many saw the field
         print(f"{res} px {spp:4d} spp: {seconds:6.1f} s, rays {st.get('rays')}, events {st.get('events')}, "
-              f"{1e6 * seconds / max(st.get('rays') or 1, 1):.2f} us per ray", flush=True)
+              f"{1e6 * seconds / max(st.get('rays') or 1, 1):.2f} us per ray; rays from no event that saw the field "
+              f"{saw / max(checked, 1):.3f} of {checked}", flush=True)
 
 
 if __name__ == "__main__":
