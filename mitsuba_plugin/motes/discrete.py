@@ -320,7 +320,7 @@ class _BinTables:
         else:
             self.albedos.append(self.albedo.copy())
         g = []
-        for row in bulk["phase"]:
+        for i, row in enumerate(bulk["phase"]):
             theta = bulk["theta"]
             if self.phase_model == "hg":  # the same g (of the truncated table the render would use)
                 row = _motes.henyey_greenstein(_motes.PhaseTable(bulk["theta"], row).mean_cosine(), bulk["theta"])
@@ -329,7 +329,7 @@ class _BinTables:
             self.theta.append(theta)
             self.f.append(row)
             if self.polarized:  # (r12, r33, r34) rows on theta, as the core's BinTables take them
-                self.mueller.append(np.asarray(bulk["mueller"][len(g)], dtype=np.float64).ravel())
+                self.mueller.append(np.asarray(bulk["mueller"][i], dtype=np.float64).ravel())
             self.offsets.append(self.offsets[-1] + theta.size)
             g.append(_motes.PhaseTable(theta, row).mean_cosine())
         self.radius_um.append((lo, hi))

@@ -81,10 +81,10 @@ impl MuellerRatios {
     }
 }
 
-/// A bin's elements at table `table` (a tabulated wavelength) and μ = cos θ.
+/// A bin's elements at table `table` (a tabulated wavelength) at a location of μ among its nodes
+/// (`PhaseTable::locate`).
 #[inline]
-fn table_elements(b: &BinOptics, table: usize, mu: f64) -> Elements {
-    let at = b.phase[table].locate(mu);
+fn table_elements(b: &BinOptics, table: usize, at: (usize, f64)) -> Elements {
     let f = b.phase[table].eval_at(at);
     match b.mueller.get(table) {
         Some(r) => {
@@ -95,14 +95,21 @@ fn table_elements(b: &BinOptics, table: usize, mu: f64) -> Elements {
     }
 }
 
-/// A bin's elements at the wavelength bracket `l` and μ = cos θ (as `phase::bin_phase` for F11).
+/// A bin's elements at the wavelength bracket `l` and μ = cos θ (as `phase::bin_phase` for F11); `at`:
+/// μ located once among the nodes its tables share, where they do (else each table locates it).
 #[inline]
-fn bin_elements(b: &BinOptics, l: (usize, usize, f64), mu: f64) -> Elements {
-    let lo = table_elements(b, l.0, mu);
+fn bin_elements(
+    b: &BinOptics,
+    l: (usize, usize, f64),
+    mu: f64,
+    at: Option<(usize, f64)>,
+) -> Elements {
+    let located = |t: usize| at.unwrap_or_else(|| b.phase[t].locate(mu));
+    let lo = table_elements(b, l.0, located(l.0));
     if l.2 == 0.0 {
         return lo;
     }
-    let hi = table_elements(b, l.1, mu);
+    let hi = table_elements(b, l.1, located(l.1));
     [0, 1, 2, 3].map(|k| (1.0 - l.2) * lo[k] + l.2 * hi[k])
 }
 
@@ -120,20 +127,29 @@ impl DiscreteMedium {
         mu: f64,
         out: &mut [Elements],
     ) -> f64 {
-        let mut pdf = 0.0;
-        for (c, &l) in m.ls.iter().enumerate() {
-            let (mut num, mut den) = ([0.0; 4], 0.0);
-            for &j in m.members {
-                let b = &self.bins[self.optics.bin(j)];
-                let w = (m.scale)(j) * bin_albedo(b, l) * self.albedo_scale();
+        // Particle by particle (its bin looked up and μ located once), each channel's sums in the
+        // members' order.
+        let channels = m.ls.len();
+        debug_assert!(channels <= MAX_CHANNELS && out.len() >= channels);
+        let (mut num, mut den) = ([[0.0; 4]; MAX_CHANNELS], [0.0; MAX_CHANNELS]);
+        for &j in m.members {
+            let bin = self.optics.bin(j);
+            let b = &self.bins[bin];
+            let at = self.shared_nodes[bin].then(|| b.phase[0].locate(mu));
+            let scale = (m.scale)(j);
+            for (c, &l) in m.ls.iter().enumerate() {
+                let w = scale * bin_albedo(b, l) * self.albedo_scale();
                 if w > 0.0 {
-                    let e = bin_elements(b, l, mu);
-                    num.iter_mut().zip(e).for_each(|(n, x)| *n += w * x);
-                    den += w;
+                    let e = bin_elements(b, l, mu, at);
+                    num[c].iter_mut().zip(e).for_each(|(n, x)| *n += w * x);
+                    den[c] += w;
                 }
             }
-            out[c] = if den > 0.0 {
-                num.map(|x| x / den)
+        }
+        let mut pdf = 0.0;
+        for c in 0..channels {
+            out[c] = if den[c] > 0.0 {
+                num[c].map(|x| x / den[c])
             } else {
                 [0.0; 4]
             };
