@@ -12,6 +12,8 @@ Scenes (``--scenes``, comma-separated):
   ``query_radius`` (0) and at 3 mm (``sidelit3mm``), where the size classes go continuous;
 * ``rotated``: a crate (a cube with a rotated ``to_world`` holding the medium) of 8e3 grains, discrete over
   its ``homogeneous`` twin (``scripts/bench/bench_dropin.py --rotated-study``'s crate);
+* ``haze[-nCOUNT][-rRADIUS_UM]``: the dust room (``bench_render.room``: a spot beam and a dim panel) holding a haze
+  at the defaults but its grains (3e5 glass grains of 100 um); ``--spp``, every config asked for;
 * any scene of ``scenes_xml/`` by its name (``lamp``, ``cornell``, ...), at small res and spp.
 
 ``--configs ...,exact2`` adds the exact render again with other sampler seeds (2000 + s instead of 1000 + s): the
@@ -29,6 +31,10 @@ the side-lit cloud: ``--sidelit-spp``. The whole default run: about 12 minutes o
 Scene-name suffixes of the side-lit cloud: ``-h5`` (a 10 mm cube), ``-ball`` (grains in a ball held by a
 sphere), ``-s4`` (cloud seed 4; default 3), ``-pad4`` (the holder 4 mm larger than the grains' box), ``-q3`` (query radius
 3 mm), ``-n3000`` (3000 grains; default 300).
+``--configs ...,nosurface``: ``surface_footprint`` off (rays from surfaces and cameras walk the grains; side-lit and
+haze scenes). ``--rule-spp total``: the camera rule is told the comparison's samples per pixel (spp x seeds, as one
+render of that many spp) instead of each render's spp; the rule is per render, and averaging many renders of few
+spp brings the noise below the texture of the grains it lets camera rays see as their field.
 ``--clouds N``: instead, default over exact for N independent clouds and the mean over them (the part one cloud's
 arrangement does not set).
 
@@ -56,6 +62,7 @@ INF = float("inf")
 MAX_DEPTH = [16]
 SHIPPED = ("cornell", "lamp", "dust_box", "footprint", "limit", "bench", "staircase", "house")
 CONFIGS = {"default": {}, "exact": {"continuous_count": INF}, "depth64": {"grain_depth": 64},
+           "nosurface": {"surface_footprint": False},  # rays from surfaces and cameras walk the grains
            "homogeneous": None,  # the rotated crate's homogeneous original
            "exact2": {"continuous_count": INF}}  # exact again, other sampler seeds: the metric's own spread
 #: Sampler seeds: 1000 + s, for exact2 2000 + s.
@@ -130,9 +137,26 @@ def rotated(mi, res: int, medium_extra: dict):
         return mi.load_string(xml.format(spp=1, res=res))
 
 
+def haze(mi, scene: str, res: int, extra: dict):
+    """The dust room (``bench_render.room``) holding a haze at the defaults but its grains (count, median radius):
+    ``haze[-nCOUNT][-rRADIUS_UM]``, 3e5 glass grains of 100 um by default, whose size classes the default makes
+    continuous (the continuous classes' threshold, ``continuous_count``, against the exact render)."""
+    sys.path.insert(0, str(ROOT / "scripts" / "bench"))
+    import bench_render as BR  # noqa: PLC0415
+
+    parts = scene.split("-")
+    count = next((int(float(x[1:])) for x in parts[1:] if x.startswith("n")), 300_000)
+    radius = next((float(x[1:]) for x in parts[1:] if x.startswith("r")), 100.0)
+    medium = {"type": "discrete", "count": count, "radius_median": radius, "radius_sigma_g": 1.2, "eta": 1.55,
+              "eta_k": 0.0005, "scale_m": 0.01, "to_world": mi.ScalarTransform4f().scale(10), **extra}
+    return mi.load_dict(BR.room(mi, medium, res, 1))
+
+
 def load(mi, scene: str, res: int, extra: dict):
     if scene == "rotated":
         return rotated(mi, res, extra)
+    if scene.startswith("haze"):
+        return haze(mi, scene, res, extra)
     if scene.startswith("sidelit"):
         # sidelit[3mm][-ball][-hHALF][-sSEED][-padPAD][-qQUERY_RADIUS][-nCOUNT]
         parts = scene.split("-")
@@ -198,8 +222,16 @@ def main() -> None:
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit scenes' volpath max_depth (16)")
     ap.add_argument("--clouds", type=int, default=0, help="instead: the side-lit scenes (--scenes) with this many "
                     "clouds (seeds 10, 11, ...) of 300 grains each, default over exact per cloud and their mean")
+    ap.add_argument("--rule-spp", default="", help="the samples per pixel the camera rule is told: 'total' (spp x "
+                    "seeds, the noise of the comparison: as one render of that many spp) or a number; default: each "
+                    "render's own spp")
     args = ap.parse_args()
     MAX_DEPTH[0] = args.max_depth
+    if args.rule_spp:
+        import motes.plugins.cameras as cameras  # noqa: PLC0415
+
+        told = args.spp * args.seeds if args.rule_spp == "total" else int(args.rule_spp)
+        cameras.samples_per_pixel = lambda *a, **k: told
     if args.clouds:
         return over_clouds(args)
     import mitsuba as mi  # noqa: PLC0415
@@ -213,8 +245,8 @@ def main() -> None:
         motes.set_variant(variant)
         for scene in args.scenes.split(","):
             t0 = time.perf_counter()
-            side = scene.startswith("sidelit")
-            spp = args.sidelit_spp if side else args.spp
+            side = scene.startswith(("sidelit", "haze"))  # every config asked for
+            spp = args.sidelit_spp if scene.startswith("sidelit") else args.spp
             # The diagnostic depth64 on the side-lit cloud only (the other scenes: default and exact).
             cfgs = configs if side else (["default", "exact"] + (["homogeneous"] if scene == "rotated" else [])
                                          + (["exact2"] if "exact2" in configs else []))

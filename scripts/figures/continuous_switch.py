@@ -77,6 +77,8 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--clouds", default="", help="comma-separated prefixes of the clouds to run (default: all)")
+    ap.add_argument("--thresholds", default="", help="comma-separated continuous_count values (default: 64,16,4)")
     ap.add_argument("--out", default="out", help="accepted for run_benchmarks.sh; the table goes to stdout")
     a = ap.parse_args()
     spp = 16 if a.quick else a.spp
@@ -87,10 +89,14 @@ def main() -> None:
     print(f"# continuous switch: dust room, llvm_ad_rgb, {res} px, {spp} spp, 2 seeds per render\n")
     print("| cloud | N per cylinder (>=) | continuous_count | continuous particles | seconds | x discrete | mean diff | bias/noise |")
     print("|---|---|---|---|---|---|---|---|")
+    only = [c.strip() for c in a.clouds.split(",") if c.strip()]
+    thresholds = tuple(float(x) for x in a.thresholds.split(",") if x.strip()) or THRESHOLDS
     for name, cfg in clouds(a.quick).items():
+        if only and not any(name.startswith(c) for c in only):
+            continue
         n_cyl = per_cylinder(mi, cfg, res)
         rows = {}
-        for cc in (math.inf,) + THRESHOLDS:
+        for cc in (math.inf,) + thresholds:
             d = BR.discrete_dict(mi, cfg, res)
             d["continuous_count"] = cc
             scene = mi.load_dict(BR.room(mi, d, res, spp))
@@ -101,7 +107,7 @@ def main() -> None:
             rows[cc] = (min(ta, tb), ia, ib, med.data.continuous_particles)
         t_d, da, db, _ = rows[math.inf]
         noise2 = rms(da - db) ** 2 / 2
-        for cc in (math.inf,) + THRESHOLDS:
+        for cc in (math.inf,) + thresholds:
             t, ha, hb, ncont = rows[cc]
             if cc == math.inf:
                 ratio = "1"
