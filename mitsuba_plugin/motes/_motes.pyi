@@ -97,6 +97,14 @@ class ParticleGrid:
     def free_flight(self, segments: Segments, u: F64,
                     channel: int) -> tuple[F64, npt.NDArray[np.int64], F64]: ...
     def occupied_interval(self, segments: Segments, brute: bool) -> tuple[F64, F64]: ...
+    def flat_arrays(self, channel: int) -> dict[str, npt.NDArray[np.generic]]:
+        """The grains as flat arrays in the centre-cell layout (rust/motes-core/src/space/grid/flat.rs), for a
+        walk written outside the core (``motes.drjit_walk``): "spheres" (n, 4) float32 centre and inclusion
+        radius R_i = r_c + r_i, "tau" (n,) float32 the disk's optical depth in ``channel``, "index" (n,) uint32
+        the particle's index, "start" uint32 each cell's first grain (per class, cells + 1 entries, x fastest);
+        per size class: "class_lo" (C, 3), "class_cell" (C,), "class_dims" (C, 3) int64, "class_reach" (C,)
+        (its largest R with the grid's margin), "class_start" (C,) int64 its first entry of "start",
+        "class_grains" (C + 1,) int64 its first grain. 24 bytes a grain (16 read per grain a walk tests)."""
     @property
     def bytes(self) -> int: ...
     @property
@@ -179,6 +187,10 @@ class DiscreteMedium:
         """Remember an event of ``particles`` at ``p`` (tests and tools): indices with full storage, positions in
         the grid with compact storage."""
     def optical_depth(self, segments: Segments) -> F64: ...
+    def flat_arrays(self) -> dict[str, npt.NDArray[np.generic]] | None:
+        """The grains walked one by one as ``ParticleGrid.flat_arrays`` gives them (grey tau; "index": what the
+        medium names a grain by) and "bin" (n,) uint32 each grain's optics bin; None where no grain is stored
+        (a procedural cloud, every size class continuous). Continuous size classes are not in it."""
     @property
     def widened(self) -> int: ...
     @property

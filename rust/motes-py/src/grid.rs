@@ -1,10 +1,40 @@
 //! Particles in space: a grid built once and queried in batches (`motes_core::space::grid`).
 
 use crate::convert::*;
-use motes_core::space::grid::{GridSettings, ParticleGrid};
-use numpy::{IntoPyArray, PyArray1};
+use motes_core::space::grid::{FlatGrid, GridSettings, ParticleGrid};
+use numpy::{IntoPyArray, PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// A [`FlatGrid`] as a dict of numpy arrays (`_motes.pyi`, `ParticleGrid.flat_arrays`).
+pub(crate) fn flat_dict<'py>(py: Python<'py>, f: FlatGrid) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let (n, c) = (f.spheres.len(), f.classes.len());
+    let spheres: Vec<f32> = f.spheres.iter().flatten().copied().collect();
+    d.set_item("spheres", spheres.into_pyarray(py).reshape([n, 4])?)?;
+    d.set_item("tau", f.tau.into_pyarray(py))?;
+    d.set_item("index", f.index.into_pyarray(py))?;
+    d.set_item("start", f.start.into_pyarray(py))?;
+    let k = &f.classes;
+    let lo: Vec<f64> = k.iter().flat_map(|k| k.lo).collect();
+    let dims: Vec<i64> = k.iter().flat_map(|k| k.dims.map(|x| x as i64)).collect();
+    let cell: Vec<f64> = k.iter().map(|k| k.cell).collect();
+    let reach: Vec<f64> = k.iter().map(|k| k.reach).collect();
+    let start: Vec<i64> = k.iter().map(|k| k.start_offset as i64).collect();
+    let grains: Vec<i64> = k
+        .iter()
+        .map(|k| k.first_grain as i64)
+        .chain([n as i64])
+        .collect();
+    d.set_item("class_lo", lo.into_pyarray(py).reshape([c, 3])?)?;
+    d.set_item("class_dims", dims.into_pyarray(py).reshape([c, 3])?)?;
+    d.set_item("class_cell", cell.into_pyarray(py))?;
+    d.set_item("class_reach", reach.into_pyarray(py))?;
+    d.set_item("class_start", start.into_pyarray(py))?;
+    d.set_item("class_grains", grains.into_pyarray(py))?;
+    Ok(d)
+}
 
 /// A particle grid (scene units): build once, query in batches.
 #[pyclass(name = "ParticleGrid", module = "motes._motes", frozen)]
@@ -112,6 +142,13 @@ impl PyParticleGrid {
         });
         let (lo, hi): (Vec<f64>, Vec<f64>) = res.into_iter().unzip();
         Ok((lo.into_pyarray(py), hi.into_pyarray(py)))
+    }
+
+    /// The grains as flat arrays in the centre-cell layout, τ of `channel`
+    /// (`motes_core::space::grid::FlatGrid`).
+    fn flat_arrays<'py>(&self, py: Python<'py>, channel: usize) -> PyResult<Bound<'py, PyDict>> {
+        let f = py.detach(|| self.grid.flat(channel)).map_err(to_py)?;
+        flat_dict(py, f)
     }
 
     #[getter]

@@ -265,6 +265,21 @@ impl PyDiscreteMedium {
         Ok(out.into_pyarray(py))
     }
 
+    /// The grains walked one by one as flat arrays (`ParticleGrid.flat_arrays`, grey τ) with each
+    /// grain's optics bin ("bin"); None where no grain is stored (procedural, all continuous).
+    fn flat_arrays<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, pyo3::types::PyDict>>> {
+        let Some(out) = py.detach(|| self.medium.flat_grains()) else {
+            return Ok(None);
+        };
+        let (flat, bins) = out.map_err(to_py)?;
+        let d = crate::grid::flat_dict(py, flat)?;
+        d.set_item("bin", bins.into_pyarray(py))?;
+        Ok(Some(d))
+    }
+
     /// Heap bytes the medium holds (its particles, grid, fields and optics tables).
     #[getter]
     fn bytes(&self) -> usize {

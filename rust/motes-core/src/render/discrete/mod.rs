@@ -122,6 +122,7 @@ use crate::render::procedural::DensityCells;
 use crate::render::storage::ParticleOptics;
 use crate::space::cloud::{det3, invert_affine, Density};
 use crate::space::dda::Bounds3;
+use crate::space::grid::FlatGrid;
 use crate::space::ray::RaySegment;
 use batch::Pending;
 use counters::ShardedCounts;
@@ -367,6 +368,21 @@ impl DiscreteMedium {
     pub fn optical_depth(&self, ray: &RaySegment) -> f64 {
         self.grid.as_ref().map_or(0.0, |g| g.optical_depth(ray))
             + self.field.as_ref().map_or(0.0, |f| f.optical_depth(ray))
+    }
+
+    /// The grains walked one by one (stored, not a procedural cloud's) as flat arrays
+    /// ([`FlatGrid`], their grey τ_i and disks R_i as the free flights walk them; the index a grain
+    /// carries is what the phase functions name it by) and each grain's optics bin: None where no
+    /// grain is stored to be walked (a procedural cloud, or every class continuous). The size classes
+    /// sampled as a continuous medium are not in it.
+    pub fn flat_grains(&self) -> Option<Result<(FlatGrid, Vec<u32>), OpticsError>> {
+        let Some(Grains::Stored(g)) = &self.grid else {
+            return None;
+        };
+        Some(g.flat(0).map(|f| {
+            let bins = f.index.iter().map(|&i| self.optics.bin(i) as u32).collect();
+            (f, bins)
+        }))
     }
 
     /// Particles (a procedural cloud's expected count).

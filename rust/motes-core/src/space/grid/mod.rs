@@ -67,9 +67,12 @@
 //! * `walk`: one class's traversal, a batch of DDA steps at a time.
 //! * `flight`: the walk over every class in t order, and free flights along it.
 //! * `beam`: rays that travel together, walked as one beam.
+//! * `flat`: the grains as flat arrays in the centre-cell layout, for a walk written outside the core
+//!   (issue 46's Dr.Jit kernels).
 
 mod beam;
 mod build;
+mod flat;
 mod flight;
 mod rows;
 mod settings;
@@ -79,6 +82,7 @@ mod walk;
 
 pub use beam::BEAM_RAYS;
 pub(crate) use build::counting_sort_by;
+pub use flat::{FlatClass, FlatGrid};
 pub use settings::{
     bounding_box, check_cells_per_particle, check_cross_sections, check_particles, GridSettings,
     DEFAULT_CELLS_PER_PARTICLE, FREE_PATHS_PER_CELL, MAX_CELLS,
