@@ -30,17 +30,22 @@ F32_BAND = 2e-5
 
 
 @pytest.fixture(scope="module", autouse=True)
-def llvm_variant():
-    if "llvm_ad_rgb" not in mi.variants():
-        pytest.skip("Mitsuba has no llvm_ad_rgb variant here")
-    # Not motes.set_variant: the kernels need no plugin (whose native half would be compiled first).
-    from motes.plugins import _llvm_problem, configure_llvm
+def jit_variant():
+    """``llvm_ad_rgb``, or ``MOTES_TEST_VARIANT`` (``cuda_ad_rgb`` on a GPU: ``scripts/device/run.sh``)."""
+    import os
 
-    configure_llvm()
-    problem = _llvm_problem()
-    if problem is not None:
-        pytest.skip(f"llvm_ad_rgb cannot run here: {problem}")
-    mi.set_variant("llvm_ad_rgb")
+    variant = os.environ.get("MOTES_TEST_VARIANT", "llvm_ad_rgb")
+    if variant not in mi.variants():
+        pytest.skip(f"Mitsuba has no {variant} variant here")
+    if variant.startswith("llvm"):
+        # Not motes.set_variant: the kernels need no plugin (whose native half would be compiled first).
+        from motes.plugins import _llvm_problem, configure_llvm
+
+        configure_llvm()
+        problem = _llvm_problem()
+        if problem is not None:
+            pytest.skip(f"{variant} cannot run here: {problem}")
+    mi.set_variant(variant)
     global DrJitGrid
     from motes.drjit_walk import DrJitGrid
     yield
