@@ -308,3 +308,28 @@ def test_negative_frame_ranges_need_no_equals_sign(spec):
     assert args.frames == spec and args.spp == 1
     frames = C.parse_frames(args.frames)
     assert frames[0] == int(spec.split(":")[0])
+
+
+def test_a_cuda_variant_without_a_gpu_is_one_line(tmp_path):
+    """Issue 46: ``-m cuda_ad_rgb`` where Dr.Jit finds no CUDA driver: one line naming the variant and the CPU's
+    instead (it was an ImportError's traceback), exit status 2, nothing written."""
+    import drjit as dr
+
+    if "cuda_ad_rgb" not in mi.variants():
+        pytest.skip("Mitsuba has no cuda_ad_rgb variant here")
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("a GPU is here: cuda_ad_rgb runs")
+    (tmp_path / "scene.xml").write_text(SCENE)
+    before = mi.variant()
+    err = io.StringIO()
+    try:
+        with contextlib.chdir(tmp_path), contextlib.redirect_stderr(err):
+            rc = main(["render", str(tmp_path / "scene.xml"), "-m", "cuda_ad_rgb", "-o", str(tmp_path / "out.exr")])
+    finally:
+        if before:
+            mi.set_variant(before)
+    msg = err.getvalue().strip()
+    assert rc == 2, msg
+    assert msg.startswith("motes: error: ") and "\n" not in msg and "Traceback" not in msg, msg
+    assert all(w in msg for w in ("cuda_ad_rgb", "NVIDIA GPU", "llvm_ad_rgb")), msg
+    assert not (tmp_path / "out.exr").exists()

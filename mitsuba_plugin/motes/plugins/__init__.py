@@ -150,6 +150,11 @@ def set_variant(name: str = "llvm_ad_rgb") -> str:
 
             dr.eval(mi.Float([1.0, 2.0]) * 2)  # any other failure of the backend shows on the first kernel
     except Exception as e:  # noqa: BLE001 - any failure of the LLVM backend
+        if name.startswith("cuda_"):
+            reason = " ".join(str(e).split())
+            raise RuntimeError(f"{name} needs an NVIDIA GPU and its CUDA driver, which Dr.Jit did not find here "
+                               f"({reason}); render in {name.replace('cuda_', 'llvm_', 1)} on the CPU "
+                               "instead") from None
         if not name.startswith("llvm_"):
             raise
         fallback = "scalar_" + name.split("_", 2)[-1]
