@@ -388,6 +388,8 @@ class DiscreteMediumPlugin:
             else:
                 source = self._data = build.built(props)
             self._drjit = DrJitKernel(source, p.seed, MAJORANT)
+            if self._data is not None:
+                self._drjit.ready()  # its errors at load (a filled medium's: at its first call)
             phase.attach(source, None, self._drjit)
         elif p.filename is None and not p.to_world_given:
             # Its grains fill the shapes that hold it, which Mitsuba makes after it: built once its scene has loaded

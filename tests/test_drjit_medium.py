@@ -1,0 +1,163 @@
+"""``kernel = "drjit"`` (``motes/plugins/drjit_medium.py``, issue 46): the discrete medium and its phase function
+in Dr.Jit types, against the native kernel in ``llvm_ad_rgb``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import motes
+
+mi = pytest.importorskip("mitsuba")
+import drjit as dr  # noqa: E402
+from _scenes import interactions_at_origin  # noqa: E402
+
+INF = float("inf")
+
+
+def llvm():
+    motes.set_variant("llvm_ad_rgb")
+    if "llvm_ad_rgb" not in motes.native_variants():
+        pytest.skip(f"the native kernel is off in llvm_ad_rgb ({motes.native.failure()})")
+
+
+def cloud(kernel, **kw):
+    """Generated grains of 150 um median radius in the local cube scaled to +-8 mm, exact (continuous_count inf)."""
+    d = {"type": "discrete", "count": 400, "radius_median": 150.0, "radius_sigma_g": 1.3, "eta": 1.5,
+         "scale_m": 1e-3, "continuous_count": INF, "kernel": kernel, "seed": 3,
+         "to_world": mi.ScalarTransform4f().scale(8.0), "phase": {"type": "particle"}}
+    d.update(kw)
+    return d
+
+
+def scene(medium, res, max_depth=16, sky=0.05):
+    """``medium`` in a cube of half-size 9 (1 mm outside its grains: see ``test_boundary_exclusion_effect``), a
+    point light to its left, a dim sky."""
+    T = mi.ScalarTransform4f
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath", "max_depth": max_depth},
+        "sensor": {"type": "perspective", "fov": 30, "to_world": T().look_at(origin=[0, 0, 60], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "lamp": {"type": "point", "position": [-22.0, 0.0, 0.0], "intensity": {"type": "rgb", "value": 400.0}},
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": sky}},
+        "cube": {"type": "cube", "to_world": T().scale(9.0), "bsdf": {"type": "null"}, "interior": medium}})
+
+
+def renders(sc, spp, seeds):
+    return np.stack([np.asarray(mi.render(sc, spp=spp, seed=s), dtype=np.float64) for s in seeds])
+
+
+def compare(a, b):
+    """(z of the image means over renders, per-pixel RMS difference of the mean images over their noise)."""
+    ma, mb = a.mean(axis=(1, 2, 3)), b.mean(axis=(1, 2, 3))
+    z = (ma.mean() - mb.mean()) / np.hypot(ma.std(ddof=1), mb.std(ddof=1)) * np.sqrt(len(ma))
+    noise = a.var(axis=0, ddof=1) / a.shape[0] + b.var(axis=0, ddof=1) / b.shape[0]
+    return z, float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
+
+
+def test_white_furnace():
+    """Non-absorbing grains in a box under a constant sky render 1 within 3 standard errors (no Russian roulette)."""
+    llvm()
+    T = mi.ScalarTransform4f
+    sc = mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 100000},
+        "sensor": {"type": "perspective", "fov": 28, "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 24, "height": 24, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "cube": {"type": "cube", "bsdf": {"type": "null"},
+                 "interior": {"type": "discrete", "count": 20000, "radius_median": 20.0, "scale_m": 1e-3,
+                              "query_radius": 0.02, "albedo": 1.0, "kernel": "drjit", "size_bins": 4,
+                              "phase": {"type": "particle"}}}})
+    img = np.asarray(mi.render(sc, spp=32, seed=1), dtype=np.float64)
+    pix = img.reshape(-1, img.shape[-1]).mean(axis=1)
+    m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
+    assert abs(m - 1) < 3 * se, f"furnace {m:.4f} +- {se:.4f}"
+    assert se < 0.01
+
+
+def test_renders_as_native():
+    """The same grains under a point light: drjit and native (both exact) agree in the image mean over four seeds
+    (3 SE) and per pixel (RMS difference within 1.2 times the noise)."""
+    llvm()
+    seeds = range(4)
+    a = renders(scene(cloud("drjit"), 32), 32, seeds)
+    b = renders(scene(cloud("native"), 32), 32, [100 + s for s in seeds])
+    z, rms = compare(a, b)
+    assert abs(z) < 3, f"z = {z:.2f} (means {a.mean():.5f}, {b.mean():.5f})"
+    assert rms < 1.2, f"RMS / noise = {rms:.2f}"
+
+
+@pytest.mark.parametrize("grains", [1, 3])
+def test_phase_chi2(grains):
+    """The phase function samples what it evaluates at a site of one grain, and of three coinciding grains of three
+    species (a mixture; Mie sizes, per-channel tables): mitsuba.chi2. Its values equal the core's f_c times the
+    site's albedo."""
+    llvm()
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+
+    from motes.plugins.drjit_medium import DrJitKernel
+
+    species = [motes.Species(motes.Uniform(0.4, 0.6), 1.33), motes.Species(motes.Uniform(1.0, 1.2), 1.5),
+               motes.Species(motes.Uniform(2.5, 3.0), 1.33 + 0.01j)][:grains]
+    data = motes.DiscreteMedium(np.zeros((grains, 3)), [0.5, 1.1, 2.7][:grains], list(range(grains)), species,
+                                motes.RGB_WAVELENGTHS_UM, query_radius=1e-6, size_bins=1, continuous_count=INF,
+                                storage="full")
+    k = DrJitKernel(data)
+    ctx = mi.PhaseFunctionContext()
+    wi = mi.Vector3f(0.3, -0.2, 0.9327379)
+    mei_of = interactions_at_origin(mi, dr, wi)
+
+    def sample(s):
+        wo, w, pdf = k.sample(ctx, mei_of(dr.width(s)), s[0], mi.Vector2f(s[1], s[2]))
+        return wo, dr.select(pdf > 0, mi.Float(1.0), mi.Float(0.0))
+
+    def pdf(wo):
+        return k.eval_pdf(ctx, mei_of(dr.width(wo)), wo)[1]
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
+                         sample_count=400_000, res=101, ires=8)
+    assert test.run(), test.messages
+    # Values: the core's mixture f_c (evaluated-mode call) times the site's tau-weighted albedo.
+    rng = np.random.default_rng(1)
+    wo = rng.normal(size=(64, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    v, p = k.eval_pdf(ctx, mei_of(64), mi.Vector3f(*(mi.Float(wo[:, a].astype(np.float32)) for a in range(3))))
+    v = np.stack([np.asarray(v[c]) for c in range(3)], axis=1)
+    data.core.insert_event((0.0, 0.0, 0.0), list(range(grains)))
+    wi_np = np.tile(np.array([0.3, -0.2, 0.9327379], dtype=np.float32), 64)
+    f, pdf_core = data.core.phase_eval(np.zeros(192, np.float32), wi_np, wo.astype(np.float32).ravel(),
+                                       data.channel_wavelength_nm, 3)
+    flat = data.core.flat_arrays()  # the site's tau-weighted albedo, from the grains' bins
+    tau = np.asarray(flat["tau"], dtype=np.float64)
+    lam = np.asarray(data.wavelength_um) * 1e3
+    rows = [int(np.argmin(np.abs(lam - nm))) for nm in data.channel_wavelength_nm]
+    alb = np.array([np.asarray(data.bin_tables[0][b])[rows] for b in np.asarray(flat["bin"])])
+    site_albedo = (tau[:, None] * alb).sum(0) / tau.sum()
+    np.testing.assert_allclose(np.asarray(p), pdf_core, rtol=2e-4)
+    np.testing.assert_allclose(v, f.reshape(64, 3) * site_albedo, rtol=2e-4)
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"kernel": "cuda"}, "kernel"),
+    ({"storage": "procedural"}, "storage = procedural"),
+])
+def test_clear_errors(extra, message):
+    llvm()
+    with pytest.raises(Exception, match=message):
+        mi.load_dict({"type": "discrete", "count": 100, "kernel": "drjit", "phase": {"type": "particle"}, **extra})
+
+
+def test_continuous_classes_are_an_error():
+    """A finite continuous_count that leaves continuous size classes is an error naming it (at load where the grains
+    are placed by to_world)."""
+    llvm()
+    with pytest.raises(Exception, match="continuous_count"):
+        scene(cloud("drjit", count=20000, radius_median=20.0, query_radius=0.3, continuous_count=1.0), 8)
+
+
+def test_other_variants_are_an_error():
+    motes.set_variant("scalar_rgb")
+    with pytest.raises(Exception, match="kernel = drjit renders in"):
+        mi.load_dict({"type": "discrete", "count": 100, "kernel": "drjit", "phase": {"type": "particle"}})
