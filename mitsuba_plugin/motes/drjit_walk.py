@@ -134,13 +134,13 @@ class DrJitGrid:
         ``ParticleGrid.optical_depth`` gives as exp(-tau)."""
         return dr.exp(-self.optical_depth(origin, direction, tmax))
 
-    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin: bool = False):
+    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False):
         """Exact free flights on [0, tmax): ``(t, index, valid)``: the distance to the first grain that
         interacts (``self.F``; inf where none), the index the grid reports for it (``mi.UInt32``; 2^32 - 1
         where none) and whether there is one. ``u``: per ray a uniform ``mi.Float`` in [0, 1) (its bits seed
-        the grains' draws) or a ``mi.UInt32`` seed (module docs). ``exclude_origin``: grains whose ball
-        (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are skipped (the medium plugin's
-        stateless "parent" exclusion: a ray leaving a site skips the site's grains)."""
+        the grains' draws) or a ``mi.UInt32`` seed (module docs). ``exclude_origin`` (a bool, or per ray a
+        ``mi.Bool``): grains whose ball (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are
+        skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains)."""
         if isinstance(u, mi.UInt32):
             seed = u
         else:
@@ -170,6 +170,9 @@ class DrJitGrid:
         F, I, U = self.F, mi.Int32, mi.UInt32
         o, d, best_t, n = self._rays(origin, direction, tmax)
         flight = seed is not None
+        excluding = exclude_origin is not False
+        if excluding:
+            exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
         if flight:
             seed = U(seed) + dr.zeros(U, n)
         tau = dr.zeros(F, n)
@@ -241,10 +244,10 @@ class DrJitGrid:
                         radius = F(s[3])
                         t_i = t_enter + tt
                         hit = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius) & (t_i >= 0) & (t_i < best_t)
-                        if exclude_origin:  # the centre's offset from the ray's origin: v + t_enter d
+                        if excluding:  # the centre's offset from the ray's origin: v + t_enter d
                             w = [v[a] + t_enter * d[a] for a in range(3)]
                             r_x = radius * (1 + EXCLUDE_MARGIN)
-                            hit &= w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x
+                            hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
                         tau_i = F(dr.gather(mi.Float, self._tau, g, hit))
                         if flight:
                             w0, w1 = mi.sample_tea_32(seed, g, TEA_ROUNDS)

@@ -70,6 +70,17 @@ DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "cuda_ad_rgb", "cuda_ad_mono")
 #: ``rust/motes-core/src/render/discrete/build.rs``) and the site search's tolerance around it
 #: (``DiscreteMedium::site_near`` in ``phase.rs``): 4 coincide + ``SITE_RELATIVE`` |p|_max.
 COINCIDE_SHARE = 1e-6
+#: The site tag (module docs, "Parent exclusion"): bits of a sampled direction's x that carry a hash of the
+#: site and of its y and z (6: 63 ulps at most, a relative 4e-6 of one component; 1 ray in 64 from
+#: elsewhere carries it by chance), and the ``maxt`` below which a ray counts as a shadow ray (Mitsuba's
+#: other rays have maxt = dr.Largest or inf; a perspective camera's far clip is below it, but a camera ray
+#: starts inside a grain's ball only where the camera is inside the medium).
+TAG_BITS = 6
+#: ``tag`` (the rule above) or ``ball``: every ray skips the grains whose ball holds its origin (for
+#: measuring the tag's effect: ``scripts/bench/bench_drjit_kernel.py --exclusion ball``).
+EXCLUSION = "tag"
+TAG_MASK = (1 << TAG_BITS) - 1
+SHADOW_MAXT = 1e30
 SITE_COINCIDE = 4.0
 SITE_RELATIVE = 1e-6
 
@@ -187,9 +198,26 @@ class DrJitKernel:
         h0, _ = mi.sample_tea_32(h0 ^ bits(ray.maxt), h1, 4)
         return h0
 
+    def _tag(self, o, d):
+        """The low ``TAG_BITS`` bits a ray leaving a site carries in its direction's x (module docs, "Parent
+        exclusion"): a hash of its origin and of its direction's y and z."""
+        bits = lambda x: dr.reinterpret_array(mi.UInt32, mi.Float(x))  # noqa: E731
+        h0, h1 = mi.sample_tea_32(bits(o.x) ^ bits(d.y), bits(o.y) ^ bits(d.z), 4)
+        h0, _ = mi.sample_tea_32(h0 ^ bits(o.z), h1, 4)
+        return h0 & TAG_MASK
+
+    def from_site(self, ray):
+        """Whether a ray may start at a site (module docs): a shadow ray (finite ``maxt``) or one whose direction
+        carries the tag of its origin."""
+        if EXCLUSION == "ball":
+            return True
+        tagged = (dr.reinterpret_array(mi.UInt32, mi.Float(ray.d.x)) & TAG_MASK) == self._tag(ray.o, ray.d)
+        return tagged | (mi.Float(ray.maxt) < SHADOW_MAXT)
+
     def intersect_aabb(self, ray):
         self.ready()
-        t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, ray.maxt, self._ray_seed(ray), exclude_origin=True)
+        t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, ray.maxt, self._ray_seed(ray),
+                                                   exclude_origin=self.from_site(ray))
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -223,6 +251,9 @@ class DrJitKernel:
         sp, cp = dr.sincos(phi)
         wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
         value, pdf, _ = self._site(p, d_in, mu=mu)
+        # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
+        wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
+        wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
         ok = valid & (pdf > 0)
         weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
         return wo, weight, dr.select(ok, pdf, 0.0)
