@@ -140,7 +140,8 @@ Parameter                    Type       Meaning (default)
                                         no Rust call at render time (``llvm_ad_rgb``, ``llvm_ad_mono``; the
                                         exact medium: ``continuous_count`` defaults to inf, a finite one that
                                         leaves continuous classes is an error, as are ``storage = procedural``
-                                        and other variants; ``motes/plugins/drjit_medium.py``) (``native``)
+                                        and other variants; ``cells_per_particle`` defaults to 2 there;
+                                        ``motes/plugins/drjit_medium.py``) (``native``)
 ``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
                                         flights); true is ignored, with one warning (false)
 ``<phase>`` child            phase      the grains' phase function: ``particle``, their own (the default, also
@@ -316,7 +317,7 @@ from .. import _memory, _motes, native
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 from . import cameras, particle_phase
-from .drjit_medium import DEFAULT_KERNEL, KERNELS, DrJitKernel, kernel_problem
+from .drjit_medium import DEFAULT_KERNEL, DRJIT_CELLS_PER_PARTICLE, KERNELS, DrJitKernel, kernel_problem
 from ._scene import PendingFill, native_data, pending_of
 
 #: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
@@ -720,7 +721,12 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
         bad.append("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
     elif all(eq23) and p.query_radius is not None:
         bad.append("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
-    p.cells = get("cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
+    p.kernel = get("kernel", DEFAULT_KERNEL, str, lambda v: v in KERNELS, "one of " + ", ".join(KERNELS))
+    problem = kernel_problem(p.kernel, mi.variant(), p.storage)
+    if problem:
+        bad.append(problem)
+    p.cells = get("cells_per_particle", DRJIT_CELLS_PER_PARTICLE if p.kernel == "drjit" else DEFAULT_CELLS_PER_PARTICLE,
+                  float)
     # query_radius, cells_per_particle, tau_max and continuous_count are range-checked by the core
     # (motes._motes.check_discrete_inputs) before any table is built: one home for those rules.
     p.size_bins = get("size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
@@ -730,10 +736,6 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
     if p.truncate is not None and p.truncate < 0:
         p.truncate = None
     p.tau_max = get("tau_max", DEFAULT_TAU_MAX, float)
-    p.kernel = get("kernel", DEFAULT_KERNEL, str, lambda v: v in KERNELS, "one of " + ", ".join(KERNELS))
-    problem = kernel_problem(p.kernel, mi.variant(), p.storage)
-    if problem:
-        bad.append(problem)
     # The drjit kernel renders the exact medium (drjit_medium.py): every grain walked.
     p.continuous = get("continuous_count", np.inf if p.kernel == "drjit" else DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: 1 <= v <= MAX_GRAIN_DEPTH,

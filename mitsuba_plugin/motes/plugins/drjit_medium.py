@@ -37,7 +37,7 @@ Notes
   finds the site from ``mei.p`` and ``mei.wi`` alone: the grains whose ball the incoming ray (through p along
   -wi) crosses and whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's
   ``DiscreteMedium::site_near``; ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``).
-  They are in the 3x3x3 cells of each size class around p. Per channel c, with tau_j the grains' grey optical
+  They are in the cells of each size class within its reach of p. Per channel c, with tau_j the grains' grey optical
   depths and a_jc their bins' albedos (times ``albedo_scale``): value_c = sum_j tau_j a_jc f_jc(mu) / sum_j
   tau_j (the site's albedo times its mixture f_c = sum_j tau_j a_jc f_jc / sum_j tau_j a_jc), pdf = the mean
   over channels of f_c, mu = cos of the angle between -wi and wo. ``sample`` picks a channel uniformly
@@ -64,6 +64,11 @@ from ..drjit_walk import DrJitGrid
 #: What ``kernel`` takes, and its default.
 KERNELS = ("native", "drjit")
 DEFAULT_KERNEL = "native"
+#: ``cells_per_particle`` where ``kernel = "drjit"`` (the native kernel's 0.125 elsewhere): the Dr.Jit walk tests
+#: every grain of a cell it passes near, so finer cells pay (``scenes_xml/cornell.xml``, 1e5 grains of reach 0.7 in
+#: a room of 54 units, 2e5 flights from random points in it: 0.125 gave cells of 3.7 units and 2.0 s; 1: 1.1 s;
+#: 4: 1.1 s; 16: 1.7 s; 2 cores).
+DRJIT_CELLS_PER_PARTICLE = 2.0
 #: The variants ``kernel = "drjit"`` renders in (its tables are per RGB or mono channel; no Mueller matrices).
 DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "cuda_ad_rgb", "cuda_ad_mono")
 #: The core's coincidence window as a share of the grains' extent (``event_geometry`` in
@@ -232,7 +237,7 @@ class DrJitKernel:
         self.ready()
         d_in = -mi.Vector3f(mei.wi)
         mu = dr.clip(dr.dot(mi.Vector3f(wo), d_in), -1.0, 1.0)
-        value, pdf, _ = self._site(mi.Point3f(mei.p), d_in, mu=mu)
+        value, pdf, _ = self._site(mi.Point3f(mei.p), d_in, mu=mu, active=active)
         return value, pdf
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
@@ -243,14 +248,14 @@ class DrJitKernel:
         c = mi.UInt32(dr.minimum(dr.floor(u1), ch - 1))
         u = dr.clip(u1 - mi.Float(c), 0.0, 1.0)
         p = mi.Point3f(mei.p)
-        _, _, tid = self._site(p, d_in, pick=(c, u))
+        _, _, tid = self._site(p, d_in, pick=(c, u), active=active)
         valid = tid != 0xFFFFFFFF
         mu = self._table_sample(tid, mi.Float(sample2.x), valid)
         phi = 2 * dr.pi * mi.Float(sample2.y)
         st = dr.safe_sqrt(1 - mu * mu)
         sp, cp = dr.sincos(phi)
         wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
-        value, pdf, _ = self._site(p, d_in, mu=mu)
+        value, pdf, _ = self._site(p, d_in, mu=mu, active=valid)
         # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
         wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
         wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
@@ -299,8 +304,8 @@ class DrJitKernel:
 
     # -- the site ----------------------------------------------------------------------------------
     @dr.syntax
-    def _site_sums(self, p, d_in, mu, pick):
-        """The walk of ``_site`` over the grains of the 3x3x3 cells around ``p`` per size class: per channel
+    def _site_sums(self, p, d_in, mu, pick, active):
+        """The walk of ``_site`` over the grains of the cells within reach of ``p`` per size class: per channel
         sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given), or the picked table."""
         g_ = self.grid
         F, I, U = mi.Float, mi.Int32, mi.UInt32
@@ -324,20 +329,25 @@ class DrJitKernel:
         W = dr.zeros(F, n)
         tid = dr.full(U, 0xFFFFFFFF, n)
         step = self._accumulate if evaluating else self._reservoir
-        k = dr.zeros(U, n)
+        k = dr.select(mi.Bool(active), U(0), g_._n_classes)  # inactive lanes walk nothing
         while k < g_._n_classes:
             inv_cell = dr.gather(F, g_._inv_cell, k)
             soff = dr.gather(U, g_._class_start, k)
             dims = [dr.gather(I, g_._dims, 3 * k + a) for a in range(3)]
+            # The cells within the class's reach of p (a grain is stored in its centre's cell).
+            reach = dr.gather(F, g_._reach, k)
             pq = (px, py, pz)
-            cell = [I(dr.floor((pq[a] - dr.gather(F, g_._lo, 3 * k + a)) * inv_cell)) for a in range(3)]
-            x0 = dr.maximum(cell[0] - 1, 0)
-            x1 = dr.minimum(cell[0] + 1, dims[0] - 1)
+            at = [(pq[a] - dr.gather(F, g_._lo, 3 * k + a)) * inv_cell for a in range(3)]
+            c0 = [dr.maximum(I(dr.floor(at[a] - reach)), 0) for a in range(3)]
+            c1 = [dr.minimum(I(dr.floor(at[a] + reach)), dims[a] - 1) for a in range(3)]
+            x0, x1 = c0[0], c1[0]
+            ny = dr.maximum(c1[1] - c0[1] + 1, 1)
+            rows = dr.select((x0 <= x1) & (c0[1] <= c1[1]) & (c0[2] <= c1[2]), ny * (c1[2] - c0[2] + 1), 0)
             r = dr.zeros(I, n)
-            while r < 9:
-                y = cell[1] - 1 + r % 3
-                z = cell[2] - 1 + r // 3
-                ok = (x0 <= x1) & (y >= 0) & (y < dims[1]) & (z >= 0) & (z < dims[2])
+            while r < rows:
+                y = c0[1] + r % ny
+                z = c0[2] + r // ny
+                ok = r < rows
                 row = soff + U((z * dims[1] + y) * dims[0])
                 g = dr.gather(U, g_._start, row + U(x0), ok)
                 g1 = dr.select(ok, dr.gather(U, g_._start, row + U(x1 + 1), ok), g)
@@ -380,10 +390,10 @@ class DrJitKernel:
         u = dr.clip(u, 0.0, 0.99999994)
         return A, N, T, W, u, dr.select(take, b * ch + c_pick, tid)
 
-    def _site(self, p, d_in, mu=None, pick=None):
+    def _site(self, p, d_in, mu=None, pick=None, active=True):
         """The site at ``p`` on the ray along ``d_in`` (module docs). With ``mu``: (value per channel, pdf,
         -); with ``pick`` = (channel, uniform): (-, -, the picked grain's table or 2^32 - 1)."""
-        A, N, T, tid = self._site_sums(p, d_in, mu, pick)
+        A, N, T, tid = self._site_sums(p, d_in, mu, pick, active)
         if mu is None:
             return None, None, tid
         ch = self.channels
