@@ -9,10 +9,13 @@ take turns seed by seed, so that a busy machine slows them alike. Seeds differ b
 of the means over the renders' spread), the per-pixel RMS difference of the mean images over their noise
 (about 1 where they differ by noise alone; estimated from the seeds' spread), and seconds per render with
 the ratio to ``native-exact``. Scenes whose medium is procedural are skipped (the drjit kernel walks
-stored grains), with a line saying so.
+stored grains), with a line saying so. ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
+grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
+drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
+its site tag).
 
-    .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell] [--res 32] [--spp 16]
-        [--seeds 4]
+    .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
+        [--seeds 4] [--exclusion tag|ball] [--max-depth 16]
 """
 
 from __future__ import annotations
@@ -31,6 +34,15 @@ REFERENCE = "native-exact"
 
 def load(mi, name: str, res: int, extra: dict):
     """Scene ``name`` at ``res`` px with ``extra`` set on its discrete media (added after the tag)."""
+    if name == "sidelit":
+        import sys  # noqa: PLC0415
+
+        sys.path.insert(0, str(ROOT / "scripts" / "bench"))
+        sys.path.insert(0, str(ROOT / "scripts"))
+        import bench_lod  # noqa: PLC0415
+
+        return mi.load_dict(bench_lod.sidelit(mi, res, 0.0, {k: float(v) if k != "kernel" else v
+                                                            for k, v in extra.items()}))
     text = (ROOT / "scenes_xml" / f"{name}.xml").read_text()
     tags = "".join(f'<{"string" if k == "kernel" else "float"} name="{k}" value="{v}"/>' for k, v in extra.items())
     text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, text)
@@ -51,16 +63,31 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=32)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--exclusion", choices=("tag", "ball"), default="tag")
+    ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
     motes.set_variant("llvm_ad_rgb")
     import mitsuba as mi  # noqa: PLC0415
 
-    print(f"llvm_ad_rgb, {args.res} px, {args.spp} spp, {args.seeds} seeds; z and RMS/noise against {REFERENCE}")
+    from motes.plugins import drjit_medium  # noqa: PLC0415
+
+    drjit_medium.EXCLUSION = args.exclusion
+
+    print(f"llvm_ad_rgb, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
+          f"against {REFERENCE}")
     print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s}")
     for name in args.scenes.split(","):
-        if "procedural" in (ROOT / "scenes_xml" / f"{name}.xml").read_text():
+        if name == "sidelit":
+            import sys  # noqa: PLC0415
+
+            sys.path.insert(0, str(ROOT / "scripts" / "bench"))
+            sys.path.insert(0, str(ROOT / "scripts"))
+            import bench_lod  # noqa: PLC0415
+
+            bench_lod.MAX_DEPTH[0] = args.max_depth
+        elif "procedural" in (ROOT / "scenes_xml" / f"{name}.xml").read_text():
             print(f"{name:10s} skipped: storage = procedural (the drjit kernel walks stored grains)")
             continue
         scenes = {c: load(mi, name, args.res, extra) for c, extra in CONFIGS.items()}
