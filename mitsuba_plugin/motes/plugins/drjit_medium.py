@@ -37,8 +37,9 @@ Notes
   skip nothing, except 1 in 2^TAG_BITS that carries the tag by chance. Without the tag (``EXCLUSION =
   "ball"``: every ray skips the balls holding its origin) a ray entering the cloud through the ball of a grain
   that straddles its box loses that grain: the side-lit cloud of ``scripts/bench/bench_lod.py`` (grains
-  touching the cube's faces) rendered 4.3 % darker than native (z -3.8, RMS/noise 3.7; with the tag z +0.09,
-  0.74; docs/rendering.md). Shadow rays that enter the cloud from outside still skip such grains.
+  touching the cube's faces) rendered 4.5 % darker than native (z -4.6, RMS/noise 3.65; with the tag z -0.28,
+  0.94; ``scripts/bench/bench_drjit_kernel.py --scenes sidelit``). Shadow rays that enter the cloud from outside
+  still skip such grains.
 * **Sites and phase function.** A free flight stops at the first grain that interacts; the phase function
   finds the site from ``mei.p`` and ``mei.wi`` alone: the grains whose ball the incoming ray (through p along
   -wi) crosses and whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's
