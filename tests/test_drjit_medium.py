@@ -66,9 +66,10 @@ def compare(a, b):
     return z, float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
 
 
-def test_white_furnace():
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono"])
+def test_white_furnace(variant):
     """Non-absorbing grains in a box under a constant sky render 1 within 3 standard errors (no Russian roulette)."""
-    llvm()
+    motes.set_variant(variant)
     T = mi.ScalarTransform4f
     sc = mi.load_dict({
         "type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 100000},
