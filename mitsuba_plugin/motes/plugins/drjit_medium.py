@@ -52,7 +52,8 @@ Notes
   its CDF (piecewise linear f in mu, as ``PhaseTable`` in ``rust/motes-core/src/ensemble/phase_table.rs``),
   phi from ``sample2.y``, and returns value / pdf with the mixture's pdf: sampling and evaluation agree
   (``tests/test_drjit_medium.py``, chi-square). The native kernel picks channels by the path's throughput
-  (remembered with the event); here uniformly: the same expectation, other noise in coloured media.
+  (remembered with the event); here uniformly: the same expectation, other noise in coloured media (a channel
+  whose grains all have albedo 0 ends the paths that pick it: unbiased, noisier; the pdf counts it as 0).
 * Tables: each bin's phase tables (``DiscreteMedium.bin_tables``) at each channel's tabulated wavelength (RGB:
   the three channel wavelengths; mono: the middle one, as ``_bridge.channel_wavelengths``), normalised as the
   core normalises them.
