@@ -83,19 +83,19 @@ DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "cuda_ad_rgb", "cuda_ad_mono")
 #: ``rust/motes-core/src/render/discrete/build.rs``) and the site search's tolerance around it
 #: (``DiscreteMedium::site_near`` in ``phase.rs``): 4 coincide + ``SITE_RELATIVE`` |p|_max.
 COINCIDE_SHARE = 1e-6
+SITE_COINCIDE = 4.0
+SITE_RELATIVE = 1e-6
 #: The site tag (module docs, "Parent exclusion"): bits of a sampled direction's x that carry a hash of the
 #: site and of its y and z (6: 63 ulps at most, a relative 4e-6 of one component; 1 ray in 64 from
 #: elsewhere carries it by chance), and the ``maxt`` below which a ray counts as a shadow ray (Mitsuba's
 #: other rays have maxt = dr.Largest or inf; a perspective camera's far clip is below it, but a camera ray
 #: starts inside a grain's ball only where the camera is inside the medium).
 TAG_BITS = 6
+TAG_MASK = (1 << TAG_BITS) - 1
+SHADOW_MAXT = 1e30
 #: ``tag`` (the rule above) or ``ball``: every ray skips the grains whose ball holds its origin (for
 #: measuring the tag's effect: ``scripts/bench/bench_drjit_kernel.py --exclusion ball``).
 EXCLUSION = "tag"
-TAG_MASK = (1 << TAG_BITS) - 1
-SHADOW_MAXT = 1e30
-SITE_COINCIDE = 4.0
-SITE_RELATIVE = 1e-6
 
 
 def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
@@ -159,9 +159,7 @@ class DrJitKernel:
         albedos, theta, f, offsets = data.bin_tables[:4]
         lam_nm = np.asarray(data.wavelength_um, dtype=np.float64) * 1e3
         chan_nm = np.asarray(data.channel_wavelength_nm, dtype=np.float64)
-        if mi.is_rgb:
-            pass
-        else:  # monochrome: the middle tabulated wavelength (``_bridge.channel_wavelengths``)
+        if not mi.is_rgb:  # monochrome: the middle tabulated wavelength (``_bridge.channel_wavelengths``)
             chan_nm = chan_nm[[chan_nm.size // 2]]
         rows = []
         for nm in chan_nm:
@@ -170,6 +168,8 @@ class DrJitKernel:
                 raise ValueError(f"discrete medium: kernel = drjit needs a table at each channel's wavelength ({nm} nm)")
             rows.append(k)
         n_bins, n_lam, ch = len(albedos), lam_nm.size, len(rows)
+        if len(offsets) != n_bins * n_lam + 1:  # one table per bin and tabulated wavelength, bin-major
+            raise ValueError(f"discrete medium: {len(offsets) - 1} phase tables for {n_bins} bins at {n_lam} wavelengths")
         self.channels = ch
         mu_all, f_all, cdf_all, off, cnt, alb = [], [], [], [], [], []
         pos = 0
