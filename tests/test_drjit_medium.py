@@ -10,7 +10,7 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 import drjit as dr  # noqa: E402
-from _scenes import interactions_at_origin  # noqa: E402
+from _scenes import interactions_at_origin, phase_chi2  # noqa: E402
 
 INF = float("inf")
 
@@ -107,8 +107,6 @@ def test_phase_chi2(grains):
     species (a mixture; Mie sizes, per-channel tables): mitsuba.chi2. Its values equal the core's f_c times the
     site's albedo."""
     llvm()
-    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
-
     from motes.plugins.drjit_medium import DrJitKernel
 
     species = [motes.Species(motes.Uniform(0.4, 0.6), 1.33), motes.Species(motes.Uniform(1.0, 1.2), 1.5),
@@ -121,16 +119,8 @@ def test_phase_chi2(grains):
     wi = mi.Vector3f(0.3, -0.2, 0.9327379)
     mei_of = interactions_at_origin(mi, dr, wi)
 
-    def sample(s):
-        wo, w, pdf = k.sample(ctx, mei_of(dr.width(s)), s[0], mi.Vector2f(s[1], s[2]))
-        return wo, dr.select(pdf > 0, mi.Float(1.0), mi.Float(0.0))
-
-    def pdf(wo):
-        return k.eval_pdf(ctx, mei_of(dr.width(wo)), wo)[1]
-
-    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
-                         sample_count=400_000, res=101, ires=8)
-    assert test.run(), test.messages
+    passed, messages = phase_chi2(mi, dr, k, mei_of)
+    assert passed, messages
     # Values: the core's mixture f_c (evaluated-mode call) times the site's tau-weighted albedo.
     rng = np.random.default_rng(1)
     wo = rng.normal(size=(64, 3))
