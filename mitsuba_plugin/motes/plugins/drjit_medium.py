@@ -401,7 +401,8 @@ class DrJitKernel:
     def _site(self, p, d_in, mu=None, pick=None, active=True):
         """The site at ``p`` on the ray along ``d_in`` (module docs). With ``mu``: (value per channel, pdf,
         -); with ``pick`` = (channel, uniform): (-, -, the picked grain's table or 2^32 - 1)."""
-        A, N, T, tid = self._site_sums(p, d_in, mu, pick, active)
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
+            A, N, T, tid = self._site_sums(p, d_in, mu, pick, active)
         if mu is None:
             return None, None, tid
         ch = self.channels
