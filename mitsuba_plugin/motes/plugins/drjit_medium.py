@@ -256,14 +256,25 @@ class DrJitKernel:
         c = mi.UInt32(dr.minimum(dr.floor(u1), ch - 1))
         u = dr.clip(u1 - mi.Float(c), 0.0, 1.0)
         p = mi.Point3f(mei.p)
-        _, _, tid = self._site(p, d_in, pick=(c, u), active=active)
+        _, members, tid = self._site(p, d_in, pick=(c, u), active=active)
         valid = tid != 0xFFFFFFFF
         mu = self._table_sample(tid, mi.Float(sample2.x), valid)
         phi = 2 * dr.pi * mi.Float(sample2.y)
         st = dr.safe_sqrt(1 - mu * mu)
         sp, cp = dr.sincos(phi)
         wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
-        value, pdf, _ = self._site(p, d_in, mu=mu, active=valid)
+        # A site of one grain (most) needs no second walk: its bin's tables at mu, times its albedo.
+        one = valid & (members == 1)
+        value, pdf, _ = self._site(p, d_in, mu=mu, active=valid & ~one)
+        b = tid // ch
+        v1, p1 = [], dr.zeros(mi.Float, dr.width(mu))
+        for k in range(ch):
+            a_k = dr.gather(mi.Float, self._albedo, b * ch + k, one) * self._scale
+            f_k = self._table_eval(b * ch + k, mu, one & (a_k > 0))
+            v1.append(a_k * f_k)
+            p1 += f_k
+        value = dr.select(one, mi.UnpolarizedSpectrum(v1[0]) if ch == 1 else mi.UnpolarizedSpectrum(*v1), value)
+        pdf = dr.select(one, p1 / ch, pdf)
         # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
         wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
         wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
@@ -385,7 +396,7 @@ class DrJitKernel:
 
     def _reservoir(self, g, member, mu, c_pick, A, N, T, W, u, tid):
         """``_site_sums``' step at grain ``g`` when picking a grain by tau_j a_jc in channel ``c_pick``: one pass
-        of weighted reservoir sampling with one uniform, rescaled at each grain."""
+        of weighted reservoir sampling with one uniform, rescaled at each grain (``T`` counts the members)."""
         F, U, ch = mi.Float, mi.UInt32, self.channels
         tau = dr.gather(F, self.grid._tau, g, member)
         b = dr.gather(U, self._bin, g, member)
@@ -396,7 +407,7 @@ class DrJitKernel:
         u = dr.select(take, u / dr.select(share > 0, share, 1.0),
                       dr.select(w > 0, (u - share) / dr.select(share < 1, 1 - share, 1.0), u))
         u = dr.clip(u, 0.0, 0.99999994)
-        return A, N, T, W, u, dr.select(take, b * ch + c_pick, tid)
+        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b * ch + c_pick, tid)
 
     def _site(self, p, d_in, mu=None, pick=None, active=True):
         """The site at ``p`` on the ray along ``d_in`` (module docs). With ``mu``: (value per channel, pdf,
@@ -404,7 +415,7 @@ class DrJitKernel:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
             A, N, T, tid = self._site_sums(p, d_in, mu, pick, active)
         if mu is None:
-            return None, None, tid
+            return None, T, tid
         ch = self.channels
         value = [dr.select(T > 0, N[c] / dr.select(T > 0, T, 1.0), 0.0) for c in range(ch)]
         pdf = dr.zeros(mi.Float, dr.width(T))
