@@ -50,8 +50,9 @@ Notes
   over channels of f_c, mu = cos of the angle between -wi and wo. ``sample`` picks a channel uniformly
   (``sample1``), a grain by tau_j a_jc (the rest of ``sample1``), mu from the grain's bin's table by inverting
   its CDF (piecewise linear f in mu, as ``PhaseTable`` in ``rust/motes-core/src/ensemble/phase_table.rs``),
-  phi from ``sample2.y``, and returns value / pdf with the mixture's pdf: sampling and evaluation agree
-  (``tests/test_drjit_medium.py``, chi-square). The native kernel picks channels by the path's throughput
+  phi from ``sample2.y``, and returns value / pdf with the mixture's pdf (a second walk of the site, or at a
+  site of one grain its bin's tables alone): sampling and evaluation agree (``tests/test_drjit_medium.py``,
+  chi-square). The native kernel picks channels by the path's throughput
   (remembered with the event); here uniformly: the same expectation, other noise in coloured media (a channel
   whose grains all have albedo 0 ends the paths that pick it: unbiased, noisier; the pdf counts it as 0).
 * Tables: each bin's phase tables (``DiscreteMedium.bin_tables``) at each channel's tabulated wavelength (RGB:
