@@ -177,6 +177,11 @@ run polarisation_checks     $PY scripts/figures/polarisation_checks.py
 run polarized_cost          $PY $B/bench_polarized.py --scene dust_box --res 96 --spp 16
 run sky_polarisation        $PY scripts/paper/sky_polarisation.py --spp 128 --res 160
 
+# --- The Dr.Jit kernel (issue 46) ------------------------------------------------------------------------
+run drjit_kernel            $PY $B/bench_drjit_kernel.py --res 32 --spp 16 --seeds 4
+run drjit_exclusion_tag     $PY $B/bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2 --exclusion tag
+run drjit_exclusion_ball    $PY $B/bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2 --exclusion ball
+
 # --- Code structure (issues 12, 42) ---------------------------------------------------------------------
 run function_lengths        python3 scripts/function_lengths.py   # exits 1 while a function is over 80 lines
 run layers_and_sizes        python3 scripts/check_layers.py --sizes

@@ -5,6 +5,7 @@ folder, hypothesis profiles): also inside the fresh interpreters that ``run_json
 * ``discrete_xml`` — a ``discrete`` medium element of a scene's XML.
 * ``sensor_xml``, ``medium_xml`` — a perspective sensor and a medium (any type) as XML lines.
 * ``run_json`` — run a snippet by ``python -c`` (with this folder importable) and read the JSON it printed last.
+* ``phase_chi2`` — mitsuba.chi2's test of a phase function's sampling against its pdf.
 """
 
 from __future__ import annotations
@@ -73,6 +74,25 @@ def medium_xml(kind: str, props, phase: str = "", attrs: str = 'name="interior"'
     lines += [f'{inner}<{tag} name="{name}" value="{value}"/>' for tag, name, value in props]
     lines += [inner + phase] if phase else []
     return "\n".join(lines + [f"{indent}</medium>"]) + "\n"
+
+
+def phase_chi2(mi, dr, phase, mei_of, sample_count: int = 400_000):
+    """mitsuba.chi2's ``ChiSquareTest`` (run) of ``phase``'s ``sample`` against its ``eval_pdf`` at the medium
+    interactions ``mei_of(n)`` (``interactions_at_origin``): (passed, the test's messages)."""
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+
+    ctx = mi.PhaseFunctionContext()
+
+    def sample(s):
+        wo, w, pdf = phase.sample(ctx, mei_of(dr.width(s)), s[0], mi.Vector2f(s[1], s[2]))
+        return wo, dr.select(pdf > 0, mi.Float(1.0), mi.Float(0.0))
+
+    def pdf(wo):
+        return phase.eval_pdf(ctx, mei_of(dr.width(wo)), wo)[1]
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
+                         sample_count=sample_count, res=101, ires=8)
+    return test.run(), test.messages
 
 
 def interactions_at_origin(mi, dr, wi):

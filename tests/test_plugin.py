@@ -14,7 +14,7 @@ import motes
 
 mi = pytest.importorskip("mitsuba")
 import drjit as dr  # noqa: E402
-from _scenes import interactions_at_origin  # noqa: E402
+from _scenes import interactions_at_origin, phase_chi2  # noqa: E402
 
 
 def discrete(count=5000, **kw):
@@ -98,8 +98,6 @@ def test_particle_phase_chi2_mixture():
     """The `particle` phase function samples what it evaluates, for a site mixing three sizes (Mie range,
     per-channel tables, channel-mean pdf): mitsuba.chi2."""
     motes.set_variant("llvm_ad_rgb")
-    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
-
     species = [motes.Species(motes.Uniform(0.4, 0.6), 1.33), motes.Species(motes.Uniform(1.0, 1.2), 1.5),
                motes.Species(motes.Uniform(2.5, 3.0), 1.33 + 0.01j)]
     pos = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -108,22 +106,8 @@ def test_particle_phase_chi2_mixture():
     data.core.insert_event((0.0, 0.0, 0.0), [0, 1, 2])
     phase = mi.load_dict({"type": "particle"})
     phase.attach(data)
-    ctx = mi.PhaseFunctionContext()
-    wi = mi.Vector3f(0.3, -0.2, 0.9327379)
-
-    mei_of = interactions_at_origin(mi, dr, wi)
-
-    def sample(s):
-        n = dr.width(s)
-        wo, w, pdf = phase.sample(ctx, mei_of(n), s[0], mi.Vector2f(s[1], s[2]))
-        return wo, dr.select(pdf > 0, mi.Float(1.0), mi.Float(0.0))
-
-    def pdf(wo):
-        return phase.eval_pdf(ctx, mei_of(dr.width(wo)), wo)[1]
-
-    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
-                         sample_count=400_000, res=101, ires=8)
-    assert test.run(), test.messages
+    passed, messages = phase_chi2(mi, dr, phase, interactions_at_origin(mi, dr, mi.Vector3f(0.3, -0.2, 0.9327379)))
+    assert passed, messages
 
 
 def test_sigma_t_never_exceeds_majorant():

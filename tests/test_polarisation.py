@@ -26,7 +26,7 @@ mi = pytest.importorskip("mitsuba")
 dr = pytest.importorskip("drjit")
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "scripts" / "figures"))
 from furnace_grid import furnace_medium, render_furnace  # noqa: E402
-from _scenes import interactions_at_origin, run_json  # noqa: E402
+from _scenes import interactions_at_origin, phase_chi2, run_json  # noqa: E402
 
 # Channels of a Stokes render with a luminance film: Y, then S0..S3 as R, G, B each.
 S0, S1, S2, S3 = 1, 4, 7, 10
@@ -238,20 +238,8 @@ def test_continuous_equivalents_carry_the_matrices(theta_deg):
 
 
 def _chi2(phase, mei_of, variant_note: str) -> None:
-    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
-
-    ctx = mi.PhaseFunctionContext()
-
-    def sample(s):
-        wo, w, pdf = phase.sample(ctx, mei_of(dr.width(s)), s[0], mi.Vector2f(s[1], s[2]))
-        return wo, dr.select(pdf > 0, mi.Float(1.0), mi.Float(0.0))
-
-    def pdf(wo):
-        return phase.eval_pdf(ctx, mei_of(dr.width(wo)), wo)[1]
-
-    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
-                         sample_count=200_000, res=101, ires=8)
-    assert test.run(), f"{variant_note}: {test.messages}"
+    passed, messages = phase_chi2(mi, dr, phase, mei_of, sample_count=200_000)
+    assert passed, f"{variant_note}: {messages}"
 
 
 def test_chi2_of_the_particle_phase_in_a_polarised_variant():

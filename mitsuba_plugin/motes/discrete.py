@@ -621,6 +621,9 @@ class DiscreteMedium:
         #: The wavelengths as given (for RGB: channel c is ``channel_wavelength_nm[c]``).
         self.channel_wavelength_nm = np.ascontiguousarray(lam_in * 1e3)
         # Radii in um with their scale (a scaled copy of 1e8 radii would be 800 MB).
+        #: The optics bins' tables as the core took them: (albedos, theta, f, offsets, mueller or None) per bin
+        #: (``_BinTables.core_tables``), at ``wavelength_um``; read by ``kernel = "drjit"`` (``plugins/drjit_medium.py``).
+        self.bin_tables = tables
         self._core = _motes.DiscreteMedium(pos.ravel(), r, np.ascontiguousarray(grey_q, dtype=np.float64), bin_of,
                                            _core_tables(tables, lam), settings, radius_scale=um, holders=holders,
                                            density=density)

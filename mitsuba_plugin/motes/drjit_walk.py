@@ -61,6 +61,9 @@ TEA_ROUNDS = 8
 CELL_MARGIN = 1e-3
 #: Relative margin of the rows' reach (see ``CELL_MARGIN``).
 REACH_MARGIN = 1e-4
+#: Relative growth of a grain's ball in ``exclude_origin``: a ray leaving a site at the float32 projection of
+#: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball.
+EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
 
 
@@ -131,17 +134,19 @@ class DrJitGrid:
         ``ParticleGrid.optical_depth`` gives as exp(-tau)."""
         return dr.exp(-self.optical_depth(origin, direction, tmax))
 
-    def sample_free_flight(self, origin, direction, tmax, u):
+    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False):
         """Exact free flights on [0, tmax): ``(t, index, valid)``: the distance to the first grain that
         interacts (``self.F``; inf where none), the index the grid reports for it (``mi.UInt32``; 2^32 - 1
         where none) and whether there is one. ``u``: per ray a uniform ``mi.Float`` in [0, 1) (its bits seed
-        the grains' draws) or a ``mi.UInt32`` seed (module docs)."""
+        the grains' draws) or a ``mi.UInt32`` seed (module docs). ``exclude_origin`` (a bool, or per ray a
+        ``mi.Bool``): grains whose ball (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are
+        skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains)."""
         if isinstance(u, mi.UInt32):
             seed = u
         else:
             seed = dr.reinterpret_array(mi.UInt32, mi.Float(u))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, t, g = self._walk(origin, direction, tmax, seed)
+            _, t, g = self._walk(origin, direction, tmax, seed, exclude_origin)
         valid = g != _NONE
         index = dr.gather(mi.UInt32, self._index, g, valid)
         return dr.select(valid, t, dr.inf), dr.select(valid, index, _NONE), valid
@@ -159,12 +164,15 @@ class DrJitGrid:
         return o, d, tmax, n
 
     @dr.syntax
-    def _walk(self, origin, direction, tmax, seed):
+    def _walk(self, origin, direction, tmax, seed, exclude_origin=False):
         """The walk of every class (module docs): (optical depth, first interaction's t, its grain's position
         or 2^32 - 1); a free flight where ``seed`` is given, else the optical depth alone."""
         F, I, U = self.F, mi.Int32, mi.UInt32
         o, d, best_t, n = self._rays(origin, direction, tmax)
         flight = seed is not None
+        excluding = exclude_origin is not False
+        if excluding:
+            exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
         if flight:
             seed = U(seed) + dr.zeros(U, n)
         tau = dr.zeros(F, n)
@@ -236,6 +244,10 @@ class DrJitGrid:
                         radius = F(s[3])
                         t_i = t_enter + tt
                         hit = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius) & (t_i >= 0) & (t_i < best_t)
+                        if excluding:  # the centre's offset from the ray's origin: v + t_enter d
+                            w = [v[a] + t_enter * d[a] for a in range(3)]
+                            r_x = radius * (1 + EXCLUDE_MARGIN)
+                            hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
                         tau_i = F(dr.gather(mi.Float, self._tau, g, hit))
                         if flight:
                             w0, w1 = mi.sample_tea_32(seed, g, TEA_ROUNDS)

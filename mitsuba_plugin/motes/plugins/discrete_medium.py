@@ -135,6 +135,13 @@ Parameter                    Type       Meaning (default)
                                         (and without ``filename``) the grains fill the shapes that hold the
                                         medium, as ``homogeneous`` does; give it to fill a box instead
 ``sample_emitters``          boolean    next-event estimation at scattering events (true)
+``kernel``                   string     ``native``: the C++/Rust render path where it is built (below, "Render
+                                        paths"); ``drjit``: Dr.Jit-typed code traced into Mitsuba's kernels,
+                                        no Rust call at render time (``llvm_ad_rgb``, ``llvm_ad_mono``; the
+                                        exact medium: ``continuous_count`` defaults to inf, a finite one that
+                                        leaves continuous classes is an error, as are ``storage = procedural``
+                                        and other variants; ``cells_per_particle`` defaults to 2 there;
+                                        ``motes/plugins/drjit_medium.py``) (``native``)
 ``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
                                         flights); true is ignored, with one warning (false)
 ``<phase>`` child            phase      the grains' phase function: ``particle``, their own (the default, also
@@ -310,6 +317,7 @@ from .. import _memory, _motes, native
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 from . import cameras, particle_phase
+from .drjit_medium import DEFAULT_KERNEL, DRJIT_CELLS_PER_PARTICLE, KERNELS, DrJitKernel, kernel_problem
 from ._scene import PendingFill, native_data, pending_of
 
 #: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
@@ -321,7 +329,7 @@ PARAMETERS = ("filename", "count", "distribution", "radius_median", "radius_sigm
               "cells_per_particle", "continuous_count", "grain_depth", "surface_footprint", "storage", "cache_mb",
               "size_bins", "method", "truncate_below", "wavelengths", "seed", "time", "velocity", "turbulence",
               "turbulence_scale", "wrap", "sigma_t", "scale", "albedo", "has_spectral_extinction", "phase_model",
-              "to_world", "sample_emitters")
+              "to_world", "sample_emitters", "kernel")
 
 #: sigma_t returned at a site; the tentative distance mint + E / MAJORANT rounds to the site itself.
 MAJORANT = 1e20
@@ -334,6 +342,8 @@ class DiscreteMediumPlugin:
     #: holders once its scene has loaded (``_motes_pending``, a ``_scene.PendingFill``, until then).
     _data: DiscreteMedium | None = None
     _motes_pending: PendingFill | None = None
+    #: ``kernel = "drjit"``: the Dr.Jit-typed calls (``drjit_medium.DrJitKernel``), else None.
+    _drjit: DrJitKernel | None = None
 
     @property
     def data(self) -> DiscreteMedium:
@@ -373,7 +383,16 @@ class DiscreteMediumPlugin:
                              "(the medium supplies the particles it scatters from)")
         self._native = self._native_phase = None
         build = _Build(p, species, lam, truncate, common, props.id() or "")
-        if p.filename is None and not p.to_world_given:
+        if p.kernel == "drjit":  # no native objects: Dr.Jit-typed calls over the data, made now or once filled
+            if p.filename is None and not p.to_world_given:
+                source = self._motes_pending = PendingFill(build.filled)
+            else:
+                source = self._data = build.built(props)
+            self._drjit = DrJitKernel(source, p.seed, MAJORANT)
+            if self._data is not None:
+                self._drjit.ready()  # its errors at load (a filled medium's: at its first call)
+            phase.attach(source, None, self._drjit)
+        elif p.filename is None and not p.to_world_given:
             # Its grains fill the shapes that hold it, which Mitsuba makes after it: built once its scene has loaded
             # (module docs, "Filling the shapes that hold it"). No Mitsuba object is kept (the native handles own it).
             pending = self._motes_pending = PendingFill(build.filled)
@@ -397,6 +416,8 @@ class DiscreteMediumPlugin:
     # Each method hands the whole call to the native plugin when there is one (traced once into
     # Mitsuba's symbolic kernel in LLVM variants), else goes through numpy batches (evaluated mode).
     def intersect_aabb(self, ray):
+        if self._drjit is not None:
+            return self._drjit.intersect_aabb(ray)
         if self._native is not None and symbolic_mode():
             return self._native.intersect_aabb(ray)
         require_evaluated_mode()
@@ -415,6 +436,8 @@ class DiscreteMediumPlugin:
         return bool(hit[0]), float(mint[0]), float(maxt[0])
 
     def get_majorant(self, mei, active=True):
+        if self._drjit is not None:
+            return self._drjit.get_majorant(mei, active)
         if self._native is not None and symbolic_mode():
             return self._native.get_majorant(mei, active)
         # MAJORANT where intersect_aabb found a site, 0 elsewhere: integrators that weight by
@@ -423,6 +446,8 @@ class DiscreteMediumPlugin:
         return spectrum(np.where(mask(active, n), MAJORANT, 0.0)[:, None], n)
 
     def get_scattering_coefficients(self, mei, active=True):
+        if self._drjit is not None:
+            return self._drjit.get_scattering_coefficients(mei, active)
         if self._native is not None and symbolic_mode():
             return self._native.get_scattering_coefficients(mei, active)
         p = vec3(mei.p)
@@ -449,6 +474,8 @@ class DiscreteMediumPlugin:
         if keys is None or "albedo_scale" in keys:
             try:
                 self.data.core.set_albedo_scale(float(np.asarray(self._albedo_scale).ravel()[0]))
+                if self._drjit is not None:
+                    self._drjit.set_albedo_scale(self.data.core.albedo_scale)
             except ValueError:
                 # The parameter goes back to the value in use, so that what mi.traverse shows is true.
                 self._albedo_scale = mi.TensorXf(np.full(1, self.data.core.albedo_scale, dtype=np.float32))
@@ -694,7 +721,12 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
         bad.append("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
     elif all(eq23) and p.query_radius is not None:
         bad.append("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
-    p.cells = get("cells_per_particle", DEFAULT_CELLS_PER_PARTICLE, float)
+    p.kernel = get("kernel", DEFAULT_KERNEL, str, lambda v: v in KERNELS, "one of " + ", ".join(KERNELS))
+    problem = kernel_problem(p.kernel, mi.variant(), p.storage)
+    if problem:
+        bad.append(problem)
+    p.cells = get("cells_per_particle", DRJIT_CELLS_PER_PARTICLE if p.kernel == "drjit" else DEFAULT_CELLS_PER_PARTICLE,
+                  float)
     # query_radius, cells_per_particle, tau_max and continuous_count are range-checked by the core
     # (motes._motes.check_discrete_inputs) before any table is built: one home for those rules.
     p.size_bins = get("size_bins", 16, int, lambda v: 1 <= v <= 4096, "an integer in [1, 4096]")
@@ -704,7 +736,8 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
     if p.truncate is not None and p.truncate < 0:
         p.truncate = None
     p.tau_max = get("tau_max", DEFAULT_TAU_MAX, float)
-    p.continuous = get("continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
+    # The drjit kernel renders the exact medium (drjit_medium.py): every grain walked.
+    p.continuous = get("continuous_count", np.inf if p.kernel == "drjit" else DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: 1 <= v <= MAX_GRAIN_DEPTH,
                         f"an integer in [1, {MAX_GRAIN_DEPTH}]")
     p.surface_footprint = get("surface_footprint", True, bool)

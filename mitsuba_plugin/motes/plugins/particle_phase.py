@@ -47,16 +47,21 @@ class ParticlePhase:
         self.m_flags = mi.PhaseFunctionFlags.Anisotropic
         self._medium = None  # motes.discrete.DiscreteMedium, set by the discrete medium
         self._native = None  # its native phase function (motes.native), when that path is in use
+        self._drjit = None  # kernel = "drjit": the medium's drjit_medium.DrJitKernel
 
     is_motes_particle_phase = True
 
-    def attach(self, medium, native=None) -> None:
+    def attach(self, medium, native=None, drjit=None) -> None:
         """``medium``: the ``motes.DiscreteMedium``, or for a medium that fills its holders the
-        ``_scene.PendingFill`` that makes it (its ``result()``, read at the first call)."""
+        ``_scene.PendingFill`` that makes it (its ``result()``, read at the first call); ``native``: the native
+        phase function, or ``drjit``: the medium's ``drjit_medium.DrJitKernel`` (``kernel = "drjit"``)."""
         self._medium = medium
         self._native = native
+        self._drjit = drjit
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
+        if self._drjit is not None:
+            return self._drjit.sample(ctx, mei, sample1, sample2, active)
         if self._native is not None and symbolic_mode():
             return self._native.sample(ctx, mei, sample1, sample2, active)
         n = max(np.size(np.asarray(sample1)), np.size(np.asarray(sample2.x)), dr.width(mei.p), dr.width(mei.wi))
@@ -75,6 +80,8 @@ class ParticlePhase:
         return vector3(wo.reshape(n, 3)), depolarized(spectrum(w.reshape(n, ch), n)), floats(pdf)
 
     def eval_pdf(self, ctx, mei, wo, active=True):
+        if self._drjit is not None:
+            return self._drjit.eval_pdf(ctx, mei, wo, active)
         if self._native is not None and symbolic_mode():
             return self._native.eval_pdf(ctx, mei, wo, active)
         n = max(dr.width(mei.p), dr.width(mei.wi), dr.width(wo))

@@ -1,0 +1,426 @@
+"""``kernel = "drjit"``: the ``discrete`` medium and its ``particle`` phase function as Dr.Jit-typed code,
+traced into Mitsuba's symbolic kernels (issue 46, second slice). No numpy and no Rust call at render time:
+the grains are uploaded once as JIT arrays (``motes.drjit_walk``) and walked in the kernel, so the same code
+can run where a kernel cannot call the Rust core (``cuda_ad_*``, later).
+
+===================  =======  ================================================================================
+Parameter            Type     Meaning (of the ``discrete`` medium; the other parameters keep theirs)
+===================  =======  ================================================================================
+``kernel``           string   ``native`` (the C++/Rust plugin where it is built: ``scalar_*``, ``llvm_ad_*``) or
+                              ``drjit`` (this file; ``llvm_ad_rgb``, ``llvm_ad_mono``, ``cuda_ad_rgb``,
+                              ``cuda_ad_mono``) (``native``)
+===================  =======  ================================================================================
+
+Notes
+-----
+* **Exact medium.** Every grain is walked on every ray, as with ``continuous_count = inf``, which is this
+  kernel's default; a finite ``continuous_count`` that leaves size classes continuous is an error naming it
+  (the continuous field is not ported), and so are ``storage = procedural`` (no stored grains to upload) and the
+  spectral and polarised variants (``kernel`` named). ``grain_depth`` and ``surface_footprint`` then change
+  nothing. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they
+  are per-bin tables like the grains' own.
+* **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` from the ray's origin up to its
+  ``maxt``, each grain interacting with probability 1 - exp(-tau_i), the nearest that does returned as
+  ``mint`` (``maxt`` = inf), ``hit = False`` where none. Its random numbers hash the ray (origin, direction,
+  ``maxt``) and the medium's ``seed``: a render is a function of scene, seed and spp. ``get_majorant`` returns
+  ``MAJORANT`` and ``get_scattering_coefficients`` sigma_s = sigma_t = ``MAJORANT``, sigma_n = 0, as the native
+  kernel does (``discrete``'s notes, "How it maps onto Mitsuba's delta tracking"): no null collisions; the
+  site's albedo rides on the phase function's value and weight.
+* **Parent exclusion without state.** A Dr.Jit kernel cannot remember events per lane (a ``dr.gather`` from a
+  buffer the same symbolic kernel ``dr.scatter``\\ s into reads the contents from before the kernel), so a ray
+  leaving a site carries a *tag*: ``sample`` sets the low ``TAG_BITS`` bits of the direction's x to a hash of
+  the site and of the direction's y and z (at most 63 ulps: a relative 4e-6 of one component). A ray that
+  carries its tag, or a shadow ray (``maxt`` below ``SHADOW_MAXT``: Mitsuba's other rays have ``dr.Largest``
+  or inf), skips every grain whose ball (radius R_i) holds its origin: the grain it leaves (the site lies on
+  the incoming ray within R_i of its centre) and, where balls overlap, the others holding the site (the
+  native kernel skips only the site's own). Other rays (from the camera, a surface, the medium's boundary)
+  skip nothing, except 1 in 2^TAG_BITS that carries the tag by chance. Without the tag (``EXCLUSION =
+  "ball"``: every ray skips the balls holding its origin) a ray entering the cloud through the ball of a grain
+  that straddles its box loses that grain: the side-lit cloud of ``scripts/bench/bench_lod.py`` (grains
+  touching the cube's faces) rendered 4.5 % darker than native (z -4.6, RMS/noise 3.65; with the tag z -0.28,
+  0.94; ``scripts/bench/bench_drjit_kernel.py --scenes sidelit``). Shadow rays that enter the cloud from outside
+  still skip such grains.
+* **Sites and phase function.** A free flight stops at the first grain that interacts; the phase function
+  finds the site from ``mei.p`` and ``mei.wi`` alone: the grains whose ball the incoming ray (through p along
+  -wi) crosses and whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's
+  ``DiscreteMedium::site_near``; ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``).
+  They are in the cells of each size class within its reach of p. Per channel c, with tau_j the grains' grey optical
+  depths and a_jc their bins' albedos (times ``albedo_scale``): value_c = sum_j tau_j a_jc f_jc(mu) / sum_j
+  tau_j (the site's albedo times its mixture f_c = sum_j tau_j a_jc f_jc / sum_j tau_j a_jc), pdf = the mean
+  over channels of f_c, mu = cos of the angle between -wi and wo. ``sample`` picks a channel uniformly
+  (``sample1``), a grain by tau_j a_jc (the rest of ``sample1``), mu from the grain's bin's table by inverting
+  its CDF (piecewise linear f in mu, as ``PhaseTable`` in ``rust/motes-core/src/ensemble/phase_table.rs``),
+  phi from ``sample2.y``, and returns value / pdf with the mixture's pdf (a second walk of the site, or at a
+  site of one grain its bin's tables alone): sampling and evaluation agree (``tests/test_drjit_medium.py``,
+  chi-square). The native kernel picks channels by the path's throughput
+  (remembered with the event); here uniformly: the same expectation, other noise in coloured media (a channel
+  whose grains all have albedo 0 ends the paths that pick it: unbiased, noisier; the pdf counts it as 0).
+* Tables: each bin's phase tables (``DiscreteMedium.bin_tables``) at each channel's tabulated wavelength (RGB:
+  the three channel wavelengths; mono: the middle one, as ``_bridge.channel_wavelengths``), normalised as the
+  core normalises them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..drjit_walk import DrJitGrid
+
+#: What ``kernel`` takes, and its default.
+KERNELS = ("native", "drjit")
+DEFAULT_KERNEL = "native"
+#: ``cells_per_particle`` where ``kernel = "drjit"`` (the native kernel's 0.125 elsewhere): the Dr.Jit walk tests
+#: every grain of a cell it passes near, so finer cells pay (``scenes_xml/cornell.xml``, 1e5 grains of reach 0.7 in
+#: a room of 54 units, 2e5 flights from random points in it: 0.125 gave cells of 3.7 units and 2.0 s; 1: 1.1 s;
+#: 4: 1.1 s; 16: 1.7 s; 2 cores).
+DRJIT_CELLS_PER_PARTICLE = 2.0
+#: The variants ``kernel = "drjit"`` renders in (its tables are per RGB or mono channel; no Mueller matrices).
+DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "cuda_ad_rgb", "cuda_ad_mono")
+#: The core's coincidence window as a share of the grains' extent (``event_geometry`` in
+#: ``rust/motes-core/src/render/discrete/build.rs``) and the site search's tolerance around it
+#: (``DiscreteMedium::site_near`` in ``phase.rs``): 4 coincide + ``SITE_RELATIVE`` |p|_max.
+COINCIDE_SHARE = 1e-6
+SITE_COINCIDE = 4.0
+SITE_RELATIVE = 1e-6
+#: The site tag (module docs, "Parent exclusion"): bits of a sampled direction's x that carry a hash of the
+#: site and of its y and z (6: 63 ulps at most, a relative 4e-6 of one component; 1 ray in 64 from
+#: elsewhere carries it by chance), and the ``maxt`` below which a ray counts as a shadow ray (Mitsuba's
+#: other rays have maxt = dr.Largest or inf; a perspective camera's far clip is below it, but a camera ray
+#: starts inside a grain's ball only where the camera is inside the medium).
+TAG_BITS = 6
+TAG_MASK = (1 << TAG_BITS) - 1
+SHADOW_MAXT = 1e30
+#: ``tag`` (the rule above) or ``ball``: every ray skips the grains whose ball holds its origin (for
+#: measuring the tag's effect: ``scripts/bench/bench_drjit_kernel.py --exclusion ball``).
+EXCLUSION = "tag"
+
+
+def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
+    """Why ``kernel`` cannot render in ``variant`` with ``storage`` (one sentence), or None."""
+    if kernel != "drjit":
+        return None
+    if variant not in DRJIT_VARIANTS:
+        return (f"discrete medium: kernel = drjit renders in {', '.join(DRJIT_VARIANTS)}, not {variant} (spectral and "
+                "polarised variants and scalar ones: use kernel = native)")
+    if storage == "procedural":
+        return ("discrete medium: kernel = drjit walks stored grains: storage = procedural is not supported "
+                "(use storage = compact or full, or kernel = native)")
+    return None
+
+
+class DrJitKernel:
+    """The medium's and its phase function's calls in Dr.Jit types over a ``motes.DiscreteMedium`` (module docs).
+    ``source``: the medium's data, or a ``_scene.PendingFill`` that makes it (built at the first call)."""
+
+    def __init__(self, source, seed: int = 0, majorant: float = 1e20):
+        self._source = source
+        self.seed = int(seed)
+        self.majorant = float(majorant)
+        self._ready = False
+
+    # -- set-up ------------------------------------------------------------------------------------
+    def data(self):
+        s = self._source
+        return s.result() if hasattr(s, "result") else s
+
+    def ready(self) -> "DrJitKernel":
+        if not self._ready:
+            self._upload(self.data())
+            self._ready = True
+        return self
+
+    def _upload(self, data) -> None:
+        if getattr(data, "continuous_particles", 0):
+            raise ValueError(f"discrete medium: kernel = drjit walks every grain, but continuous_count leaves "
+                             f"{data.continuous_particles} grains in continuous size classes: set continuous_count "
+                             "= inf (the drjit kernel's default) or use kernel = native")
+        a = data.core.flat_arrays()
+        if a is None:
+            raise ValueError("discrete medium: kernel = drjit needs stored grains (not storage = procedural, nor "
+                             "every size class continuous)")
+        self.grid = DrJitGrid(a)
+        self._bin = mi.UInt32(np.ascontiguousarray(a["bin"], dtype=np.uint32))
+        spheres = np.asarray(a["spheres"], dtype=np.float64).reshape(-1, 4)
+        if spheres.shape[0]:
+            extent = float(np.max(spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0)) + spheres[:, 3].max())
+        else:
+            extent = 0.0
+        self.coincide = COINCIDE_SHARE * max(extent, 1e-30)
+        self._tables(data)
+        self.set_albedo_scale(data.core.albedo_scale)
+        self._seed = [dr.opaque(mi.UInt32, self.seed & 0xFFFFFFFF), dr.opaque(mi.UInt32, (self.seed >> 32) & 0xFFFFFFFF)]
+
+    def _tables(self, data) -> None:
+        """Per (bin, channel): the phase table (mu ascending, f and CDF normalised as ``PhaseTable::new``) and
+        the albedo, flat, table ``b * channels + c``."""
+        albedos, theta, f, offsets = data.bin_tables[:4]
+        lam_nm = np.asarray(data.wavelength_um, dtype=np.float64) * 1e3
+        chan_nm = np.asarray(data.channel_wavelength_nm, dtype=np.float64)
+        if not mi.is_rgb:  # monochrome: the middle tabulated wavelength (``_bridge.channel_wavelengths``)
+            chan_nm = chan_nm[[chan_nm.size // 2]]
+        rows = []
+        for nm in chan_nm:
+            k = int(np.argmin(np.abs(lam_nm - nm)))
+            if abs(lam_nm[k] - nm) > 1e-6 * nm:
+                raise ValueError(f"discrete medium: kernel = drjit needs a table at each channel's wavelength ({nm} nm)")
+            rows.append(k)
+        n_bins, n_lam, ch = len(albedos), lam_nm.size, len(rows)
+        if len(offsets) != n_bins * n_lam + 1:  # one table per bin and tabulated wavelength, bin-major
+            raise ValueError(f"discrete medium: {len(offsets) - 1} phase tables for {n_bins} bins at {n_lam} wavelengths")
+        self.channels = ch
+        mu_all, f_all, cdf_all, off, cnt, alb = [], [], [], [], [], []
+        pos = 0
+        for b in range(n_bins):
+            for c in range(ch):
+                row = b * n_lam + rows[c]
+                th = np.asarray(theta[row], dtype=np.float64)
+                fv = np.asarray(f[row], dtype=np.float64)[::-1]
+                mu = np.cos(th[::-1])
+                mu[0], mu[-1] = -1.0, 1.0
+                cdf = np.concatenate([[0.0], np.cumsum(2 * np.pi * 0.5 * (fv[:-1] + fv[1:]) * np.diff(mu))])
+                total = cdf[-1]
+                mu_all.append(mu)
+                f_all.append(fv / total)
+                cdf_all.append(cdf / total)
+                off.append(pos)
+                cnt.append(mu.size)
+                pos += mu.size
+                alb.append(float(np.asarray(albedos[b])[rows[c]]))
+        self._mu = mi.Float(np.concatenate(mu_all).astype(np.float32))
+        self._f = mi.Float(np.concatenate(f_all).astype(np.float32))
+        self._cdf = mi.Float(np.concatenate(cdf_all).astype(np.float32))
+        self._off = mi.UInt32(np.asarray(off, dtype=np.uint32))
+        self._cnt = mi.UInt32(np.asarray(cnt, dtype=np.uint32))
+        self._albedo = mi.Float(np.asarray(alb, dtype=np.float32))
+        self._steps = max(1, math.ceil(math.log2(max(cnt))))  # bisection steps over the longest table
+
+    def set_albedo_scale(self, scale: float) -> None:
+        """The medium's ``albedo_scale`` (read at the next trace)."""
+        self._scale = dr.opaque(mi.Float, float(scale))
+
+    # -- medium ------------------------------------------------------------------------------------
+    def _ray_seed(self, ray):
+        """A per-ray seed: TEA over the bits of the ray's origin, direction and maxt and the medium's seed."""
+        bits = lambda x: dr.reinterpret_array(mi.UInt32, mi.Float(x))  # noqa: E731
+        h0, h1 = mi.sample_tea_32(bits(ray.o.x) ^ self._seed[0], bits(ray.o.y) ^ self._seed[1], 4)
+        h0, h1 = mi.sample_tea_32(h0 ^ bits(ray.o.z), h1 ^ bits(ray.d.x), 4)
+        h0, h1 = mi.sample_tea_32(h0 ^ bits(ray.d.y), h1 ^ bits(ray.d.z), 4)
+        h0, _ = mi.sample_tea_32(h0 ^ bits(ray.maxt), h1, 4)
+        return h0
+
+    def _tag(self, o, d):
+        """The low ``TAG_BITS`` bits a ray leaving a site carries in its direction's x (module docs, "Parent
+        exclusion"): a hash of its origin and of its direction's y and z."""
+        bits = lambda x: dr.reinterpret_array(mi.UInt32, mi.Float(x))  # noqa: E731
+        h0, h1 = mi.sample_tea_32(bits(o.x) ^ bits(d.y), bits(o.y) ^ bits(d.z), 4)
+        h0, _ = mi.sample_tea_32(h0 ^ bits(o.z), h1, 4)
+        return h0 & TAG_MASK
+
+    def from_site(self, ray):
+        """Whether a ray may start at a site (module docs): a shadow ray (finite ``maxt``) or one whose direction
+        carries the tag of its origin."""
+        if EXCLUSION == "ball":
+            return True
+        tagged = (dr.reinterpret_array(mi.UInt32, mi.Float(ray.d.x)) & TAG_MASK) == self._tag(ray.o, ray.d)
+        return tagged | (mi.Float(ray.maxt) < SHADOW_MAXT)
+
+    def intersect_aabb(self, ray):
+        self.ready()
+        t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, ray.maxt, self._ray_seed(ray),
+                                                   exclude_origin=self.from_site(ray))
+        return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
+
+    def get_majorant(self, mei, active=True):
+        return mi.UnpolarizedSpectrum(dr.select(active, mi.Float(self.majorant), 0.0))
+
+    def get_scattering_coefficients(self, mei, active=True):
+        sigma_t = mi.UnpolarizedSpectrum(dr.select(active, mi.Float(self.majorant), 0.0))
+        return sigma_t, mi.UnpolarizedSpectrum(0.0), sigma_t
+
+    # -- phase function ----------------------------------------------------------------------------
+    def eval_pdf(self, ctx, mei, wo, active=True):
+        self.ready()
+        d_in = -mi.Vector3f(mei.wi)
+        mu = dr.clip(dr.dot(mi.Vector3f(wo), d_in), -1.0, 1.0)
+        value, pdf, _ = self._site(mi.Point3f(mei.p), d_in, mu=mu, active=active)
+        return value, pdf
+
+    def sample(self, ctx, mei, sample1, sample2, active=True):
+        self.ready()
+        d_in = -mi.Vector3f(mei.wi)
+        ch = self.channels
+        u1 = mi.Float(sample1) * ch
+        c = mi.UInt32(dr.minimum(dr.floor(u1), ch - 1))
+        u = dr.clip(u1 - mi.Float(c), 0.0, 1.0)
+        p = mi.Point3f(mei.p)
+        _, members, tid = self._site(p, d_in, pick=(c, u), active=active)
+        valid = tid != 0xFFFFFFFF
+        mu = self._table_sample(tid, mi.Float(sample2.x), valid)
+        phi = 2 * dr.pi * mi.Float(sample2.y)
+        st = dr.safe_sqrt(1 - mu * mu)
+        sp, cp = dr.sincos(phi)
+        wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
+        # A site of one grain (most) needs no second walk: its bin's tables at mu, times its albedo.
+        one = valid & (members == 1)
+        value, pdf, _ = self._site(p, d_in, mu=mu, active=valid & ~one)
+        b = tid // ch
+        v1, p1 = [], dr.zeros(mi.Float, dr.width(mu))
+        for k in range(ch):
+            a_k = dr.gather(mi.Float, self._albedo, b * ch + k, one) * self._scale
+            f_k = self._table_eval(b * ch + k, mu, one & (a_k > 0))
+            v1.append(a_k * f_k)
+            p1 += f_k
+        value = dr.select(one, mi.UnpolarizedSpectrum(v1[0]) if ch == 1 else mi.UnpolarizedSpectrum(*v1), value)
+        pdf = dr.select(one, p1 / ch, pdf)
+        # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
+        wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
+        wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
+        ok = valid & (pdf > 0)
+        weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+        return wo, weight, dr.select(ok, pdf, 0.0)
+
+    # -- tables ------------------------------------------------------------------------------------
+    def _segment(self, keys, tid, x, active):
+        """The node i of table ``tid`` with keys[i] <= x < keys[i + 1] (clamped to its segments), by bisection."""
+        off = dr.gather(mi.UInt32, self._off, tid, active)
+        n = dr.gather(mi.UInt32, self._cnt, tid, active)
+        lo, hi = mi.UInt32(0), dr.select(active, n - 1, 1)  # keys[off + lo] <= x < keys[off + hi] (invariant)
+        for _ in range(self._steps):
+            mid = (lo + hi) >> 1
+            go = hi - lo > 1
+            right = dr.gather(mi.Float, keys, off + mid, active & go) <= x
+            lo = dr.select(go & right, mid, lo)
+            hi = dr.select(go & ~right, mid, hi)
+        return off + lo
+
+    def _table_eval(self, tid, mu, active):
+        i = self._segment(self._mu, tid, mu, active)
+        m0, m1 = dr.gather(mi.Float, self._mu, i, active), dr.gather(mi.Float, self._mu, i + 1, active)
+        f0, f1 = dr.gather(mi.Float, self._f, i, active), dr.gather(mi.Float, self._f, i + 1, active)
+        t = dr.clip(dr.select(m1 > m0, (mu - m0) / (m1 - m0), 0.0), 0.0, 1.0)
+        return dr.select(active, f0 + t * (f1 - f0), 0.0)
+
+    def _table_sample(self, tid, u, active):
+        """mu with CDF(mu) = u in table ``tid`` (``PhaseTable::sample_located``: the quadratic CDF inverted)."""
+        u = dr.clip(u, 0.0, 1.0)
+        i = self._segment(self._cdf, tid, u, active)
+        c0 = dr.gather(mi.Float, self._cdf, i, active)
+        m0, m1 = dr.gather(mi.Float, self._mu, i, active), dr.gather(mi.Float, self._mu, i + 1, active)
+        f0, f1 = dr.gather(mi.Float, self._f, i, active), dr.gather(mi.Float, self._f, i + 1, active)
+        dm = m1 - m0
+        q = 2 * dr.pi * dm
+        a, b = q * f0, q * (f1 - f0)
+        target = u - c0
+        disc = dr.maximum(a * a + 2 * b * target, 0.0)
+        lin = dr.abs(b) < 1e-6 * dr.abs(a)
+        t = dr.select(lin, dr.select(a > 0, target / dr.select(a > 0, a, 1.0), 0.5),
+                      2 * target / dr.select(a + dr.sqrt(disc) > 0, a + dr.sqrt(disc), 1.0))
+        t = dr.select(target > 0, dr.clip(t, 0.0, 1.0), 0.0)
+        return dr.clip(m0 + t * dm, -1.0, 1.0)
+
+    # -- the site ----------------------------------------------------------------------------------
+    @dr.syntax
+    def _site_sums(self, p, d_in, mu, pick, active):
+        """The walk of ``_site`` over the grains of the cells within reach of ``p`` per size class: per channel
+        sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given), or the picked table."""
+        g_ = self.grid
+        F, I, U = mi.Float, mi.Int32, mi.UInt32
+        ch = self.channels
+        n = max(dr.width(p), dr.width(d_in), 1 if mu is None else dr.width(mu),
+                1 if pick is None else dr.width(pick[1]))
+        tol = SITE_COINCIDE * self.coincide + SITE_RELATIVE * dr.maximum(dr.maximum(dr.abs(p.x), dr.abs(p.y)),
+                                                                         dr.abs(p.z))
+        px, py, pz = F(p.x), F(p.y), F(p.z)
+        dx, dy, dz = F(d_in.x), F(d_in.y), F(d_in.z)
+        evaluating = mu is not None
+        if evaluating:
+            mu = F(mu)
+            c_pick, u = dr.zeros(U, n), dr.zeros(F, n)
+        else:
+            mu = dr.zeros(F, n)
+            c_pick, u = U(pick[0]), F(pick[1])
+        A = [dr.zeros(F, n) for _ in range(ch)]
+        N = [dr.zeros(F, n) for _ in range(ch)]
+        T = dr.zeros(F, n)
+        W = dr.zeros(F, n)
+        tid = dr.full(U, 0xFFFFFFFF, n)
+        step = self._accumulate if evaluating else self._reservoir
+        k = dr.select(mi.Bool(active), U(0), g_._n_classes)  # inactive lanes walk nothing
+        while k < g_._n_classes:
+            inv_cell = dr.gather(F, g_._inv_cell, k)
+            soff = dr.gather(U, g_._class_start, k)
+            dims = [dr.gather(I, g_._dims, 3 * k + a) for a in range(3)]
+            # The cells within the class's reach of p (a grain is stored in its centre's cell).
+            reach = dr.gather(F, g_._reach, k)
+            pq = (px, py, pz)
+            at = [(pq[a] - dr.gather(F, g_._lo, 3 * k + a)) * inv_cell for a in range(3)]
+            c0 = [dr.maximum(I(dr.floor(at[a] - reach)), 0) for a in range(3)]
+            c1 = [dr.minimum(I(dr.floor(at[a] + reach)), dims[a] - 1) for a in range(3)]
+            x0, x1 = c0[0], c1[0]
+            ny = dr.maximum(c1[1] - c0[1] + 1, 1)
+            rows = dr.select((x0 <= x1) & (c0[1] <= c1[1]) & (c0[2] <= c1[2]), ny * (c1[2] - c0[2] + 1), 0)
+            r = dr.zeros(I, n)
+            while r < rows:
+                y = c0[1] + r % ny
+                z = c0[2] + r // ny
+                ok = r < rows
+                row = soff + U((z * dims[1] + y) * dims[0])
+                g = dr.gather(U, g_._start, row + U(x0), ok)
+                g1 = dr.select(ok, dr.gather(U, g_._start, row + U(x1 + 1), ok), g)
+                while g < g1:
+                    s = dr.gather(mi.Vector4f, g_._spheres, g)
+                    vx, vy, vz = s[0] - px, s[1] - py, s[2] - pz
+                    along = vx * dx + vy * dy + vz * dz
+                    qx, qy, qz = vx - along * dx, vy - along * dy, vz - along * dz
+                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < s[3] * s[3])
+                    A, N, T, W, u, tid = step(g, member, mu, c_pick, A, N, T, W, u, tid)
+                    g += 1
+                r += 1
+            k += 1
+        return A, N, T, tid
+
+    def _accumulate(self, g, member, mu, c_pick, A, N, T, W, u, tid):
+        """``_site_sums``' step at grain ``g`` (a member of the site or not) when evaluating at ``mu``."""
+        F, U, ch = mi.Float, mi.UInt32, self.channels
+        tau = dr.gather(F, self.grid._tau, g, member)
+        b = dr.gather(U, self._bin, g, member)
+        a_new, n_new = [], []
+        for c in range(ch):
+            w = dr.select(member, tau * dr.gather(F, self._albedo, b * ch + c, member) * self._scale, 0.0)
+            a_new.append(A[c] + w)
+            n_new.append(N[c] + w * self._table_eval(b * ch + c, mu, member & (w > 0)))
+        return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, tid
+
+    def _reservoir(self, g, member, mu, c_pick, A, N, T, W, u, tid):
+        """``_site_sums``' step at grain ``g`` when picking a grain by tau_j a_jc in channel ``c_pick``: one pass
+        of weighted reservoir sampling with one uniform, rescaled at each grain (``T`` counts the members)."""
+        F, U, ch = mi.Float, mi.UInt32, self.channels
+        tau = dr.gather(F, self.grid._tau, g, member)
+        b = dr.gather(U, self._bin, g, member)
+        w = dr.select(member, tau * dr.gather(F, self._albedo, b * ch + c_pick, member) * self._scale, 0.0)
+        W = W + w
+        share = dr.select(W > 0, w / dr.select(W > 0, W, 1.0), 0.0)
+        take = (w > 0) & (u < share)
+        u = dr.select(take, u / dr.select(share > 0, share, 1.0),
+                      dr.select(w > 0, (u - share) / dr.select(share < 1, 1 - share, 1.0), u))
+        u = dr.clip(u, 0.0, 0.99999994)
+        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b * ch + c_pick, tid)
+
+    def _site(self, p, d_in, mu=None, pick=None, active=True):
+        """The site at ``p`` on the ray along ``d_in`` (module docs). With ``mu``: (value per channel, pdf,
+        -); with ``pick`` = (channel, uniform): (-, -, the picked grain's table or 2^32 - 1)."""
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
+            A, N, T, tid = self._site_sums(p, d_in, mu, pick, active)
+        if mu is None:
+            return None, T, tid
+        ch = self.channels
+        value = [dr.select(T > 0, N[c] / dr.select(T > 0, T, 1.0), 0.0) for c in range(ch)]
+        pdf = dr.zeros(mi.Float, dr.width(T))
+        for c in range(ch):
+            pdf += dr.select(A[c] > 0, N[c] / dr.select(A[c] > 0, A[c], 1.0), 0.0)
+        spec = mi.UnpolarizedSpectrum(value[0]) if ch == 1 else mi.UnpolarizedSpectrum(*value)
+        return spec, pdf / ch, tid

@@ -1,0 +1,114 @@
+"""Issue 46: ``kernel = "drjit"`` (``mitsuba_plugin/motes/plugins/drjit_medium.py``) against the native kernel
+on the shipped scenes (``scenes_xml/*.xml``) in ``llvm_ad_rgb``, side by side in one process.
+
+Per scene three configurations of its discrete medium: ``drjit`` (exact: continuous_count = inf, its default),
+``native-exact`` (continuous_count = inf) and ``native`` (the scene's defaults). Each renders ``--seeds`` times
+at ``--res`` px and ``--spp`` spp after one warm-up render (the kernels compile there); the configurations
+take turns seed by seed, so that a busy machine slows them alike. Seeds differ between configurations
+(independent noise). Printed per configuration: the image mean, its z against ``native-exact`` (difference
+of the means over the renders' spread), the per-pixel RMS difference of the mean images over their noise
+(about 1 where they differ by noise alone; estimated from the seeds' spread), and seconds per render with
+the ratio to ``native-exact``. Scenes whose medium is procedural are skipped (the drjit kernel walks
+stored grains), with a line saying so. ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
+grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
+drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
+its site tag).
+
+    .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
+        [--seeds 4] [--exclusion tag|ball] [--max-depth 16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import re
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+CONFIGS = {"drjit": {"kernel": "drjit"}, "native-exact": {"continuous_count": "inf"}, "native": {}}
+REFERENCE = "native-exact"
+
+
+def load(mi, name: str, res: int, extra: dict):
+    """Scene ``name`` at ``res`` px with ``extra`` set on its discrete media (added after the tag)."""
+    if name == "sidelit":
+        import sys  # noqa: PLC0415
+
+        sys.path.insert(0, str(ROOT / "scripts" / "bench"))
+        sys.path.insert(0, str(ROOT / "scripts"))
+        import bench_lod  # noqa: PLC0415
+
+        return mi.load_dict(bench_lod.sidelit(mi, res, 0.0, {k: float(v) if k != "kernel" else v
+                                                            for k, v in extra.items()}))
+    text = (ROOT / "scenes_xml" / f"{name}.xml").read_text()
+    tags = "".join(f'<{"string" if k == "kernel" else "float"} name="{k}" value="{v}"/>' for k, v in extra.items())
+    text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, text)
+    return mi.load_string(text, res=res)
+
+
+def compare(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(z of the mean of ``a`` against ``b``, per-pixel RMS difference of their mean images over the noise)."""
+    ma, mb = a.mean(axis=(1, 2, 3)), b.mean(axis=(1, 2, 3))
+    se = np.hypot(ma.std(ddof=1), mb.std(ddof=1)) / np.sqrt(len(ma))
+    noise = a.var(axis=0, ddof=1) / a.shape[0] + b.var(axis=0, ddof=1) / b.shape[0]
+    return float((ma.mean() - mb.mean()) / se), float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", default=",".join(sorted(p.stem for p in (ROOT / "scenes_xml").glob("*.xml"))))
+    ap.add_argument("--res", type=int, default=32)
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--exclusion", choices=("tag", "ball"), default="tag")
+    ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
+    args = ap.parse_args()
+    import motes  # noqa: PLC0415
+
+    motes.set_variant("llvm_ad_rgb")
+    import mitsuba as mi  # noqa: PLC0415
+
+    from motes.plugins import drjit_medium  # noqa: PLC0415
+
+    drjit_medium.EXCLUSION = args.exclusion
+
+    print(f"llvm_ad_rgb, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
+          f"against {REFERENCE}")
+    print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s}")
+    for name in args.scenes.split(","):
+        if name == "sidelit":
+            import sys  # noqa: PLC0415
+
+            sys.path.insert(0, str(ROOT / "scripts" / "bench"))
+            sys.path.insert(0, str(ROOT / "scripts"))
+            import bench_lod  # noqa: PLC0415
+
+            bench_lod.MAX_DEPTH[0] = args.max_depth
+        elif "procedural" in (ROOT / "scenes_xml" / f"{name}.xml").read_text():
+            print(f"{name:10s} skipped: storage = procedural (the drjit kernel walks stored grains)")
+            continue
+        scenes = {c: load(mi, name, args.res, extra) for c, extra in CONFIGS.items()}
+        imgs: dict = {c: [] for c in CONFIGS}
+        secs: dict = {c: [] for c in CONFIGS}
+        for c, sc in scenes.items():
+            mi.render(sc, spp=args.spp, seed=999)  # warm-up: the kernels compile
+        for s in range(args.seeds):
+            for i, (c, sc) in enumerate(scenes.items()):
+                t0 = time.perf_counter()
+                img = np.asarray(mi.render(sc, spp=args.spp, seed=1000 * i + s), dtype=np.float64)
+                secs[c].append(time.perf_counter() - t0)
+                imgs[c].append(img)
+        ref = np.stack(imgs[REFERENCE])
+        t_ref = float(np.median(secs[REFERENCE]))
+        for c in CONFIGS:
+            a = np.stack(imgs[c])
+            z, rms = compare(a, ref) if c != REFERENCE else (0.0, 0.0)
+            t = float(np.median(secs[c]))
+            print(f"{name:10s} {c:13s} {a.mean():10.5g} {z:6.2f} {rms:9.2f} {t:9.3f} {t / t_ref:6.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

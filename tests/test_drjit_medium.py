@@ -1,0 +1,166 @@
+"""``kernel = "drjit"`` (``motes/plugins/drjit_medium.py``, issue 46): the discrete medium and its phase function
+in Dr.Jit types, against the native kernel in ``llvm_ad_rgb``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import motes
+
+mi = pytest.importorskip("mitsuba")
+import drjit as dr  # noqa: E402
+from _scenes import interactions_at_origin, phase_chi2  # noqa: E402
+
+INF = float("inf")
+
+
+def llvm():
+    motes.set_variant("llvm_ad_rgb")
+    if "llvm_ad_rgb" not in motes.native_variants():
+        pytest.skip(f"the native kernel is off in llvm_ad_rgb ({motes.native.failure()})")
+
+
+@pytest.fixture(scope="module")
+def grains(tmp_path_factory):
+    """``scripts/bench/bench_lod.py``'s side-lit cloud: 300 grains uniform in the local cube, radii uniform in
+    200-450 um, as a particle file."""
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-1, 1, (300, 3))
+    path = tmp_path_factory.mktemp("grains") / "sidelit.npz"
+    np.savez(path, positions=p, radii_um=rng.uniform(200.0, 450.0, 300))
+    return str(path)
+
+
+def cloud(kernel, filename, **kw):
+    """The grains of ``filename`` in the local cube scaled to +-10 mm, exact (continuous_count inf)."""
+    d = {"type": "discrete", "filename": filename, "eta": 1.5, "scale_m": 1e-3, "continuous_count": INF,
+         "kernel": kernel, "to_world": mi.ScalarTransform4f().scale(10.0), "phase": {"type": "particle"}}
+    d.update(kw)
+    return d
+
+
+def scene(medium, res, max_depth=16, sky=0.0):
+    """``medium`` in a cube of half-size 10, its grains' box (grains straddle its faces: rays entering through a
+    grain's ball must not skip it), a point light to its left, a dim sky."""
+    T = mi.ScalarTransform4f
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath", "max_depth": max_depth},
+        "sensor": {"type": "perspective", "fov": 30, "to_world": T().look_at(origin=[0, 0, 60], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "lamp": {"type": "point", "position": [-22.0, 0.0, 0.0], "intensity": {"type": "rgb", "value": 400.0}},
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": sky}},
+        "cube": {"type": "cube", "to_world": T().scale(10.0), "bsdf": {"type": "null"}, "interior": medium}})
+
+
+def renders(sc, spp, seeds):
+    return np.stack([np.asarray(mi.render(sc, spp=spp, seed=s), dtype=np.float64) for s in seeds])
+
+
+def compare(a, b):
+    """(z of the image means over renders, per-pixel RMS difference of the mean images over their noise)."""
+    ma, mb = a.mean(axis=(1, 2, 3)), b.mean(axis=(1, 2, 3))
+    z = (ma.mean() - mb.mean()) / np.hypot(ma.std(ddof=1), mb.std(ddof=1)) * np.sqrt(len(ma))
+    noise = a.var(axis=0, ddof=1) / a.shape[0] + b.var(axis=0, ddof=1) / b.shape[0]
+    return z, float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono"])
+def test_white_furnace(variant):
+    """Non-absorbing grains in a box under a constant sky render 1 within 3 standard errors (no Russian roulette)."""
+    motes.set_variant(variant)
+    T = mi.ScalarTransform4f
+    sc = mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 100000},
+        "sensor": {"type": "perspective", "fov": 28, "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 24, "height": 24, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "cube": {"type": "cube", "bsdf": {"type": "null"},
+                 "interior": {"type": "discrete", "count": 20000, "radius_median": 20.0, "scale_m": 1e-3,
+                              "query_radius": 0.02, "albedo": 1.0, "kernel": "drjit", "size_bins": 4,
+                              "phase": {"type": "particle"}}}})
+    img = np.asarray(mi.render(sc, spp=32, seed=1), dtype=np.float64)
+    pix = img.reshape(-1, img.shape[-1]).mean(axis=1)
+    m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
+    assert abs(m - 1) < 3 * se, f"furnace {m:.4f} +- {se:.4f}"
+    assert se < 0.01
+
+
+def test_renders_as_native(grains):
+    """The same grains under a point light: drjit and native (both exact) agree in the image mean over four seeds
+    (3 SE) and per pixel (RMS difference within 1.2 times the noise). Grains straddle the cube's faces: with every
+    ray skipping the grains whose ball holds its origin (``EXCLUSION = "ball"``) this fails (RMS / noise 1.4)."""
+    llvm()
+    seeds = range(8)
+    a = renders(scene(cloud("drjit", grains), 32), 32, seeds)
+    b = renders(scene(cloud("native", grains), 32), 32, [100 + s for s in seeds])
+    z, rms = compare(a, b)
+    assert abs(z) < 3, f"z = {z:.2f} (means {a.mean():.5f}, {b.mean():.5f})"
+    assert rms < 1.2, f"RMS / noise = {rms:.2f}"
+
+
+@pytest.mark.parametrize("grains", [1, 3])
+def test_phase_chi2(grains):
+    """The phase function samples what it evaluates at a site of one grain, and of three coinciding grains of three
+    species (a mixture; Mie sizes, per-channel tables): mitsuba.chi2. Its values equal the core's f_c times the
+    site's albedo."""
+    llvm()
+    from motes.plugins.drjit_medium import DrJitKernel
+
+    species = [motes.Species(motes.Uniform(0.4, 0.6), 1.33), motes.Species(motes.Uniform(1.0, 1.2), 1.5),
+               motes.Species(motes.Uniform(2.5, 3.0), 1.33 + 0.01j)][:grains]
+    data = motes.DiscreteMedium(np.zeros((grains, 3)), [0.5, 1.1, 2.7][:grains], list(range(grains)), species,
+                                motes.RGB_WAVELENGTHS_UM, query_radius=1e-6, size_bins=1, continuous_count=INF,
+                                storage="full")
+    k = DrJitKernel(data)
+    ctx = mi.PhaseFunctionContext()
+    wi = mi.Vector3f(0.3, -0.2, 0.9327379)
+    mei_of = interactions_at_origin(mi, dr, wi)
+
+    passed, messages = phase_chi2(mi, dr, k, mei_of)
+    assert passed, messages
+    # Values: the core's mixture f_c (evaluated-mode call) times the site's tau-weighted albedo.
+    rng = np.random.default_rng(1)
+    wo = rng.normal(size=(64, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    v, p = k.eval_pdf(ctx, mei_of(64), mi.Vector3f(*(mi.Float(wo[:, a].astype(np.float32)) for a in range(3))))
+    v = np.stack([np.asarray(v[c]) for c in range(3)], axis=1)
+    data.core.insert_event((0.0, 0.0, 0.0), list(range(grains)))
+    wi_np = np.tile(np.array([0.3, -0.2, 0.9327379], dtype=np.float32), 64)
+    f, pdf_core = data.core.phase_eval(np.zeros(192, np.float32), wi_np, wo.astype(np.float32).ravel(),
+                                       data.channel_wavelength_nm, 3)
+    flat = data.core.flat_arrays()  # the site's tau-weighted albedo, from the grains' bins
+    tau = np.asarray(flat["tau"], dtype=np.float64)
+    lam = np.asarray(data.wavelength_um) * 1e3
+    rows = [int(np.argmin(np.abs(lam - nm))) for nm in data.channel_wavelength_nm]
+    alb = np.array([np.asarray(data.bin_tables[0][b])[rows] for b in np.asarray(flat["bin"])])
+    site_albedo = (tau[:, None] * alb).sum(0) / tau.sum()
+    np.testing.assert_allclose(np.asarray(p), pdf_core, rtol=2e-4)
+    np.testing.assert_allclose(v, f.reshape(64, 3) * site_albedo, rtol=2e-4)
+
+
+@pytest.mark.parametrize("extra,message", [
+    ({"kernel": "cuda"}, "kernel"),
+    ({"storage": "procedural"}, "storage = procedural"),
+])
+def test_clear_errors(extra, message):
+    llvm()
+    with pytest.raises(Exception, match=message):
+        mi.load_dict({"type": "discrete", "count": 100, "kernel": "drjit", "phase": {"type": "particle"}, **extra})
+
+
+def test_continuous_classes_are_an_error(grains):
+    """A finite continuous_count that leaves continuous size classes is an error naming it (at load where the grains
+    are placed by to_world)."""
+    llvm()
+    with pytest.raises(Exception, match="continuous_count"):
+        scene({"type": "discrete", "count": 20000, "radius_median": 20.0, "query_radius": 0.3, "continuous_count": 1.0,
+               "kernel": "drjit", "to_world": mi.ScalarTransform4f().scale(10.0), "phase": {"type": "particle"}}, 8)
+
+
+def test_other_variants_are_an_error():
+    motes.set_variant("scalar_rgb")
+    with pytest.raises(Exception, match="kernel = drjit renders in"):
+        mi.load_dict({"type": "discrete", "count": 100, "kernel": "drjit", "phase": {"type": "particle"}})
