@@ -3,8 +3,11 @@
 # Packed beforehand here with `bash scripts/device/pack.sh`; then one call of the device tool:
 #   command: bash scripts/device/run.sh      carry: [".device", "mitsuba_plugin/motes/_motes.abi3.so"]
 #   timeout_s: 540
-# Unpacks the trimmed Mitsuba/Dr.Jit wheels, prints the GPU, runs the Dr.Jit walk's tests in cuda_ad_rgb and
-# scripts/device/cuda_check.py (10^5, 10^6, 10^8 grains), writing its JSON and the kernel history to $OUT.
+# Unpacks the trimmed Mitsuba/Dr.Jit wheels, prints the GPU, runs the Dr.Jit walk's tests in cuda_ad_rgb,
+# scripts/device/cuda_check.py (the walk: 10^5, 10^6, 10^8 grains against the Rust core on that machine's CPUs)
+# and scripts/device/cuda_render.py (dust_box with kernel = drjit against the llvm_ad_rgb references packed here;
+# a 10^8-grain cloud against the native kernel in scalar_rgb there), JSON and kernel histories to $OUT.
+# Untested on a GPU (none has been lent yet): if the first call runs out of time, split the steps.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-out}
@@ -16,4 +19,6 @@ python3 -c 'import mitsuba as mi; mi.set_variant("cuda_ad_rgb"); print("cuda_ad_
   | tee -a "$OUT/gpu.txt"
 MOTES_TEST_VARIANT=cuda_ad_rgb timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_drjit_walk.py 2>&1 \
   | tail -5 | tee "$OUT/tests.txt"
-timeout 360 python3 scripts/device/cuda_check.py --out "$OUT" --grains 1e5,1e6,1e8 --rays 1e6 2>&1 | tee "$OUT/check.txt"
+mkdir -p "$OUT/walk" "$OUT/render"
+timeout 200 python3 scripts/device/cuda_check.py --out "$OUT/walk" --grains 1e5,1e6,1e8 --rays 1e6 2>&1 | tee "$OUT/walk/check.txt"
+timeout 300 python3 scripts/device/cuda_render.py --out "$OUT/render" --count 1e8 --seeds 4 2>&1 | tee "$OUT/render/render.txt"
