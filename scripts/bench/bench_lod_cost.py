@@ -1,5 +1,6 @@
-"""The level of detail's cost cliff (issue 43, open): a haze of 0.5 um grains (the sky gallery's middle panel,
-`scripts/paper/sky_polarisation.py`, unpolarised here: llvm_ad_spectral) rendered at a few (res, spp). Doubling
+"""The level of detail's cost cliff (a known limitation, found under issue 43): a haze of 0.5 um grains (the sky
+gallery's middle panel, `scripts/paper/sky_polarisation.py`, unpolarised here: llvm_ad_spectral) rendered at a
+few (res, spp). Doubling
 spp doubles the rays, but each ray costs about ten times more; a finer film does the same. The camera rule (walk
 the grains where a pixel's footprint holds fewer than 2.5 spp of them) sends a tenth of the camera rays from the
 grains' field to walking this dense haze there (the last column). That is what the rule asks for (a pixel's light then
