@@ -47,6 +47,15 @@ def best(f, reps: int):
     return min(times), out
 
 
+def write_kernel_history(out: pathlib.Path) -> None:
+    """``dr.kernel_history()`` (each kernel's backend, size and times) as ``out/kernel_history.json``."""
+    import drjit as dr
+
+    (out / "kernel_history.json").write_text(json.dumps(
+        [{k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v)) for k, v in h.items()}
+         for h in dr.kernel_history()], indent=1))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--grains", default="1e5,1e6,1e8")
@@ -138,10 +147,7 @@ def main() -> int:
               f"mean t z {z_t:+.2f}", flush=True)
         del w, grid
         dr.flush_malloc_cache()
-    history = dr.kernel_history()
-    (out / "kernel_history.json").write_text(json.dumps(
-        [{k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v)) for k, v in h.items()}
-         for h in history], indent=1))
+    write_kernel_history(out)
     (out / "summary.json").write_text(json.dumps({"variant": args.variant, "rows": rows}, indent=1))
     bad = [r for r in rows if r["tau_within_1e-3"] < 0.99 or abs(r["escape_z"]) > 4 or abs(r["t_mean_z"]) > 4]
     print("OK" if not bad else f"MISMATCH in {[r['grains'] for r in bad]}")

@@ -29,6 +29,11 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "mitsuba_plugin"))
+sys.path.insert(0, str(ROOT / "scripts" / "bench"))
+sys.path.insert(0, str(ROOT / "scripts" / "device"))
+
+import bench_drjit_kernel  # noqa: E402
+from cuda_check import write_kernel_history  # noqa: E402
 
 
 def dust_box(mi, res: int, kernel_tags: str):
@@ -62,11 +67,9 @@ def renders(mi, scene, spp: int, seeds: int) -> tuple[np.ndarray, float]:
 
 
 def compare(a: np.ndarray, b: np.ndarray) -> dict:
-    ma, mb = a.mean(axis=(1, 2, 3)), b.mean(axis=(1, 2, 3))
-    se = np.hypot(ma.std(ddof=1), mb.std(ddof=1)) / np.sqrt(len(ma))
-    noise = a.var(axis=0, ddof=1) / a.shape[0] + b.var(axis=0, ddof=1) / b.shape[0]
-    return {"mean": float(ma.mean()), "reference_mean": float(mb.mean()), "z": float((ma.mean() - mb.mean()) / se),
-            "rms_over_noise": float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))}
+    """Image means, z and RMS/noise (``bench_drjit_kernel.compare``) of renders ``a`` against ``b``."""
+    z, rms = bench_drjit_kernel.compare(a, b)
+    return {"mean": float(a.mean()), "reference_mean": float(b.mean()), "z": z, "rms_over_noise": rms}
 
 
 def main() -> int:
@@ -133,10 +136,7 @@ def main() -> int:
     result["cloud"].update(compare(gpu, cpu), cpu_seconds_per_render=cpu_sec, cpu_load_s=cpu_load)
     print("cloud against scalar_rgb native exact:", result["cloud"], flush=True)
     (out / "render.json").write_text(json.dumps(result, indent=1))
-    history = dr.kernel_history()
-    (out / "kernel_history.json").write_text(json.dumps(
-        [{k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v)) for k, v in h.items()}
-         for h in history], indent=1))
+    write_kernel_history(out)
     ok = abs(result["dust_box"]["z"]) < 3 and abs(result["cloud"]["z"]) < 3
     print("OK" if ok else "MISMATCH")
     return 0 if ok else 1

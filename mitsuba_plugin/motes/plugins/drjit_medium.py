@@ -99,6 +99,11 @@ SHADOW_MAXT = 1e30
 EXCLUSION = "tag"
 
 
+def bits(x):
+    """A float's bits (``mi.UInt32``): what the ray's and the site's hashes read."""
+    return dr.reinterpret_array(mi.UInt32, mi.Float(x))
+
+
 def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
     """Why ``kernel`` cannot render in ``variant`` with ``storage`` (one sentence), or None."""
     if kernel != "drjit":
@@ -205,7 +210,6 @@ class DrJitKernel:
     # -- medium ------------------------------------------------------------------------------------
     def _ray_seed(self, ray):
         """A per-ray seed: TEA over the bits of the ray's origin, direction and maxt and the medium's seed."""
-        bits = lambda x: dr.reinterpret_array(mi.UInt32, mi.Float(x))  # noqa: E731
         h0, h1 = mi.sample_tea_32(bits(ray.o.x) ^ self._seed[0], bits(ray.o.y) ^ self._seed[1], 4)
         h0, h1 = mi.sample_tea_32(h0 ^ bits(ray.o.z), h1 ^ bits(ray.d.x), 4)
         h0, h1 = mi.sample_tea_32(h0 ^ bits(ray.d.y), h1 ^ bits(ray.d.z), 4)
@@ -215,7 +219,6 @@ class DrJitKernel:
     def _tag(self, o, d):
         """The low ``TAG_BITS`` bits a ray leaving a site carries in its direction's x (module docs, "Parent
         exclusion"): a hash of its origin and of its direction's y and z."""
-        bits = lambda x: dr.reinterpret_array(mi.UInt32, mi.Float(x))  # noqa: E731
         h0, h1 = mi.sample_tea_32(bits(o.x) ^ bits(d.y), bits(o.y) ^ bits(d.z), 4)
         h0, _ = mi.sample_tea_32(h0 ^ bits(o.z), h1, 4)
         return h0 & TAG_MASK
