@@ -87,7 +87,7 @@ def main() -> None:
             import bench_lod  # noqa: PLC0415
 
             bench_lod.MAX_DEPTH[0] = args.max_depth
-        elif "procedural" in (ROOT / "scenes_xml" / f"{name}.xml").read_text():
+        elif re.search(r'name="storage" value="procedural"', (ROOT / "scenes_xml" / f"{name}.xml").read_text()):
             print(f"{name:10s} skipped: storage = procedural (the drjit kernel walks stored grains)")
             continue
         scenes = {c: load(mi, name, args.res, extra) for c, extra in CONFIGS.items()}
