@@ -187,6 +187,11 @@ class DiscreteMedium:
         """Remember an event of ``particles`` at ``p`` (tests and tools): indices with full storage, positions in
         the grid with compact storage."""
     def optical_depth(self, segments: Segments) -> F64: ...
+    def flat_tables(self) -> dict[str, npt.NDArray[np.generic]]:
+        """The bins' optics tables as flat arrays: "mu", "f", "cdf" (table i's nodes at offset[i]..offset[i + 1]:
+        increasing mu, f normalised, P(mu' <= mu)), "offset", and "albedo" per table; table ``bin * n_lambda + k``
+        at tabulated wavelength k."""
+        ...
     def flat_arrays(self) -> dict[str, npt.NDArray[np.generic]] | None:
         """The grains walked one by one as ``ParticleGrid.flat_arrays`` gives them (grey tau; "index": what the
         medium names a grain by) and "bin" (n,) uint32 each grain's optics bin; None where no grain is stored

@@ -1,5 +1,5 @@
 """Issue 46: ``kernel = "drjit"`` (``mitsuba_plugin/motes/plugins/drjit_medium.py``) against the native kernel
-on the shipped scenes (``scenes_xml/*.xml``) in ``llvm_ad_rgb``, side by side in one process.
+on the shipped scenes (``scenes_xml/*.xml``) in ``llvm_ad_rgb`` (or ``--variant``), side by side in one process.
 
 Per scene three configurations of its discrete medium: ``drjit`` (exact: continuous_count = inf, its default),
 ``native-exact`` (continuous_count = inf) and ``native`` (the scene's defaults). Each renders ``--seeds`` times
@@ -15,7 +15,7 @@ drjit kernel with every ray skipping the grains whose ball holds its origin (``d
 its site tag).
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--exclusion tag|ball] [--max-depth 16]
+        [--seeds 4] [--exclusion tag|ball] [--max-depth 16] [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono]
 """
 
 from __future__ import annotations
@@ -65,17 +65,18 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--exclusion", choices=("tag", "ball"), default="tag")
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
+    ap.add_argument("--variant", choices=("llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_mono"), default="llvm_ad_rgb")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
-    motes.set_variant("llvm_ad_rgb")
+    motes.set_variant(args.variant)
     import mitsuba as mi  # noqa: PLC0415
 
     from motes.plugins import drjit_medium  # noqa: PLC0415
 
     drjit_medium.EXCLUSION = args.exclusion
 
-    print(f"llvm_ad_rgb, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
+    print(f"{args.variant}, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
           f"against {REFERENCE}")
     print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s}")
     for name in args.scenes.split(","):

@@ -10,8 +10,9 @@
 * In ``scalar_rgb``, ``scalar_spectral``, ``llvm_ad_rgb`` and ``llvm_ad_spectral`` the plugins render through
   the native C++ plugin (``motes.native``; built on first use), in Mitsuba's default symbolic mode. In the
   other variants (or with ``MOTES_NATIVE=0``, or when it cannot be built: a warning says why) they hand
-  numpy batches to Rust, which in JIT variants needs the evaluated ("wavefront") mode: ``SymbolicLoops``
-  and ``SymbolicCalls`` are then switched off on the calling thread.
+  numpy batches to Rust, which in LLVM variants needs the evaluated ("wavefront") mode: ``SymbolicLoops``
+  and ``SymbolicCalls`` are then switched off on the calling thread. CUDA variants render with
+  ``kernel = "drjit"`` (``drjit_medium.py``), Dr.Jit code that runs in Mitsuba's symbolic mode.
 * Mitsuba's scene loaders (``mi.load_file``, ``load_dict``, ``load_string``) warn when a ``discrete``
   medium's particles lie mostly outside the shape that holds it (``motes.plugins.scene_checks``).
 * The plugins are registered for the variant (registration is per variant; ``register()`` does only that,
@@ -65,7 +66,7 @@ def register() -> None:
         if not _native.load(variant) and variant in _native.NATIVE_VARIANTS and _native.requested():
             warnings.warn(f"motes: the native render path is unavailable ({_native.failure()}); {variant} renders "
                           "through the slower evaluated-mode Python path", RuntimeWarning, stacklevel=2)
-    if variant.startswith(("llvm_", "cuda_")) and variant not in _native.loaded_variants():
+    if variant.startswith("llvm_") and variant not in _native.loaded_variants():
         # The Python path hands numpy batches to Rust: evaluated mode, on this thread (Dr.Jit's flags are
         # per thread; a render from another thread must call motes.set_evaluated_mode() there first).
         set_evaluated_mode(True)

@@ -137,11 +137,12 @@ Parameter                    Type       Meaning (default)
 ``sample_emitters``          boolean    next-event estimation at scattering events (true)
 ``kernel``                   string     ``native``: the C++/Rust render path where it is built (below, "Render
                                         paths"); ``drjit``: Dr.Jit-typed code traced into Mitsuba's kernels,
-                                        no Rust call at render time (``llvm_ad_rgb``, ``llvm_ad_mono``; the
+                                        no Rust call at render time (``llvm_ad_rgb``, ``_mono``, ``_spectral``; the
                                         exact medium: ``continuous_count`` defaults to inf, a finite one that
                                         leaves continuous classes is an error, as are ``storage = procedural``
                                         and other variants; ``cells_per_particle`` defaults to 2 there;
-                                        ``motes/plugins/drjit_medium.py``) (``native``)
+                                        ``motes/plugins/drjit_medium.py``) (``native``; ``drjit``, the only
+                                        one, in ``cuda_ad_*``)
 ``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
                                         flights); true is ignored, with one warning (false)
 ``<phase>`` child            phase      the grains' phase function: ``particle``, their own (the default, also
@@ -317,7 +318,7 @@ from .. import _memory, _motes, native
 from .. import psd as psd_mod
 from ._bridge import bind_to_variant, symbolic_mode, channel_wavelengths, is_jit, mask, require_evaluated_mode, spectrum, vec3
 from . import cameras, particle_phase
-from .drjit_medium import DEFAULT_KERNEL, DRJIT_CELLS_PER_PARTICLE, KERNELS, DrJitKernel, kernel_problem
+from .drjit_medium import DRJIT_CELLS_PER_PARTICLE, KERNELS, DrJitKernel, default_kernel, kernel_problem
 from ._scene import PendingFill, native_data, pending_of
 
 #: What ``storage`` takes: a stored medium's two, or particles generated on demand and never stored.
@@ -721,7 +722,7 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
         bad.append("discrete medium: footprint_k needs fov, film_width and z_med (Eq. 23), all four")
     elif all(eq23) and p.query_radius is not None:
         bad.append("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
-    p.kernel = get("kernel", DEFAULT_KERNEL, str, lambda v: v in KERNELS, "one of " + ", ".join(KERNELS))
+    p.kernel = get("kernel", default_kernel(mi.variant()), str, lambda v: v in KERNELS, "one of " + ", ".join(KERNELS))
     problem = kernel_problem(p.kernel, mi.variant(), p.storage)
     if problem:
         bad.append(problem)

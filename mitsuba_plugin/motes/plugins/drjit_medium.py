@@ -1,14 +1,14 @@
 """``kernel = "drjit"``: the ``discrete`` medium and its ``particle`` phase function as Dr.Jit-typed code,
 traced into Mitsuba's symbolic kernels (issue 46, second slice). No numpy and no Rust call at render time:
 the grains are uploaded once as JIT arrays (``motes.drjit_walk``) and walked in the kernel, so the same code
-can run where a kernel cannot call the Rust core (``cuda_ad_*``, later).
+can run where a kernel cannot call the Rust core (``cuda_ad_*``: the default and only kernel there).
 
 ===================  =======  ================================================================================
 Parameter            Type     Meaning (of the ``discrete`` medium; the other parameters keep theirs)
 ===================  =======  ================================================================================
 ``kernel``           string   ``native`` (the C++/Rust plugin where it is built: ``scalar_*``, ``llvm_ad_*``) or
-                              ``drjit`` (this file; ``llvm_ad_rgb``, ``llvm_ad_mono``, ``cuda_ad_rgb``,
-                              ``cuda_ad_mono``) (``native``)
+                              ``drjit`` (this file; ``llvm_ad_rgb``, ``llvm_ad_mono``, ``llvm_ad_spectral``
+                              and their ``cuda_ad_*``) (``native``; ``drjit``, the only one, in ``cuda_ad_*``)
 ===================  =======  ================================================================================
 
 Notes
@@ -16,7 +16,7 @@ Notes
 * **Exact medium.** Every grain is walked on every ray, as with ``continuous_count = inf``, which is this
   kernel's default; a finite ``continuous_count`` that leaves size classes continuous is an error naming it
   (the continuous field is not ported), and so are ``storage = procedural`` (no stored grains to upload) and the
-  spectral and polarised variants (``kernel`` named). ``grain_depth`` and ``surface_footprint`` then change
+  polarised variants (``kernel`` named). ``grain_depth`` and ``surface_footprint`` then change
   nothing. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they
   are per-bin tables like the grains' own.
 * **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` from the ray's origin up to its
@@ -55,9 +55,13 @@ Notes
   chi-square). The native kernel picks channels by the path's throughput
   (remembered with the event); here uniformly: the same expectation, other noise in coloured media (a channel
   whose grains all have albedo 0 ends the paths that pick it: unbiased, noisier; the pdf counts it as 0).
-* Tables: each bin's phase tables (``DiscreteMedium.bin_tables``) at each channel's tabulated wavelength (RGB:
-  the three channel wavelengths; mono: the middle one, as ``_bridge.channel_wavelengths``), normalised as the
-  core normalises them.
+* Tables: each bin's phase tables at every tabulated wavelength as the core prepared them
+  (``DiscreteMedium.flat_tables``: nodes in mu, f and CDF normalised). RGB channels read their own wavelength's (mono: the middle one, as
+  ``_bridge.channel_wavelengths``); in spectral variants each of the path's wavelengths (``mei.wavelengths``)
+  reads the two tabulated around it, albedo and phase function interpolated linearly in wavelength and clamped
+  at the ends (``DiscreteMedium::bracket``, ``bin_albedo``, ``bin_phase``), and ``sample`` draws mu from the
+  lower or the upper table with the interpolation's weights, by the rest of ``sample1`` after the grain's pick
+  (``mixture_sample``).
 """
 
 from __future__ import annotations
@@ -70,7 +74,7 @@ import numpy as np
 
 from ..drjit_walk import DrJitGrid
 
-#: What ``kernel`` takes, and its default.
+#: What ``kernel`` takes, and its default (``default_kernel``: ``drjit`` in CUDA variants, the only one there).
 KERNELS = ("native", "drjit")
 DEFAULT_KERNEL = "native"
 #: ``cells_per_particle`` where ``kernel = "drjit"`` (the native kernel's 0.125 elsewhere): the Dr.Jit walk tests
@@ -78,8 +82,9 @@ DEFAULT_KERNEL = "native"
 #: a room of 54 units, 2e5 flights from random points in it: 0.125 gave cells of 3.7 units and 2.0 s; 1: 1.1 s;
 #: 4: 1.1 s; 16: 1.7 s; 2 cores).
 DRJIT_CELLS_PER_PARTICLE = 2.0
-#: The variants ``kernel = "drjit"`` renders in (its tables are per RGB or mono channel; no Mueller matrices).
-DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "cuda_ad_rgb", "cuda_ad_mono")
+#: The variants ``kernel = "drjit"`` renders in (no Mueller matrices: not the polarised ones).
+DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "llvm_ad_spectral", "cuda_ad_rgb", "cuda_ad_mono",
+                  "cuda_ad_spectral")
 #: The core's coincidence window as a share of the grains' extent (``event_geometry`` in
 #: ``rust/motes-core/src/render/discrete/build.rs``) and the site search's tolerance around it
 #: (``DiscreteMedium::site_near`` in ``phase.rs``): 4 coincide + ``SITE_RELATIVE`` |p|_max.
@@ -104,13 +109,22 @@ def bits(x):
     return dr.reinterpret_array(mi.UInt32, mi.Float(x))
 
 
+def default_kernel(variant: str) -> str:
+    """``kernel``'s default in ``variant``: ``drjit`` in CUDA variants (a CUDA kernel cannot call the Rust core),
+    else ``DEFAULT_KERNEL``."""
+    return "drjit" if variant.startswith("cuda_") else DEFAULT_KERNEL
+
+
 def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
     """Why ``kernel`` cannot render in ``variant`` with ``storage`` (one sentence), or None."""
+    if kernel == "native" and variant.startswith("cuda_"):
+        return (f"discrete medium: kernel = native cannot render in {variant} (the Rust walk runs on the host and a "
+                "CUDA kernel cannot call it): use kernel = drjit, the default there")
     if kernel != "drjit":
         return None
     if variant not in DRJIT_VARIANTS:
-        return (f"discrete medium: kernel = drjit renders in {', '.join(DRJIT_VARIANTS)}, not {variant} (spectral and "
-                "polarised variants and scalar ones: use kernel = native)")
+        return (f"discrete medium: kernel = drjit renders in {', '.join(DRJIT_VARIANTS)}, not {variant} (polarised "
+                "variants and scalar ones: use kernel = native)")
     if storage == "procedural":
         return ("discrete medium: kernel = drjit walks stored grains: storage = procedural is not supported "
                 "(use storage = compact or full, or kernel = native)")
@@ -160,48 +174,88 @@ class DrJitKernel:
         self._seed = [dr.opaque(mi.UInt32, self.seed & 0xFFFFFFFF), dr.opaque(mi.UInt32, (self.seed >> 32) & 0xFFFFFFFF)]
 
     def _tables(self, data) -> None:
-        """Per (bin, channel): the phase table (mu ascending, f and CDF normalised as ``PhaseTable::new``) and
-        the albedo, flat, table ``b * channels + c``."""
-        albedos, theta, f, offsets = data.bin_tables[:4]
-        lam_nm = np.asarray(data.wavelength_um, dtype=np.float64) * 1e3
-        chan_nm = np.asarray(data.channel_wavelength_nm, dtype=np.float64)
-        if not mi.is_rgb:  # monochrome: the middle tabulated wavelength (``_bridge.channel_wavelengths``)
-            chan_nm = chan_nm[[chan_nm.size // 2]]
-        rows = []
-        for nm in chan_nm:
-            k = int(np.argmin(np.abs(lam_nm - nm)))
-            if abs(lam_nm[k] - nm) > 1e-6 * nm:
-                raise ValueError(f"discrete medium: kernel = drjit needs a table at each channel's wavelength ({nm} nm)")
-            rows.append(k)
-        n_bins, n_lam, ch = len(albedos), lam_nm.size, len(rows)
-        if len(offsets) != n_bins * n_lam + 1:  # one table per bin and tabulated wavelength, bin-major
-            raise ValueError(f"discrete medium: {len(offsets) - 1} phase tables for {n_bins} bins at {n_lam} wavelengths")
-        self.channels = ch
-        mu_all, f_all, cdf_all, off, cnt, alb = [], [], [], [], [], []
-        pos = 0
-        for b in range(n_bins):
-            for c in range(ch):
-                row = b * n_lam + rows[c]
-                th = np.asarray(theta[row], dtype=np.float64)
-                fv = np.asarray(f[row], dtype=np.float64)[::-1]
-                mu = np.cos(th[::-1])
-                mu[0], mu[-1] = -1.0, 1.0
-                cdf = np.concatenate([[0.0], np.cumsum(2 * np.pi * 0.5 * (fv[:-1] + fv[1:]) * np.diff(mu))])
-                total = cdf[-1]
-                mu_all.append(mu)
-                f_all.append(fv / total)
-                cdf_all.append(cdf / total)
-                off.append(pos)
-                cnt.append(mu.size)
-                pos += mu.size
-                alb.append(float(np.asarray(albedos[b])[rows[c]]))
-        self._mu = mi.Float(np.concatenate(mu_all).astype(np.float32))
-        self._f = mi.Float(np.concatenate(f_all).astype(np.float32))
-        self._cdf = mi.Float(np.concatenate(cdf_all).astype(np.float32))
-        self._off = mi.UInt32(np.asarray(off, dtype=np.uint32))
-        self._cnt = mi.UInt32(np.asarray(cnt, dtype=np.uint32))
-        self._albedo = mi.Float(np.asarray(alb, dtype=np.float32))
+        """Per (bin, tabulated wavelength): the phase table (the core's nodes: mu ascending, f and CDF normalised,
+        ``DiscreteMedium.flat_tables``) and the albedo, flat, table ``b * n_lam + k``; and each channel's
+        wavelength as the tables see it (``_waves``)."""
+        lam_nm = np.asarray(data.wavelength_um, dtype=np.float64) * 1e3  # ascending (``discrete.py``)
+        n_bins, n_lam = len(data.bin_tables[0]), lam_nm.size
+        self.n_lam = n_lam
+        self._lam_nm = [float(x) for x in lam_nm]
+        if mi.is_spectral:
+            self.channels = dr.size_v(mi.UnpolarizedSpectrum)
+            self._rows = None  # per lane, from the path's wavelengths (``_waves``)
+        else:
+            chan_nm = np.asarray(data.channel_wavelength_nm, dtype=np.float64)
+            if not mi.is_rgb:  # monochrome: the middle tabulated wavelength (``_bridge.channel_wavelengths``)
+                chan_nm = chan_nm[[chan_nm.size // 2]]
+            rows = []
+            for nm in chan_nm:
+                k = int(np.argmin(np.abs(lam_nm - nm)))
+                if abs(lam_nm[k] - nm) > 1e-6 * nm:
+                    raise ValueError(f"discrete medium: kernel = drjit needs a table at each channel's wavelength ({nm} nm)")
+                rows.append(k)
+            self.channels = len(rows)
+            self._rows = rows
+        t = data.core.flat_tables()  # the core's prepared tables (``PhaseTable::nodes``)
+        off = np.asarray(t["offset"], dtype=np.int64)
+        if off.size != n_bins * n_lam + 1:  # one table per bin and tabulated wavelength, bin-major
+            raise ValueError(f"discrete medium: {off.size - 1} phase tables for {n_bins} bins at {n_lam} wavelengths")
+        cnt = np.diff(off)
+        self._mu = mi.Float(np.asarray(t["mu"], dtype=np.float32))
+        self._f = mi.Float(np.asarray(t["f"], dtype=np.float32))
+        self._cdf = mi.Float(np.asarray(t["cdf"], dtype=np.float32))
+        self._off = mi.UInt32(off[:-1].astype(np.uint32))
+        self._cnt = mi.UInt32(cnt.astype(np.uint32))
+        self._albedo = mi.Float(np.asarray(t["albedo"], dtype=np.float32))
         self._steps = max(1, math.ceil(math.log2(max(cnt))))  # bisection steps over the longest table
+
+    def _waves(self, mei):
+        """Per channel, the tables' bracket of its wavelength: (lower row, upper row, weight of the upper), as
+        ``DiscreteMedium::bracket`` (clamped to the tabulated range). RGB and mono: each channel's own row
+        (weight None: no interpolation); spectral: per lane, from ``mei.wavelengths``."""
+        if self._rows is not None:
+            return [(k, k, None) for k in self._rows]
+        lam = self._lam_nm
+        out = []
+        for c in range(self.channels):
+            l = mi.Float(mei.wavelengths[c])
+            above = dr.zeros(mi.UInt32, dr.width(l))  # tabulated wavelengths <= l (``partition_point``)
+            for x in lam:
+                above += dr.select(l >= x, 1, 0)
+            k1 = dr.minimum(above, len(lam) - 1)
+            k0 = dr.select(above > 0, above - 1, 0)
+            lo, hi = dr.gather(mi.Float, mi.Float(lam), k0), dr.gather(mi.Float, mi.Float(lam), k1)
+            inside = (above > 0) & (above < len(lam))
+            w = dr.select(inside, (l - lo) / dr.select(inside, hi - lo, 1.0), 0.0)
+            out.append((dr.select(inside, k0, dr.select(above > 0, k1, 0)), dr.select(inside, k1, dr.select(above > 0, k1, 0)),
+                        dr.clip(w, 0.0, 1.0)))
+        return out
+
+    def _bin_albedo(self, b, wave, active):
+        """A bin's albedo at a channel's bracket ``wave`` (without the albedo scale): ``bin_albedo``."""
+        k0, k1, w = wave
+        a0 = dr.gather(mi.Float, self._albedo, b * self.n_lam + k0, active)
+        if w is None:
+            return a0
+        return (1 - w) * a0 + w * dr.gather(mi.Float, self._albedo, b * self.n_lam + k1, active)
+
+    def _channel_wave(self, waves, c):
+        """The bracket of channel ``c`` (per lane) of ``waves``."""
+        k0, k1, w = waves[0]
+        for j in range(1, len(waves)):
+            pick = c == j
+            k0 = dr.select(pick, waves[j][0], k0)
+            k1 = dr.select(pick, waves[j][1], k1)
+            w = None if w is None else dr.select(pick, waves[j][2], w)
+        return k0, k1, w
+
+    def _bin_phase(self, b, wave, mu, active):
+        """A bin's phase function at ``wave`` and ``mu``: ``bin_phase`` (the two rows' tables, interpolated)."""
+        k0, k1, w = wave
+        f0 = self._table_eval(b * self.n_lam + k0, mu, active)
+        if w is None:
+            return f0
+        return (1 - w) * f0 + w * self._table_eval(b * self.n_lam + k1, mu, active & (w > 0))
 
     def set_albedo_scale(self, scale: float) -> None:
         """The medium's ``albedo_scale`` (read at the next trace)."""
@@ -249,7 +303,7 @@ class DrJitKernel:
         self.ready()
         d_in = -mi.Vector3f(mei.wi)
         mu = dr.clip(dr.dot(mi.Vector3f(wo), d_in), -1.0, 1.0)
-        value, pdf, _ = self._site(mi.Point3f(mei.p), d_in, mu=mu, active=active)
+        value, pdf, _ = self._site(mi.Point3f(mei.p), d_in, self._waves(mei), mu=mu, active=active)
         return value, pdf
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
@@ -260,25 +314,22 @@ class DrJitKernel:
         c = mi.UInt32(dr.minimum(dr.floor(u1), ch - 1))
         u = dr.clip(u1 - mi.Float(c), 0.0, 1.0)
         p = mi.Point3f(mei.p)
-        _, members, tid = self._site(p, d_in, pick=(c, u), active=active)
-        valid = tid != 0xFFFFFFFF
-        mu = self._table_sample(tid, mi.Float(sample2.x), valid)
+        waves = self._waves(mei)
+        _, members, (b, u) = self._site(p, d_in, waves, pick=(c, u), active=active)
+        valid = b != 0xFFFFFFFF
+        # The picked grain's table at the picked channel: its lower or upper wavelength's by the rest of
+        # sample1 (``mixture_sample``).
+        k0, k1, w = self._channel_wave(waves, c)
+        row = k0 if w is None else dr.select(u < 1 - w, k0, k1)
+        mu = self._table_sample(b * self.n_lam + row, mi.Float(sample2.x), valid)
         phi = 2 * dr.pi * mi.Float(sample2.y)
         st = dr.safe_sqrt(1 - mu * mu)
         sp, cp = dr.sincos(phi)
         wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
         # A site of one grain (most) needs no second walk: its bin's tables at mu, times its albedo.
         one = valid & (members == 1)
-        value, pdf, _ = self._site(p, d_in, mu=mu, active=valid & ~one)
-        b = tid // ch
-        v1, p1 = [], dr.zeros(mi.Float, dr.width(mu))
-        for k in range(ch):
-            a_k = dr.gather(mi.Float, self._albedo, b * ch + k, one) * self._scale
-            f_k = self._table_eval(b * ch + k, mu, one & (a_k > 0))
-            v1.append(a_k * f_k)
-            p1 += f_k
-        value = dr.select(one, mi.UnpolarizedSpectrum(v1[0]) if ch == 1 else mi.UnpolarizedSpectrum(*v1), value)
-        pdf = dr.select(one, p1 / ch, pdf)
+        value, pdf = self._mixture(p, d_in, waves, mu, active=valid & ~one)
+        value, pdf = self._one_grain(b, waves, mu, one, value, pdf)
         # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
         wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
         wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
@@ -327,9 +378,10 @@ class DrJitKernel:
 
     # -- the site ----------------------------------------------------------------------------------
     @dr.syntax
-    def _site_sums(self, p, d_in, mu, pick, active):
+    def _site_sums(self, p, d_in, waves, mu, pick, active):
         """The walk of ``_site`` over the grains of the cells within reach of ``p`` per size class: per channel
-        sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given), or the picked table."""
+        sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given); the picked grain's bin and the
+        uniform left (``pick`` given); or (neither) the number of the site's grains and the first of them."""
         g_ = self.grid
         F, I, U = mi.Float, mi.Int32, mi.UInt32
         ch = self.channels
@@ -343,15 +395,19 @@ class DrJitKernel:
         if evaluating:
             mu = F(mu)
             c_pick, u = dr.zeros(U, n), dr.zeros(F, n)
-        else:
+        elif pick is not None:
             mu = dr.zeros(F, n)
             c_pick, u = U(pick[0]), F(pick[1])
+        else:
+            mu = dr.zeros(F, n)
+            c_pick, u = dr.zeros(U, n), dr.zeros(F, n)
         A = [dr.zeros(F, n) for _ in range(ch)]
         N = [dr.zeros(F, n) for _ in range(ch)]
         T = dr.zeros(F, n)
         W = dr.zeros(F, n)
-        tid = dr.full(U, 0xFFFFFFFF, n)
-        step = self._accumulate if evaluating else self._reservoir
+        picked = dr.full(U, 0xFFFFFFFF, n)
+        wave = self._channel_wave(waves, c_pick) if pick is not None else None
+        step = self._accumulate if evaluating else self._reservoir if pick is not None else self._count
         k = dr.select(mi.Bool(active), U(0), g_._n_classes)  # inactive lanes walk nothing
         while k < g_._n_classes:
             inv_cell = dr.gather(F, g_._inv_cell, k)
@@ -380,50 +436,87 @@ class DrJitKernel:
                     along = vx * dx + vy * dy + vz * dz
                     qx, qy, qz = vx - along * dx, vy - along * dy, vz - along * dz
                     member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < s[3] * s[3])
-                    A, N, T, W, u, tid = step(g, member, mu, c_pick, A, N, T, W, u, tid)
+                    A, N, T, W, u, picked = step(g, member, mu, waves if evaluating else wave, A, N, T, W, u,
+                                                 picked)
                     g += 1
                 r += 1
             k += 1
-        return A, N, T, tid
+        return A, N, T, (picked, u)
 
-    def _accumulate(self, g, member, mu, c_pick, A, N, T, W, u, tid):
+    def _accumulate(self, g, member, mu, waves, A, N, T, W, u, picked):
         """``_site_sums``' step at grain ``g`` (a member of the site or not) when evaluating at ``mu``."""
         F, U, ch = mi.Float, mi.UInt32, self.channels
         tau = dr.gather(F, self.grid._tau, g, member)
         b = dr.gather(U, self._bin, g, member)
         a_new, n_new = [], []
         for c in range(ch):
-            w = dr.select(member, tau * dr.gather(F, self._albedo, b * ch + c, member) * self._scale, 0.0)
+            w = dr.select(member, tau * self._bin_albedo(b, waves[c], member) * self._scale, 0.0)
             a_new.append(A[c] + w)
-            n_new.append(N[c] + w * self._table_eval(b * ch + c, mu, member & (w > 0)))
-        return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, tid
+            n_new.append(N[c] + w * self._bin_phase(b, waves[c], mu, member & (w > 0)))
+        return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, picked
 
-    def _reservoir(self, g, member, mu, c_pick, A, N, T, W, u, tid):
-        """``_site_sums``' step at grain ``g`` when picking a grain by tau_j a_jc in channel ``c_pick``: one pass
-        of weighted reservoir sampling with one uniform, rescaled at each grain (``T`` counts the members)."""
-        F, U, ch = mi.Float, mi.UInt32, self.channels
+    def _count(self, g, member, mu, wave, A, N, T, W, u, picked):
+        """``_site_sums``' step at grain ``g`` when counting the site's grains (``T``) and keeping the first."""
+        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(member & (T == 0), g, picked)
+
+    def _reservoir(self, g, member, mu, wave, A, N, T, W, u, picked):
+        """``_site_sums``' step at grain ``g`` when picking a grain's bin by tau_j a_jc in the picked channel (its
+        bracket ``wave``): one pass of weighted reservoir sampling with one uniform, rescaled at each grain, so
+        that ``u`` ends uniform whatever is picked (``T`` counts the members)."""
+        F, U = mi.Float, mi.UInt32
         tau = dr.gather(F, self.grid._tau, g, member)
         b = dr.gather(U, self._bin, g, member)
-        w = dr.select(member, tau * dr.gather(F, self._albedo, b * ch + c_pick, member) * self._scale, 0.0)
+        w = dr.select(member, tau * self._bin_albedo(b, wave, member) * self._scale, 0.0)
         W = W + w
         share = dr.select(W > 0, w / dr.select(W > 0, W, 1.0), 0.0)
         take = (w > 0) & (u < share)
         u = dr.select(take, u / dr.select(share > 0, share, 1.0),
                       dr.select(w > 0, (u - share) / dr.select(share < 1, 1 - share, 1.0), u))
         u = dr.clip(u, 0.0, 0.99999994)
-        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b * ch + c_pick, tid)
+        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b, picked)
 
-    def _site(self, p, d_in, mu=None, pick=None, active=True):
-        """The site at ``p`` on the ray along ``d_in`` (module docs). With ``mu``: (value per channel, pdf,
-        -); with ``pick`` = (channel, uniform): (-, -, the picked grain's table or 2^32 - 1)."""
-        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
-            A, N, T, tid = self._site_sums(p, d_in, mu, pick, active)
+    def _site(self, p, d_in, waves, mu=None, pick=None, active=True):
+        """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
+        ``waves`` (``_waves``). With ``mu``: (value per channel, pdf, -); with ``pick`` = (channel, uniform):
+        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left)).
+
+        Evaluating, a first walk only counts the site's grains and keeps the first (no table read per grain
+        tested: a masked lane costs as much as an active one in a SIMD packet); a site of one grain, most,
+        then reads its bin's tables once, and only the lanes of sites of several grains walk again, summing
+        their mixture (``_mixture``)."""
         if mu is None:
-            return None, T, tid
+            with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
+                _, _, T, picked = self._site_sums(p, d_in, waves, None, pick, active)
+            return None, T, picked
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            _, _, members, (first, _) = self._site_sums(p, d_in, waves, None, None, active)
+        one = mi.Bool(active) & (members == 1)
+        value, pdf = self._mixture(p, d_in, waves, mu, active=mi.Bool(active) & (members > 1))
+        b = dr.gather(mi.UInt32, self._bin, first, one)
+        value, pdf = self._one_grain(b, waves, mu, one, value, pdf)
+        return value, pdf, None
+
+    def _one_grain(self, b, waves, mu, one, value, pdf):
+        """(value, pdf) of a site of one grain of bin ``b`` at ``mu`` where ``one``, else the given ones: its bin's
+        tables times its albedo (the grain's optical depth cancels)."""
         ch = self.channels
+        v1, p1 = [], dr.zeros(mi.Float, dr.width(mu))
+        for k in range(ch):
+            a_k = self._bin_albedo(b, waves[k], one) * self._scale
+            f_k = self._bin_phase(b, waves[k], mu, one & (a_k > 0))
+            v1.append(a_k * f_k)
+            p1 += f_k
+        value = dr.select(one, mi.UnpolarizedSpectrum(v1[0]) if ch == 1 else mi.UnpolarizedSpectrum(*v1), value)
+        return value, dr.select(one, p1 / ch, pdf)
+
+    def _mixture(self, p, d_in, waves, mu, active):
+        """(value per channel, pdf) at ``mu`` of the site's mixture, summed over its grains in one walk."""
+        ch = self.channels
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            A, N, T, _ = self._site_sums(p, d_in, waves, mu, None, active)
         value = [dr.select(T > 0, N[c] / dr.select(T > 0, T, 1.0), 0.0) for c in range(ch)]
         pdf = dr.zeros(mi.Float, dr.width(T))
         for c in range(ch):
             pdf += dr.select(A[c] > 0, N[c] / dr.select(A[c] > 0, A[c], 1.0), 0.0)
         spec = mi.UnpolarizedSpectrum(value[0]) if ch == 1 else mi.UnpolarizedSpectrum(*value)
-        return spec, pdf / ch, tid
+        return spec, pdf / ch

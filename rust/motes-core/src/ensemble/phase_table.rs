@@ -283,6 +283,12 @@ impl PhaseTable {
         }
     }
 
+    /// The nodes as evaluation and sampling use them: increasing μ from −1 to 1, f normalised (sr⁻¹)
+    /// and P(μ' ≤ μ_i), for a walk written outside the core (`DiscreteMedium::flat_tables`).
+    pub fn nodes(&self) -> (&[f64], &[f64], &[f64]) {
+        (&self.mu, &self.f, &self.cdf)
+    }
+
     /// P(μ' ≤ μ) of the piecewise-linear table (exact, closed form).
     pub fn cdf_at(&self, mu: f64) -> f64 {
         let mu = mu.clamp(-1.0, 1.0);

@@ -258,6 +258,20 @@ impl PyDiscreteMedium {
             .map_err(to_py)
     }
 
+    /// The bins' optics tables as flat arrays (`DiscreteMedium::flat_tables`): "mu", "f", "cdf" (the
+    /// nodes of table i at `offset[i]..offset[i + 1]`), "offset" and "albedo" per table, table
+    /// `bin * n_lambda + k` at tabulated wavelength k.
+    fn flat_tables<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+        let t = self.medium.flat_tables();
+        let d = pyo3::types::PyDict::new(py);
+        d.set_item("mu", t.mu.into_pyarray(py))?;
+        d.set_item("f", t.f.into_pyarray(py))?;
+        d.set_item("cdf", t.cdf.into_pyarray(py))?;
+        d.set_item("offset", t.offset.into_pyarray(py))?;
+        d.set_item("albedo", t.albedo.into_pyarray(py))?;
+        Ok(d)
+    }
+
     /// Grey optical depth of segments [t0, t1) (f64 rays), as used by the free flights.
     fn optical_depth<'py>(&self, py: Python<'py>, segments: SegmentsIn) -> PyResult<F64Out<'py>> {
         let segs = segments.get()?;

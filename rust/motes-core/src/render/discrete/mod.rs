@@ -144,6 +144,17 @@ pub struct BinOptics {
     pub mueller: Vec<MuellerRatios>,
 }
 
+/// [`DiscreteMedium::flat_tables`]: per table (bin-major, then tabulated wavelength) its nodes
+/// `offset[i]..offset[i + 1]` of `mu`, `f` and `cdf`, and its albedo.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FlatTables {
+    pub mu: Vec<f64>,
+    pub f: Vec<f64>,
+    pub cdf: Vec<f64>,
+    pub offset: Vec<u32>,
+    pub albedo: Vec<f64>,
+}
+
 impl BinOptics {
     /// Heap bytes of the bin's albedos and phase tables.
     pub fn bytes(&self) -> usize {
@@ -421,6 +432,27 @@ impl DiscreteMedium {
     /// Heap bytes of the optics bins' tables (albedos and phase functions): fixed whatever the count.
     pub fn table_bytes(&self) -> usize {
         self.bins.iter().map(BinOptics::bytes).sum()
+    }
+
+    /// The bins' optics as flat arrays for a walk written outside the core (issue 46's Dr.Jit kernel):
+    /// per bin and tabulated wavelength (table `b · λ count + k`), its albedo and its phase table's nodes
+    /// as evaluation and sampling read them ([`crate::ensemble::phase_table::PhaseTable::nodes`]).
+    pub fn flat_tables(&self) -> FlatTables {
+        let mut t = FlatTables {
+            offset: vec![0],
+            ..FlatTables::default()
+        };
+        for b in &self.bins {
+            for (table, &albedo) in b.phase.iter().zip(&b.albedo) {
+                let (mu, f, cdf) = table.nodes();
+                t.mu.extend_from_slice(mu);
+                t.f.extend_from_slice(f);
+                t.cdf.extend_from_slice(cdf);
+                t.offset.push(t.mu.len() as u32);
+                t.albedo.push(albedo);
+            }
+        }
+        t
     }
 
     pub fn lambda(&self) -> &[f64] {
