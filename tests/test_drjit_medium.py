@@ -87,6 +87,11 @@ def test_white_furnace(variant):
     m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
     assert abs(m - 1) < 3 * se, f"furnace {m:.4f} +- {se:.4f}"
     assert se < 0.005  # a 1.5 % loss fails
+    # The medium reports what it uploaded (issue 46: memory reported): every grain's centre and radius at least.
+    medium = next(sh.interior_medium() for sh in sc.shapes() if sh.interior_medium() is not None)
+    b = medium.device_bytes
+    assert b["grains"] >= 16 * 20000 and b["tables"] > 0 and b["total"] == b["grains"] + b["tables"], b
+    assert "MiB on the device" in str(medium)
 
 
 def test_renders_as_native(grains):

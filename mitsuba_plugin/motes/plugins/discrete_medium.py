@@ -488,11 +488,17 @@ class DiscreteMediumPlugin:
         and null collisions (the evaluated-mode path)."""
         return _stats(self.data.core, self._stats)
 
+    @property
+    def device_bytes(self) -> dict:
+        """``kernel = "drjit"``: bytes of the arrays it uploaded (``DrJitKernel.device_bytes``: grains, tables,
+        total, per grain); empty on the native path or before the first render."""
+        return {} if self._drjit is None else self._drjit.device_bytes()
+
     def to_string(self):
         d = self._data if self._motes_pending is None else self._motes_pending.data
         if d is None:
             return "DiscreteMedium[fills the shapes that hold it]"
-        return d.summary()
+        return d.summary() + ("" if self._drjit is None else "\n" + self._drjit.summary())
 
 
 class _Build:

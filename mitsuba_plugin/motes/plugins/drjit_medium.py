@@ -115,6 +115,13 @@ def default_kernel(variant: str) -> str:
     return "drjit" if variant.startswith("cuda_") else DEFAULT_KERNEL
 
 
+def _jit_bytes(arrays: dict) -> int:
+    """Bytes of the JIT arrays among ``arrays``' values (4 a 32-bit entry, 8 a 64-bit one, 1 a mask's)."""
+    size = {dr.VarType.Float64: 8, dr.VarType.UInt64: 8, dr.VarType.Int64: 8, dr.VarType.Bool: 1}
+    return sum(dr.width(v) * size.get(dr.type_v(v), 4) for v in arrays.values()
+               if dr.is_jit_v(v) and dr.depth_v(v) == 1)
+
+
 def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
     """Why ``kernel`` cannot render in ``variant`` with ``storage`` (one sentence), or None."""
     if kernel == "native" and variant.startswith("cuda_"):
@@ -151,6 +158,25 @@ class DrJitKernel:
             self._upload(self.data())
             self._ready = True
         return self
+
+    def device_bytes(self) -> dict:
+        """Bytes of the arrays uploaded (once per load) to the variant's device: "grains" (the walk's per-grain
+        and per-cell arrays and each grain's bin), "tables" (the bins' phase tables and albedos), "total", and
+        "per_grain" (grains / count); empty before the first call uploads them."""
+        if not self._ready:
+            return {}
+        grains = _jit_bytes(vars(self.grid)) + _jit_bytes({"bin": self._bin})
+        tables = _jit_bytes({k: getattr(self, k) for k in ("_mu", "_f", "_cdf", "_off", "_cnt", "_albedo")})
+        return {"grains": grains, "tables": tables, "total": grains + tables,
+                "per_grain": grains / max(self.grid.count, 1)}
+
+    def summary(self) -> str:
+        """One line: the kernel and, once uploaded, what it holds on the device."""
+        b = self.device_bytes()
+        if not b:
+            return "kernel = drjit (arrays not uploaded yet)"
+        return (f"kernel = drjit: {self.grid.count} grains, {b['total'] / 2**20:.1f} MiB on the device "
+                f"({b['per_grain']:.1f} B a grain with its cells, {b['tables'] / 2**20:.2f} MiB of tables)")
 
     def _upload(self, data) -> None:
         if getattr(data, "continuous_particles", 0):
