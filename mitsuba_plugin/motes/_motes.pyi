@@ -189,8 +189,9 @@ class DiscreteMedium:
     def optical_depth(self, segments: Segments) -> F64: ...
     def flat_tables(self) -> dict[str, npt.NDArray[np.generic]]:
         """The bins' optics tables as flat arrays: "mu", "f", "cdf" (table i's nodes at offset[i]..offset[i + 1]:
-        increasing mu, f normalised, P(mu' <= mu)), "offset", and "albedo" per table; table ``bin * n_lambda + k``
-        at tabulated wavelength k."""
+        increasing mu, f normalised, P(mu' <= mu)), "mueller" (F12/F11, F33/F11, F34/F11 per node, float32, 0 where
+        a bin depolarises), "offset", and "albedo" per table; table ``bin * n_lambda + k`` at tabulated wavelength
+        k."""
         ...
     def flat_arrays(self) -> dict[str, npt.NDArray[np.generic]] | None:
         """The grains walked one by one as ``ParticleGrid.flat_arrays`` gives them (grey tau; "index": what the

@@ -74,7 +74,12 @@ def mueller_spectrum(elements: np.ndarray, n: int, ctx, mei, wo):
     F33, F34 per channel are ``elements`` (n, channels, 4), in Mitsuba's Stokes frames: as the native plugin
     (``motes_native.cpp``, "Polarised variants") builds it — light arrives along -wo and leaves along wi (swapped
     in importance transport), the scattering plane's in-plane axes rotated into ``mueller.stokes_basis``."""
-    f = [spectrum(elements[:, :, k], n) for k in range(4)]
+    return mueller_of([spectrum(elements[:, :, k], n) for k in range(4)], n, ctx, mei, wo)
+
+
+def mueller_of(f: list, n: int, ctx, mei, wo):
+    """``mueller_spectrum`` from the elements F11, F12, F33, F34 as the variant's ``UnpolarizedSpectrum`` each
+    (``f``; Dr.Jit values, so that a kernel traced in symbolic mode builds it too)."""
     m = dr.zeros(mi.Spectrum, n) if is_jit() else dr.zeros(mi.Spectrum)
     m[0, 0], m[0, 1], m[1, 0], m[1, 1] = f[0], f[1], f[1], f[0]
     m[2, 2], m[2, 3], m[3, 2], m[3, 3] = f[2], f[3], -f[3], f[2]

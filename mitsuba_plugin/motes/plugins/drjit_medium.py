@@ -7,8 +7,8 @@ can run where a kernel cannot call the Rust core (``cuda_ad_*``: the default and
 Parameter            Type     Meaning (of the ``discrete`` medium; the other parameters keep theirs)
 ===================  =======  ================================================================================
 ``kernel``           string   ``native`` (the C++/Rust plugin where it is built: ``scalar_*``, ``llvm_ad_*``) or
-                              ``drjit`` (this file; ``llvm_ad_rgb``, ``llvm_ad_mono``, ``llvm_ad_spectral``
-                              and their ``cuda_ad_*``) (``native``; ``drjit``, the only one, in ``cuda_ad_*``)
+                              ``drjit`` (this file; every ``llvm_ad_*`` and ``cuda_ad_*`` variant, polarised ones
+                              included) (``native``; ``drjit``, the only one, in ``cuda_ad_*``)
 ===================  =======  ================================================================================
 
 Notes
@@ -16,7 +16,7 @@ Notes
 * **Exact medium.** Every grain is walked on every ray, as with ``continuous_count = inf``, which is this
   kernel's default; a finite ``continuous_count`` that leaves size classes continuous is an error naming it
   (the continuous field is not ported), and so are ``storage = procedural`` (no stored grains to upload) and the
-  polarised variants (``kernel`` named). ``grain_depth`` and ``surface_footprint`` then change
+  scalar variants (``kernel`` named). ``grain_depth`` and ``surface_footprint`` then change
   nothing. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they
   are per-bin tables like the grains' own.
 * **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` from the ray's origin up to its
@@ -62,6 +62,12 @@ Notes
   at the ends (``DiscreteMedium::bracket``, ``bin_albedo``, ``bin_phase``), and ``sample`` draws mu from the
   lower or the upper table with the interpolation's weights, by the rest of ``sample1`` after the grain's pick
   (``mixture_sample``).
+* Polarised variants: where the grains' phase function is their own (the core's ``polarizes``), each table also
+  carries F12/F11, F33/F11 and F34/F11 on its nodes (``DiscreteMedium.flat_tables``, ``mueller.rs``); a site
+  mixes its grains' elements F11, F12, F33, F34 as it mixes F11, and the phase function returns that matrix
+  rotated into Mitsuba's Stokes frames (``_bridge.mueller_of``, as the native plugin and the evaluated path
+  build it); sampling draws from F11 alone, as unpolarised. Otherwise (a user's phase function,
+  ``phase_model = "hg"``) a depolarizer.
 """
 
 from __future__ import annotations
@@ -73,6 +79,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..drjit_walk import DrJitGrid
+from ._bridge import depolarized, mueller_of
 
 #: What ``kernel`` takes, and its default (``default_kernel``: ``drjit`` in CUDA variants, the only one there).
 KERNELS = ("native", "drjit")
@@ -82,9 +89,9 @@ DEFAULT_KERNEL = "native"
 #: a room of 54 units, 2e5 flights from random points in it: 0.125 gave cells of 3.7 units and 2.0 s; 1: 1.1 s;
 #: 4: 1.1 s; 16: 1.7 s; 2 cores).
 DRJIT_CELLS_PER_PARTICLE = 2.0
-#: The variants ``kernel = "drjit"`` renders in (no Mueller matrices: not the polarised ones).
-DRJIT_VARIANTS = ("llvm_ad_rgb", "llvm_ad_mono", "llvm_ad_spectral", "cuda_ad_rgb", "cuda_ad_mono",
-                  "cuda_ad_spectral")
+#: The variants ``kernel = "drjit"`` renders in: the JIT ones.
+DRJIT_VARIANTS = tuple(f"{b}_ad_{c}" for b in ("llvm", "cuda")
+                       for c in ("rgb", "mono", "spectral", "mono_polarized", "spectral_polarized"))
 #: The core's coincidence window as a share of the grains' extent (``event_geometry`` in
 #: ``rust/motes-core/src/render/discrete/build.rs``) and the site search's tolerance around it
 #: (``DiscreteMedium::site_near`` in ``phase.rs``): 4 coincide + ``SITE_RELATIVE`` |p|_max.
@@ -130,8 +137,8 @@ def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
     if kernel != "drjit":
         return None
     if variant not in DRJIT_VARIANTS:
-        return (f"discrete medium: kernel = drjit renders in {', '.join(DRJIT_VARIANTS)}, not {variant} (polarised "
-                "variants and scalar ones: use kernel = native)")
+        return (f"discrete medium: kernel = drjit renders in the JIT variants (llvm_ad_*, cuda_ad_*), not {variant} "
+                "(use kernel = native)")
     if storage == "procedural":
         return ("discrete medium: kernel = drjit walks stored grains: storage = procedural is not supported "
                 "(use storage = compact or full, or kernel = native)")
@@ -233,6 +240,12 @@ class DrJitKernel:
         self._off = mi.UInt32(off[:-1].astype(np.uint32))
         self._cnt = mi.UInt32(cnt.astype(np.uint32))
         self._albedo = mi.Float(np.asarray(t["albedo"], dtype=np.float32))
+        # Polarised variants, grains' own phase functions: F12/F11, F33/F11, F34/F11 on each table's nodes
+        # (``mueller.rs``; 0 where a bin depolarises), elements F11, F12, F33, F34 per channel (``E``).
+        self.polarizing = bool(mi.is_polarized) and bool(data.core.polarizes)
+        self.E = 4 if self.polarizing else 1
+        if self.polarizing:
+            self._ratios = mi.Float(np.asarray(t["mueller"], dtype=np.float32))
         self._steps = max(1, math.ceil(math.log2(max(cnt))))  # bisection steps over the longest table
 
     def _waves(self, mei):
@@ -275,13 +288,24 @@ class DrJitKernel:
             w = None if w is None else dr.select(pick, waves[j][2], w)
         return k0, k1, w
 
-    def _bin_phase(self, b, wave, mu, active):
-        """A bin's phase function at ``wave`` and ``mu``: ``bin_phase`` (the two rows' tables, interpolated)."""
+    def _bin_elements(self, b, wave, mu, active):
+        """A bin's elements at ``wave`` and ``mu`` (``E`` of them: F11, the phase function, as ``bin_phase``; and
+        F12, F33, F34 where polarising, as ``bin_elements``): the two rows' tables, interpolated."""
         k0, k1, w = wave
-        f0 = self._table_eval(b * self.n_lam + k0, mu, active)
+        e0 = self._table_elements(b * self.n_lam + k0, mu, active)
         if w is None:
-            return f0
-        return (1 - w) * f0 + w * self._table_eval(b * self.n_lam + k1, mu, active & (w > 0))
+            return e0
+        e1 = self._table_elements(b * self.n_lam + k1, mu, active & (w > 0))
+        return [(1 - w) * x0 + w * x1 for x0, x1 in zip(e0, e1)]
+
+    def _spectrum(self, elements, ctx, mei, wo):
+        """The phase function's value from its elements per channel (``elements[c][k]``): the channels'
+        ``UnpolarizedSpectrum``; in polarised variants the Mueller matrix in Mitsuba's Stokes frames
+        (``_bridge.mueller_of``, as the native plugin builds it) or, where the grains depolarise, a depolarizer."""
+        per_k = [mi.UnpolarizedSpectrum(*[elements[c][k] for c in range(self.channels)]) for k in range(self.E)]
+        if self.polarizing:
+            return mueller_of(per_k, dr.width(per_k[0][0]), ctx, mei, wo)
+        return depolarized(per_k[0])
 
     def set_albedo_scale(self, scale: float) -> None:
         """The medium's ``albedo_scale`` (read at the next trace)."""
@@ -329,8 +353,8 @@ class DrJitKernel:
         self.ready()
         d_in = -mi.Vector3f(mei.wi)
         mu = dr.clip(dr.dot(mi.Vector3f(wo), d_in), -1.0, 1.0)
-        value, pdf, _ = self._site(mi.Point3f(mei.p), d_in, self._waves(mei), mu=mu, active=active)
-        return value, pdf
+        elements, pdf, _ = self._site(mi.Point3f(mei.p), d_in, self._waves(mei), mu=mu, active=active)
+        return self._spectrum(elements, ctx, mei, wo), pdf
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
         self.ready()
@@ -354,8 +378,9 @@ class DrJitKernel:
         wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
         # A site of one grain (most) needs no second walk: its bin's tables at mu, times its albedo.
         one = valid & (members == 1)
-        value, pdf = self._mixture(p, d_in, waves, mu, active=valid & ~one)
-        value, pdf = self._one_grain(b, waves, mu, one, value, pdf)
+        elements, pdf = self._mixture(p, d_in, waves, mu, active=valid & ~one)
+        elements, pdf = self._one_grain(b, waves, mu, one, elements, pdf)
+        value = self._spectrum(elements, ctx, mei, wo)
         # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
         wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
         wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
@@ -377,12 +402,22 @@ class DrJitKernel:
             hi = dr.select(go & ~right, mid, hi)
         return off + lo
 
-    def _table_eval(self, tid, mu, active):
+    def _table_elements(self, tid, mu, active):
+        """Table ``tid``'s elements at ``mu`` (``E`` of them): f, and where polarising f times each ratio, all
+        interpolated linearly between the nodes around ``mu`` (``PhaseTable::eval_at``, ``MuellerRatios::at``)."""
         i = self._segment(self._mu, tid, mu, active)
         m0, m1 = dr.gather(mi.Float, self._mu, i, active), dr.gather(mi.Float, self._mu, i + 1, active)
         f0, f1 = dr.gather(mi.Float, self._f, i, active), dr.gather(mi.Float, self._f, i + 1, active)
         t = dr.clip(dr.select(m1 > m0, (mu - m0) / (m1 - m0), 0.0), 0.0, 1.0)
-        return dr.select(active, f0 + t * (f1 - f0), 0.0)
+        f = dr.select(active, f0 + t * (f1 - f0), 0.0)
+        if not self.polarizing:
+            return [f]
+        out = [f]
+        for k in range(3):
+            r0 = dr.gather(mi.Float, self._ratios, 3 * i + k, active)
+            r1 = dr.gather(mi.Float, self._ratios, 3 * i + 3 + k, active)
+            out.append(f * (r0 + t * (r1 - r0)))
+        return out
 
     def _table_sample(self, tid, u, active):
         """mu with CDF(mu) = u in table ``tid`` (``PhaseTable::sample_located``: the quadratic CDF inverted)."""
@@ -428,7 +463,7 @@ class DrJitKernel:
             mu = dr.zeros(F, n)
             c_pick, u = dr.zeros(U, n), dr.zeros(F, n)
         A = [dr.zeros(F, n) for _ in range(ch)]
-        N = [dr.zeros(F, n) for _ in range(ch)]
+        N = [dr.zeros(F, n) for _ in range(ch * self.E)]  # channel c's element k at c * E + k
         T = dr.zeros(F, n)
         W = dr.zeros(F, n)
         picked = dr.full(U, 0xFFFFFFFF, n)
@@ -478,7 +513,8 @@ class DrJitKernel:
         for c in range(ch):
             w = dr.select(member, tau * self._bin_albedo(b, waves[c], member) * self._scale, 0.0)
             a_new.append(A[c] + w)
-            n_new.append(N[c] + w * self._bin_phase(b, waves[c], mu, member & (w > 0)))
+            e = self._bin_elements(b, waves[c], mu, member & (w > 0))
+            n_new.extend(N[c * self.E + k] + w * e[k] for k in range(self.E))
         return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, picked
 
     def _count(self, g, member, mu, wave, A, N, T, W, u, picked):
@@ -522,27 +558,29 @@ class DrJitKernel:
         value, pdf = self._one_grain(b, waves, mu, one, value, pdf)
         return value, pdf, None
 
-    def _one_grain(self, b, waves, mu, one, value, pdf):
-        """(value, pdf) of a site of one grain of bin ``b`` at ``mu`` where ``one``, else the given ones: its bin's
-        tables times its albedo (the grain's optical depth cancels)."""
+    def _one_grain(self, b, waves, mu, one, elements, pdf):
+        """(elements per channel, pdf) of a site of one grain of bin ``b`` at ``mu`` where ``one``, else the given
+        ones: its bin's tables times its albedo (the grain's optical depth cancels)."""
         ch = self.channels
-        v1, p1 = [], dr.zeros(mi.Float, dr.width(mu))
-        for k in range(ch):
-            a_k = self._bin_albedo(b, waves[k], one) * self._scale
-            f_k = self._bin_phase(b, waves[k], mu, one & (a_k > 0))
-            v1.append(a_k * f_k)
-            p1 += f_k
-        value = dr.select(one, mi.UnpolarizedSpectrum(v1[0]) if ch == 1 else mi.UnpolarizedSpectrum(*v1), value)
-        return value, dr.select(one, p1 / ch, pdf)
+        p1 = dr.zeros(mi.Float, dr.width(mu))
+        out = []
+        for c in range(ch):
+            a_c = self._bin_albedo(b, waves[c], one) * self._scale
+            e = self._bin_elements(b, waves[c], mu, one & (a_c > 0))
+            out.append([dr.select(one, a_c * e[k], elements[c][k]) for k in range(self.E)])
+            p1 += e[0]
+        return out, dr.select(one, p1 / ch, pdf)
 
     def _mixture(self, p, d_in, waves, mu, active):
-        """(value per channel, pdf) at ``mu`` of the site's mixture, summed over its grains in one walk."""
-        ch = self.channels
+        """(elements per channel, pdf) at ``mu`` of the site's mixture, summed over its grains in one walk: per
+        channel sum_j tau_j a_jc e_jc / sum_j tau_j (the site's albedo times the mixture), the pdf the mean over
+        channels of the mixture's F11."""
+        ch, E = self.channels, self.E
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             A, N, T, _ = self._site_sums(p, d_in, waves, mu, None, active)
-        value = [dr.select(T > 0, N[c] / dr.select(T > 0, T, 1.0), 0.0) for c in range(ch)]
+        inv_t = dr.select(T > 0, 1 / dr.select(T > 0, T, 1.0), 0.0)
+        elements = [[N[c * E + k] * inv_t for k in range(E)] for c in range(ch)]
         pdf = dr.zeros(mi.Float, dr.width(T))
         for c in range(ch):
-            pdf += dr.select(A[c] > 0, N[c] / dr.select(A[c] > 0, A[c], 1.0), 0.0)
-        spec = mi.UnpolarizedSpectrum(value[0]) if ch == 1 else mi.UnpolarizedSpectrum(*value)
-        return spec, pdf / ch
+            pdf += dr.select(A[c] > 0, N[c * E] / dr.select(A[c] > 0, A[c], 1.0), 0.0)
+        return elements, pdf / ch

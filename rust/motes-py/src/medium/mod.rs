@@ -259,7 +259,8 @@ impl PyDiscreteMedium {
     }
 
     /// The bins' optics tables as flat arrays (`DiscreteMedium::flat_tables`): "mu", "f", "cdf" (the
-    /// nodes of table i at `offset[i]..offset[i + 1]`), "offset" and "albedo" per table, table
+    /// nodes of table i at `offset[i]..offset[i + 1]`), "mueller" (3 ratios a node, F12/F11, F33/F11,
+    /// F34/F11; 0 where a bin depolarises), "offset" and "albedo" per table, table
     /// `bin * n_lambda + k` at tabulated wavelength k.
     fn flat_tables<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
         let t = self.medium.flat_tables();
@@ -267,6 +268,8 @@ impl PyDiscreteMedium {
         d.set_item("mu", t.mu.into_pyarray(py))?;
         d.set_item("f", t.f.into_pyarray(py))?;
         d.set_item("cdf", t.cdf.into_pyarray(py))?;
+        let mueller: Vec<f32> = t.mueller.iter().flatten().copied().collect();
+        d.set_item("mueller", mueller.into_pyarray(py))?;
         d.set_item("offset", t.offset.into_pyarray(py))?;
         d.set_item("albedo", t.albedo.into_pyarray(py))?;
         Ok(d)

@@ -145,12 +145,14 @@ pub struct BinOptics {
 }
 
 /// [`DiscreteMedium::flat_tables`]: per table (bin-major, then tabulated wavelength) its nodes
-/// `offset[i]..offset[i + 1]` of `mu`, `f` and `cdf`, and its albedo.
+/// `offset[i]..offset[i + 1]` of `mu`, `f`, `cdf` and `mueller`, and its albedo.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FlatTables {
     pub mu: Vec<f64>,
     pub f: Vec<f64>,
     pub cdf: Vec<f64>,
+    /// Per node: F12/F11, F33/F11, F34/F11 (0 where the bin depolarises).
+    pub mueller: Vec<[f32; 3]>,
     pub offset: Vec<u32>,
     pub albedo: Vec<f64>,
 }
@@ -443,11 +445,16 @@ impl DiscreteMedium {
             ..FlatTables::default()
         };
         for b in &self.bins {
-            for (table, &albedo) in b.phase.iter().zip(&b.albedo) {
+            for (k, (table, &albedo)) in b.phase.iter().zip(&b.albedo).enumerate() {
                 let (mu, f, cdf) = table.nodes();
                 t.mu.extend_from_slice(mu);
                 t.f.extend_from_slice(f);
                 t.cdf.extend_from_slice(cdf);
+                // A bin without ratios depolarises: its ratios are 0 (`mueller.rs`).
+                match b.mueller.get(k).filter(|r| r.len() == mu.len()) {
+                    Some(r) => t.mueller.extend_from_slice(r.nodes()),
+                    None => t.mueller.extend(std::iter::repeat_n([0.0f32; 3], mu.len())),
+                }
                 t.offset.push(t.mu.len() as u32);
                 t.albedo.push(albedo);
             }

@@ -58,6 +58,11 @@ impl MuellerRatios {
         Ok(MuellerRatios { r })
     }
 
+    /// F12/F11, F33/F11 and F34/F11 at each node (increasing μ).
+    pub fn nodes(&self) -> &[[f32; 3]] {
+        &self.r
+    }
+
     /// The number of nodes.
     pub fn len(&self) -> usize {
         self.r.len()
