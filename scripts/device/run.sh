@@ -6,7 +6,8 @@
 # Unpacks the trimmed Mitsuba/Dr.Jit wheels, prints the GPU, runs the Dr.Jit walk's tests in cuda_ad_rgb,
 # scripts/device/cuda_check.py (the walk: 10^5, 10^6, 10^8 grains against the Rust core on that machine's CPUs)
 # and scripts/device/cuda_render.py (dust_box with kernel = drjit against the llvm_ad_rgb references packed here;
-# a 10^8-grain cloud against the native kernel in scalar_rgb there), JSON and kernel histories to $OUT.
+# a 10^8-grain cloud against the native kernel in scalar_rgb there) and `motes render dust_box -m cuda_ad_rgb`,
+# JSON and kernel histories to $OUT.
 # Untested on a GPU (none has been lent yet): if the first call runs out of time, split the steps.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -22,3 +23,6 @@ MOTES_TEST_VARIANT=cuda_ad_rgb timeout 120 python3 -m pytest -q -p no:cacheprovi
 mkdir -p "$OUT/walk" "$OUT/render"
 timeout 200 python3 scripts/device/cuda_check.py --out "$OUT/walk" --grains 1e5,1e6,1e8 --rays 1e6 2>&1 | tee "$OUT/walk/check.txt"
 timeout 300 python3 scripts/device/cuda_render.py --out "$OUT/render" --count 1e8 --seeds 4 2>&1 | tee "$OUT/render/render.txt"
+# `motes render -m cuda_ad_rgb` as a user runs it (kernel = drjit is the default in CUDA variants).
+timeout 90 python3 -m motes render dust_box -m cuda_ad_rgb -s 16 -o "$OUT/render/dust_box_cli.exr" 2>&1 | tail -3 \
+  | tee "$OUT/render/cli.txt"
