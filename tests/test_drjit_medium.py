@@ -67,7 +67,7 @@ def compare(a, b):
     return z, float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
 
 
-@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono", "llvm_ad_spectral"])
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral"])  # all: bench_drjit_furnace.py
 def test_white_furnace(variant):
     """Non-absorbing grains in a box under a constant sky render 1 within 3 standard errors (no Russian roulette)."""
     motes.set_variant(variant)
