@@ -1,0 +1,357 @@
+"""A procedural cloud's discrete grains regenerated in Dr.Jit-typed code (issue 46: "procedural clouds
+regenerate a cell's grains from the counter-based hash instead of storing them"): for a wavefront of tile
+indices, each tile's grains as the Rust core's bricks generate them (``rust/motes-core/src/space/cloud.rs``,
+``rust/motes-core/src/render/procedural/``), in the current Mitsuba variant's JIT types (``llvm_ad_*``, and
+``cuda_ad_*``, where a kernel cannot call the core). Not wired into the walk yet.
+
+The process (the core's module docs): tile t's stream is xoshiro256++ seeded by SplitMix64 from
+``splitmix64(seed ^ splitmix64(TILE_STREAM ^ t))``; it draws the tile's candidate count K_t ~ Poisson(lambda)
+(rand_distr 0.4's sampler: Knuth's product of uniforms for lambda < 12, else Numerical Recipes' rejection from
+a Cauchy), then per candidate seven numbers ((x >> 11) + 0.5) 2^-53: the position in the tile (3), the thinning
+(kept where u_3 bound < d(x); every candidate of a uniform density is kept), the discrete class (the first
+class whose running probability exceeds u_4) and two the procedural cloud does not use. A kept grain's key is
+((t << 24) | its index among the tile's kept grains) + 1; its scene position is the cloud's transform of its
+centre, moved by the turbulent drift (``rust/motes-core/src/space/motion.rs``: the curl of three value noises
+by central differences) where the cloud has one; its inclusion radius R and disk optical depth tau are its
+class's, as the bricks' grids store them (float32).
+
+Exactness: every step but the Poisson draw for lambda >= 12 is integer arithmetic and IEEE float64 additions,
+multiplications, divisions by non-literal operands (Dr.Jit turns a division by a literal into a
+multiplication by its reciprocal: hence ``_opaque``) and floors, in the core's order: the same bits as the
+core. The rejection sampler's tan, log and exp are Dr.Jit's, not the C library's (a few ulps apart; Dr.Jit's
+tan returns x for tiny x): its candidate floor(sqrt(2 lambda) tan(pi u) + lambda) and its acceptance
+u' <= check can differ only where that value lies within ~4e-12 of an integer or u' within a few ulps of the
+check, about 1e-11 per tile, so a tile's count is the core's except with that probability (a differing
+tile then has different grains: another realisation of the same process there). ``tests/test_drjit_procedural.py``
+checks the counts and grains against the core (``DiscreteMedium.procedural_tile_grains``) bit for bit.
+
+Densities: uniform, gradient and fBm noise (a grid density is refused); the drift is supported.
+
+``DrJitProcedural(medium)``: ``medium`` a procedural ``motes.DiscreteMedium`` (or its ``_motes`` core, or the
+dict ``procedural_export`` returns); ``grains(tiles)`` returns the grains of those tiles as JIT arrays.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+GOLDEN_GAMMA = 0x9E3779B97F4A7C15
+_M1, _M2 = 0xBF58476D1CE4E5B9, 0x94D049BB133111EB
+#: rand_distr's Poisson: Knuth's method below this mean, the rejection method above.
+KNUTH_BELOW = 12.0
+#: ``rust/motes-core/src/space/motion.rs``: the curl's step, the pattern's speed and direction.
+CURL_STEP = 1e-3
+PATTERN_SPEED = 1.0
+PATTERN_DIR = (0.381_966, 0.618_034, 0.688_191)
+_UNIT = 2.0**-53
+
+
+def _export_of(medium) -> dict:
+    if isinstance(medium, dict):
+        return medium
+    core = getattr(medium, "_core", medium)
+    out = core.procedural_export()
+    if out is None:
+        raise ValueError("the medium has no procedural grains (stored particles, or every class continuous)")
+    return out
+
+
+def _opaque(x: float):
+    """A Float64 the JIT does not fold into a literal (a division by it stays a division)."""
+    return dr.opaque(mi.Float64, float(x))
+
+
+def splitmix64_finalise(z):
+    z = (z ^ (z >> 30)) * _M1
+    z = (z ^ (z >> 27)) * _M2
+    return z ^ (z >> 31)
+
+
+def splitmix64(z):
+    """SplitMix64's output for state ``z`` (``rust/motes-core/src/rng.rs``)."""
+    return splitmix64_finalise(z + GOLDEN_GAMMA)
+
+
+def _rotl(x, k: int):
+    return (x << k) | (x >> (64 - k))
+
+
+def _next(s):
+    """xoshiro256++: (the next 64 bits, the advanced state); ``s`` a list of four UInt64."""
+    s0, s1, s2, s3 = s
+    out = _rotl(s0 + s3, 23) + s0
+    t = s1 << 17
+    s2 = s2 ^ s0
+    s3 = s3 ^ s1
+    s1 = s1 ^ s2
+    s0 = s0 ^ s3
+    s2 = s2 ^ t
+    s3 = _rotl(s3, 45)
+    return out, [s0, s1, s2, s3]
+
+
+def _standard(bits):
+    """rand's ``Standard`` f64 in [0, 1): the top 53 bits times 2^-53."""
+    return mi.Float64(bits >> 11) * _UNIT
+
+
+def _open(bits):
+    """A candidate's number in (0, 1): ((x >> 11) + 0.5) 2^-53 (``visit_candidates``)."""
+    return (mi.Float64(bits >> 11) + 0.5) * _UNIT
+
+
+def _log_gamma(x):
+    """rand_distr 0.4's ``log_gamma`` (the same operations in the same order)."""
+    coefficients = (76.18009172947146, -86.50532032941677, 24.01409824083091, -1.231739572450155,
+                    0.1208650973866179e-2, -0.5395239384953e-5)
+    tmp = x + 5.5
+    log = (x + 0.5) * dr.log(tmp) - tmp
+    a = dr.full(mi.Float64, 1.000000000190015, dr.width(x))
+    denom = mi.Float64(x)
+    for c in coefficients:
+        denom = denom + 1.0
+        a = a + _opaque(c) / denom
+    return log + dr.log(2.5066282746310005 * a / x)
+
+
+class ValueNoise:
+    """``rust/motes-core/src/space/cloud.rs``'s ``ValueNoise`` from its terms (``procedural_export``)."""
+
+    def __init__(self, terms: dict):
+        self.contrast = float(terms["contrast"])
+        scale = float(terms["scale"])
+        # Per octave: 2^o / scale (the core's f64 division, on the host), offsets, hash seed, weight.
+        self.octaves = [(float(1 << o) / scale, [float(x) for x in off], int(base), 0.5**o)
+                        for o, (off, base) in enumerate(zip(terms["offsets"], terms["bases"]))]
+
+    def value(self, p):
+        """v(p) in [0, 1] (Float64 triple)."""
+        U, I = mi.UInt64, mi.Int64
+        total, weights = None, 0.0
+        for f, off, base, weight in self.octaves:
+            q = [p[a] * f + off[a] for a in range(3)]
+            i = [dr.floor(x) for x in q]
+            w = [_quintic(q[a] - i[a]) for a in range(3)]
+            cell = [dr.reinterpret_array(U, I(x)) for x in i]
+            acc = None
+            for corner in range(8):
+                c = [(corner >> a) & 1 for a in range(3)]
+                h = splitmix64(splitmix64(splitmix64(base ^ (cell[0] + c[0])) ^ (cell[1] + c[1])) ^ (cell[2] + c[2]))
+                ws = [w[a] if c[a] else 1.0 - w[a] for a in range(3)]
+                term = ws[0] * ws[1] * ws[2] * (mi.Float64(h >> 11) * _UNIT)
+                acc = term if acc is None else acc + term
+            total = weight * acc if total is None else total + weight * acc
+            weights += weight
+        return dr.clip(total / _opaque(weights), 0.0, 1.0)
+
+    def density(self, p):
+        c = self.contrast
+        return dr.clip(1.0 + c * (2.0 * self.value(p) - 1.0), 0.0, 1.0 + c)
+
+
+def _quintic(t):
+    return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+
+
+class DrJitProcedural:
+    """A procedural cloud's generator (module docs) in the current JIT variant."""
+
+    def __init__(self, medium):
+        if not mi.variant() or not mi.variant().startswith(("llvm_", "cuda_")):
+            raise RuntimeError(f"motes.drjit_procedural needs a JIT variant (llvm_* or cuda_*), not {mi.variant()!r}")
+        e = _export_of(medium)
+        self.export = e
+        self.seed = int(e["seed"])
+        self.tile_stream = int(e["tile_stream"])
+        self.dims = [int(x) for x in e["dims"]]
+        self.tiles = self.dims[0] * self.dims[1] * self.dims[2]
+        self.lo = [float(x) for x in e["lo"]]
+        self.size = [float(x) for x in e["size"]]
+        self.box_lo = [float(x) for x in e["box_lo"]]
+        self.box_hi = [float(x) for x in e["box_hi"]]
+        self.lam = float(e["lambda"])
+        self.poisson = [float(x) for x in e["poisson"]]
+        self.bound = float(e["bound"])
+        d = e["density"]
+        self.kind = d["kind"]
+        if self.kind == "grid":
+            raise ValueError("motes.drjit_procedural does not regenerate a grid density's cloud")
+        if self.kind == "gradient":
+            self.gradient = (int(d["axis"]), float(d["start"]), float(d["end"]))
+        self.noise = ValueNoise(d["noise"]) if self.kind == "noise" else None
+        self.index_bits = int(e["tile_index_bits"])
+        self.to_scene = [[float(x) for x in row] for row in e["to_scene"]]
+        m = e["motion"]
+        self.motion = None
+        if m is not None:
+            self.motion = ([ValueNoise(t) for t in m["potential"]], float(m["turbulence"]), float(m["scale"]),
+                           float(m["time"]))
+        codes = np.asarray(e["codes"], dtype=np.uint32)
+        self.n_codes = int(codes.size)
+        self._codes = mi.UInt32(codes)
+        self._cdf = mi.Float64(np.asarray(e["cdf"], dtype=np.float64))
+        self._reach = mi.Float(np.asarray(e["reach"], dtype=np.float32))
+        self._tau = mi.Float(np.asarray(e["tau"], dtype=np.float32))
+        self._bin = mi.UInt32(np.asarray(e["bin"], dtype=np.uint32))
+
+    # ---------------------------------------------------------------------------------------- the process
+
+    def _seed(self, tile):
+        """The tile's xoshiro256++ state: SplitMix64's first four outputs from the tile's seed."""
+        x = splitmix64(self.seed ^ splitmix64(mi.UInt64(self.tile_stream) ^ tile))
+        return [splitmix64_finalise(x + ((k + 1) * GOLDEN_GAMMA % 2**64)) for k in range(4)]
+
+    def _poisson(self, s):
+        """Each lane's candidate count (UInt32) and its stream after the draw (rand_distr 0.4's sampler)."""
+        if not self.lam > 0:
+            return dr.zeros(mi.UInt32, dr.width(s[0])), s
+        if self.lam < KNUTH_BELOW:
+            return self._knuth(s)
+        return self._rejection(s)
+
+    @dr.syntax
+    def _knuth(self, s):
+        n = dr.width(s[0])
+        s0, s1, s2, s3 = s
+        exp_l = self.poisson[0]
+        result = dr.zeros(mi.Float64, n)
+        p = dr.full(mi.Float64, 1.0, n)
+        while p > exp_l:
+            bits, (s0, s1, s2, s3) = _next([s0, s1, s2, s3])
+            p = p * _standard(bits)
+            result += 1.0
+        return mi.UInt32(result - 1.0), [s0, s1, s2, s3]
+
+    @dr.syntax
+    def _rejection(self, s):
+        n = dr.width(s[0])
+        s0, s1, s2, s3 = s
+        _, log_l, sqrt_2l, magic = self.poisson
+        lam = self.lam
+        result = dr.zeros(mi.Float64, n)
+        done = dr.zeros(mi.Bool, n)
+        while ~done:
+            # A Cauchy deviate; below zero it is drawn again (the next iteration).
+            bits, (s0, s1, s2, s3) = _next([s0, s1, s2, s3])
+            comp = dr.tan(dr.pi * _standard(bits))
+            result = sqrt_2l * comp + lam
+            if result >= 0.0:
+                result = dr.floor(result)
+                check = 0.9 * (1.0 + comp * comp) * dr.exp(result * log_l - _log_gamma(1.0 + result) - magic)
+                bits, (s0, s1, s2, s3) = _next([s0, s1, s2, s3])
+                done = _standard(bits) <= check
+        return mi.UInt32(result), [s0, s1, s2, s3]
+
+    def density(self, p):
+        """The relative density at cloud coordinates ``p`` (Float64 triple), as the core thins by it."""
+        if self.kind == "uniform":
+            return dr.full(mi.Float64, 1.0, dr.width(p[0]))
+        if self.kind == "gradient":
+            axis, start, end = self.gradient
+            lo, hi = self.box_lo[axis], self.box_hi[axis]
+            t = dr.clip((p[axis] - lo) / _opaque(hi - lo), 0.0, 1.0)
+            return start + (end - start) * t
+        return self.noise.density(p)
+
+    def _class(self, u):
+        """The discrete class code whose interval of the running probabilities holds ``u``."""
+        k = dr.binary_search(0, self.n_codes - 1, lambda i: dr.gather(mi.Float64, self._cdf, i) <= u)
+        return dr.gather(mi.UInt32, self._codes, k)
+
+    @dr.syntax
+    def _candidates(self, tile, s, count, first, out):
+        """Each tile lane's candidates, in its stream's order, written from ``first``: centre, class, kept,
+        index among the tile's kept (``out``: lists of JIT arrays of the candidates' count)."""
+        d0, d1 = self.dims[0], self.dims[1]
+        idx = [tile % d0, (tile // d0) % d1, tile // (d0 * d1)]
+        tlo = [self.lo[a] + self.size[a] * mi.Float64(idx[a]) for a in range(3)]
+        s0, s1, s2, s3 = s
+        i = dr.zeros(mi.UInt32, dr.width(tile))
+        kept = dr.zeros(mi.UInt32, dr.width(tile))
+        while i < count:
+            u = []
+            for _ in range(7):
+                bits, (s0, s1, s2, s3) = _next([s0, s1, s2, s3])
+                u.append(_open(bits))
+            centre = [tlo[a] + self.size[a] * u[a] for a in range(3)]
+            keep = self._kept(u[3], centre)
+            slot = first + i
+            for a in range(3):
+                dr.scatter(out["centre"][a], centre[a], slot)
+            dr.scatter(out["code"], self._class(u[4]), slot)
+            dr.scatter(out["keep"], keep, slot)
+            dr.scatter(out["index"], kept, slot)
+            dr.scatter(out["tile"], tile, slot)
+            kept += dr.select(keep, 1, 0)
+            i += 1
+
+    def _kept(self, u, centre):
+        """Thinning: whether a candidate at ``centre`` with number ``u`` is kept (every one of a uniform density)."""
+        if self.kind == "uniform":
+            return dr.full(mi.Bool, True, dr.width(u))
+        return u * self.bound < self.density(centre)
+
+    def _moved(self, x0):
+        """``Motion::position``: the rest position ``x0`` (scene units) moved by the drift to its time."""
+        potential, turbulence, scale, time = self.motion
+        scale_ = _opaque(scale)
+        h2 = _opaque(2.0 * CURL_STEP)
+
+        def curl(t):
+            q = [x0[a] / scale_ + t * PATTERN_SPEED * PATTERN_DIR[a] for a in range(3)]
+
+            def d(i, j):
+                lo, hi = list(q), list(q)
+                lo[j] = lo[j] - CURL_STEP
+                hi[j] = hi[j] + CURL_STEP
+                return (potential[i].value(hi) - potential[i].value(lo)) / h2
+
+            return [d(2, 1) - d(1, 2), d(0, 2) - d(2, 0), d(1, 0) - d(0, 1)]
+
+        if time == 0.0:
+            return list(x0)
+        w1, w0 = curl(time), curl(0.0)
+        return [x0[a] + turbulence * (w1[a] - w0[a]) for a in range(3)]
+
+    # ---------------------------------------------------------------------------------------- queries
+
+    def grains(self, tiles) -> dict:
+        """The grains of ``tiles`` (linear tile indices, any integer array), in the order asked, each tile's
+        in its stream's order: a dict of JIT arrays, ``candidates`` per tile asked (before thinning) and per
+        grain ``tile`` (UInt32), ``key`` (UInt64), ``code`` and ``bin`` (UInt32), ``centre`` (the cloud's
+        coordinates, three Float64), ``position`` (scene units, three Float64), ``reach`` and ``tau``
+        (Float, as the bricks' grids store them)."""
+        tile = mi.UInt32(tiles)
+        if dr.width(tile) == 0:
+            z, f = dr.zeros(mi.UInt32, 0), dr.zeros(mi.Float64, 0)
+            return {"candidates": z, "tile": z, "key": dr.zeros(mi.UInt64, 0), "code": z, "bin": z,
+                    "centre": [f, f, f], "position": [f, f, f], "reach": dr.zeros(mi.Float, 0),
+                    "tau": dr.zeros(mi.Float, 0)}
+        if int(dr.max(tile)[0]) >= self.tiles:
+            raise ValueError(f"tile indices must be below the cloud's {self.tiles} tiles")
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            s = self._seed(mi.UInt64(tile))
+            count, s = self._poisson(s)
+            dr.eval(count, s)
+            first = dr.prefix_sum(count)
+            total = int(dr.sum(count)[0])
+            out = {"centre": [dr.zeros(mi.Float64, total) for _ in range(3)], "code": dr.zeros(mi.UInt32, total),
+                   "keep": dr.zeros(mi.Bool, total), "index": dr.zeros(mi.UInt32, total),
+                   "tile": dr.zeros(mi.UInt32, total)}
+            if total:
+                self._candidates(tile, s, count, first, out)
+                dr.eval(out)
+        kept = dr.compress(out["keep"]) if total else dr.zeros(mi.UInt32, 0)
+        g = {k: dr.gather(type(out[k]), out[k], kept) for k in ("code", "index", "tile")}
+        centre = [dr.gather(mi.Float64, out["centre"][a], kept) for a in range(3)]
+        limit = (1 << self.index_bits) - 1
+        key = ((mi.UInt64(g["tile"]) << self.index_bits) | mi.UInt64(dr.minimum(g["index"], limit))) + 1
+        m = self.to_scene
+        position = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
+        if self.motion is not None:
+            position = self._moved(position)
+        return {"candidates": count, "tile": g["tile"], "key": key, "code": g["code"],
+                "bin": dr.gather(mi.UInt32, self._bin, g["code"]), "centre": centre, "position": position,
+                "reach": dr.gather(mi.Float, self._reach, g["code"]), "tau": dr.gather(mi.Float, self._tau, g["code"])}

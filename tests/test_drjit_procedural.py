@@ -1,0 +1,136 @@
+"""A procedural cloud's grains regenerated in Dr.Jit (``motes/drjit_procedural.py``, issue 46) against the Rust
+core's (``DiscreteMedium.procedural_tile_grains``): per tile the same candidate count and per grain the same
+tile, key, class, centre and scene position, bit for bit, for uniform, gradient and noise densities, both
+Poisson samplers (lambda < 12 and above), several seeds, and grains moved by the turbulent drift; R and tau
+are the class's as the core's bricks store them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mitsuba as mi
+
+import motes
+from motes.discrete import DiscreteMedium
+
+RGB = motes.RGB_WAVELENGTHS_UM
+SPECIES = motes.Species(motes.LogNormal(80.0, 1.3), 1.5)
+BOX = np.diag([0.06, 0.06, 0.06, 1.0])
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _variant():
+    if "llvm_ad_rgb" not in mi.variants():
+        pytest.skip("needs the llvm_ad_rgb variant")
+    previous = mi.variant()
+    mi.set_variant("llvm_ad_rgb")
+    yield
+    if previous:
+        mi.set_variant(previous)
+
+
+def _medium(count=3e4, wavelength=RGB, **kw):
+    kw.setdefault("to_world", BOX)
+    return DiscreteMedium.procedural(count, [SPECIES], [1.0], wavelength, query_radius=2e-4,
+                                     continuous_count=np.inf, cache_bytes=2**24, **kw)
+
+
+def _check(medium, tiles):
+    """The Dr.Jit grains of ``tiles`` equal the core's to the last bit; returns how many there are."""
+    from motes.drjit_procedural import DrJitProcedural
+
+    gen = DrJitProcedural(medium)
+    got = gen.grains(np.asarray(tiles, dtype=np.uint32))
+    want = medium._core.procedural_tile_grains([int(t) for t in tiles])
+    assert np.array_equal(got["candidates"].numpy(), want["candidates"])
+    for k in ("tile", "key", "code"):
+        assert np.array_equal(np.asarray(got[k].numpy()), want[k]), k
+    for k in ("centre", "position"):
+        a = np.stack([x.numpy() for x in got[k]], axis=1).ravel()
+        assert a.shape == want[k].shape and np.array_equal(a, want[k]), k
+    e = gen.export
+    code = want["code"].astype(np.int64)
+    assert np.array_equal(got["reach"].numpy(), e["reach"][code])
+    assert np.array_equal(got["tau"].numpy(), e["tau"][code])
+    assert np.array_equal(got["bin"].numpy(), e["bin"][code])
+    return len(want["key"]), gen, got
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**64 - 3])
+def test_uniform_grains_are_the_cores(seed):
+    """~60 candidates a tile (the rejection sampler): a third of the tiles, in a scrambled order."""
+    m = _medium(cloud_seed=seed)
+    from motes.drjit_procedural import DrJitProcedural
+
+    n_tiles = DrJitProcedural(m).tiles
+    tiles = np.random.default_rng(seed % 1000).permutation(n_tiles)[: n_tiles // 3]
+    n, gen, got = _check(m, tiles)
+    assert gen.lam >= 12 and n > 50 * len(tiles)
+
+
+def test_knuth_sampler_below_a_mean_of_12():
+    """A cloud of 6 expected grains is one tile of lambda ~ 6: Knuth's product of uniforms, over 12 seeds."""
+    counts = []
+    for seed in range(12):
+        m = _medium(6.0, wavelength=[0.55], size_bins=4, cloud_seed=seed)
+        n, gen, got = _check(m, [0])
+        assert gen.tiles == 1 and gen.lam < 12
+        counts.append(n)
+    assert 2 < np.mean(counts) < 12
+
+
+@pytest.mark.parametrize("density", [("gradient", [2.0, 0.1, 1.0]), ("noise", [0.4, 3.0, 0.9])])
+def test_thinned_densities(density):
+    """Gradient and fBm noise densities: thinning, and the kept grains' indices in their tiles' keys."""
+    m = _medium(density=density, noise_seed=5, cloud_seed=3)
+    from motes.drjit_procedural import DrJitProcedural
+
+    tiles = np.arange(0, DrJitProcedural(m).tiles, 3)
+    n, gen, got = _check(m, tiles)
+    assert gen.kind == density[0]
+    cand = int(got["candidates"].numpy().sum())
+    assert 0.1 * cand < n < 0.95 * cand  # some candidates were thinned
+
+
+@pytest.mark.parametrize("density", [("gradient", [0.0, 3.0, 0.5]), ("noise", [0.3, 4.0, 1.2])])
+def test_densities_are_the_cores(density):
+    """The thinning's density at random points (some outside the box) to the last bit: the grains' test sees
+    only its decisions, which a rounding-level error would flip about once in 1e16 candidates."""
+    from motes.drjit_procedural import DrJitProcedural
+
+    kind, params = density
+    gen = DrJitProcedural(_medium(3e3, wavelength=[0.55], size_bins=4, density=density, noise_seed=8))
+    p = np.random.default_rng(2).uniform(-1.3, 1.3, (20_000, 3))
+    got = gen.density([mi.Float64(p[:, a]) for a in range(3)]).numpy()
+    want = motes._motes.density_at(kind, params, 8, p.ravel(), [-1.0] * 3, [1.0] * 3)
+    assert np.array_equal(got, want)
+
+
+def test_drifting_grains():
+    """The turbulent drift moves each grain's scene position (the curl of three value noises)."""
+    m = _medium(turbulence=0.004, turbulence_scale=0.03, time_s=1.3, cloud_seed=4, wavelength=[0.55])
+    still = _medium(cloud_seed=4, wavelength=[0.55])
+    from motes.drjit_procedural import DrJitProcedural
+
+    tiles = np.arange(0, DrJitProcedural(m).tiles, 5)
+    n, gen, got = _check(m, tiles)
+    assert gen.motion is not None
+    moved = np.stack([x.numpy() for x in got["position"]], axis=1)
+    rest = np.stack([x.numpy() for x in DrJitProcedural(still).grains(tiles)["position"]], axis=1)
+    shift = np.linalg.norm(moved - rest, axis=1)
+    assert shift.max() > 1e-4 and shift.max() < 0.1
+
+
+def test_refusals():
+    from motes.drjit_procedural import DrJitProcedural
+
+    gen = DrJitProcedural(_medium(3e3))
+    with pytest.raises(ValueError, match="tile"):
+        gen.grains([gen.tiles])
+    with pytest.raises(ValueError, match="tile"):
+        _medium(3e3)._core.procedural_tile_grains([gen.tiles])
+    stored = DiscreteMedium(np.zeros((1, 3)), np.array([50.0]), np.array([0]), [SPECIES], RGB)
+    with pytest.raises(ValueError, match="procedural"):
+        DrJitProcedural(stored)
+    assert len(gen.grains(np.zeros(0, dtype=np.uint32))["key"]) == 0
