@@ -30,9 +30,9 @@ def _variant():
         mi.set_variant(previous)
 
 
-def _medium(count=3e4, wavelength=RGB, **kw):
+def _medium(count=3e4, wavelength=RGB, query_radius=2e-4, **kw):
     kw.setdefault("to_world", BOX)
-    return DiscreteMedium.procedural(count, [SPECIES], [1.0], wavelength, query_radius=2e-4,
+    return DiscreteMedium.procedural(count, [SPECIES], [1.0], wavelength, query_radius=query_radius,
                                      continuous_count=np.inf, cache_bytes=2**24, **kw)
 
 
@@ -134,3 +134,34 @@ def test_refusals():
     with pytest.raises(ValueError, match="procedural"):
         DrJitProcedural(stored)
     assert len(gen.grains(np.zeros(0, dtype=np.uint32))["key"]) == 0
+
+
+def _rays(n, seed):
+    """Rays through and beside the 12 cm cube: oblique ones, and ones along z (no motion along x and y),
+    starting outside it and inside it."""
+    rng = np.random.default_rng(seed)
+    o = np.column_stack([rng.uniform(-0.07, 0.07, n), rng.uniform(-0.07, 0.07, n), rng.uniform(-0.2, 0.0, n)])
+    d = np.column_stack([rng.uniform(-0.4, 0.4, n), rng.uniform(-0.4, 0.4, n), np.ones(n)])
+    d[: n // 4, :2] = 0.0
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return o, d, rng.uniform(0.0, 0.1, n), rng.uniform(0.1, 0.4, n)
+
+
+@pytest.mark.parametrize("kw", [dict(count=1e6), dict(count=3e5, density=("noise", [0.4, 3.0, 0.9]), noise_seed=5),
+                                dict(count=3e4, query_radius=2e-3, turbulence=1e-4, turbulence_scale=0.01, time_s=1.3),
+                                dict(count=1e5, query_radius=1.2e-2)],
+                         ids=["uniform", "noise", "drift", "wide"])
+def test_optical_depth_is_the_cores(kw):
+    """The walk that regenerates every tile a ray needs gives the core's optical depth (its bricks' grids)
+    on each ray; here to the last bit (the taus are float32, their sums in float64 exact)."""
+    from motes.drjit_procedural import DrJitProcedural
+
+    m = _medium(wavelength=[0.55], size_bins=4, **kw)
+    gen = DrJitProcedural(m)
+    o, d, t0, t1 = _rays(16 if "turbulence" in kw else 48, 3)
+    got = gen.optical_depth([mi.Float64(o[:, a]) for a in range(3)], [mi.Float64(d[:, a]) for a in range(3)],
+                            mi.Float64(t0), mi.Float64(t1)).numpy()
+    want = m.optical_depth(o, d, t0, t1)
+    assert (want > 0).sum() > len(want) // 3
+    assert max(gen.halo) == (2 if kw.get("query_radius", 0) > 1e-2 else 1)
+    np.testing.assert_array_equal(got, want)

@@ -46,6 +46,8 @@ CURL_STEP = 1e-3
 PATTERN_SPEED = 1.0
 PATTERN_DIR = (0.381_966, 0.618_034, 0.688_191)
 _UNIT = 2.0**-53
+#: A bound on the drift over the turbulence (``Motion::drift_bound``: 10 sqrt(3) and 1 % more, rounded up).
+DRIFT_PER_TURBULENCE = 17.6
 
 
 def _export_of(medium) -> dict:
@@ -168,6 +170,7 @@ class DrJitProcedural:
         self.dims = [int(x) for x in e["dims"]]
         self.tiles = self.dims[0] * self.dims[1] * self.dims[2]
         self.lo = [float(x) for x in e["lo"]]
+        self.halo = [int(x) for x in e["halo"]]
         self.size = [float(x) for x in e["size"]]
         self.box_lo = [float(x) for x in e["box_lo"]]
         self.box_hi = [float(x) for x in e["box_hi"]]
@@ -183,6 +186,8 @@ class DrJitProcedural:
         self.noise = ValueNoise(d["noise"]) if self.kind == "noise" else None
         self.index_bits = int(e["tile_index_bits"])
         self.to_scene = [[float(x) for x in row] for row in e["to_scene"]]
+        m4 = np.vstack([np.asarray(self.to_scene, dtype=np.float64), [0.0, 0.0, 0.0, 1.0]])
+        self.to_cloud = np.linalg.inv(m4)[:3].tolist()  # only to find the tiles a ray crosses
         m = e["motion"]
         self.motion = None
         if m is not None:
@@ -260,27 +265,35 @@ class DrJitProcedural:
         k = dr.binary_search(0, self.n_codes - 1, lambda i: dr.gather(mi.Float64, self._cdf, i) <= u)
         return dr.gather(mi.UInt32, self._codes, k)
 
+    def _tile_lo(self, tile):
+        """The low corner of tile ``tile`` (``Tiling::tile_lo``, Float64 triple)."""
+        d0, d1 = self.dims[0], self.dims[1]
+        idx = [tile % d0, (tile // d0) % d1, tile // (d0 * d1)]
+        return [self.lo[a] + self.size[a] * mi.Float64(idx[a]) for a in range(3)]
+
+    def _candidate(self, s, tlo):
+        """A candidate's seven numbers from the stream ``s``: (kept, centre, class code, the stream after)."""
+        u = []
+        for _ in range(7):
+            bits, s = _next(s)
+            u.append(_open(bits))
+        centre = [tlo[a] + self.size[a] * u[a] for a in range(3)]
+        return self._kept(u[3], centre), centre, self._class(u[4]), s
+
     @dr.syntax
     def _candidates(self, tile, s, count, first, out):
         """Each tile lane's candidates, in its stream's order, written from ``first``: centre, class, kept,
         index among the tile's kept (``out``: lists of JIT arrays of the candidates' count)."""
-        d0, d1 = self.dims[0], self.dims[1]
-        idx = [tile % d0, (tile // d0) % d1, tile // (d0 * d1)]
-        tlo = [self.lo[a] + self.size[a] * mi.Float64(idx[a]) for a in range(3)]
+        tlo = self._tile_lo(tile)
         s0, s1, s2, s3 = s
         i = dr.zeros(mi.UInt32, dr.width(tile))
         kept = dr.zeros(mi.UInt32, dr.width(tile))
         while i < count:
-            u = []
-            for _ in range(7):
-                bits, (s0, s1, s2, s3) = _next([s0, s1, s2, s3])
-                u.append(_open(bits))
-            centre = [tlo[a] + self.size[a] * u[a] for a in range(3)]
-            keep = self._kept(u[3], centre)
+            keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
             slot = first + i
             for a in range(3):
                 dr.scatter(out["centre"][a], centre[a], slot)
-            dr.scatter(out["code"], self._class(u[4]), slot)
+            dr.scatter(out["code"], code, slot)
             dr.scatter(out["keep"], keep, slot)
             dr.scatter(out["index"], kept, slot)
             dr.scatter(out["tile"], tile, slot)
@@ -292,6 +305,12 @@ class DrJitProcedural:
         if self.kind == "uniform":
             return dr.full(mi.Bool, True, dr.width(u))
         return u * self.bound < self.density(centre)
+
+    def _scene(self, centre):
+        """A grain's scene position: the transform of its centre, moved by the drift where there is one."""
+        m = self.to_scene
+        p = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
+        return p if self.motion is None else self._moved(p)
 
     def _moved(self, x0):
         """``Motion::position``: the rest position ``x0`` (scene units) moved by the drift to its time."""
@@ -348,10 +367,134 @@ class DrJitProcedural:
         centre = [dr.gather(mi.Float64, out["centre"][a], kept) for a in range(3)]
         limit = (1 << self.index_bits) - 1
         key = ((mi.UInt64(g["tile"]) << self.index_bits) | mi.UInt64(dr.minimum(g["index"], limit))) + 1
-        m = self.to_scene
-        position = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
-        if self.motion is not None:
-            position = self._moved(position)
+        position = self._scene(centre)
         return {"candidates": count, "tile": g["tile"], "key": key, "code": g["code"],
                 "bin": dr.gather(mi.UInt32, self._bin, g["code"]), "centre": centre, "position": position,
                 "reach": dr.gather(mi.Float, self._reach, g["code"]), "tau": dr.gather(mi.Float, self._tau, g["code"])}
+
+    # ---------------------------------------------------------------------------------------- the walk
+
+    def optical_depth(self, origin, direction, t0, t1):
+        """Grey optical depth (Float64) of the segments [t0, t1) of the rays ``origin + t direction`` (scene
+        units, |direction| = 1): the sum of tau_i over the grains whose ball (centre and R_i as the bricks'
+        grids store them, float32) the ray passes within and whose projection t_i lies in the segment, as
+        the core's ``DiscreteMedium.optical_depth`` of a cloud with no continuous classes. Every grain is
+        regenerated where the ray needs it and nothing is stored: a 3D-DDA over the tiles the segment crosses
+        (the cloud's coordinates, the tiling grown by the halo), and per step the tiles within the halo that
+        no earlier step generated (the whole block at the first step, then the slab each move adds)."""
+        F = mi.Float64
+        o = [F(origin[a]) for a in range(3)]
+        d = [F(direction[a]) for a in range(3)]
+        n = max(dr.width(o[0]), dr.width(d[0]), dr.width(F(t0)), dr.width(F(t1)))
+        t0, t1 = F(t0) + dr.zeros(F, n), F(t1) + dr.zeros(F, n)
+        o = [x + dr.zeros(F, n) for x in o]
+        d = [x + dr.zeros(F, n) for x in d]
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            return self._walk(o, d, t0, t1)
+
+    @dr.syntax
+    def _walk(self, o, d, t0, t1):
+        F, I = mi.Float64, mi.Int32
+        n = dr.width(o[0])
+        m, h = self.to_cloud, self.halo
+        # The ray in tile units of the grown tiling (cell c is tile c - halo).
+        oc = [m[r][0] * o[0] + m[r][1] * o[1] + m[r][2] * o[2] + m[r][3] for r in range(3)]
+        dc = [m[r][0] * d[0] + m[r][1] * d[1] + m[r][2] * d[2] for r in range(3)]
+        dims = [self.dims[a] + 2 * h[a] for a in range(3)]
+        at = [(oc[a] - (self.lo[a] - self.size[a] * h[a])) / _opaque(self.size[a]) for a in range(3)]
+        per_t = [dc[a] / _opaque(self.size[a]) for a in range(3)]
+        inv_p = [1.0 / p for p in per_t]
+        t_in, t_out = F(t0), F(t1)
+        for a in range(3):
+            flat = per_t[a] == 0
+            u0, u1 = (0.0 - at[a]) * inv_p[a], (dims[a] - at[a]) * inv_p[a]
+            inside = (at[a] >= 0) & (at[a] <= dims[a])
+            t_in = dr.maximum(t_in, dr.select(flat, dr.select(inside, -dr.inf, dr.inf), dr.minimum(u0, u1)))
+            t_out = dr.minimum(t_out, dr.select(flat, dr.select(inside, dr.inf, -dr.inf), dr.maximum(u0, u1)))
+        active = t_in < t_out
+        # The DDA over the grown tiling's cells (cx, cy, cz), each axis' next face at tnx, tny, tnz.
+        step = [dr.select(per_t[a] > 0, 1, dr.select(per_t[a] < 0, -1, 0)) for a in range(3)]
+        c = [dr.clip(I(dr.floor(at[a] + t_in * per_t[a])), 0, dims[a] - 1) for a in range(3)]
+        tnx, tny, tnz = (_face(c[a], at[a], per_t[a], inv_p[a]) for a in range(3))
+        cx, cy, cz = c
+        tau = dr.zeros(F, n)
+        first = dr.full(mi.Bool, True, n)
+        moved = dr.full(I, -1, n)
+        while active:
+            # The tiles this step adds (real tile indices), clamped to the tiling.
+            lo_, hi_ = [], []
+            cc = (cx, cy, cz)
+            for a in range(3):
+                ca = cc[a]
+                slab = ~first & (moved == a)
+                edge = ca - h[a] + step[a] * h[a]
+                lo_.append(dr.maximum(dr.select(slab, edge, ca - 2 * h[a]), 0))
+                hi_.append(dr.minimum(dr.select(slab, edge, ca), self.dims[a] - 1))
+            nx = dr.maximum(hi_[0] - lo_[0] + 1, 1)
+            ny = dr.maximum(hi_[1] - lo_[1] + 1, 1)
+            some = (hi_[0] >= lo_[0]) & (hi_[1] >= lo_[1]) & (hi_[2] >= lo_[2])
+            count = dr.select(some, nx * ny * (hi_[2] - lo_[2] + 1), 0)
+            r = dr.zeros(I, n)
+            while r < count:
+                tx = lo_[0] + r % nx
+                ty = lo_[1] + (r // nx) % ny
+                tz = lo_[2] + r // (nx * ny)
+                tile = mi.UInt32((tz * self.dims[1] + ty) * self.dims[0] + tx)
+                tau += self._tile_tau(tile, o, d, t0, t1)
+                r += 1
+            cx, cy, cz, tnx, tny, tnz, moved, go = _advance((cx, cy, cz), (tnx, tny, tnz), step, at, per_t, inv_p,
+                                                            t_out)
+            active = go & (cx >= 0) & (cx < dims[0]) & (cy >= 0) & (cy < dims[1]) & (cz >= 0) & (cz < dims[2])
+            first = dr.full(mi.Bool, False, n)
+        return tau
+
+    @dr.syntax
+    def _tile_tau(self, tile, o, d, t0, t1):
+        """The optical depth of the grains of tile ``tile`` (one per lane) on the rays (regenerated)."""
+        F = mi.Float64
+        s0, s1, s2, s3 = self._seed(mi.UInt64(tile))
+        count, (s0, s1, s2, s3) = self._poisson([s0, s1, s2, s3])
+        tlo = self._tile_lo(tile)
+        tau = dr.zeros(F, dr.width(tile))
+        i = dr.zeros(mi.UInt32, dr.width(tile))
+        while i < count:
+            keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
+            reach = F(dr.gather(mi.Float, self._reach, code))
+            m = self.to_scene
+            p = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
+            if self.motion is not None:
+                # The drift only where the rest position is within its bound of meeting the segment.
+                reach_d = reach + DRIFT_PER_TURBULENCE * self.motion[1]
+                hit = keep & self._meets(p, reach_d, o, d, t0 - reach_d, t1 + reach_d)
+                if hit:
+                    p = self._moved(p)
+            # The grain as the grids store it (float32 centre and R), tested in double precision
+            # (``ball_contribution``, rust/motes-core/src/space/grid/slots.rs).
+            hit = keep & self._meets([F(mi.Float(x)) for x in p], reach, o, d, t0, t1)
+            tau += dr.select(hit, F(dr.gather(mi.Float, self._tau, code, hit)), 0.0)
+            i += 1
+        return tau
+
+    @staticmethod
+    def _meets(p, reach, o, d, t0, t1):
+        """Whether the ray passes within ``reach`` of ``p`` with the projection in [t0, t1)."""
+        v = [p[a] - o[a] for a in range(3)]
+        t = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
+        q = [v[a] - t * d[a] for a in range(3)]
+        return (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < reach * reach) & (t >= t0) & (t < t1)
+
+
+def _face(c, at, per_t, inv_p):
+    """t of the face the ray leaves cell layer ``c`` by (inf along an axis it does not move on)."""
+    F = mi.Float64
+    return dr.select(per_t > 0, (F(c + 1) - at) * inv_p, dr.select(per_t < 0, (F(c) - at) * inv_p, dr.inf))
+
+
+def _advance(c, t_next, step, at, per_t, inv_p, t_out):
+    """One DDA step along the axis whose face comes first: (the three cells, the three next faces, the axis,
+    whether the segment goes on past that face)."""
+    axis = dr.select(t_next[2] < dr.minimum(t_next[0], t_next[1]), 2, dr.select(t_next[1] < t_next[0], 1, 0))
+    go = dr.minimum(dr.minimum(t_next[0], t_next[1]), t_next[2]) < t_out
+    c = [dr.select(go & (axis == a), c[a] + step[a], c[a]) for a in range(3)]
+    t_next = [dr.select(go & (axis == a), _face(c[a], at[a], per_t[a], inv_p[a]), t_next[a]) for a in range(3)]
+    return (*c, *t_next, axis, go)

@@ -33,6 +33,7 @@ impl PyDiscreteMedium {
         d.set_item("dims", e.dims.to_vec())?;
         d.set_item("lo", e.lo.to_vec())?;
         d.set_item("size", e.size.to_vec())?;
+        d.set_item("halo", e.halo.to_vec())?;
         d.set_item("box_lo", e.box_lo.to_vec())?;
         d.set_item("box_hi", e.box_hi.to_vec())?;
         d.set_item("lambda", e.lambda)?;

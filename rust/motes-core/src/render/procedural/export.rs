@@ -54,6 +54,9 @@ pub struct ProceduralExport {
     pub dims: [usize; 3],
     pub lo: [f64; 3],
     pub size: [f64; 3],
+    /// Tiles per axis a grain's inclusion ball (plus the drift) reaches across: a ray meets only grains
+    /// of tiles within this of the tiles it crosses (or of the ring of this many around the tiling).
+    pub halo: [usize; 3],
     /// The cloud's box (what a gradient's t and the grid density are relative to).
     pub box_lo: [f64; 3],
     pub box_hi: [f64; 3],
@@ -155,6 +158,7 @@ impl ProceduralGrains {
             dims: self.tiling.dims,
             lo: self.tiling.lo,
             size: self.tiling.size,
+            halo: self.halo,
             box_lo: self.cloud.lo,
             box_hi: self.cloud.hi,
             lambda,
