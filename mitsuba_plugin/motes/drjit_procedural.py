@@ -128,11 +128,12 @@ class ValueNoise:
         self.octaves = [(float(1 << o) / scale, [float(x) for x in off], int(base), 0.5**o)
                         for o, (off, base) in enumerate(zip(terms["offsets"], terms["bases"]))]
 
-    def value(self, p):
-        """v(p) in [0, 1] (Float64 triple)."""
+    def value(self, p, octaves=None):
+        """v(p) in [0, 1] (Float64 triple); ``octaves`` in place of this noise's (f, offsets, hash seed, weight)
+        per octave: another noise's of the same scale and octaves, its offsets and seeds JIT arrays."""
         U, I = mi.UInt64, mi.Int64
         total, weights = None, 0.0
-        for f, off, base, weight in self.octaves:
+        for f, off, base, weight in self.octaves if octaves is None else octaves:
             q = [p[a] * f + off[a] for a in range(3)]
             i = [dr.floor(x) for x in q]
             w = [_quintic(q[a] - i[a]) for a in range(3)]
@@ -193,6 +194,13 @@ class DrJitProcedural:
         if m is not None:
             self.motion = ([ValueNoise(t) for t in m["potential"]], float(m["turbulence"]), float(m["scale"]),
                            float(m["time"]))
+            shapes = {(float(t["scale"]), len(t["bases"])) for t in m["potential"]}
+            assert len(shapes) == 1, "the potential's three noises share a scale and octaves"
+            self._pot_off = mi.Float64(np.asarray([t["offsets"] for t in m["potential"]], dtype=np.float64).ravel())
+            self._pot_base = mi.UInt64(np.asarray([t["bases"] for t in m["potential"]], dtype=np.uint64).ravel())
+            # The curl's pairs (i, j): d Psi_i / d q_j, in the order [d(2,1), d(1,2), d(0,2), d(2,0), d(1,0), d(0,1)].
+            self._curl_i = mi.UInt32([2, 1, 0, 2, 1, 0])
+            self._curl_j = mi.UInt32([1, 2, 2, 0, 0, 1])
         codes = np.asarray(e["codes"], dtype=np.uint32)
         self.n_codes = int(codes.size)
         self._codes = mi.UInt32(codes)
@@ -313,26 +321,45 @@ class DrJitProcedural:
         return p if self.motion is None else self._moved(p)
 
     def _moved(self, x0):
-        """``Motion::position``: the rest position ``x0`` (scene units) moved by the drift to its time."""
-        potential, turbulence, scale, time = self.motion
-        scale_ = _opaque(scale)
-        h2 = _opaque(2.0 * CURL_STEP)
-
-        def curl(t):
-            q = [x0[a] / scale_ + t * PATTERN_SPEED * PATTERN_DIR[a] for a in range(3)]
-
-            def d(i, j):
-                lo, hi = list(q), list(q)
-                lo[j] = lo[j] - CURL_STEP
-                hi[j] = hi[j] + CURL_STEP
-                return (potential[i].value(hi) - potential[i].value(lo)) / h2
-
-            return [d(2, 1) - d(1, 2), d(0, 2) - d(2, 0), d(1, 0) - d(0, 1)]
-
+        """``Motion::position``: the rest position ``x0`` (scene units) moved by the drift to its time: x0 plus
+        turbulence (W(q, t) - W(q, 0)), W the curl of the potential by central differences."""
+        _, turbulence, scale, time = self.motion
         if time == 0.0:
             return list(x0)
-        w1, w0 = curl(time), curl(0.0)
+        scale_ = _opaque(scale)
+        q1 = [x0[a] / scale_ + time * PATTERN_SPEED * PATTERN_DIR[a] for a in range(3)]
+        q0 = [x0[a] / scale_ + 0.0 * PATTERN_SPEED * PATTERN_DIR[a] for a in range(3)]
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            d = self._derivatives(q1, q0)
+        w1 = [d[0] - d[1], d[2] - d[3], d[4] - d[5]]
+        w0 = [d[6] - d[7], d[8] - d[9], d[10] - d[11]]
         return [x0[a] + turbulence * (w1[a] - w0[a]) for a in range(3)]
+
+    @dr.syntax
+    def _derivatives(self, q1, q0):
+        """The twelve derivatives d Psi_i / d q_j of the curl (``Motion::curl``) at q1 (then q0), in the curl's
+        order: one symbolic loop over them (a kernel of two noise evaluations, not 24)."""
+        potential = self.motion[0]
+        shape = potential[0].octaves
+        n = dr.width(q1[0])
+        h2 = _opaque(2.0 * CURL_STEP)
+        d = [dr.zeros(mi.Float64, n) for _ in range(12)]
+        k = dr.zeros(mi.UInt32, n)
+        while k < 12:
+            pair = k % 6
+            i = dr.gather(mi.UInt32, self._curl_i, pair)
+            j = dr.gather(mi.UInt32, self._curl_j, pair)
+            q = [dr.select(k < 6, q1[a], q0[a]) for a in range(3)]
+            lo = [dr.select(j == a, q[a] - CURL_STEP, q[a]) for a in range(3)]
+            hi = [dr.select(j == a, q[a] + CURL_STEP, q[a]) for a in range(3)]
+            octaves = [(shape[o][0], [dr.gather(mi.Float64, self._pot_off, (i * len(shape) + o) * 3 + a)
+                                      for a in range(3)],
+                        dr.gather(mi.UInt64, self._pot_base, i * len(shape) + o), shape[o][3])
+                       for o in range(len(shape))]
+            dv = (potential[0].value(hi, octaves) - potential[0].value(lo, octaves)) / h2
+            d = [dr.select(k == m, dv, d[m]) for m in range(12)]
+            k += 1
+        return d
 
     # ---------------------------------------------------------------------------------------- queries
 
