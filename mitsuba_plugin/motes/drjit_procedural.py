@@ -48,7 +48,11 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .drjit_walk import _one_minus_exp
+
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
+#: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
+STREAM_GAMMA = 0xD1B54A32D192ED03
 _M1, _M2 = 0xBF58476D1CE4E5B9, 0x94D049BB133111EB
 #: rand_distr's Poisson: Knuth's method below this mean, the rejection method above.
 KNUTH_BELOW = 12.0
@@ -420,18 +424,27 @@ class DrJitProcedural:
         regenerated where the ray needs it and nothing is stored: a 3D-DDA over the tiles the segment crosses
         (the cloud's coordinates, the tiling grown by the halo), and per step the tiles within the halo that
         no earlier step generated (the whole block at the first step, then the slab each move adds)."""
-        F = mi.Float64
-        o = [F(origin[a]) for a in range(3)]
-        d = [F(direction[a]) for a in range(3)]
-        n = max(dr.width(o[0]), dr.width(d[0]), dr.width(F(t0)), dr.width(F(t1)))
-        t0, t1 = F(t0) + dr.zeros(F, n), F(t1) + dr.zeros(F, n)
-        o = [x + dr.zeros(F, n) for x in o]
-        d = [x + dr.zeros(F, n) for x in d]
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            return self._walk(o, d, t0, t1)
+            return self._walk(*_rays(origin, direction, t0, t1), None)[0]
+
+    def sample_free_flight(self, origin, direction, t0, t1, seed):
+        """Exact free flights on [t0, tmax): ``(t, key, code, valid)``: the t of the first grain that interacts
+        (Float64, inf where none), its key (UInt64) and class code (UInt32), and whether there is one. Each grain
+        interacts with probability 1 - exp(-tau_i), independently: its uniform is the top 53 bits of
+        ``splitmix64_finalise(seed ^ key * STREAM_GAMMA)`` (``rng::stream_bits`` of the ray's 64-bit ``seed``,
+        a UInt64 per ray, and the grain's key), so the walk need not meet grains in t order and stops after
+        the first DDA step whose exit lies beyond an interaction (module docs): the distribution the core's
+        free flight samples, not its sample."""
+        o, d, t0, t1 = _rays(origin, direction, t0, t1)
+        seed = mi.UInt64(seed) + dr.zeros(mi.UInt64, dr.width(t0))
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            _, t, key, code = self._walk(o, d, t0, t1, seed)
+        valid = key != 0
+        return t, key, code, valid
 
     @dr.syntax
-    def _walk(self, o, d, t0, t1):
+    def _walk(self, o, d, t0, t1, seed):
+        """(optical depth, and where ``seed`` is given the first interaction's t, key and class code)."""
         F, I = mi.Float64, mi.Int32
         n = dr.width(o[0])
         m, h = self.to_cloud, self.halo
@@ -456,9 +469,13 @@ class DrJitProcedural:
         tnx, tny, tnz = (_face(c[a], at[a], per_t[a], inv_p[a]) for a in range(3))
         cx, cy, cz = c
         tau = dr.zeros(F, n)
+        best_t = dr.full(F, dr.inf, n)
+        best_key = dr.zeros(mi.UInt64, n)
+        best_code = dr.zeros(mi.UInt32, n)
         first = dr.full(mi.Bool, True, n)
         moved = dr.full(I, -1, n)
         while active:
+            t_exit = dr.minimum(dr.minimum(tnx, tny), dr.minimum(tnz, t_out))
             # The tiles this step adds (real tile indices), clamped to the tiling.
             lo_, hi_ = [], []
             cc = (cx, cy, cz)
@@ -478,23 +495,28 @@ class DrJitProcedural:
                 ty = lo_[1] + (r // nx) % ny
                 tz = lo_[2] + r // (nx * ny)
                 tile = mi.UInt32((tz * self.dims[1] + ty) * self.dims[0] + tx)
-                tau += self._tile_tau(tile, o, d, t0, t1)
+                tau, best_t, best_key, best_code = self._tile(tile, o, d, t0, t1, seed, tau, best_t, best_key,
+                                                              best_code)
                 r += 1
             cx, cy, cz, tnx, tny, tnz, moved, go = _advance((cx, cy, cz), (tnx, tny, tnz), step, at, per_t, inv_p,
                                                             t_out)
+            # Every grain with t_i before this step's exit is tested: a flight that interacted there stops.
+            go &= best_t > t_exit
             active = go & (cx >= 0) & (cx < dims[0]) & (cy >= 0) & (cy < dims[1]) & (cz >= 0) & (cz < dims[2])
             first = dr.full(mi.Bool, False, n)
-        return tau
+        return tau, best_t, best_key, best_code
 
     @dr.syntax
-    def _tile_tau(self, tile, o, d, t0, t1):
-        """The optical depth of the grains of tile ``tile`` (one per lane) on the rays (regenerated)."""
+    def _tile(self, tile, o, d, t0, t1, seed, tau, best_t, best_key, best_code):
+        """The grains of tile ``tile`` (one per lane, regenerated) on the rays: their optical depth added to
+        ``tau`` and, with a ``seed``, the first interaction so far (``best_*``, module docs)."""
         F = mi.Float64
         s0, s1, s2, s3 = self._seed(mi.UInt64(tile))
         count, (s0, s1, s2, s3) = self._poisson([s0, s1, s2, s3])
         tlo = self._tile_lo(tile)
-        tau = dr.zeros(F, dr.width(tile))
+        flight = seed is not None
         i = dr.zeros(mi.UInt32, dr.width(tile))
+        kept = dr.zeros(mi.UInt32, dr.width(tile))
         while i < count:
             keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
             reach = F(dr.gather(mi.Float, self._reach, code))
@@ -503,15 +525,26 @@ class DrJitProcedural:
             if self.motion is not None:
                 # The drift only where the rest position is within its bound of meeting the segment.
                 reach_d = reach + DRIFT_PER_TURBULENCE * self.motion[1]
-                hit = keep & self._meets(p, reach_d, o, d, t0 - reach_d, t1 + reach_d)
-                if hit:
+                near, _ = self._meets(p, reach_d, o, d, t0 - reach_d, t1 + reach_d)
+                if keep & near:
                     p = self._moved(p)
             # The grain as the grids store it (float32 centre and R), tested in double precision
             # (``ball_contribution``, rust/motes-core/src/space/grid/slots.rs).
-            hit = keep & self._meets([F(mi.Float(x)) for x in p], reach, o, d, t0, t1)
-            tau += dr.select(hit, F(dr.gather(mi.Float, self._tau, code, hit)), 0.0)
+            hit, t = self._meets([F(mi.Float(x)) for x in p], reach, o, d, t0, t1)
+            hit &= keep
+            tau_i = F(dr.gather(mi.Float, self._tau, code, hit))
+            tau += dr.select(hit, tau_i, 0.0)
+            if flight:
+                limit = (1 << self.index_bits) - 1
+                key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
+                u = _standard(splitmix64_finalise(seed ^ (key * STREAM_GAMMA)))
+                interacts = hit & (t < best_t) & (u < _one_minus_exp(tau_i))
+                best_t = dr.select(interacts, t, best_t)
+                best_key = dr.select(interacts, key, best_key)
+                best_code = dr.select(interacts, code, best_code)
+            kept += dr.select(keep, 1, 0)
             i += 1
-        return tau
+        return tau, best_t, best_key, best_code
 
     @staticmethod
     def _meets(p, reach, o, d, t0, t1):
@@ -519,7 +552,17 @@ class DrJitProcedural:
         v = [p[a] - o[a] for a in range(3)]
         t = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
         q = [v[a] - t * d[a] for a in range(3)]
-        return (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < reach * reach) & (t >= t0) & (t < t1)
+        return (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < reach * reach) & (t >= t0) & (t < t1), t
+
+
+def _rays(origin, direction, t0, t1):
+    """Rays as Float64 triples and segment ends of one width."""
+    F = mi.Float64
+    o = [F(origin[a]) for a in range(3)]
+    d = [F(direction[a]) for a in range(3)]
+    n = max(dr.width(o[0]), dr.width(d[0]), dr.width(F(t0)), dr.width(F(t1)))
+    return [x + dr.zeros(F, n) for x in o], [x + dr.zeros(F, n) for x in d], F(t0) + dr.zeros(F, n), \
+        F(t1) + dr.zeros(F, n)
 
 
 def _face(c, at, per_t, inv_p):
