@@ -2,7 +2,7 @@
 regenerate a cell's grains from the counter-based hash instead of storing them"): for a wavefront of tile
 indices, each tile's grains as the Rust core's bricks generate them (``rust/motes-core/src/space/cloud.rs``,
 ``rust/motes-core/src/render/procedural/``), in the current Mitsuba variant's JIT types (``llvm_ad_*``, and
-``cuda_ad_*``, where a kernel cannot call the core). Not wired into the walk yet.
+``cuda_ad_*``, where a kernel cannot call the core). Not wired into the medium plugin yet.
 
 The process (the core's module docs): tile t's stream is xoshiro256++ seeded by SplitMix64 from
 ``splitmix64(seed ^ splitmix64(TILE_STREAM ^ t))``; it draws the tile's candidate count K_t ~ Poisson(lambda)
@@ -35,9 +35,10 @@ dict ``procedural_export`` returns); ``grains(tiles)`` returns the grains of tho
 nothing (a 3D-DDA over the tiles, grown by the halo a ball reaches across; per step the tiles of the halo
 block no earlier step generated): the core's ``DiscreteMedium.optical_depth`` of a cloud with no continuous
 classes, bit for bit on the tests' rays. Once a step is done, every grain whose projection t_i lies before
-the step's exit has been tested (its ball reaches the ray at t_i, inside the step's cell), so a free flight
-(``drjit_walk``'s: each grain interacts with probability 1 - exp(-tau_i), its own uniform hashed from the
-ray's seed and its key) can stop there: what the medium plugin would call for ``storage = "procedural"``.
+the step's exit has been tested (its ball reaches the ray at t_i, inside the step's cell), so
+``sample_free_flight`` (``drjit_walk``'s model: each grain interacts with probability 1 - exp(-tau_i) on its
+own uniform, hashed from the ray's seed and its key) stops there: what the medium plugin would call for
+``storage = "procedural"``.
 Rough cost (llvm, two shared cores): 1e6 grains of 15 625 tiles in 0.6 s; 4096 rays through a cloud of
 1e6 grains in 5 s (each ray regenerates ~100-300 tiles of 64 candidates).
 """
