@@ -4,7 +4,7 @@ Every function takes flat float64 arrays of one common length (the Python layer 
 the GIL and runs in parallel. Invalid values raise ``MotesError`` (a ``ValueError``) naming the argument.
 """
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -197,6 +197,13 @@ class DiscreteMedium:
         """The grains walked one by one as ``ParticleGrid.flat_arrays`` gives them (grey tau; "index": what the
         medium names a grain by) and "bin" (n,) uint32 each grain's optics bin; None where no grain is stored
         (a procedural cloud, every size class continuous). Continuous size classes are not in it."""
+    def procedural_export(self) -> dict[str, Any] | None:
+        """A procedural cloud's discrete process as numbers (``motes.drjit_procedural`` regenerates it): seed, tiling,
+        Poisson constants, density terms, classes' codes and CDF, per class code "reach", "tau" (float32, as the
+        bricks' grids store them) and "bin", transform and drift; None without procedural grains."""
+    def procedural_tile_grains(self, tiles: list[int]) -> dict[str, npt.NDArray[np.generic]]:
+        """The core's grains of ``tiles``: "candidates" per tile, and per grain "tile", "key", "code", "centre"
+        (n*3, the cloud's coordinates) and "position" (n*3, scene units, after the drift)."""
     @property
     def widened(self) -> int: ...
     @property

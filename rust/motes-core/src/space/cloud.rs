@@ -36,7 +36,7 @@ pub const CANDIDATES_PER_TILE: f64 = 64.0;
 /// Numbers of a tile's stream each candidate consumes: 3 position, 1 thinning, 1 species, 2 radius.
 pub(crate) const DRAWS_PER_CANDIDATE: usize = 7;
 /// Stream tags, so that the tiles', the drops' and the noise's numbers never coincide.
-const TILE_STREAM: u64 = 0x7469_6C65;
+pub(crate) const TILE_STREAM: u64 = 0x7469_6C65;
 const DROP_STREAM: u64 = 0x6472_6F70;
 const NOISE_STREAM: u64 = 0x006E_6F69_7365;
 /// Standard deviations of the oversampled process's count kept above N.
@@ -96,6 +96,12 @@ impl ValueNoise {
             offsets,
             bases,
         })
+    }
+
+    /// (scale, contrast, each octave's lattice offset and hash seed): what a re-implementation of
+    /// [`Self::value`] needs (`crate::render::procedural::export`).
+    pub(crate) fn terms(&self) -> (f64, f64, &[[f64; 3]], &[u64]) {
+        (self.scale, self.contrast, &self.offsets, &self.bases)
     }
 
     /// v(x) ∈ [0, 1].
@@ -326,6 +332,10 @@ pub struct Tiling {
 }
 
 impl Tiling {
+    /// Poisson mean of each tile's candidate count.
+    pub(crate) fn candidates(&self) -> f64 {
+        self.candidates
+    }
     pub fn len(&self) -> usize {
         self.dims[0] * self.dims[1] * self.dims[2]
     }

@@ -112,6 +112,12 @@ impl Motion {
         Ok(self)
     }
 
+    /// The potential's three noises (None without turbulence) and whether grains wrap around a box:
+    /// what a re-implementation of [`Self::position`] needs (`crate::render::procedural::export`).
+    pub(crate) fn potential(&self) -> (Option<&[ValueNoise; 3]>, bool) {
+        (self.potential.as_ref(), self.wrap.is_some())
+    }
+
     /// A bound on how far the turbulent drift can move a grain from x₀ + v t (scene units): each
     /// octave o of a potential component changes by at most 15/8 · 2^o per noise cell along an axis
     /// (the quintic's steepest slope times the octave's frequency; lattice values in [0, 1]), so with

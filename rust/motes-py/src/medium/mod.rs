@@ -3,6 +3,7 @@
 //! ([`settings`]), the evaluated-mode batch calls ([`batch`]) and what it knows of its scene ([`view`]).
 
 mod batch;
+mod procedural;
 pub(crate) mod settings;
 mod view;
 

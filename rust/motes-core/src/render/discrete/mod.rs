@@ -398,6 +398,20 @@ impl DiscreteMedium {
         }))
     }
 
+    /// A procedural cloud's discrete grains (None: stored particles, or every class continuous).
+    pub fn procedural_grains(&self) -> Option<&crate::render::procedural::ProceduralGrains> {
+        match &self.grid {
+            Some(Grains::Procedural(p)) => Some(p),
+            _ => None,
+        }
+    }
+
+    /// The optics bin of a procedural cloud's class `code`.
+    pub fn class_bin(&self, code: u32) -> usize {
+        self.optics
+            .bin(crate::render::continuous::CLASS_FLAG | code)
+    }
+
     /// Particles (a procedural cloud's expected count).
     pub fn len(&self) -> usize {
         match self.expected {

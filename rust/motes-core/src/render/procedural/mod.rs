@@ -38,6 +38,7 @@
 //! scattered ray from meeting its own particle again.
 
 mod classes;
+mod export;
 
 use crate::error::{require, shown, OpticsError};
 use crate::render::continuous::{ContinuousField, CLASS_FLAG};
@@ -48,6 +49,7 @@ use crate::space::motion::Motion;
 use crate::space::ray::RaySegment;
 pub(crate) use classes::{class_table, ClassEntry};
 use classes::{discrete_classes, push_representatives, scene_box, BinWeights, BoxShape};
+pub use export::{DensityTerms, NoiseTerms, ProceduralExport, TileGrains};
 use rustc_hash::FxHashMap;
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
