@@ -49,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import _one_minus_exp
+from .drjit_walk import EXCLUDE_MARGIN, _one_minus_exp
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -428,23 +428,27 @@ class DrJitProcedural:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             return self._walk(*_rays(origin, direction, t0, t1), None)[0]
 
-    def sample_free_flight(self, origin, direction, t0, t1, seed):
+    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None):
         """Exact free flights on [t0, tmax): ``(t, key, code, valid)``: the t of the first grain that interacts
         (Float64, inf where none), its key (UInt64) and class code (UInt32), and whether there is one. Each grain
         interacts with probability 1 - exp(-tau_i), independently: its uniform is the top 53 bits of
         ``splitmix64_finalise(seed ^ key * STREAM_GAMMA)`` (``rng::stream_bits`` of the ray's 64-bit ``seed``,
         a UInt64 per ray, and the grain's key), so the walk need not meet grains in t order and stops after
         the first DDA step whose exit lies beyond an interaction (module docs): the distribution the core's
-        free flight samples, not its sample."""
+        free flight samples, not its sample. ``exclude_origin`` (a mask per ray, or None): those rays skip the
+        grains whose ball holds their origin (grown by ``drjit_walk.EXCLUDE_MARGIN``), as
+        ``DrJitGrid.sample_free_flight`` does (a ray leaving a site)."""
         o, d, t0, t1 = _rays(origin, direction, t0, t1)
         seed = mi.UInt64(seed) + dr.zeros(mi.UInt64, dr.width(t0))
+        exclude = dr.zeros(mi.Bool, dr.width(t0)) if exclude_origin is None else \
+            mi.Bool(exclude_origin) | dr.zeros(mi.Bool, dr.width(t0))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, t, key, code = self._walk(o, d, t0, t1, seed)
+            _, t, key, code = self._walk(o, d, t0, t1, seed, exclude)
         valid = key != 0
         return t, key, code, valid
 
     @dr.syntax
-    def _walk(self, o, d, t0, t1, seed):
+    def _walk(self, o, d, t0, t1, seed, exclude=None):
         """(optical depth, and where ``seed`` is given the first interaction's t, key and class code)."""
         F, I = mi.Float64, mi.Int32
         n = dr.width(o[0])
@@ -497,7 +501,7 @@ class DrJitProcedural:
                 tz = lo_[2] + r // (nx * ny)
                 tile = mi.UInt32((tz * self.dims[1] + ty) * self.dims[0] + tx)
                 tau, best_t, best_key, best_code = self._tile(tile, o, d, t0, t1, seed, tau, best_t, best_key,
-                                                              best_code)
+                                                              best_code, exclude)
                 r += 1
             cx, cy, cz, tnx, tny, tnz, moved, go = _advance((cx, cy, cz), (tnx, tny, tnz), step, at, per_t, inv_p,
                                                             t_out)
@@ -508,7 +512,7 @@ class DrJitProcedural:
         return tau, best_t, best_key, best_code
 
     @dr.syntax
-    def _tile(self, tile, o, d, t0, t1, seed, tau, best_t, best_key, best_code):
+    def _tile(self, tile, o, d, t0, t1, seed, tau, best_t, best_key, best_code, exclude=None):
         """The grains of tile ``tile`` (one per lane, regenerated) on the rays: their optical depth added to
         ``tau`` and, with a ``seed``, the first interaction so far (``best_*``, module docs)."""
         F = mi.Float64
@@ -531,8 +535,13 @@ class DrJitProcedural:
                     p = self._moved(p)
             # The grain as the grids store it (float32 centre and R), tested in double precision
             # (``ball_contribution``, rust/motes-core/src/space/grid/slots.rs).
-            hit, t = self._meets([F(mi.Float(x)) for x in p], reach, o, d, t0, t1)
+            pf = [F(mi.Float(x)) for x in p]
+            hit, t = self._meets(pf, reach, o, d, t0, t1)
             hit &= keep
+            if exclude is not None:
+                v = [pf[a] - o[a] for a in range(3)]
+                grown = reach * (1 + EXCLUDE_MARGIN)
+                hit &= ~(exclude & (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown))
             tau_i = F(dr.gather(mi.Float, self._tau, code, hit))
             tau += dr.select(hit, tau_i, 0.0)
             if flight:
@@ -546,6 +555,69 @@ class DrJitProcedural:
             kept += dr.select(keep, 1, 0)
             i += 1
         return tau, best_t, best_key, best_code
+
+    # ---------------------------------------------------------------------------------------- a site
+
+    def site_walk(self, p, d_in, tol, visit, state, active=True):
+        """Visit every grain that could be part of a site at ``p`` on a ray along ``d_in`` (the grains of the tiles
+        within the halo of ``p``'s tile, regenerated): ``state = visit(tau, bin, member, state)`` per grain, with
+        ``member`` whether its ball holds the ray (centre and R as the grids store them) and its centre projects
+        on it within ``tol`` of ``p`` (``DiscreteMedium::site_near``'s rule, in double precision); ``tau`` (Float)
+        and ``bin`` its optical depth and optics bin. ``state``: a list of JIT values, returned updated."""
+        F = mi.Float64
+        pp = [F(p[a]) for a in range(3)]
+        dd = [F(d_in[a]) for a in range(3)]
+        n = max(dr.width(pp[0]), dr.width(dd[0]), dr.width(tol))
+        with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            return self._site_walk([x + dr.zeros(F, n) for x in pp], [x + dr.zeros(F, n) for x in dd],
+                                   F(tol) + dr.zeros(F, n), visit, state, mi.Bool(active) | dr.zeros(mi.Bool, n))
+
+    @dr.syntax
+    def _site_walk(self, p, d, tol, visit, state, active):
+        I = mi.Int32
+        m, h = self.to_cloud, self.halo
+        pc = [m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3] for r in range(3)]
+        c = [I(dr.floor((pc[a] - self.lo[a]) / _opaque(self.size[a]))) for a in range(3)]
+        lo_ = [dr.maximum(c[a] - h[a], 0) for a in range(3)]
+        hi_ = [dr.minimum(c[a] + h[a], self.dims[a] - 1) for a in range(3)]
+        nx = dr.maximum(hi_[0] - lo_[0] + 1, 1)
+        ny = dr.maximum(hi_[1] - lo_[1] + 1, 1)
+        some = active & (hi_[0] >= lo_[0]) & (hi_[1] >= lo_[1]) & (hi_[2] >= lo_[2])
+        count = dr.select(some, nx * ny * (hi_[2] - lo_[2] + 1), 0)
+        r = dr.zeros(I, dr.width(p[0]))
+        while r < count:
+            tile = mi.UInt32(((lo_[2] + r // (nx * ny)) * self.dims[1] + lo_[1] + (r // nx) % ny) * self.dims[0]
+                             + lo_[0] + r % nx)
+            state = self._site_tile(tile, p, d, tol, visit, state)
+            r += 1
+        return state
+
+    @dr.syntax
+    def _site_tile(self, tile, p, d, tol, visit, state):
+        F = mi.Float64
+        s0, s1, s2, s3 = self._seed(mi.UInt64(tile))
+        count, (s0, s1, s2, s3) = self._poisson([s0, s1, s2, s3])
+        tlo = self._tile_lo(tile)
+        i = dr.zeros(mi.UInt32, dr.width(tile))
+        while i < count:
+            keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
+            reach = F(dr.gather(mi.Float, self._reach, code))
+            m = self.to_scene
+            q = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
+            if self.motion is not None:
+                reach_d = reach + DRIFT_PER_TURBULENCE * self.motion[1]
+                v = [q[a] - p[a] for a in range(3)]
+                if keep & (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < reach_d * reach_d):
+                    q = self._moved(q)
+            v = [F(mi.Float(q[a])) - p[a] for a in range(3)]
+            along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
+            w = [v[a] - along * d[a] for a in range(3)]
+            member = keep & (dr.abs(along) <= tol) & (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < reach * reach)
+            tau = dr.gather(mi.Float, self._tau, code, member)
+            b = dr.gather(mi.UInt32, self._bin, code, member)
+            state = visit(tau, b, member, state)
+            i += 1
+        return state
 
     @staticmethod
     def _meets(p, reach, o, d, t0, t1):
