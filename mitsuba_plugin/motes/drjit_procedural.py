@@ -524,15 +524,9 @@ class DrJitProcedural:
         kept = dr.zeros(mi.UInt32, dr.width(tile))
         while i < count:
             keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
-            reach = F(dr.gather(mi.Float, self._reach, code))
-            m = self.to_scene
-            p = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
-            if self.motion is not None:
-                # The drift only where the rest position is within its bound of meeting the segment.
-                reach_d = reach + DRIFT_PER_TURBULENCE * self.motion[1]
-                near, _ = self._meets(p, reach_d, o, d, t0 - reach_d, t1 + reach_d)
-                if keep & near:
-                    p = self._moved(p)
+            # The drift only where the rest position is within its bound of meeting the segment.
+            reach, p = self._placed(keep, centre, code,
+                                    lambda q, r_d: self._meets(q, r_d, o, d, t0 - r_d, t1 + r_d)[0])
             # The grain as the grids store it (float32 centre and R), tested in double precision
             # (``ball_contribution``, rust/motes-core/src/space/grid/slots.rs).
             pf = [F(mi.Float(x)) for x in p]
@@ -601,14 +595,9 @@ class DrJitProcedural:
         i = dr.zeros(mi.UInt32, dr.width(tile))
         while i < count:
             keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
-            reach = F(dr.gather(mi.Float, self._reach, code))
-            m = self.to_scene
-            q = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
-            if self.motion is not None:
-                reach_d = reach + DRIFT_PER_TURBULENCE * self.motion[1]
-                v = [q[a] - p[a] for a in range(3)]
-                if keep & (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < reach_d * reach_d):
-                    q = self._moved(q)
+            # The drift only where the rest position is within its bound of the site.
+            reach, q = self._placed(keep, centre, code,
+                                    lambda x, r_d: sum((x[a] - p[a]) ** 2 for a in range(3)) < r_d * r_d)
             v = [F(mi.Float(q[a])) - p[a] for a in range(3)]
             along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
             w = [v[a] - along * d[a] for a in range(3)]
@@ -618,6 +607,18 @@ class DrJitProcedural:
             state = visit(tau, b, member, state)
             i += 1
         return state
+
+    @dr.syntax
+    def _placed(self, keep, centre, code, near):
+        """A candidate's inclusion radius (Float64) and scene position: its centre's transform, moved by the drift
+        where ``near(rest position, reach + the drift's bound)`` (a mask) says the drift can matter."""
+        reach = mi.Float64(dr.gather(mi.Float, self._reach, code))
+        m = self.to_scene
+        q = [m[r][0] * centre[0] + m[r][1] * centre[1] + m[r][2] * centre[2] + m[r][3] for r in range(3)]
+        if self.motion is not None:
+            if keep & near(q, reach + DRIFT_PER_TURBULENCE * self.motion[1]):
+                q = self._moved(q)
+        return reach, q
 
     @staticmethod
     def _meets(p, reach, o, d, t0, t1):
