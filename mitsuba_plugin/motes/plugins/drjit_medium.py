@@ -148,7 +148,6 @@ class DrJitKernel:
             raise ValueError("discrete medium: kernel = drjit needs stored grains (not storage = procedural, nor "
                              "every size class continuous)")
         self.grid = DrJitGrid(a)
-        self._bin = mi.UInt32(np.ascontiguousarray(a["bin"], dtype=np.uint32))
         spheres = np.asarray(a["spheres"], dtype=np.float64).reshape(-1, 4)
         if spheres.shape[0]:
             extent = float(np.max(spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0)) + spheres[:, 3].max())
@@ -234,7 +233,7 @@ class DrJitKernel:
     def intersect_aabb(self, ray):
         self.ready()
         t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, ray.maxt, self._ray_seed(ray),
-                                                   exclude_origin=self.from_site(ray))
+                                                   exclude_origin=self.from_site(ray), want_index=False)
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -375,22 +374,23 @@ class DrJitKernel:
                 g = dr.gather(U, g_._start, row + U(x0), ok)
                 g1 = dr.select(ok, dr.gather(U, g_._start, row + U(x1 + 1), ok), g)
                 while g < g1:
-                    s = dr.gather(mi.Vector4f, g_._spheres, g)
-                    vx, vy, vz = s[0] - px, s[1] - py, s[2] - pz
+                    centre, radius, code = g_.grain(g, k, x0, y, z, g < g1)
+                    vx, vy, vz = centre[0] - px, centre[1] - py, centre[2] - pz
                     along = vx * dx + vy * dy + vz * dz
                     qx, qy, qz = vx - along * dx, vy - along * dy, vz - along * dz
-                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < s[3] * s[3])
-                    A, N, T, W, u, tid = step(g, member, mu, c_pick, A, N, T, W, u, tid)
+                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < radius * radius)
+                    A, N, T, W, u, tid = step(code, member, mu, c_pick, A, N, T, W, u, tid)
                     g += 1
                 r += 1
             k += 1
         return A, N, T, tid
 
-    def _accumulate(self, g, member, mu, c_pick, A, N, T, W, u, tid):
-        """``_site_sums``' step at grain ``g`` (a member of the site or not) when evaluating at ``mu``."""
+    def _accumulate(self, code, member, mu, c_pick, A, N, T, W, u, tid):
+        """``_site_sums``' step at a grain of table entry ``code`` (``DrJitGrid.grain``; a member of the site or
+        not) when evaluating at ``mu``."""
         F, U, ch = mi.Float, mi.UInt32, self.channels
-        tau = dr.gather(F, self.grid._tau, g, member)
-        b = dr.gather(U, self._bin, g, member)
+        tau = self.grid.tau_of(code, member)
+        b = self.grid.bin_of(code, member)
         a_new, n_new = [], []
         for c in range(ch):
             w = dr.select(member, tau * dr.gather(F, self._albedo, b * ch + c, member) * self._scale, 0.0)
@@ -398,12 +398,13 @@ class DrJitKernel:
             n_new.append(N[c] + w * self._table_eval(b * ch + c, mu, member & (w > 0)))
         return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, tid
 
-    def _reservoir(self, g, member, mu, c_pick, A, N, T, W, u, tid):
-        """``_site_sums``' step at grain ``g`` when picking a grain by tau_j a_jc in channel ``c_pick``: one pass
-        of weighted reservoir sampling with one uniform, rescaled at each grain (``T`` counts the members)."""
+    def _reservoir(self, code, member, mu, c_pick, A, N, T, W, u, tid):
+        """``_site_sums``' step at a grain of table entry ``code`` when picking a grain by tau_j a_jc in channel
+        ``c_pick``: one pass of weighted reservoir sampling with one uniform, rescaled at each grain (``T`` counts
+        the members)."""
         F, U, ch = mi.Float, mi.UInt32, self.channels
-        tau = dr.gather(F, self.grid._tau, g, member)
-        b = dr.gather(U, self._bin, g, member)
+        tau = self.grid.tau_of(code, member)
+        b = self.grid.bin_of(code, member)
         w = dr.select(member, tau * dr.gather(F, self._albedo, b * ch + c_pick, member) * self._scale, 0.0)
         W = W + w
         share = dr.select(W > 0, w / dr.select(W > 0, W, 1.0), 0.0)
