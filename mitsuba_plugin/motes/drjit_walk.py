@@ -218,23 +218,31 @@ class DrJitGrid:
             self._index_dev = mi.UInt32(self._index_host)
         return self._index_dev
 
-    def grain(self, g, k, x0, y, z, active):
-        """Grain ``g`` of class ``k``, read from a row of cells that starts at cell (x0, y, z) (the row holds it):
-        (centre [x, y, z] in ``self.F``, inclusion radius R, its entry in the per-code tables (``tau_of``,
-        ``bin_of``))."""
+    def frame(self, k):
+        """What ``grain`` reads of class ``k`` (gathered once per class, not per grain)."""
+        if self.layout == "spheres":
+            return None
+        F = self.F
+        return ([dr.gather(F, self._lo, 3 * k + a) for a in range(3)], dr.gather(F, self._cell, k),
+                dr.gather(mi.UInt32, self._code_off, k))
+
+    def grain(self, g, frame, x0, y, z, active):
+        """Grain ``g`` of the class of ``frame`` (``frame(k)``), read from a row of cells that starts at cell
+        (x0, y, z) (the row holds it): (centre [x, y, z] in ``self.F``, inclusion radius R, its entry in the
+        per-code tables (``tau_of``, ``bin_of``))."""
         F, U = self.F, mi.UInt32
         if self.layout == "spheres":
             s = dr.gather(mi.Vector4f, self._spheres, g, active)
             return [F(s[0]), F(s[1]), F(s[2])], F(s[3]), g
+        lo, cell, code_off = frame
         w = dr.gather(mi.Vector2u, self._words, g, active)
-        cell = dr.gather(F, self._cell, k)
         q = (w[0] & 0xFFFF, w[0] >> 16, w[1] & 0xFFFF)
         centre = []
         for a, c in enumerate((x0, y, z)):
             corner = c - 1  # the lattice's corner one cell below the row's (module docs, "Layout")
             off = (q[a] - U(corner * LATTICE_PER_CELL)) & 0xFFFF
-            centre.append(dr.gather(F, self._lo, 3 * k + a) + (F(corner) + F(off) * (1.0 / LATTICE_PER_CELL)) * cell)
-        tid = dr.gather(U, self._code_off, k) + (w[1] >> 16)
+            centre.append(lo[a] + (F(corner) + F(off) * (1.0 / LATTICE_PER_CELL)) * cell)
+        tid = code_off + (w[1] >> 16)
         return centre, F(dr.gather(mi.Float, self._reach_of, tid, active)), tid
 
     def tau_of(self, tid, active):
@@ -309,6 +317,7 @@ class DrJitGrid:
             inv_cell = dr.gather(F, self._inv_cell, k)
             reach = dr.gather(F, self._reach, k)
             soff = dr.gather(U, self._class_start, k)
+            frame = self.frame(k)
             dims = [dr.gather(I, self._dims, 3 * k + a) for a in range(3)]
             at = [(o[a] - dr.gather(F, self._lo, 3 * k + a)) * inv_cell for a in range(3)]
             per_t = [d[a] * inv_cell for a in range(3)]
@@ -369,7 +378,7 @@ class DrJitGrid:
                     y = dr.select(fetch, dr.select(wrap, y0, y + 1), y)
                     z = dr.select(wrap, z + 1, z)
                     live = g < g1
-                    centre, radius, tid = self.grain(g, k, x0, yr, zr, live)
+                    centre, radius, tid = self.grain(g, frame, x0, yr, zr, live)
                     v = [centre[a] - base[a] for a in range(3)]
                     tt = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
                     q = [v[a] - tt * d[a] for a in range(3)]

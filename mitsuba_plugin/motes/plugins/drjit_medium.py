@@ -355,6 +355,7 @@ class DrJitKernel:
         while k < g_._n_classes:
             inv_cell = dr.gather(F, g_._inv_cell, k)
             soff = dr.gather(U, g_._class_start, k)
+            frame = g_.frame(k)
             dims = [dr.gather(I, g_._dims, 3 * k + a) for a in range(3)]
             # The cells within the class's reach of p (a grain is stored in its centre's cell).
             reach = dr.gather(F, g_._reach, k)
@@ -374,7 +375,7 @@ class DrJitKernel:
                 g = dr.gather(U, g_._start, row + U(x0), ok)
                 g1 = dr.select(ok, dr.gather(U, g_._start, row + U(x1 + 1), ok), g)
                 while g < g1:
-                    centre, radius, code = g_.grain(g, k, x0, y, z, g < g1)
+                    centre, radius, code = g_.grain(g, frame, x0, y, z, g < g1)
                     vx, vy, vz = centre[0] - px, centre[1] - py, centre[2] - pz
                     along = vx * dx + vy * dy + vz * dz
                     qx, qy, qz = vx - along * dx, vy - along * dy, vz - along * dz
