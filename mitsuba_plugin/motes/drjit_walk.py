@@ -52,8 +52,10 @@ so that the wrapped difference of the u16s is the exact offset from it (the core
 (its first grain), and the indices the grid reports (4 bytes a grain) only once a free flight asks for them.
 
 ``DrJitGrid(grid)``: ``grid`` is a ``motes.ParticleGrid`` or ``motes.DiscreteMedium`` (or their
-``motes._motes`` cores), or the dict their ``flat_arrays`` return. The kernels run with symbolic loops
-whatever the flag says (the plugins' evaluated mode would run each loop iteration as a kernel).
+``motes._motes`` cores), or the dict their ``flat_arrays`` return; ``layout`` is ``auto`` (lattice where it
+holds the grains exactly, else spheres), ``lattice`` (an error where it cannot) or ``spheres``. The kernels
+run with symbolic loops whatever the flag says (the plugins' evaluated mode would run each loop iteration as
+a kernel).
 """
 
 from __future__ import annotations

@@ -12,10 +12,13 @@ the ratio to ``native-exact``. Scenes whose medium is procedural are skipped (th
 stored grains), with a line saying so. ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
 grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
 drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
-its site tag).
+its site tag). A scene whose ``cells`` parameter sets ``cells_per_particle`` (``bench``: 0.125, the native
+kernel's default) renders the drjit configuration at the drjit kernel's own default
+(``drjit_medium.DRJIT_CELLS_PER_PARTICLE``: its walk tests every grain of a cell it passes near, so coarse cells
+cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--exclusion tag|ball] [--max-depth 16]
+        [--seeds 4] [--exclusion tag|ball] [--max-depth 16] [--drjit-cells kernel|scene|<number>]
 """
 
 from __future__ import annotations
@@ -32,6 +35,11 @@ CONFIGS = {"drjit": {"kernel": "drjit"}, "native-exact": {"continuous_count": "i
 REFERENCE = "native-exact"
 
 
+#: ``--drjit-cells``: the ``cells`` parameter the drjit configuration loads scenes that declare one with (None:
+#: the scene's).
+DRJIT_CELLS: list = [None]
+
+
 def load(mi, name: str, res: int, extra: dict):
     """Scene ``name`` at ``res`` px with ``extra`` set on its discrete media (added after the tag)."""
     if name == "sidelit":
@@ -46,7 +54,10 @@ def load(mi, name: str, res: int, extra: dict):
     text = (ROOT / "scenes_xml" / f"{name}.xml").read_text()
     tags = "".join(f'<{"string" if k == "kernel" else "float"} name="{k}" value="{v}"/>' for k, v in extra.items())
     text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, text)
-    return mi.load_string(text, res=res)
+    params = {"res": res}
+    if extra.get("kernel") == "drjit" and DRJIT_CELLS[0] is not None and '<default name="cells"' in text:
+        params["cells"] = DRJIT_CELLS[0]
+    return mi.load_string(text, **params)
 
 
 def compare(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -65,6 +76,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--exclusion", choices=("tag", "ball"), default="tag")
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
+    ap.add_argument("--drjit-cells", default="kernel",
+                    help="cells_per_particle of the drjit configuration where a scene's cells parameter sets it: "
+                         "kernel (the drjit kernel's default), scene, or a number")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
@@ -74,9 +88,11 @@ def main() -> None:
     from motes.plugins import drjit_medium  # noqa: PLC0415
 
     drjit_medium.EXCLUSION = args.exclusion
+    DRJIT_CELLS[0] = {"kernel": drjit_medium.DRJIT_CELLS_PER_PARTICLE, "scene": None}.get(args.drjit_cells,
+                                                                                        args.drjit_cells)
 
     print(f"llvm_ad_rgb, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
-          f"against {REFERENCE}")
+          f"against {REFERENCE}; drjit's cells where a scene sets them: {DRJIT_CELLS[0] or 'the scene'}")
     print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s}")
     for name in args.scenes.split(","):
         if name == "sidelit":
