@@ -241,9 +241,9 @@ class DrJitGrid:
         q = (w[0] & 0xFFFF, w[0] >> 16, w[1] & 0xFFFF)
         centre = []
         for a, c in enumerate((x0, y, z)):
-            corner = c - 1  # the lattice's corner one cell below the row's (module docs, "Layout")
-            off = (q[a] - U(corner * LATTICE_PER_CELL)) & 0xFFFF
-            centre.append(lo[a] + (F(corner) + F(off) * (1.0 / LATTICE_PER_CELL)) * cell)
+            # The offset from the corner one cell below the row's (module docs, "Layout"), in u32 arithmetic.
+            off = (q[a] + LATTICE_PER_CELL - U(c) * LATTICE_PER_CELL) & 0xFFFF
+            centre.append(lo[a] + (F(c - 1) + F(off) * (1.0 / LATTICE_PER_CELL)) * cell)
         tid = code_off + (w[1] >> 16)
         return centre, F(dr.gather(mi.Float, self._reach_of, tid, active)), tid
 
