@@ -28,7 +28,8 @@ stored once, in its centre's cell, and tested once. Of a step's cells, only the 
 segment comes within the class's reach of, over the part of it that is near all three ranges, are read
 (the Rust walk's ``Near``), a row (a run of cells along x, contiguous in the arrays) at a time, in one loop
 over the step's rows and their grains (an iteration reads the next row where a lane's row is done, then
-tests a grain: lanes with rows of different lengths keep busy). Once a step is done every grain with t_i
+tests up to ``GRAINS_PER_ITERATION`` grains of it: lanes with rows of different lengths keep busy, and the
+gathers of two grains are in flight together). Once a step is done every grain with t_i
 before its exit has been tested, so a free flight stops there once it has interacted before that exit, and the next
 class walks only up to that interaction (the classes are independent).
 
@@ -77,6 +78,8 @@ REACH_MARGIN = 1e-4
 #: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball.
 EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
+#: Grains a lane tests per iteration of a step's row loop (the gathers of the next are in flight together).
+GRAINS_PER_ITERATION = 2
 #: Lattice steps per cell edge of the lattice layout (module docs, "Layout"): the core's compact storage's
 #: (``LATTICE_PER_CELL`` in ``rust/motes-core/src/space/grid/slots.rs``).
 LATTICE_PER_CELL = 1 << 14
@@ -379,28 +382,29 @@ class DrJitGrid:
                     wrap = fetch & (y >= y1)
                     y = dr.select(fetch, dr.select(wrap, y0, y + 1), y)
                     z = dr.select(wrap, z + 1, z)
-                    live = g < g1
-                    centre, radius, tid = self.grain(g, frame, x0, yr, zr, live)
-                    v = [centre[a] - base[a] for a in range(3)]
-                    tt = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
-                    q = [v[a] - tt * d[a] for a in range(3)]
-                    t_i = t_enter + tt
-                    hit = live & (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius)
-                    hit &= (t_i >= 0) & (t_i < best_t)
-                    if excluding:  # the centre's offset from the ray's origin: v + t_enter d
-                        w = [v[a] + t_enter * d[a] for a in range(3)]
-                        r_x = radius * (1 + EXCLUDE_MARGIN)
-                        hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
-                    tau_i = F(self.tau_of(tid, hit))
-                    if flight:
-                        w0, w1 = _mix(key0 + g * _GOLDEN), _mix(key1 ^ (g * _GOLDEN2))
-                        uu = (mi.Float64(w0) + mi.Float64(w1) * 2.0**-32) * 2.0**-32
-                        interacts = hit & (uu < mi.Float64(_one_minus_exp32(mi.Float(tau_i))))
-                        best_t = dr.select(interacts, t_i, best_t)
-                        best_g = dr.select(interacts, g, best_g)
-                    else:
-                        tau += dr.select(hit, tau_i, 0)
-                    g = dr.select(live, g + 1, g)
+                    for _ in range(GRAINS_PER_ITERATION):
+                        live = g < g1
+                        centre, radius, tid = self.grain(g, frame, x0, yr, zr, live)
+                        v = [centre[a] - base[a] for a in range(3)]
+                        tt = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
+                        q = [v[a] - tt * d[a] for a in range(3)]
+                        t_i = t_enter + tt
+                        hit = live & (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius)
+                        hit &= (t_i >= 0) & (t_i < best_t)
+                        if excluding:  # the centre's offset from the ray's origin: v + t_enter d
+                            w = [v[a] + t_enter * d[a] for a in range(3)]
+                            r_x = radius * (1 + EXCLUDE_MARGIN)
+                            hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
+                        tau_i = F(self.tau_of(tid, hit))
+                        if flight:
+                            w0, w1 = _mix(key0 + g * _GOLDEN), _mix(key1 ^ (g * _GOLDEN2))
+                            uu = (mi.Float64(w0) + mi.Float64(w1) * 2.0**-32) * 2.0**-32
+                            interacts = hit & (uu < mi.Float64(_one_minus_exp32(mi.Float(tau_i))))
+                            best_t = dr.select(interacts, t_i, best_t)
+                            best_g = dr.select(interacts, g, best_g)
+                        else:
+                            tau += dr.select(hit, tau_i, 0)
+                        g = dr.select(live, g + 1, g)
                 # The next step: along the axis whose face comes first; the walk ends at the box's exit,
                 # or (a free flight) once it has interacted before this step's exit.
                 ax = dr.select(tny < tnx, 1, 0)
