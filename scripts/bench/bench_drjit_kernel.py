@@ -8,7 +8,8 @@ take turns seed by seed, so that a busy machine slows them alike. Seeds differ b
 (independent noise). Printed per configuration: the image mean, its z against ``native-exact`` (difference
 of the means over the renders' spread), the per-pixel RMS difference of the mean images over their noise
 (about 1 where they differ by noise alone; estimated from the seeds' spread), and seconds per render with
-the ratio to ``native-exact``. Scenes whose medium is procedural are skipped (the drjit kernel walks
+the ratio to ``native-exact``, wall-clock and the process's CPU time (steadier where other work shares the
+machine: a render waiting for a core spends none; medians over the seeds). Scenes whose medium is procedural are skipped (the drjit kernel walks
 stored grains), with a line saying so. ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
 grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
 drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
@@ -93,7 +94,8 @@ def main() -> None:
 
     print(f"llvm_ad_rgb, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
           f"against {REFERENCE}; drjit's cells where a scene sets them: {DRJIT_CELLS[0] or 'the scene'}")
-    print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s}")
+    print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s} "
+          f"{'cpu s':>8s} {'cpu ratio':>9s}")
     for name in args.scenes.split(","):
         if name == "sidelit":
             import sys  # noqa: PLC0415
@@ -109,21 +111,24 @@ def main() -> None:
         scenes = {c: load(mi, name, args.res, extra) for c, extra in CONFIGS.items()}
         imgs: dict = {c: [] for c in CONFIGS}
         secs: dict = {c: [] for c in CONFIGS}
+        cpu: dict = {c: [] for c in CONFIGS}
         for c, sc in scenes.items():
             mi.render(sc, spp=args.spp, seed=999)  # warm-up: the kernels compile
         for s in range(args.seeds):
             for i, (c, sc) in enumerate(scenes.items()):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 img = np.asarray(mi.render(sc, spp=args.spp, seed=1000 * i + s), dtype=np.float64)
                 secs[c].append(time.perf_counter() - t0)
+                cpu[c].append(time.process_time() - c0)
                 imgs[c].append(img)
         ref = np.stack(imgs[REFERENCE])
-        t_ref = float(np.median(secs[REFERENCE]))
+        t_ref, cpu_ref = float(np.median(secs[REFERENCE])), float(np.median(cpu[REFERENCE]))
         for c in CONFIGS:
             a = np.stack(imgs[c])
             z, rms = compare(a, ref) if c != REFERENCE else (0.0, 0.0)
-            t = float(np.median(secs[c]))
-            print(f"{name:10s} {c:13s} {a.mean():10.5g} {z:6.2f} {rms:9.2f} {t:9.3f} {t / t_ref:6.2f}", flush=True)
+            t, tc = float(np.median(secs[c])), float(np.median(cpu[c]))
+            print(f"{name:10s} {c:13s} {a.mean():10.5g} {z:6.2f} {rms:9.2f} {t:9.3f} {t / t_ref:6.2f} {tc:8.3f} "
+                  f"{tc / cpu_ref:9.2f}", flush=True)
 
 
 if __name__ == "__main__":
