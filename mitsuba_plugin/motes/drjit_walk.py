@@ -28,9 +28,10 @@ stored once, in its centre's cell, and tested once. Of a step's cells, only the 
 segment comes within the class's reach of, over the part of it that is near all three ranges, are read
 (the Rust walk's ``Near``), a row (a run of cells along x, contiguous in the arrays) at a time, in one loop
 over the step's rows and their grains (an iteration reads the next row where a lane's row is done, then
-tests ``GRAINS_PER_ITERATION`` grains of it: lanes with rows of different lengths keep busy). Once a step is done every grain with t_i
-before its exit has been tested, so a free flight stops there once it has interacted before that exit, and the next
-class walks only up to that interaction (the classes are independent).
+tests ``GRAINS_PER_ITERATION`` grains of it: lanes with rows of different lengths keep busy). Once a step
+is done every grain with t_i before its exit has been tested, so a free flight stops there once it has
+interacted before that exit, and the next class walks only up to that interaction (the classes are
+independent).
 
 Precision: ``double=False`` walks in the variant's ``Float`` (single precision: the exact test runs from an
 origin moved to each step's entry, so that its error is a few 1e-7 of the cell and of the coordinates'
