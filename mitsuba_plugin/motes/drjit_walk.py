@@ -13,9 +13,11 @@ this module only reads a built grid's grains as flat arrays (``ParticleGrid.flat
 * a free flight interacts at grain i with probability 1 - exp(-tau_i), independently of the others, and
   stops at the first grain (smallest t_i) that interacts: P(grain j) = prod_{t_i < t_j} exp(-tau_i) (1 -
   exp(-tau_j)), the distribution the Rust walk samples by inversion of one uniform along the ordered grains
-  (``ParticleGrid::free_flight``). Here each grain draws its own uniform from a hash (TEA, 8 rounds) of the
-  ray's seed and the grain's position in the flat arrays, so that the walk need not visit the grains in t
-  order: the same distribution, not the same sample for the same ``u``.
+  (``ParticleGrid::free_flight``). Here each grain draws its own uniform from a hash of the ray's seed and
+  the grain's position in the flat arrays, so that the walk need not visit the grains in t order: the same
+  distribution, not the same sample for the same ``u``. The seed is hashed once per ray (TEA, 8 rounds) into
+  two keys; each grain's 64 bits are two 32-bit mixes (``_mix``) of a key and its position, a dozen integer
+  operations where TEA per grain took some 130.
 
 The walk (per size class of the grid, each with its own cells, at least as wide as the class's largest
 inclusion radius): a 3D-DDA over the cells the ray crosses (Amanatides & Woo), and per step the cells of the
@@ -24,10 +26,12 @@ inclusion radius): a 3D-DDA over the cells the ray crosses (Amanatides & Woo), a
 whose ball reaches the ray is in such a block, and in exactly one slab: a grain that straddles cells is
 stored once, in its centre's cell, and tested once. Of a step's cells, only the layers (per axis) the
 segment comes within the class's reach of, over the part of it that is near all three ranges, are read
-(the Rust walk's ``Near``), a row (a run of cells along x, contiguous in the arrays) at a time. Once a
-step is done every grain with t_i before its
-exit has been tested, so a free flight stops there once it has interacted before that exit, and the next
-class walks only up to that interaction (the classes are independent).
+(the Rust walk's ``Near``), a row (a run of cells along x, contiguous in the arrays) at a time, in one loop
+over the step's rows and their grains (an iteration reads the next row where a lane's row is done, then
+tests ``GRAINS_PER_ITERATION`` grains of it: lanes with rows of different lengths keep busy). Once a step
+is done every grain with t_i before its exit has been tested, so a free flight stops there once it has
+interacted before that exit, and the next class walks only up to that interaction (the classes are
+independent).
 
 Precision: ``double=False`` walks in the variant's ``Float`` (single precision: the exact test runs from an
 origin moved to each step's entry, so that its error is a few 1e-7 of the cell and of the coordinates'
@@ -35,12 +39,24 @@ scale; grains within that of their disk's edge or of the segment's ends may fall
 ``double=True`` in ``Float64`` (the Rust core's precision, for tests). Optical depths are summed in the
 walk's precision (single: a relative rounding of ~1e-7 per grain met; a ``Float64`` sum made the single
 walk 25 % slower on ``bench_drjit_walk.py``'s 1e5 grains). A free flight's interaction probabilities
-1 - exp(-tau_i) and its uniforms are in ``Float64`` either way (64 random bits: a grain of tau_i ~ 1e-9 keeps
-its probability).
+1 - exp(-tau_i) are single precision without cancellation (a series for small tau_i: relative error ~1e-7,
+tau_i's own rounding), compared in ``Float64`` with 64-bit uniforms (a grain of tau_i ~ 1e-9 keeps its
+probability).
+
+Layout (``DrJitGrid.layout``, ``bytes_per_grain``). ``lattice`` where every centre lies on its class's lattice
+of ``LATTICE_PER_CELL`` steps per cell edge (compact storage's grains: the core's quantised slots, ``slots.rs``)
+and a class has at most 2^16 distinct (R_i, tau_i, bin): per grain 8 bytes, two u32 words holding its lattice
+coordinates modulo 2^16 and its code (x | y << 16, z | code << 16), and per class a table of (R, tau, bin) by
+code. A row of cells x0..x1 at (y, z) holds centres within [1, 4) cells of the corner (x0 - 1, y - 1, z - 1),
+so that the wrapped difference of the u16s is the exact offset from it (the core's reading). Else
+``spheres``: per grain centre and R (f32x4), tau (f32) and bin (u32), 24 bytes. Either way 4 bytes a cell
+(its first grain), and the indices the grid reports (4 bytes a grain) only once a free flight asks for them.
 
 ``DrJitGrid(grid)``: ``grid`` is a ``motes.ParticleGrid`` or ``motes.DiscreteMedium`` (or their
-``motes._motes`` cores), or the dict their ``flat_arrays`` return. The kernels run with symbolic loops
-whatever the flag says (the plugins' evaluated mode would run each loop iteration as a kernel).
+``motes._motes`` cores), or the dict their ``flat_arrays`` return; ``layout`` is ``auto`` (lattice where it
+holds the grains exactly, else spheres), ``lattice`` (an error where it cannot) or ``spheres``. The kernels
+run with symbolic loops whatever the flag says (the plugins' evaluated mode would run each loop iteration as
+a kernel).
 """
 
 from __future__ import annotations
@@ -51,10 +67,7 @@ import numpy as np
 
 from . import _motes
 
-#: TEA rounds of a grain's uniform in a free flight (``mi.sample_tea_32(seed, grain position)``). Mitsuba's
-#: samplers use 4: here 4 fail ``tests/test_drjit_walk.py``'s chi-square of 1.2e5 flights (p < 1e-4, with
-#: random 32-bit seeds too: the grains along a ray have nearby positions); 6 and 8 pass (p 0.05-0.9 over 12
-#: sets of seeds).
+#: TEA rounds of a free flight's keys (``mi.sample_tea_32(seed, constant)``, once per ray; module docs).
 TEA_ROUNDS = 8
 #: Margin of the class box the DDA clips to, and of the rows' reach, in cells: rounding of the cell
 #: coordinates must not drop a grain the exact test accepts (a wider margin only tests a few more).
@@ -65,6 +78,13 @@ REACH_MARGIN = 1e-4
 #: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball.
 EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
+#: Grains a lane tests per iteration of a step's row loop. 2 made free flights of random rays 4-11 % faster
+#: alone but renders (the walk inside Mitsuba's kernel) 5-10 % slower: staircase 6.4 -> 6.8, house 2.8 -> 3.1
+#: CPU s a render (32 px, 16 spp).
+GRAINS_PER_ITERATION = 1
+#: Lattice steps per cell edge of the lattice layout (module docs, "Layout"): the core's compact storage's
+#: (``LATTICE_PER_CELL`` in ``rust/motes-core/src/space/grid/slots.rs``).
+LATTICE_PER_CELL = 1 << 14
 
 
 def _arrays_of(grid, channel: int) -> dict:
@@ -82,10 +102,62 @@ def _arrays_of(grid, channel: int) -> dict:
     raise TypeError(f"motes.drjit_walk walks a ParticleGrid, a DiscreteMedium or their flat arrays, not {type(grid)}")
 
 
-def _one_minus_exp(x):
-    """1 - exp(-x) (Float64) without its cancellation for small x: a series below 0.05 (error < 1e-12
-    relative), else exp."""
-    s = x * (1 - x * (1 / 2 - x * (1 / 6 - x * (1 / 24 - x * (1 / 120 - x * (1 / 720))))))
+def _lattice_layout(a: dict, spheres: np.ndarray):
+    """The lattice layout of flat arrays ``a`` (module docs, "Layout"), or None where it cannot hold them exactly
+    (a centre off its class's lattice, or more than 2^16 (R, tau, bin) codes in a class): (per grain two u32
+    words, per class its first code, per code R, tau and bin (None without bins))."""
+    n = spheres.shape[0]
+    if n == 0 or n >= 2**32 - 1:
+        return None
+    lo = np.asarray(a["class_lo"], dtype=np.float64).reshape(-1, 3)
+    cell = np.asarray(a["class_cell"], dtype=np.float64)
+    bounds = np.asarray(a["class_grains"], dtype=np.int64)
+    tau = np.ascontiguousarray(a["tau"], dtype=np.float32)
+    bins = np.ascontiguousarray(a["bin"], dtype=np.uint32) if "bin" in a else np.zeros(n, dtype=np.uint32)
+    words = np.empty((n, 2), dtype=np.uint32)
+    code_off, reach_k, tau_k, bin_k, total = [], [], [], [], 0
+    for k in range(cell.size):
+        g0, g1 = int(bounds[k]), int(bounds[k + 1])
+        code_off.append(total)
+        if g1 == g0:
+            continue
+        step = cell[k] / LATTICE_PER_CELL
+        lattice = np.round((spheres[g0:g1, :3].astype(np.float64) - lo[k]) / step)
+        if not np.array_equal((lo[k] + lattice * step).astype(np.float32), spheres[g0:g1, :3]):
+            return None
+        key = (spheres[g0:g1, 3].view(np.uint32).astype(np.uint64) << np.uint64(32)) | tau[g0:g1].view(np.uint32)
+        key = np.stack([key, bins[g0:g1].astype(np.uint64)], axis=1)
+        codes, which = np.unique(key, axis=0, return_inverse=True)
+        if codes.shape[0] > 1 << 16:
+            return None
+        q = lattice.astype(np.int64) & 0xFFFF
+        words[g0:g1, 0] = q[:, 0] | (q[:, 1] << 16)
+        words[g0:g1, 1] = q[:, 2] | (which.ravel().astype(np.int64) << 16)
+        reach_k.append((codes[:, 0] >> np.uint64(32)).astype(np.uint32).view(np.float32))
+        tau_k.append((codes[:, 0] & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.float32))
+        bin_k.append(codes[:, 1].astype(np.uint32))
+        total += codes.shape[0]
+    return (words, np.asarray(code_off, dtype=np.uint32), np.concatenate(reach_k), np.concatenate(tau_k),
+            np.concatenate(bin_k) if "bin" in a else None)
+
+
+_GOLDEN = 0x9E3779B9
+_GOLDEN2 = 0x85EBCA6B
+
+
+def _mix(x):
+    """A 32-bit integer hash with full avalanche (C. Wellons' "lowbias32"): a grain's draw is ``_mix(key0 +
+    position * _GOLDEN)`` and ``_mix(key1 ^ position * _GOLDEN2)`` (module docs)."""
+    x = x ^ (x >> 16)
+    x = x * 0x7FEB352D
+    x = x ^ (x >> 15)
+    x = x * 0x846CA68B
+    return x ^ (x >> 16)
+
+
+def _one_minus_exp32(x):
+    """1 - exp(-x) in single precision without its cancellation for small x (relative error ~1e-7)."""
+    s = x * (1 - x * (1 / 2 - x * (1 / 6 - x * (1 / 24 - x * (1 / 120)))))
     return dr.select(x < 0.05, s, 1 - dr.exp(-x))
 
 
@@ -93,25 +165,45 @@ class DrJitGrid:
     """A grid's grains uploaded once as the current variant's JIT arrays, walked by ``optical_depth``,
     ``transmittance`` and ``sample_free_flight`` (module docs)."""
 
-    def __init__(self, grid, *, channel: int = 0, double: bool = False):
+    def __init__(self, grid, *, channel: int = 0, double: bool = False, layout: str = "auto"):
         if not mi.variant() or not mi.variant().startswith(("llvm_", "cuda_")):
             raise RuntimeError(f"motes.drjit_walk needs a JIT variant (llvm_* or cuda_*), not {mi.variant()!r}")
         a = _arrays_of(grid, channel)
         self.double = bool(double)
         self.F = mi.Float64 if self.double else mi.Float
-        spheres = np.ascontiguousarray(a["spheres"], dtype=np.float32)
+        spheres = np.ascontiguousarray(a["spheres"], dtype=np.float32).reshape(-1, 4)
         self.count = int(spheres.shape[0])
         self.classes = int(len(a["class_cell"]))
-        self.bytes_per_grain = 24  # centre and R (16, read per grain tested), tau (4), index (4)
         self.cells = int(len(a["start"]))
-        # The grains (module docs of rust/motes-core/src/space/grid/flat.rs).
-        self._spheres = mi.Float(spheres.ravel())
-        self._tau = mi.Float(np.ascontiguousarray(a["tau"], dtype=np.float32))
-        self._index = mi.UInt32(np.ascontiguousarray(a["index"], dtype=np.uint32))
         self._start = mi.UInt32(np.ascontiguousarray(a["start"], dtype=np.uint32))
         self.bin = np.asarray(a["bin"]) if "bin" in a else None
+        # The grains (module docs, "Layout"), and the index the grid reports for each, uploaded at the first
+        # free flight that asks for it (``_index``).
+        self._index_host = np.ascontiguousarray(a["index"], dtype=np.uint32)
+        self._index_dev = None
+        lattice = _lattice_layout(a, spheres) if layout in ("auto", "lattice") else None
+        if layout == "lattice" and lattice is None:
+            raise ValueError("DrJitGrid: layout = lattice needs every centre on its class's lattice and at most "
+                             f"{1 << 16} (R, tau, bin) codes per class")
+        self.layout = "lattice" if lattice is not None else "spheres"
+        if lattice is not None:
+            words, code_off, reach, tau, bins = lattice
+            self._words = mi.UInt32(words.ravel())
+            self._code_off = mi.UInt32(code_off)
+            self._reach_of = mi.Float(reach)
+            self._tau = mi.Float(tau)
+            self._bin = mi.UInt32(bins) if bins is not None else None
+            self._table_bytes = 4 * (code_off.size + reach.size + tau.size + (0 if bins is None else bins.size))
+            self._grain_bytes = 8
+        else:
+            self._spheres = mi.Float(spheres.ravel())
+            self._tau = mi.Float(np.ascontiguousarray(a["tau"], dtype=np.float32))
+            self._bin = mi.UInt32(np.ascontiguousarray(self.bin, dtype=np.uint32)) if self.bin is not None else None
+            self._table_bytes = 0
+            self._grain_bytes = 16 + 4 + (4 if self.bin is not None else 0)
         # Per class: corner, 1 / cell, cells per axis, reach in cells (with margins), first cell start.
         cell = np.asarray(a["class_cell"], dtype=np.float64)
+        self._cell = self.F(cell)
         self._lo = self.F(np.ascontiguousarray(np.asarray(a["class_lo"], dtype=np.float64).ravel()))
         self._inv_cell = self.F(1.0 / cell)
         self._dims = mi.Int32(np.ascontiguousarray(np.asarray(a["class_dims"]).ravel().astype(np.int32)))
@@ -119,6 +211,54 @@ class DrJitGrid:
         self._reach = self.F(reach_cells * (1 + REACH_MARGIN) + CELL_MARGIN)
         self._class_start = mi.UInt32(np.asarray(a["class_start"]).astype(np.uint32))
         self._n_classes = dr.opaque(mi.UInt32, self.classes)
+
+    @property
+    def bytes_per_grain(self) -> float:
+        """Bytes the uploaded arrays hold per grain, the cell starts (4 B a cell, ``cells``) aside: the grains,
+        their tables shared out over them, and the reported indices once a free flight has asked for them."""
+        index = 4 if self._index_dev is not None else 0
+        return self._grain_bytes + index + self._table_bytes / max(self.count, 1)
+
+    @property
+    def _index(self):
+        if self._index_dev is None:
+            self._index_dev = mi.UInt32(self._index_host)
+        return self._index_dev
+
+    def frame(self, k):
+        """What ``grain`` reads of class ``k`` (gathered once per class, not per grain)."""
+        if self.layout == "spheres":
+            return None
+        F = self.F
+        return ([dr.gather(F, self._lo, 3 * k + a) for a in range(3)], dr.gather(F, self._cell, k),
+                dr.gather(mi.UInt32, self._code_off, k))
+
+    def grain(self, g, frame, x0, y, z, active):
+        """Grain ``g`` of the class of ``frame`` (``frame(k)``), read from a row of cells that starts at cell
+        (x0, y, z) (the row holds it): (centre [x, y, z] in ``self.F``, inclusion radius R, its entry in the
+        per-code tables (``tau_of``, ``bin_of``))."""
+        F, U = self.F, mi.UInt32
+        if self.layout == "spheres":
+            s = dr.gather(mi.Vector4f, self._spheres, g, active)
+            return [F(s[0]), F(s[1]), F(s[2])], F(s[3]), g
+        lo, cell, code_off = frame
+        w = dr.gather(mi.Vector2u, self._words, g, active)
+        q = (w[0] & 0xFFFF, w[0] >> 16, w[1] & 0xFFFF)
+        centre = []
+        for a, c in enumerate((x0, y, z)):
+            # The offset from the corner one cell below the row's (module docs, "Layout"), in u32 arithmetic.
+            off = (q[a] + LATTICE_PER_CELL - U(c) * LATTICE_PER_CELL) & 0xFFFF
+            centre.append(lo[a] + (F(c - 1) + F(off) * (1.0 / LATTICE_PER_CELL)) * cell)
+        tid = code_off + (w[1] >> 16)
+        return centre, F(dr.gather(mi.Float, self._reach_of, tid, active)), tid
+
+    def tau_of(self, tid, active):
+        """The optical depth (``mi.Float``) of the grains of table entry ``tid`` (``grain``)."""
+        return dr.gather(mi.Float, self._tau, tid, active)
+
+    def bin_of(self, tid, active):
+        """The size bin (``mi.UInt32``) of the grains of table entry ``tid`` (``grain``)."""
+        return dr.gather(mi.UInt32, self._bin, tid, active)
 
     # ------------------------------------------------------------------------------------------ queries
 
@@ -134,13 +274,14 @@ class DrJitGrid:
         ``ParticleGrid.optical_depth`` gives as exp(-tau)."""
         return dr.exp(-self.optical_depth(origin, direction, tmax))
 
-    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False):
+    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False, want_index=True):
         """Exact free flights on [0, tmax): ``(t, index, valid)``: the distance to the first grain that
         interacts (``self.F``; inf where none), the index the grid reports for it (``mi.UInt32``; 2^32 - 1
         where none) and whether there is one. ``u``: per ray a uniform ``mi.Float`` in [0, 1) (its bits seed
         the grains' draws) or a ``mi.UInt32`` seed (module docs). ``exclude_origin`` (a bool, or per ray a
         ``mi.Bool``): grains whose ball (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are
-        skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains)."""
+        skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains).
+        ``want_index=False``: no index (None; the indices are then not uploaded)."""
         if isinstance(u, mi.UInt32):
             seed = u
         else:
@@ -148,8 +289,8 @@ class DrJitGrid:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             _, t, g = self._walk(origin, direction, tmax, seed, exclude_origin)
         valid = g != _NONE
-        index = dr.gather(mi.UInt32, self._index, g, valid)
-        return dr.select(valid, t, dr.inf), dr.select(valid, index, _NONE), valid
+        index = dr.select(valid, dr.gather(mi.UInt32, self._index, g, valid), _NONE) if want_index else None
+        return dr.select(valid, t, dr.inf), index, valid
 
     # ------------------------------------------------------------------------------------------ the walk
 
@@ -173,8 +314,8 @@ class DrJitGrid:
         excluding = exclude_origin is not False
         if excluding:
             exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
-        if flight:
-            seed = U(seed) + dr.zeros(U, n)
+        # A free flight's keys: a hash of the ray's seed, which each grain's draw mixes with its position.
+        key0, key1 = mi.sample_tea_32(U(seed) + dr.zeros(U, n), U(0x2545F491), TEA_ROUNDS) if flight else (0, 0)
         tau = dr.zeros(F, n)
         best_g = dr.full(U, _NONE, n)
         k = dr.zeros(U, n)
@@ -183,6 +324,7 @@ class DrJitGrid:
             inv_cell = dr.gather(F, self._inv_cell, k)
             reach = dr.gather(F, self._reach, k)
             soff = dr.gather(U, self._class_start, k)
+            frame = self.frame(k)
             dims = [dr.gather(I, self._dims, 3 * k + a) for a in range(3)]
             at = [(o[a] - dr.gather(F, self._lo, 3 * k + a)) * inv_cell for a in range(3)]
             per_t = [d[a] * inv_cell for a in range(3)]
@@ -222,43 +364,49 @@ class DrJitGrid:
                     hi_[a] = dr.minimum(hi_[a], I(dr.floor(dr.maximum(u0, u1) + reach)))
                 x0, y0, z0 = lo_
                 x1, y1, z1 = hi_
-                ny = dr.maximum(y1 - y0 + 1, 1)  # (a divisor in every lane: masked lanes divide too)
                 near = (t0 <= t1) & (x0 <= x1) & (y0 <= y1) & (z0 <= z1)
-                rows = dr.select(near, ny * (z1 - z0 + 1), 0)
                 # The exact tests run from the ray's point at the step's entry (single precision keeps
                 # the offsets to the grains small there).
                 base = [o[a] + t_enter * d[a] for a in range(3)]
-                r = dr.zeros(I, n)
-                while r < rows:
-                    # A row of cells x0..x1 at (y, z): a run of grains.
-                    y = y0 + r % ny
-                    z = z0 + r // ny
+                # One loop over the step's rows of cells x0..x1 at (y, z) (each a run of grains) and their
+                # grains: an iteration reads the next row where the current one is done, then tests a
+                # grain where one is left, so that lanes with rows of different lengths keep busy.
+                y, z = I(y0), dr.select(near, z0, z1 + 1)
+                yr, zr = I(y), I(z)
+                g, g1 = U(0), U(0)
+                while (g < g1) | (z <= z1):
+                    fetch = g >= g1
                     row = soff + U((z * dims[1] + y) * dims[0])
-                    g = dr.gather(U, self._start, row + U(x0))
-                    g1 = dr.gather(U, self._start, row + U(x1 + 1))
-                    while g < g1:
-                        s = dr.gather(mi.Vector4f, self._spheres, g)
-                        v = [F(s[a]) - base[a] for a in range(3)]
+                    g = dr.select(fetch, dr.gather(U, self._start, row + U(x0), fetch), g)
+                    g1 = dr.select(fetch, dr.gather(U, self._start, row + U(x1 + 1), fetch), g1)
+                    yr = dr.select(fetch, y, yr)  # the row being read
+                    zr = dr.select(fetch, z, zr)
+                    wrap = fetch & (y >= y1)
+                    y = dr.select(fetch, dr.select(wrap, y0, y + 1), y)
+                    z = dr.select(wrap, z + 1, z)
+                    for _ in range(GRAINS_PER_ITERATION):
+                        live = g < g1
+                        centre, radius, tid = self.grain(g, frame, x0, yr, zr, live)
+                        v = [centre[a] - base[a] for a in range(3)]
                         tt = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
                         q = [v[a] - tt * d[a] for a in range(3)]
-                        radius = F(s[3])
                         t_i = t_enter + tt
-                        hit = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius) & (t_i >= 0) & (t_i < best_t)
+                        hit = live & (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius)
+                        hit &= (t_i >= 0) & (t_i < best_t)
                         if excluding:  # the centre's offset from the ray's origin: v + t_enter d
                             w = [v[a] + t_enter * d[a] for a in range(3)]
                             r_x = radius * (1 + EXCLUDE_MARGIN)
                             hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
-                        tau_i = F(dr.gather(mi.Float, self._tau, g, hit))
+                        tau_i = F(self.tau_of(tid, hit))
                         if flight:
-                            w0, w1 = mi.sample_tea_32(seed, g, TEA_ROUNDS)
+                            w0, w1 = _mix(key0 + g * _GOLDEN), _mix(key1 ^ (g * _GOLDEN2))
                             uu = (mi.Float64(w0) + mi.Float64(w1) * 2.0**-32) * 2.0**-32
-                            interacts = hit & (uu < _one_minus_exp(mi.Float64(tau_i)))
+                            interacts = hit & (uu < mi.Float64(_one_minus_exp32(mi.Float(tau_i))))
                             best_t = dr.select(interacts, t_i, best_t)
                             best_g = dr.select(interacts, g, best_g)
                         else:
                             tau += dr.select(hit, tau_i, 0)
-                        g += 1
-                    r += 1
+                        g = dr.select(live, g + 1, g)
                 # The next step: along the axis whose face comes first; the walk ends at the box's exit,
                 # or (a free flight) once it has interacted before this step's exit.
                 ax = dr.select(tny < tnx, 1, 0)

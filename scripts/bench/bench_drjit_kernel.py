@@ -8,14 +8,19 @@ take turns seed by seed, so that a busy machine slows them alike. Seeds differ b
 (independent noise). Printed per configuration: the image mean, its z against ``native-exact`` (difference
 of the means over the renders' spread), the per-pixel RMS difference of the mean images over their noise
 (about 1 where they differ by noise alone; estimated from the seeds' spread), and seconds per render with
-the ratio to ``native-exact``. Scenes whose medium is procedural are skipped (the drjit kernel walks
+the ratio to ``native-exact``, wall-clock and the process's CPU time (steadier where other work shares the
+machine: a render waiting for a core spends none; medians over the seeds). Scenes whose medium is procedural are skipped (the drjit kernel walks
 stored grains), with a line saying so. ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
 grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
 drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
-its site tag).
+its site tag). A scene whose ``cells`` parameter sets ``cells_per_particle`` (``bench``: 0.125, the native
+kernel's default) renders the drjit configuration at the drjit kernel's own default
+(``drjit_medium.DRJIT_CELLS_PER_PARTICLE``: its walk tests every grain of a cell it passes near, so coarse cells
+cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--exclusion tag|ball] [--max-depth 16] [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono]
+        [--seeds 4] [--exclusion tag|ball] [--max-depth 16] [--drjit-cells kernel|scene|<number>]
+        [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono]
 """
 
 from __future__ import annotations
@@ -32,6 +37,11 @@ CONFIGS = {"drjit": {"kernel": "drjit"}, "native-exact": {"continuous_count": "i
 REFERENCE = "native-exact"
 
 
+#: ``--drjit-cells``: the ``cells`` parameter the drjit configuration loads scenes that declare one with (None:
+#: the scene's).
+DRJIT_CELLS: list = [None]
+
+
 def load(mi, name: str, res: int, extra: dict):
     """Scene ``name`` at ``res`` px with ``extra`` set on its discrete media (added after the tag)."""
     if name == "sidelit":
@@ -46,7 +56,10 @@ def load(mi, name: str, res: int, extra: dict):
     text = (ROOT / "scenes_xml" / f"{name}.xml").read_text()
     tags = "".join(f'<{"string" if k == "kernel" else "float"} name="{k}" value="{v}"/>' for k, v in extra.items())
     text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, text)
-    return mi.load_string(text, res=res)
+    params = {"res": res}
+    if extra.get("kernel") == "drjit" and DRJIT_CELLS[0] is not None and '<default name="cells"' in text:
+        params["cells"] = DRJIT_CELLS[0]
+    return mi.load_string(text, **params)
 
 
 def compare(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -65,6 +78,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--exclusion", choices=("tag", "ball"), default="tag")
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
+    ap.add_argument("--drjit-cells", default="kernel",
+                    help="cells_per_particle of the drjit configuration where a scene's cells parameter sets it: "
+                         "kernel (the drjit kernel's default), scene, or a number")
     ap.add_argument("--variant", choices=("llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_mono"), default="llvm_ad_rgb")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
@@ -75,10 +91,13 @@ def main() -> None:
     from motes.plugins import drjit_medium  # noqa: PLC0415
 
     drjit_medium.EXCLUSION = args.exclusion
+    DRJIT_CELLS[0] = {"kernel": drjit_medium.DRJIT_CELLS_PER_PARTICLE, "scene": None}.get(args.drjit_cells,
+                                                                                        args.drjit_cells)
 
     print(f"{args.variant}, {args.res} px, {args.spp} spp, {args.seeds} seeds, exclusion {args.exclusion}; z and RMS/noise "
-          f"against {REFERENCE}")
-    print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s}")
+          f"against {REFERENCE}; drjit's cells where a scene sets them: {DRJIT_CELLS[0] or 'the scene'}")
+    print(f"{'scene':10s} {'config':13s} {'mean':>10s} {'z':>6s} {'RMS/noise':>9s} {'s/render':>9s} {'ratio':>6s} "
+          f"{'cpu s':>8s} {'cpu ratio':>9s}")
     for name in args.scenes.split(","):
         if name == "sidelit":
             import sys  # noqa: PLC0415
@@ -94,21 +113,24 @@ def main() -> None:
         scenes = {c: load(mi, name, args.res, extra) for c, extra in CONFIGS.items()}
         imgs: dict = {c: [] for c in CONFIGS}
         secs: dict = {c: [] for c in CONFIGS}
+        cpu: dict = {c: [] for c in CONFIGS}
         for c, sc in scenes.items():
             mi.render(sc, spp=args.spp, seed=999)  # warm-up: the kernels compile
         for s in range(args.seeds):
             for i, (c, sc) in enumerate(scenes.items()):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 img = np.asarray(mi.render(sc, spp=args.spp, seed=1000 * i + s), dtype=np.float64)
                 secs[c].append(time.perf_counter() - t0)
+                cpu[c].append(time.process_time() - c0)
                 imgs[c].append(img)
         ref = np.stack(imgs[REFERENCE])
-        t_ref = float(np.median(secs[REFERENCE]))
+        t_ref, cpu_ref = float(np.median(secs[REFERENCE])), float(np.median(cpu[REFERENCE]))
         for c in CONFIGS:
             a = np.stack(imgs[c])
             z, rms = compare(a, ref) if c != REFERENCE else (0.0, 0.0)
-            t = float(np.median(secs[c]))
-            print(f"{name:10s} {c:13s} {a.mean():10.5g} {z:6.2f} {rms:9.2f} {t:9.3f} {t / t_ref:6.2f}", flush=True)
+            t, tc = float(np.median(secs[c])), float(np.median(cpu[c]))
+            print(f"{name:10s} {c:13s} {a.mean():10.5g} {z:6.2f} {rms:9.2f} {t:9.3f} {t / t_ref:6.2f} {tc:8.3f} "
+                  f"{tc / cpu_ref:9.2f}", flush=True)
 
 
 if __name__ == "__main__":

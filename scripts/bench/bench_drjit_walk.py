@@ -114,7 +114,8 @@ def main() -> None:
             t_dj_ff = best(flights, args.reps)
             print(f"{n:8.0e} {'free flight':>14} {walk:>7} {t_rust_ff:8.3f} {t_dj_ff:9.3f} "
                   f"{t_dj_ff / t_rust_ff:6.2f}  escapes: Rust {rust_escape:.4f}, Dr.Jit {escape:.4f}")
-        print(f"{n:8.0e} flat arrays {w.count * w.bytes_per_grain / 1e6:.1f} MB (24 B/grain) + "
+        print(f"{n:8.0e} flat arrays {w.count * w.bytes_per_grain / 1e6:.1f} MB ({w.bytes_per_grain:.1f} B/grain, "
+              f"{w.layout} layout) + "
               f"{4 * w.cells / 1e6:.1f} MB cell starts; {w.classes} class(es)")
 
 

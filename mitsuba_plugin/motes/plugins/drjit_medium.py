@@ -125,8 +125,17 @@ def default_kernel(variant: str) -> str:
 def _jit_bytes(arrays: dict) -> int:
     """Bytes of the JIT arrays among ``arrays``' values (4 a 32-bit entry, 8 a 64-bit one, 1 a mask's)."""
     size = {dr.VarType.Float64: 8, dr.VarType.UInt64: 8, dr.VarType.Int64: 8, dr.VarType.Bool: 1}
-    return sum(dr.width(v) * size.get(dr.type_v(v), 4) for v in arrays.values()
-               if dr.is_jit_v(v) and dr.depth_v(v) == 1)
+
+    def of(v) -> int:
+        if isinstance(v, (list, tuple)):
+            return sum(of(x) for x in v)
+        if isinstance(v, dict):
+            return sum(of(x) for x in v.values())
+        if dr.is_array_v(v) and dr.is_jit_v(v) and dr.depth_v(v) == 1:
+            return dr.width(v) * size.get(dr.type_v(v), 4)
+        return 0
+
+    return of(arrays)
 
 
 def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
@@ -168,11 +177,11 @@ class DrJitKernel:
 
     def device_bytes(self) -> dict:
         """Bytes of the arrays uploaded (once per load) to the variant's device: "grains" (the walk's per-grain
-        and per-cell arrays and each grain's bin), "tables" (the bins' phase tables and albedos), "total", and
+        and per-cell arrays and the size classes' tables), "tables" (the bins' phase tables and albedos), "total", and
         "per_grain" (grains / count); empty before the first call uploads them."""
         if not self._ready:
             return {}
-        grains = _jit_bytes(vars(self.grid)) + _jit_bytes({"bin": self._bin})
+        grains = _jit_bytes(vars(self.grid))
         tables = _jit_bytes({k: getattr(self, k) for k in ("_mu", "_f", "_cdf", "_off", "_cnt", "_albedo")})
         return {"grains": grains, "tables": tables, "total": grains + tables,
                 "per_grain": grains / max(self.grid.count, 1)}
@@ -195,7 +204,6 @@ class DrJitKernel:
             raise ValueError("discrete medium: kernel = drjit needs stored grains (not storage = procedural, nor "
                              "every size class continuous)")
         self.grid = DrJitGrid(a)
-        self._bin = mi.UInt32(np.ascontiguousarray(a["bin"], dtype=np.uint32))
         spheres = np.asarray(a["spheres"], dtype=np.float64).reshape(-1, 4)
         if spheres.shape[0]:
             extent = float(np.max(spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0)) + spheres[:, 3].max())
@@ -338,7 +346,7 @@ class DrJitKernel:
     def intersect_aabb(self, ray):
         self.ready()
         t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, ray.maxt, self._ray_seed(ray),
-                                                   exclude_origin=self.from_site(ray))
+                                                   exclude_origin=self.from_site(ray), want_index=False)
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -473,6 +481,7 @@ class DrJitKernel:
         while k < g_._n_classes:
             inv_cell = dr.gather(F, g_._inv_cell, k)
             soff = dr.gather(U, g_._class_start, k)
+            frame = g_.frame(k)
             dims = [dr.gather(I, g_._dims, 3 * k + a) for a in range(3)]
             # The cells within the class's reach of p (a grain is stored in its centre's cell).
             reach = dr.gather(F, g_._reach, k)
@@ -492,23 +501,22 @@ class DrJitKernel:
                 g = dr.gather(U, g_._start, row + U(x0), ok)
                 g1 = dr.select(ok, dr.gather(U, g_._start, row + U(x1 + 1), ok), g)
                 while g < g1:
-                    s = dr.gather(mi.Vector4f, g_._spheres, g)
-                    vx, vy, vz = s[0] - px, s[1] - py, s[2] - pz
+                    centre, radius, code = g_.grain(g, frame, x0, y, z, g < g1)
+                    vx, vy, vz = centre[0] - px, centre[1] - py, centre[2] - pz
                     along = vx * dx + vy * dy + vz * dz
                     qx, qy, qz = vx - along * dx, vy - along * dy, vz - along * dz
-                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < s[3] * s[3])
-                    A, N, T, W, u, picked = step(g, member, mu, waves if evaluating else wave, A, N, T, W, u,
-                                                 picked)
+                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < radius * radius)
+                    A, N, T, W, u, picked = step(g_.tau_of(code, member), g_.bin_of(code, member), member, mu,
+                                                 waves if evaluating else wave, A, N, T, W, u, picked)
                     g += 1
                 r += 1
             k += 1
         return A, N, T, (picked, u)
 
-    def _accumulate(self, g, member, mu, waves, A, N, T, W, u, picked):
-        """``_site_sums``' step at grain ``g`` (a member of the site or not) when evaluating at ``mu``."""
-        F, U, ch = mi.Float, mi.UInt32, self.channels
-        tau = dr.gather(F, self.grid._tau, g, member)
-        b = dr.gather(U, self._bin, g, member)
+    def _accumulate(self, tau, b, member, mu, waves, A, N, T, W, u, picked):
+        """``_site_sums``' step at a grain of optical depth ``tau`` and bin ``b`` (a member of the site or not)
+        when evaluating at ``mu``."""
+        ch = self.channels
         a_new, n_new = [], []
         for c in range(ch):
             w = dr.select(member, tau * self._bin_albedo(b, waves[c], member) * self._scale, 0.0)
@@ -517,17 +525,16 @@ class DrJitKernel:
             n_new.extend(N[c * self.E + k] + w * e[k] for k in range(self.E))
         return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, picked
 
-    def _count(self, g, member, mu, wave, A, N, T, W, u, picked):
-        """``_site_sums``' step at grain ``g`` when counting the site's grains (``T``) and keeping the first."""
-        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(member & (T == 0), g, picked)
+    def _count(self, tau, b, member, mu, wave, A, N, T, W, u, picked):
+        """``_site_sums``' step at a grain of bin ``b`` when counting the site's grains (``T``) and keeping the
+        first one's bin."""
+        return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(member & (T == 0), b, picked)
 
-    def _reservoir(self, g, member, mu, wave, A, N, T, W, u, picked):
-        """``_site_sums``' step at grain ``g`` when picking a grain's bin by tau_j a_jc in the picked channel (its
-        bracket ``wave``): one pass of weighted reservoir sampling with one uniform, rescaled at each grain, so
-        that ``u`` ends uniform whatever is picked (``T`` counts the members)."""
-        F, U = mi.Float, mi.UInt32
-        tau = dr.gather(F, self.grid._tau, g, member)
-        b = dr.gather(U, self._bin, g, member)
+    def _reservoir(self, tau, b, member, mu, wave, A, N, T, W, u, picked):
+        """``_site_sums``' step at a grain of optical depth ``tau`` and bin ``b`` when picking a grain's bin by
+        tau_j a_jc in the picked channel (its bracket ``wave``): one pass of weighted reservoir sampling with one
+        uniform, rescaled at each grain, so that ``u`` ends uniform whatever is picked (``T`` counts the
+        members)."""
         w = dr.select(member, tau * self._bin_albedo(b, wave, member) * self._scale, 0.0)
         W = W + w
         share = dr.select(W > 0, w / dr.select(W > 0, W, 1.0), 0.0)
@@ -554,8 +561,7 @@ class DrJitKernel:
             _, _, members, (first, _) = self._site_sums(p, d_in, waves, None, None, active)
         one = mi.Bool(active) & (members == 1)
         value, pdf = self._mixture(p, d_in, waves, mu, active=mi.Bool(active) & (members > 1))
-        b = dr.gather(mi.UInt32, self._bin, first, one)
-        value, pdf = self._one_grain(b, waves, mu, one, value, pdf)
+        value, pdf = self._one_grain(first, waves, mu, one, value, pdf)
         return value, pdf, None
 
     def _one_grain(self, b, waves, mu, one, elements, pdf):
