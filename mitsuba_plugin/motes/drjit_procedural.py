@@ -49,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import EXCLUDE_MARGIN, _one_minus_exp
+from .drjit_walk import EXCLUDE_MARGIN
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -64,6 +64,13 @@ PATTERN_DIR = (0.381_966, 0.618_034, 0.688_191)
 _UNIT = 2.0**-53
 #: A bound on the drift over the turbulence (``Motion::drift_bound``: 10 sqrt(3) and 1 % more, rounded up).
 DRIFT_PER_TURBULENCE = 17.6
+
+
+def _one_minus_exp(x):
+    """1 - exp(-x) (Float64) without its cancellation for small x: a series below 0.05 (error < 1e-12
+    relative), else exp."""
+    s = x * (1 - x * (1 / 2 - x * (1 / 6 - x * (1 / 24 - x * (1 / 120 - x * (1 / 720))))))
+    return dr.select(x < 0.05, s, 1 - dr.exp(-x))
 
 
 def _export_of(medium) -> dict:
@@ -551,6 +558,16 @@ class DrJitProcedural:
         return tau, best_t, best_key, best_code
 
     # ---------------------------------------------------------------------------------------- a site
+
+    def extent(self) -> float:
+        """The largest side of the cloud's box in scene units (its corners transformed), grown by the largest
+        reach and the drift's bound: what the core's coincidence window scales with (``event_geometry``)."""
+        lo, hi = self.box_lo, self.box_hi
+        m = np.asarray(self.to_scene, dtype=np.float64)
+        corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] + [1.0] for k in range(8)]) @ m.T
+        drift = 0.0 if self.motion is None else DRIFT_PER_TURBULENCE * self.motion[1]
+        reach = float(np.max(np.asarray(self.export["reach"], dtype=np.float64), initial=0.0))
+        return float(np.max(corners.max(axis=0) - corners.min(axis=0))) + reach + drift
 
     def site_walk(self, p, d_in, tol, visit, state, active=True):
         """Visit every grain that could be part of a site at ``p`` on a ray along ``d_in`` (the grains of the tiles

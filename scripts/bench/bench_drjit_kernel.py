@@ -9,8 +9,9 @@ take turns seed by seed, so that a busy machine slows them alike. Seeds differ b
 of the means over the renders' spread), the per-pixel RMS difference of the mean images over their noise
 (about 1 where they differ by noise alone; estimated from the seeds' spread), and seconds per render with
 the ratio to ``native-exact``, wall-clock and the process's CPU time (steadier where other work shares the
-machine: a render waiting for a core spends none; medians over the seeds). Scenes whose medium is procedural are skipped (the drjit kernel walks
-stored grains), with a line saying so. ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
+machine: a render waiting for a core spends none; medians over the seeds). ``-D KEY=VALUE`` sets a scene
+parameter, e.g. ``-D storage=procedural`` (cornell, house, lamp, limit: the drjit kernel then regenerates the
+grains, ``motes.drjit_procedural``). ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
 grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
 drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
 its site tag). A scene whose ``cells`` parameter sets ``cells_per_particle`` (``bench``: 0.125, the native
@@ -20,7 +21,7 @@ cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
         [--seeds 4] [--exclusion tag|ball] [--max-depth 16] [--drjit-cells kernel|scene|<number>]
-        [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono]
+        [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ REFERENCE = "native-exact"
 DRJIT_CELLS: list = [None]
 
 
-def load(mi, name: str, res: int, extra: dict):
-    """Scene ``name`` at ``res`` px with ``extra`` set on its discrete media (added after the tag)."""
+def load(mi, name: str, res: int, extra: dict, defines: dict | None = None):
+    """Scene ``name`` at ``res`` px with ``extra`` set on its discrete media (added after the tag) and the scene's
+    parameters ``defines`` (``-D``)."""
     if name == "sidelit":
         import sys  # noqa: PLC0415
 
@@ -56,7 +58,7 @@ def load(mi, name: str, res: int, extra: dict):
     text = (ROOT / "scenes_xml" / f"{name}.xml").read_text()
     tags = "".join(f'<{"string" if k == "kernel" else "float"} name="{k}" value="{v}"/>' for k, v in extra.items())
     text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, text)
-    params = {"res": res}
+    params = {"res": res, **(defines or {})}
     if extra.get("kernel") == "drjit" and DRJIT_CELLS[0] is not None and '<default name="cells"' in text:
         params["cells"] = DRJIT_CELLS[0]
     return mi.load_string(text, **params)
@@ -81,8 +83,11 @@ def main() -> None:
     ap.add_argument("--drjit-cells", default="kernel",
                     help="cells_per_particle of the drjit configuration where a scene's cells parameter sets it: "
                          "kernel (the drjit kernel's default), scene, or a number")
+    ap.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scene parameter, e.g. -D storage=procedural (cornell, house, lamp, limit)")
     ap.add_argument("--variant", choices=("llvm_ad_rgb", "llvm_ad_spectral", "llvm_ad_mono"), default="llvm_ad_rgb")
     args = ap.parse_args()
+    defines = dict(d.split("=", 1) for d in args.defines)
     import motes  # noqa: PLC0415
 
     motes.set_variant(args.variant)
@@ -107,10 +112,7 @@ def main() -> None:
             import bench_lod  # noqa: PLC0415
 
             bench_lod.MAX_DEPTH[0] = args.max_depth
-        elif re.search(r'name="storage" value="procedural"', (ROOT / "scenes_xml" / f"{name}.xml").read_text()):
-            print(f"{name:10s} skipped: storage = procedural (the drjit kernel walks stored grains)")
-            continue
-        scenes = {c: load(mi, name, args.res, extra) for c, extra in CONFIGS.items()}
+        scenes = {c: load(mi, name, args.res, extra, defines) for c, extra in CONFIGS.items()}
         imgs: dict = {c: [] for c in CONFIGS}
         secs: dict = {c: [] for c in CONFIGS}
         cpu: dict = {c: [] for c in CONFIGS}

@@ -139,8 +139,8 @@ Parameter                    Type       Meaning (default)
                                         paths"); ``drjit``: Dr.Jit-typed code traced into Mitsuba's kernels,
                                         no Rust call at render time (every ``llvm_ad_*`` and ``cuda_ad_*``; the
                                         exact medium: ``continuous_count`` defaults to inf, a finite one that
-                                        leaves continuous classes is an error, as are ``storage = procedural``
-                                        and scalar variants; ``cells_per_particle`` defaults to 2 there;
+                                        leaves continuous classes is an error, as are scalar variants;
+                                        ``cells_per_particle`` defaults to 2 there;
                                         ``motes/plugins/drjit_medium.py``) (``native``; ``drjit``, the only
                                         one, in ``cuda_ad_*``)
 ``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
