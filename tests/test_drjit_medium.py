@@ -87,10 +87,11 @@ def test_white_furnace(variant):
     m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
     assert abs(m - 1) < 3 * se, f"furnace {m:.4f} +- {se:.4f}"
     assert se < 0.005  # a 1.5 % loss fails
-    # The medium reports what it uploaded (issue 46: memory reported): every grain's centre and radius at least.
+    # The medium reports what it uploaded (issue 46: memory reported): at least its grains' own bytes.
     medium = next(sh.interior_medium() for sh in sc.shapes() if sh.interior_medium() is not None)
-    b = medium.device_bytes
-    assert b["grains"] >= 16 * 20000 and b["tables"] > 0 and b["total"] == b["grains"] + b["tables"], b
+    b, grid = medium.device_bytes, medium._drjit.grid
+    assert b["grains"] >= grid.count * grid.bytes_per_grain and grid.count == 20000, b
+    assert b["tables"] > 0 and b["total"] == b["grains"] + b["tables"], b
     assert "MiB on the device" in str(medium)
 
 
@@ -164,18 +165,21 @@ def test_phase_chi2(grains):
     np.testing.assert_allclose(v, f.reshape(64, 3) * site_albedo, rtol=2e-4)
 
 
-def test_phase_spectral():
-    """llvm_ad_spectral: at a site of three coinciding grains of three species, with path wavelengths between the
+@pytest.mark.parametrize("grains", [1, 3])
+def test_phase_spectral(grains):
+    """llvm_ad_spectral: at a site of one grain, and of three coinciding grains of three species (a mixture), with
+    path wavelengths between the
     tabulated ones and outside their range (clamped), the phase function samples what it evaluates (mitsuba.chi2),
     and its values equal the core's f at those wavelengths (tables interpolated between wavelengths, as
     ``DiscreteMedium::bracket``) times the site's albedo interpolated alike."""
     motes.set_variant("llvm_ad_spectral")
     from motes.plugins.drjit_medium import DrJitKernel
 
-    species = [motes.Species(motes.Uniform(0.4, 0.6), 1.33), motes.Species(motes.Uniform(1.0, 1.2), 1.5),
-               motes.Species(motes.Uniform(2.5, 3.0), 1.33 + 0.02j)]
-    data = motes.DiscreteMedium(np.zeros((3, 3)), [0.5, 1.1, 2.7], [0, 1, 2], species, motes.SPECTRAL_WAVELENGTHS_UM,
-                                query_radius=1e-6, size_bins=1, continuous_count=INF, storage="full")
+    species = [motes.Species(motes.Uniform(2.5, 3.0), 1.33 + 0.02j), motes.Species(motes.Uniform(0.4, 0.6), 1.33),
+               motes.Species(motes.Uniform(1.0, 1.2), 1.5)][:grains]  # the absorbing one first: channels differ
+    data = motes.DiscreteMedium(np.zeros((grains, 3)), [2.7, 0.5, 1.1][:grains], list(range(grains)), species,
+                                motes.SPECTRAL_WAVELENGTHS_UM, query_radius=1e-6, size_bins=1, continuous_count=INF,
+                                storage="full")
     k = DrJitKernel(data)
     nm = [365.0, 452.5, 575.25, 812.0]  # below the table, between rows, between rows, above it
     wi = mi.Vector3f(0.3, -0.2, 0.9327379)
@@ -194,7 +198,7 @@ def test_phase_spectral():
     v, p = k.eval_pdf(mi.PhaseFunctionContext(), mei_of(64),
                       mi.Vector3f(*(mi.Float(wo[:, a].astype(np.float32)) for a in range(3))))
     v = np.stack([np.asarray(v[c]) for c in range(4)], axis=1)
-    data.core.insert_event((0.0, 0.0, 0.0), [0, 1, 2])
+    data.core.insert_event((0.0, 0.0, 0.0), list(range(grains)))
     wi_np = np.tile(np.array([0.3, -0.2, 0.9327379], dtype=np.float32), 64)
     f, pdf_core = data.core.phase_eval(np.zeros(192, np.float32), wi_np, wo.astype(np.float32).ravel(),
                                        np.tile(np.array(nm), 64), 4)
@@ -239,18 +243,19 @@ def test_cuda_variants_default_to_drjit():
 
     assert [default_kernel(v) for v in ("cuda_ad_rgb", "cuda_ad_spectral", "llvm_ad_rgb", "scalar_rgb")] == [
         "drjit", "drjit", "native", "native"]
-    assert "kernel = native" in kernel_problem("native", "cuda_ad_rgb", "compact")
-    assert kernel_problem("drjit", "cuda_ad_spectral", "compact") is None
-    assert kernel_problem("native", "llvm_ad_rgb", "compact") is None
-    assert kernel_problem("drjit", "llvm_ad_spectral_polarized", "compact") is None
-    assert "kernel = drjit renders in" in kernel_problem("drjit", "scalar_rgb", "compact")
+    assert "kernel = native" in kernel_problem("native", "cuda_ad_rgb")
+    assert kernel_problem("drjit", "cuda_ad_spectral") is None
+    assert kernel_problem("native", "llvm_ad_rgb") is None
+    assert kernel_problem("drjit", "llvm_ad_spectral_polarized") is None
+    assert "kernel = drjit renders in" in kernel_problem("drjit", "scalar_rgb")
 
 
 def test_polarised_matrices_are_the_cores():
     """llvm_ad_mono_polarized: at a site of three coinciding grains of three species, the Mueller matrix
     ``eval_pdf`` returns is the core's mixture of elements (``phase_mueller``) times the site's albedo, rotated
     into Mitsuba's Stokes frames as the other paths rotate it (``_bridge.mueller_spectrum``); ``sample`` weighs by
-    that matrix over its pdf; grains of a user's phase function depolarise."""
+    that matrix over its pdf; grains whose bins carry no Mueller ratios (a medium built without them) give a
+    depolarizer."""
     motes.set_variant("llvm_ad_mono_polarized")  # (spectral: 4 channels, kernels 4x larger to compile)
     from motes.plugins._bridge import mueller_spectrum
     from motes.plugins.drjit_medium import DrJitKernel
@@ -294,7 +299,7 @@ def test_polarised_matrices_are_the_cores():
     np.testing.assert_allclose(np.asarray(pdf_e)[ok], np.asarray(pdf_s)[ok], rtol=1e-3)
     np.testing.assert_allclose((np.asarray(w) * np.asarray(pdf_s))[..., ok], np.asarray(v_s)[..., ok], rtol=3e-3,
                                atol=1e-5 * np.abs(np.asarray(v_s)).max())
-    # A user's phase function depolarises (its matrix has only the (0, 0) element).
+    # Bins without ratios depolarise (the matrix has only its (0, 0) element).
     hg = motes.DiscreteMedium(np.zeros((1, 3)), [0.3], [0], species[:1], motes.RGB_WAVELENGTHS_UM,
                               query_radius=1e-6, size_bins=1, continuous_count=INF, storage="full")
     v_hg = np.asarray(DrJitKernel(hg).eval_pdf(ctx, mei, wo)[0])

@@ -729,7 +729,7 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
     elif all(eq23) and p.query_radius is not None:
         bad.append("discrete medium: give query_radius or footprint_k (Eq. 23), not both")
     p.kernel = get("kernel", default_kernel(mi.variant()), str, lambda v: v in KERNELS, "one of " + ", ".join(KERNELS))
-    problem = kernel_problem(p.kernel, mi.variant(), p.storage)
+    problem = kernel_problem(p.kernel, mi.variant())
     if problem:
         bad.append(problem)
     p.cells = get("cells_per_particle", DRJIT_CELLS_PER_PARTICLE if p.kernel == "drjit" else DEFAULT_CELLS_PER_PARTICLE,

@@ -15,9 +15,10 @@ Notes
 -----
 * **Exact medium.** Every grain is walked on every ray, as with ``continuous_count = inf``, which is this
   kernel's default; a finite ``continuous_count`` that leaves size classes continuous is an error naming it
-  (the continuous field is not ported), and so are the scalar variants (``kernel`` named) and a procedural cloud
-  of a grid density. ``grain_depth`` and ``surface_footprint`` then change nothing. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they
-  are per-bin tables like the grains' own.
+  (the continuous field is not ported), and so are the scalar variants (``kernel`` named) and a procedural
+  cloud of a grid density. ``grain_depth`` and ``surface_footprint`` then change nothing. A user's ``<phase>``
+  child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they are per-bin tables like the
+  grains' own.
 * **Procedural clouds** (``storage = procedural``): nothing is stored; ``motes.drjit_procedural`` regenerates
   the grains of the tiles a ray or a site needs from the core's counter-seeded streams, the core's grains bit
   for bit (``DrJitProcedural.sample_free_flight`` and ``site_walk``). Every ray regenerates its tiles (the
@@ -60,12 +61,12 @@ Notes
   (remembered with the event); here uniformly: the same expectation, other noise in coloured media (a channel
   whose grains all have albedo 0 ends the paths that pick it: unbiased, noisier; the pdf counts it as 0).
 * Tables: each bin's phase tables at every tabulated wavelength as the core prepared them
-  (``DiscreteMedium.flat_tables``: nodes in mu, f and CDF normalised). RGB channels read their own wavelength's (mono: the middle one, as
-  ``_bridge.channel_wavelengths``); in spectral variants each of the path's wavelengths (``mei.wavelengths``)
-  reads the two tabulated around it, albedo and phase function interpolated linearly in wavelength and clamped
-  at the ends (``DiscreteMedium::bracket``, ``bin_albedo``, ``bin_phase``), and ``sample`` draws mu from the
-  lower or the upper table with the interpolation's weights, by the rest of ``sample1`` after the grain's pick
-  (``mixture_sample``).
+  (``DiscreteMedium.flat_tables``: nodes in mu, f and CDF normalised). RGB channels read their own
+  wavelength's (mono: the middle one, as ``_bridge.channel_wavelengths``); in spectral variants each of the
+  path's wavelengths (``mei.wavelengths``) reads the two tabulated around it, albedo and phase function interpolated
+  linearly in wavelength and clamped at the ends (``DiscreteMedium::bracket``, ``bin_albedo``, ``bin_phase``), and
+  ``sample`` draws mu from the lower or the upper table with the interpolation's weights, by the rest of ``sample1``
+  after the grain's pick (``mixture_sample``).
 * Polarised variants: where the grains' phase function is their own (the core's ``polarizes``), each table also
   carries F12/F11, F33/F11 and F34/F11 on its nodes (``DiscreteMedium.flat_tables``, ``mueller.rs``); a site
   mixes its grains' elements F11, F12, F33, F34 as it mixes F11, and the phase function returns that matrix
@@ -143,8 +144,8 @@ def _jit_bytes(arrays: dict) -> int:
     return of(arrays)
 
 
-def kernel_problem(kernel: str, variant: str, storage: str) -> str | None:
-    """Why ``kernel`` cannot render in ``variant`` with ``storage`` (one sentence), or None."""
+def kernel_problem(kernel: str, variant: str) -> str | None:
+    """Why ``kernel`` cannot render in ``variant`` (one sentence), or None."""
     if kernel == "native" and variant.startswith("cuda_"):
         return (f"discrete medium: kernel = native cannot render in {variant} (the Rust walk runs on the host and a "
                 "CUDA kernel cannot call it): use kernel = drjit, the default there")
@@ -180,13 +181,15 @@ class DrJitKernel:
     def device_bytes(self) -> dict:
         """Bytes of the arrays uploaded (once per load) to the variant's device: "grains" (the walk's per-grain
         and per-cell arrays and the size classes' tables), "tables" (the bins' phase tables and albedos), "total", and
-        "per_grain" (grains / count); empty before the first call uploads them."""
+        "per_grain" (grains / count; None for a procedural cloud, which stores none); empty before the first call
+        uploads them."""
         if not self._ready:
             return {}
         grains = _jit_bytes(vars(self.grid if self.proc is None else self.proc))
-        tables = _jit_bytes({k: getattr(self, k) for k in ("_mu", "_f", "_cdf", "_off", "_cnt", "_albedo")})
-        count = self.grid.count if self.proc is None else 0  # procedural: none stored
-        return {"grains": grains, "tables": tables, "total": grains + tables, "per_grain": grains / max(count, 1)}
+        names = ("_mu", "_f", "_cdf", "_off", "_cnt", "_albedo") + (("_ratios",) if self.polarizing else ())
+        tables = _jit_bytes({k: getattr(self, k) for k in names})
+        per_grain = None if self.proc is not None else grains / max(self.grid.count, 1)  # procedural: none stored
+        return {"grains": grains, "tables": tables, "total": grains + tables, "per_grain": per_grain}
 
     def summary(self) -> str:
         """One line: the kernel and, once uploaded, what it holds on the device."""
@@ -226,7 +229,8 @@ class DrJitKernel:
         self.coincide = COINCIDE_SHARE * max(extent, 1e-30)
         self._tables(data)
         self.set_albedo_scale(data.core.albedo_scale)
-        self._seed = [dr.opaque(mi.UInt32, self.seed & 0xFFFFFFFF), dr.opaque(mi.UInt32, (self.seed >> 32) & 0xFFFFFFFF)]
+        self._seed = [dr.opaque(mi.UInt32, self.seed & 0xFFFFFFFF),
+                      dr.opaque(mi.UInt32, (self.seed >> 32) & 0xFFFFFFFF)]
 
     def _tables(self, data) -> None:
         """Per (bin, tabulated wavelength): the phase table (the core's nodes: mu ascending, f and CDF normalised,
@@ -247,7 +251,8 @@ class DrJitKernel:
             for nm in chan_nm:
                 k = int(np.argmin(np.abs(lam_nm - nm)))
                 if abs(lam_nm[k] - nm) > 1e-6 * nm:
-                    raise ValueError(f"discrete medium: kernel = drjit needs a table at each channel's wavelength ({nm} nm)")
+                    raise ValueError(f"discrete medium: kernel = drjit needs a table at each channel's wavelength "
+                                     f"({nm} nm)")
                 rows.append(k)
             self.channels = len(rows)
             self._rows = rows
@@ -288,8 +293,7 @@ class DrJitKernel:
             lo, hi = dr.gather(mi.Float, mi.Float(lam), k0), dr.gather(mi.Float, mi.Float(lam), k1)
             inside = (above > 0) & (above < len(lam))
             w = dr.select(inside, (l - lo) / dr.select(inside, hi - lo, 1.0), 0.0)
-            out.append((dr.select(inside, k0, dr.select(above > 0, k1, 0)), dr.select(inside, k1, dr.select(above > 0, k1, 0)),
-                        dr.clip(w, 0.0, 1.0)))
+            out.append((k0, k1, dr.clip(w, 0.0, 1.0)))  # below: (0, 0, 0); above: (n - 1, n - 1, 0)
         return out
 
     def _bin_albedo(self, b, wave, active):
@@ -342,9 +346,10 @@ class DrJitKernel:
         h0, _ = mi.sample_tea_32(h0 ^ bits(ray.maxt), h1, 4)
         return h0
 
-    def _ray_seed2(self, ray):
-        """32 more bits of the ray's seed (a procedural cloud's flights hash 64)."""
-        h0, _ = mi.sample_tea_32(self._ray_seed(ray), self._seed[1] ^ 0x9E3779B9, 4)
+    def _ray_seed_high(self, low):
+        """The high 32 bits of a procedural cloud's 64-bit flight seed, a hash of the low 32 (``_ray_seed``): 32
+        bits of entropy, spread over the 64 its grains' streams read."""
+        h0, _ = mi.sample_tea_32(low, self._seed[1] ^ 0x9E3779B9, 4)
         return h0
 
     def _tag(self, o, d):
@@ -365,7 +370,8 @@ class DrJitKernel:
     def intersect_aabb(self, ray):
         self.ready()
         if self.proc is not None:
-            seed = mi.UInt64(self._ray_seed(ray)) | (mi.UInt64(self._ray_seed2(ray)) << 32)
+            low = self._ray_seed(ray)
+            seed = mi.UInt64(low) | (mi.UInt64(self._ray_seed_high(low)) << 32)
             t, _, _, valid = self.proc.sample_free_flight(ray.o, ray.d, 0.0, ray.maxt, seed,
                                                           exclude_origin=self.from_site(ray))
         else:
@@ -394,7 +400,7 @@ class DrJitKernel:
         ch = self.channels
         u1 = mi.Float(sample1) * ch
         c = mi.UInt32(dr.minimum(dr.floor(u1), ch - 1))
-        u = dr.clip(u1 - mi.Float(c), 0.0, 1.0)
+        u = dr.clip(u1 - mi.Float(c), 0.0, 0.99999994)  # below 1: the reservoir picks where u < a share
         p = mi.Point3f(mei.p)
         waves = self._waves(mei)
         _, members, (b, u) = self._site(p, d_in, waves, pick=(c, u), active=active)
@@ -589,7 +595,8 @@ class DrJitKernel:
 
     def _site(self, p, d_in, waves, mu=None, pick=None, active=True):
         """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
-        ``waves`` (``_waves``). With ``mu``: (value per channel, pdf, -); with ``pick`` = (channel, uniform):
+        ``waves`` (``_waves``). With ``mu``: (elements per channel, ``elements[c][k]``, pdf, -); with ``pick`` =
+        (channel, uniform):
         (-, members, (the picked grain's bin or 2^32 - 1, the uniform left)).
 
         Evaluating, a first walk only counts the site's grains and keeps the first (no table read per grain
