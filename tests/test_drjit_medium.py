@@ -67,6 +67,16 @@ def compare(a, b):
     return z, float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
 
 
+def tau_weighted_albedo(data, nm):
+    """A site of all of ``data``'s grains: its albedo at wavelengths ``nm`` (each grain's bin's albedo interpolated
+    in wavelength, weighted by the grain's optical depth), as the phase function's value carries it."""
+    flat = data.core.flat_arrays()
+    tau = np.asarray(flat["tau"], dtype=np.float64)
+    lam = np.asarray(data.wavelength_um) * 1e3
+    alb = np.array([np.interp(nm, lam, np.asarray(data.bin_tables[0][b])) for b in np.asarray(flat["bin"])])
+    return (tau[:, None] * alb).sum(0) / tau.sum()
+
+
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral"])  # all: bench_drjit_furnace.py
 def test_white_furnace(variant):
     """Non-absorbing grains in a box under a constant sky render 1 within 3 standard errors (no Russian roulette)."""
@@ -155,12 +165,7 @@ def test_phase_chi2(grains):
     wi_np = np.tile(np.array([0.3, -0.2, 0.9327379], dtype=np.float32), 64)
     f, pdf_core = data.core.phase_eval(np.zeros(192, np.float32), wi_np, wo.astype(np.float32).ravel(),
                                        data.channel_wavelength_nm, 3)
-    flat = data.core.flat_arrays()  # the site's tau-weighted albedo, from the grains' bins
-    tau = np.asarray(flat["tau"], dtype=np.float64)
-    lam = np.asarray(data.wavelength_um) * 1e3
-    rows = [int(np.argmin(np.abs(lam - nm))) for nm in data.channel_wavelength_nm]
-    alb = np.array([np.asarray(data.bin_tables[0][b])[rows] for b in np.asarray(flat["bin"])])
-    site_albedo = (tau[:, None] * alb).sum(0) / tau.sum()
+    site_albedo = tau_weighted_albedo(data, data.channel_wavelength_nm)
     np.testing.assert_allclose(np.asarray(p), pdf_core, rtol=2e-4)
     np.testing.assert_allclose(v, f.reshape(64, 3) * site_albedo, rtol=2e-4)
 
@@ -202,11 +207,7 @@ def test_phase_spectral(grains):
     wi_np = np.tile(np.array([0.3, -0.2, 0.9327379], dtype=np.float32), 64)
     f, pdf_core = data.core.phase_eval(np.zeros(192, np.float32), wi_np, wo.astype(np.float32).ravel(),
                                        np.tile(np.array(nm), 64), 4)
-    flat = data.core.flat_arrays()
-    tau = np.asarray(flat["tau"], dtype=np.float64)
-    lam = np.asarray(data.wavelength_um) * 1e3
-    alb = np.array([np.interp(nm, lam, np.asarray(data.bin_tables[0][b])) for b in np.asarray(flat["bin"])])
-    site_albedo = (tau[:, None] * alb).sum(0) / tau.sum()
+    site_albedo = tau_weighted_albedo(data, nm)
     assert np.ptp(site_albedo) > 1e-3  # the absorbing species makes the channels differ
     np.testing.assert_allclose(np.asarray(p), pdf_core, rtol=2e-4)
     np.testing.assert_allclose(v, f.reshape(64, 4) * site_albedo, rtol=2e-4)
@@ -279,11 +280,7 @@ def test_polarised_matrices_are_the_cores():
     wi_np = np.tile(np.array([0.3, -0.2, 0.9327379], dtype=np.float32), n)
     elements, pdf_core = data.core.phase_mueller(np.zeros(3 * n, np.float32), wi_np, wo_np.astype(np.float32).ravel(),
                                                  np.tile(np.array(nm), n), 1)
-    flat = data.core.flat_arrays()
-    tau = np.asarray(flat["tau"], dtype=np.float64)
-    lam = np.asarray(data.wavelength_um) * 1e3
-    alb = np.array([np.interp(nm, lam, np.asarray(data.bin_tables[0][b])) for b in np.asarray(flat["bin"])])
-    site_albedo = (tau[:, None] * alb).sum(0) / tau.sum()
+    site_albedo = tau_weighted_albedo(data, nm)
     want = mueller_spectrum(np.asarray(elements).reshape(n, 1, 4) * site_albedo[None, :, None], n, ctx, mei, wo)
     got, want = np.asarray(value), np.asarray(want)
     np.testing.assert_allclose(np.asarray(pdf), pdf_core, rtol=2e-4)

@@ -49,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import EXCLUDE_MARGIN
+from .drjit_walk import EXCLUDE_MARGIN, face, one_minus_exp
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -64,13 +64,6 @@ PATTERN_DIR = (0.381_966, 0.618_034, 0.688_191)
 _UNIT = 2.0**-53
 #: A bound on the drift over the turbulence (``Motion::drift_bound``: 10 sqrt(3) and 1 % more, rounded up).
 DRIFT_PER_TURBULENCE = 17.6
-
-
-def _one_minus_exp(x):
-    """1 - exp(-x) (Float64) without its cancellation for small x: a series below 0.05 (error < 1e-12
-    relative), else exp."""
-    s = x * (1 - x * (1 / 2 - x * (1 / 6 - x * (1 / 24 - x * (1 / 120 - x * (1 / 720))))))
-    return dr.select(x < 0.05, s, 1 - dr.exp(-x))
 
 
 def _export_of(medium) -> dict:
@@ -549,7 +542,7 @@ class DrJitProcedural:
                 limit = (1 << self.index_bits) - 1
                 key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
                 u = _standard(splitmix64_finalise(seed ^ (key * STREAM_GAMMA)))
-                interacts = hit & (t < best_t) & (u < _one_minus_exp(tau_i))
+                interacts = hit & (t < best_t) & (u < one_minus_exp(tau_i))
                 best_t = dr.select(interacts, t, best_t)
                 best_key = dr.select(interacts, key, best_key)
                 best_code = dr.select(interacts, code, best_code)
@@ -657,9 +650,8 @@ def _rays(origin, direction, t0, t1):
 
 
 def _face(c, at, per_t, inv_p):
-    """t of the face the ray leaves cell layer ``c`` by (inf along an axis it does not move on)."""
-    F = mi.Float64
-    return dr.select(per_t > 0, (F(c + 1) - at) * inv_p, dr.select(per_t < 0, (F(c) - at) * inv_p, dr.inf))
+    """``drjit_walk.face`` in double precision."""
+    return face(c, at, per_t, inv_p, mi.Float64)
 
 
 def _advance(c, t_next, step, at, per_t, inv_p, t_out):

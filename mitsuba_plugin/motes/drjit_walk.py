@@ -155,10 +155,18 @@ def _mix(x):
     return x ^ (x >> 16)
 
 
-def _one_minus_exp32(x):
-    """1 - exp(-x) in single precision without its cancellation for small x (relative error ~1e-7)."""
-    s = x * (1 - x * (1 / 2 - x * (1 / 6 - x * (1 / 24 - x * (1 / 120)))))
+def one_minus_exp(x):
+    """1 - exp(-x) without its cancellation for small x: below 0.05 its series, to x^5 in single precision
+    (relative error ~1e-7), to x^6 in double (< 1e-12), else exp."""
+    inner = x * (1 / 120) if dr.type_v(x) != dr.VarType.Float64 else x * (1 / 120 - x * (1 / 720))
+    s = x * (1 - x * (1 / 2 - x * (1 / 6 - x * (1 / 24 - inner))))
     return dr.select(x < 0.05, s, 1 - dr.exp(-x))
+
+
+def face(c, at, per_t, inv_p, F):
+    """t of the face a ray leaves cell layer ``c`` by, in the walk's float type ``F`` (inf along an axis it does
+    not move on): ``at`` its cell coordinate at t = 0, ``per_t`` cells per unit t, ``inv_p`` its inverse."""
+    return dr.select(per_t > 0, (F(c + 1) - at) * inv_p, dr.select(per_t < 0, (F(c) - at) * inv_p, dr.inf))
 
 
 class DrJitGrid:
@@ -401,7 +409,7 @@ class DrJitGrid:
                         if flight:
                             w0, w1 = _mix(key0 + g * _GOLDEN), _mix(key1 ^ (g * _GOLDEN2))
                             uu = (mi.Float64(w0) + mi.Float64(w1) * 2.0**-32) * 2.0**-32
-                            interacts = hit & (uu < mi.Float64(_one_minus_exp32(mi.Float(tau_i))))
+                            interacts = hit & (uu < mi.Float64(one_minus_exp(mi.Float(tau_i))))
                             best_t = dr.select(interacts, t_i, best_t)
                             best_g = dr.select(interacts, g, best_g)
                         else:
@@ -429,9 +437,8 @@ class DrJitGrid:
         return tau, best_t, best_g
 
     def _face(self, c, at, per_t, inv_p):
-        """t of the face the ray leaves cell layer ``c`` by (inf along an axis it does not move on)."""
-        F = self.F
-        return dr.select(per_t > 0, (F(c + 1) - at) * inv_p, dr.select(per_t < 0, (F(c) - at) * inv_p, dr.inf))
+        """``face`` in the walk's precision."""
+        return face(c, at, per_t, inv_p, self.F)
 
     def _near(self, at, per_t, inv_p, m0, m1, reach, t0, t1):
         """The part of [t0, t1] where the ray's coordinate ``at + t per_t`` lies within ``reach`` (cells) of
