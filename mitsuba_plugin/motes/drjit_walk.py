@@ -27,9 +27,15 @@ whose ball reaches the ray is in such a block, and in exactly one slab: a grain 
 stored once, in its centre's cell, and tested once. Of a step's cells, only the layers (per axis) the
 segment comes within the class's reach of, over the part of it that is near all three ranges, are read
 (the Rust walk's ``Near``), a row (a run of cells along x, contiguous in the arrays) at a time, in one loop
-over the step's rows and their grains (an iteration reads the next row where a lane's row is done, then
-tests ``GRAINS_PER_ITERATION`` grains of it: lanes with rows of different lengths keep busy). Once a step
-is done every grain with t_i before its exit has been tested, so a free flight stops there once it has
+over the step's rows and their grains: an iteration reads the next row where a lane's row is done, else tests
+one grain of it, so that lanes with rows of different lengths keep busy. On the CPU the gathers are most of
+the walk's time (AVX2 gathers: ``bench_drjit_walk.py``), hence three choices. In the lattice layout the
+cells' starts follow the grains' words in one array, and an iteration makes one pair of gathers: a row's two
+starts, or a grain's two words (a row read and a grain test in one iteration took four gathers). A grain's
+own R (a gather of its code's) is read only where its centre lies within the class's reach of the ray, and
+the rest of the test, with the draw and what a hit costs, is a symbolic branch that a SIMD packet without
+such a grain skips. (A single loop over steps, rows and grains, so that no step waits for the packet's lane
+with most grains, was slower: each iteration then carries the step's work too.) Once a step is done every grain with t_i before its exit has been tested, so a free flight stops there once it has
 interacted before that exit, and the next class walks only up to that interaction (the classes are
 independent).
 
@@ -50,7 +56,7 @@ coordinates modulo 2^16 and its code (x | y << 16, z | code << 16), and per clas
 code. A row of cells x0..x1 at (y, z) holds centres within [1, 4) cells of the corner (x0 - 1, y - 1, z - 1),
 so that the wrapped difference of the u16s is the exact offset from it (the core's reading). Else
 ``spheres``: per grain centre and R (f32x4), tau (f32) and bin (u32), 24 bytes. Either way 4 bytes a cell
-(its first grain), and the indices the grid reports (4 bytes a grain) only once a free flight asks for them.
+(its first grain; ``start_of``), and the indices the grid reports (4 bytes a grain) only once a free flight asks for them.
 
 ``DrJitGrid(grid)``: ``grid`` is a ``motes.ParticleGrid`` or ``motes.DiscreteMedium`` (or their
 ``motes._motes`` cores), or the dict their ``flat_arrays`` return; ``layout`` is ``auto`` (lattice where it
@@ -78,10 +84,6 @@ REACH_MARGIN = 1e-4
 #: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball.
 EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
-#: Grains a lane tests per iteration of a step's row loop. 2 made free flights of random rays 4-11 % faster
-#: alone but renders (the walk inside Mitsuba's kernel) 5-10 % slower: staircase 6.4 -> 6.8, house 2.8 -> 3.1
-#: CPU s a render (32 px, 16 spp).
-GRAINS_PER_ITERATION = 1
 #: Lattice steps per cell edge of the lattice layout (module docs, "Layout"): the core's compact storage's
 #: (``LATTICE_PER_CELL`` in ``rust/motes-core/src/space/grid/slots.rs``).
 LATTICE_PER_CELL = 1 << 14
@@ -107,7 +109,7 @@ def _lattice_layout(a: dict, spheres: np.ndarray):
     (a centre off its class's lattice, or more than 2^16 (R, tau, bin) codes in a class): (per grain two u32
     words, per class its first code, per code R, tau and bin (None without bins))."""
     n = spheres.shape[0]
-    if n == 0 or n >= 2**32 - 1:
+    if n == 0 or 2 * n + len(a["start"]) >= 2**32:  # grains' words and cells' starts index one u32 array
         return None
     lo = np.asarray(a["class_lo"], dtype=np.float64).reshape(-1, 3)
     cell = np.asarray(a["class_cell"], dtype=np.float64)
@@ -183,7 +185,6 @@ class DrJitGrid:
         self.count = int(spheres.shape[0])
         self.classes = int(len(a["class_cell"]))
         self.cells = int(len(a["start"]))
-        self._start = mi.UInt32(np.ascontiguousarray(a["start"], dtype=np.uint32))
         self.bin = np.asarray(a["bin"]) if "bin" in a else None
         # The grains (module docs, "Layout"), and the index the grid reports for each, uploaded at the first
         # free flight that asks for it (``_index``).
@@ -196,7 +197,13 @@ class DrJitGrid:
         self.layout = "lattice" if lattice is not None else "spheres"
         if lattice is not None:
             words, code_off, reach, tau, bins = lattice
-            self._words = mi.UInt32(words.ravel())
+            # The grains' words, then the cells' starts (at ``_s_off``): one array, so that one gather reads a
+            # grain's word where a lane tests a grain and a cell's start where it reads a row (``_walk``).
+            cells = [words.ravel(), np.ascontiguousarray(a["start"], dtype=np.uint32)]
+            if (words.size + cells[1].size) % 2:  # a grain's words gather as a pair: an even length
+                cells.append(np.zeros(1, dtype=np.uint32))
+            self._cells = mi.UInt32(np.concatenate(cells))
+            self._s_off = int(words.size)
             self._code_off = mi.UInt32(code_off)
             self._reach_of = mi.Float(reach)
             self._tau = mi.Float(tau)
@@ -205,6 +212,8 @@ class DrJitGrid:
             self._grain_bytes = 8
         else:
             self._spheres = mi.Float(spheres.ravel())
+            self._cells = mi.UInt32(np.ascontiguousarray(a["start"], dtype=np.uint32))
+            self._s_off = 0
             self._tau = mi.Float(np.ascontiguousarray(a["tau"], dtype=np.float32))
             self._bin = mi.UInt32(np.ascontiguousarray(self.bin, dtype=np.uint32)) if self.bin is not None else None
             self._table_bytes = 0
@@ -241,24 +250,39 @@ class DrJitGrid:
         return ([dr.gather(F, self._lo, 3 * k + a) for a in range(3)], dr.gather(F, self._cell, k),
                 dr.gather(mi.UInt32, self._code_off, k))
 
-    def grain(self, g, frame, x0, y, z, active):
+    def grain(self, g, frame, x0, y, z, active, radius=True):
         """Grain ``g`` of the class of ``frame`` (``frame(k)``), read from a row of cells that starts at cell
         (x0, y, z) (the row holds it): (centre [x, y, z] in ``self.F``, inclusion radius R, its entry in the
-        per-code tables (``tau_of``, ``bin_of``))."""
+        per-code tables (``tau_of``, ``bin_of``, ``radius_of``)). ``radius=False``: R is None where reading it
+        takes a gather of its own (the lattice layout: ``radius_of`` reads it once the centre is near enough)."""
         F, U = self.F, mi.UInt32
         if self.layout == "spheres":
             s = dr.gather(mi.Vector4f, self._spheres, g, active)
             return [F(s[0]), F(s[1]), F(s[2])], F(s[3]), g
+        w = dr.gather(mi.Vector2u, self._cells, g, active)
+        centre, tid = self.decode(w[0], w[1], frame, x0, y, z)
+        return centre, self.radius_of(tid, active) if radius else None, tid
+
+    def decode(self, w0, w1, frame, x0, y, z):
+        """(centre, table entry) of a grain of the lattice layout from its two words (``grain``)."""
+        F, U = self.F, mi.UInt32
         lo, cell, code_off = frame
-        w = dr.gather(mi.Vector2u, self._words, g, active)
-        q = (w[0] & 0xFFFF, w[0] >> 16, w[1] & 0xFFFF)
+        q = (w0 & 0xFFFF, w0 >> 16, w1 & 0xFFFF)
         centre = []
         for a, c in enumerate((x0, y, z)):
             # The offset from the corner one cell below the row's (module docs, "Layout"), in u32 arithmetic.
             off = (q[a] + LATTICE_PER_CELL - U(c) * LATTICE_PER_CELL) & 0xFFFF
             centre.append(lo[a] + (F(c - 1) + F(off) * (1.0 / LATTICE_PER_CELL)) * cell)
-        tid = code_off + (w[1] >> 16)
-        return centre, F(dr.gather(mi.Float, self._reach_of, tid, active)), tid
+        return centre, code_off + (w1 >> 16)
+
+    def radius_of(self, tid, active):
+        """The inclusion radius R (``self.F``) of the grains of table entry ``tid`` (``grain``; lattice layout)."""
+        return self.F(dr.gather(mi.Float, self._reach_of, tid, active))
+
+    def start_of(self, cell, active):
+        """The position of cell ``cell``'s first grain in the grain arrays (``mi.UInt32``; a cell of a class at
+        its class's start plus (z dims_y + y) dims_x + x; the grid's last cell plus one: the number of grains)."""
+        return dr.gather(mi.UInt32, self._cells, cell + self._s_off, active)
 
     def tau_of(self, tid, active):
         """The optical depth (``mi.Float``) of the grains of table entry ``tid`` (``grain``)."""
@@ -327,10 +351,13 @@ class DrJitGrid:
         tau = dr.zeros(F, n)
         best_g = dr.full(U, _NONE, n)
         k = dr.zeros(U, n)
+        lattice = self.layout == "lattice"
+        s_off = self._s_off
         while k < self._n_classes:
             # The class's frame, the ray in its cell coordinates x(t) = at + t per_t.
             inv_cell = dr.gather(F, self._inv_cell, k)
             reach = dr.gather(F, self._reach, k)
+            reach_w2 = dr.square(reach / inv_cell)  # the class's reach (with margins) squared, scene units
             soff = dr.gather(U, self._class_start, k)
             frame = self.frame(k)
             dims = [dr.gather(I, self._dims, 3 * k + a) for a in range(3)]
@@ -385,25 +412,44 @@ class DrJitGrid:
                 while (g < g1) | (z <= z1):
                     fetch = g >= g1
                     row = soff + U((z * dims[1] + y) * dims[0])
-                    g = dr.select(fetch, dr.gather(U, self._start, row + U(x0), fetch), g)
-                    g1 = dr.select(fetch, dr.gather(U, self._start, row + U(x1 + 1), fetch), g1)
+                    live = ~fetch
+                    if dr.hint(lattice, mode="scalar"):
+                        # One pair of gathers: the row's first and end grain where a lane reads a row, else its
+                        # grain's two words (``_cells``).
+                        ia = dr.select(fetch, s_off + row + U(x0), 2 * g)
+                        ib = dr.select(fetch, s_off + row + U(x1 + 1), 2 * g + 1)
+                        wa, wb = dr.gather(U, self._cells, ia), dr.gather(U, self._cells, ib)
+                        g = dr.select(fetch, wa, g)
+                        g1 = dr.select(fetch, wb, g1)
+                    else:
+                        g = dr.select(fetch, self.start_of(row + U(x0), fetch), g)
+                        g1 = dr.select(fetch, self.start_of(row + U(x1 + 1), fetch), g1)
+                        live = g < g1
                     yr = dr.select(fetch, y, yr)  # the row being read
                     zr = dr.select(fetch, z, zr)
                     wrap = fetch & (y >= y1)
                     y = dr.select(fetch, dr.select(wrap, y0, y + 1), y)
                     z = dr.select(wrap, z + 1, z)
-                    for _ in range(GRAINS_PER_ITERATION):
-                        live = g < g1
+                    if dr.hint(lattice, mode="scalar"):  # a lane that read a row tests its grains next
+                        centre, tid = self.decode(wa, wb, frame, x0, yr, zr)
+                        radius = None
+                    else:  # a lane that read a row tests its first grain at once
                         centre, radius, tid = self.grain(g, frame, x0, yr, zr, live)
-                        v = [centre[a] - base[a] for a in range(3)]
-                        tt = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
-                        q = [v[a] - tt * d[a] for a in range(3)]
-                        t_i = t_enter + tt
-                        hit = live & (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] < radius * radius)
-                        hit &= (t_i >= 0) & (t_i < best_t)
+                    v = [centre[a] - base[a] for a in range(3)]
+                    tt = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
+                    q = [v[a] - tt * d[a] for a in range(3)]
+                    t_i = t_enter + tt
+                    d2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2]
+                    # Within the class's reach (no read of the grain's own R): a candidate. The rest of
+                    # the test, and what a hit costs, in a branch that a SIMD packet without a candidate
+                    # skips (most: the rows hold grains up to a cell away from the ray).
+                    cand = live & (d2 < reach_w2) & (t_i >= 0) & (t_i < best_t)
+                    if cand:
+                        r_i = self.radius_of(tid, cand) if radius is None else radius
+                        hit = cand & (d2 < r_i * r_i)
                         if excluding:  # the centre's offset from the ray's origin: v + t_enter d
                             w = [v[a] + t_enter * d[a] for a in range(3)]
-                            r_x = radius * (1 + EXCLUDE_MARGIN)
+                            r_x = r_i * (1 + EXCLUDE_MARGIN)
                             hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
                         tau_i = F(self.tau_of(tid, hit))
                         if flight:
@@ -414,7 +460,7 @@ class DrJitGrid:
                             best_g = dr.select(interacts, g, best_g)
                         else:
                             tau += dr.select(hit, tau_i, 0)
-                        g = dr.select(live, g + 1, g)
+                    g = dr.select(live, g + 1, g)
                 # The next step: along the axis whose face comes first; the walk ends at the box's exit,
                 # or (a free flight) once it has interacted before this step's exit.
                 ax = dr.select(tny < tnx, 1, 0)

@@ -547,8 +547,8 @@ class DrJitKernel:
                 z = c0[2] + r // ny
                 ok = r < rows
                 row = soff + U((z * dims[1] + y) * dims[0])
-                g = dr.gather(U, g_._start, row + U(x0), ok)
-                g1 = dr.select(ok, dr.gather(U, g_._start, row + U(x1 + 1), ok), g)
+                g = g_.start_of(row + U(x0), ok)
+                g1 = dr.select(ok, g_.start_of(row + U(x1 + 1), ok), g)
                 while g < g1:
                     centre, radius, code = g_.grain(g, frame, x0, y, z, g < g1)
                     vx, vy, vz = centre[0] - px, centre[1] - py, centre[2] - pz
