@@ -524,7 +524,8 @@ class DrJitKernel:
         reach of ``p`` per size class; procedural: the tiles within the halo of ``p``'s, regenerated): per
         channel sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given); the picked grain's bin
         and the uniform left (``pick`` given); or (neither) the number of the site's grains and the first one's
-        bin."""
+        bin. Where no grain is found and ``p``'s field cell has sigma_t > 0 (a field event), the same over the
+        cell's entries, their shares s_i for tau_j; the last of the returned tuple says where."""
         F, U = mi.Float, mi.UInt32
         ch = self.channels
         n = max(dr.width(p), dr.width(d_in), 1 if mu is None else dr.width(mu),
@@ -647,7 +648,8 @@ class DrJitKernel:
         """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
         ``waves`` (``_waves``). With ``mu``: (elements per channel, ``elements[c][k]``, pdf, -); with ``pick`` =
         (channel, uniform):
-        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left)).
+        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left, whether it is a field event)); at a
+        field event the members are the cell's entries (``_site_sums``).
 
         Evaluating, a first walk only counts the site's grains and keeps the first (no table read per grain
         tested: a masked lane costs as much as an active one in a SIMD packet); a site of one grain, most,
