@@ -101,7 +101,7 @@ def test_white_furnace(variant):
     medium = next(sh.interior_medium() for sh in sc.shapes() if sh.interior_medium() is not None)
     b, grid = medium.device_bytes, medium._drjit.grid
     assert b["grains"] >= grid.count * grid.bytes_per_grain and grid.count == 20000, b
-    assert b["tables"] > 0 and b["total"] == b["grains"] + b["tables"], b
+    assert b["tables"] > 0 and b["field"] == 0 and b["total"] == b["grains"] + b["tables"], b
     assert "MiB on the device" in str(medium)
 
 
@@ -222,13 +222,14 @@ def test_clear_errors(extra, message):
         mi.load_dict({"type": "discrete", "count": 100, "kernel": "drjit", "phase": {"type": "particle"}, **extra})
 
 
-def test_continuous_classes_are_an_error(grains):
-    """A finite continuous_count that leaves continuous size classes is an error naming it (at load where the grains
-    are placed by to_world)."""
+def test_procedural_continuous_classes_are_an_error():
+    """A procedural cloud whose finite continuous_count leaves continuous size classes is an error naming it (the
+    drjit kernel walks a procedural cloud's grains only)."""
     llvm()
     with pytest.raises(Exception, match="continuous_count"):
         scene({"type": "discrete", "count": 20000, "radius_median": 20.0, "query_radius": 0.3, "continuous_count": 1.0,
-               "kernel": "drjit", "to_world": mi.ScalarTransform4f().scale(10.0), "phase": {"type": "particle"}}, 8)
+               "storage": "procedural", "size_bins": 2, "kernel": "drjit",
+               "to_world": mi.ScalarTransform4f().scale(10.0), "phase": {"type": "particle"}}, 8)
 
 
 def test_other_variants_are_an_error():
@@ -301,3 +302,206 @@ def test_polarised_matrices_are_the_cores():
                               query_radius=1e-6, size_bins=1, continuous_count=INF, storage="full")
     v_hg = np.asarray(DrJitKernel(hg).eval_pdf(ctx, mei, wo)[0])
     assert np.abs(v_hg[1:, :]).max() == 0 and np.abs(v_hg[:, 1:]).max() == 0 and v_hg[0, 0].min() > 0
+
+
+# -- continuous size classes (``motes.drjit_field``) -------------------------------------------------------------
+
+#: Many small grains (continuous at continuous_count = 1) and a few large ones (discrete: few per cylinder, and
+#: disks too large for the field's faces), in the unit cube's local [-1, 1]^3 at 1 mm a unit.
+MIXED_SPECIES = ('[{"psd": {"type": "uniform", "r_min_um": 15, "r_max_um": 25}, "eta": [1.33, 0], "share": 0.9985},'
+                 ' {"psd": {"type": "uniform", "r_min_um": 60, "r_max_um": 90}, "eta": [1.5, 0], "share": 0.0008}]')
+
+
+@pytest.fixture(scope="module")
+def small_field():
+    """A medium of 4000 small grains thinning along x (all continuous at continuous_count = 1: one field, two
+    optics bins) and its exported field."""
+    llvm()
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(-1, 1, (4000, 3))
+    pos[:, 0] = 2 * np.sqrt(rng.uniform(0, 1, 4000)) - 1  # density rising along x: cells differ
+    data = motes.DiscreteMedium(pos, rng.uniform(15, 25, 4000), np.zeros(4000, int),
+                                [motes.Species(motes.Uniform(15, 25), 1.33)], motes.RGB_WAVELENGTHS_UM, scale_m=1e-3,
+                                query_radius=0.02, size_bins=2, continuous_count=1.0, storage="full")
+    assert data.continuous_particles == 4000 and data.core.flat_arrays() is None
+    return data, data.core.flat_field()
+
+
+def brute_depth(f, o, d, tmax):
+    """Optical depth of [0, tmax) along the rays o + t d (n x 3 each, |d| = 1; tmax per ray) through the exported
+    field ``f``, in float64: the segments between every face crossing, each at its midpoint's sigma."""
+    lo, cell, dims = np.asarray(f["lo"]), np.asarray(f["cell"]), np.asarray(f["dims"]).astype(int)
+    sigma = np.asarray(f["sigma"], dtype=np.float64)
+    tmax = np.minimum(np.asarray(tmax, dtype=np.float64), 1e3)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ts = [(lo[a] + np.arange(dims[a] + 1)[None, :] * cell[a] - o[:, a:a + 1]) / d[:, a:a + 1] for a in range(3)]
+    t = np.concatenate([np.zeros_like(tmax), tmax] + ts, axis=1)
+    t = np.sort(np.clip(np.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0), 0.0, tmax), axis=1)
+    mid = o[:, None, :] + 0.5 * (t[:, 1:] + t[:, :-1])[:, :, None] * d[:, None, :]
+    c = np.floor((mid - lo) / cell).astype(int)
+    inside = np.all((c >= 0) & (c < dims), axis=2)
+    idx = np.where(inside, (c[..., 2] * dims[1] + c[..., 1]) * dims[0] + c[..., 0], 0)
+    return np.sum(np.where(inside, sigma[idx], 0.0) * np.diff(t, axis=1), axis=1)
+
+
+def rays(rng, n, spread=1.5):
+    o = rng.uniform(-spread, spread, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return o, d
+
+
+def jit(x, kind):
+    return kind(*(mi.Float(x[:, a].astype(np.float32)) for a in range(3)))
+
+
+def test_field_optical_depth(small_field):
+    """``DrJitField.optical_depth`` along random segments (some from outside the field, some ending inside it,
+    some unbounded) equals the exported sigma integrated by brute force between the face crossings (rtol 1e-4)."""
+    from motes.drjit_field import DrJitField
+
+    data, f = small_field
+    assert np.ptp(f["sigma"]) > 0.2 * f["sigma"].mean()  # cells differ
+    rng = np.random.default_rng(6)
+    o, d = rays(rng, 256)
+    tmax = np.where(rng.uniform(size=256) < 0.2, np.inf, rng.uniform(0.1, 4.0, 256))
+    o, d = o.astype(np.float32).astype(np.float64), d.astype(np.float32).astype(np.float64)
+    got = np.asarray(DrJitField(f).optical_depth(jit(o, mi.Point3f), jit(d, mi.Vector3f),
+                                                 mi.Float(tmax.astype(np.float32))), dtype=np.float64)
+    want = brute_depth(f, o, d, tmax.astype(np.float32))
+    assert (want > 0).mean() > 0.3
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
+
+
+def test_field_free_flights_follow_beer_lambert(small_field):
+    """``DrJitField.sample_free_flight``: 4000 rays from inside the field, one hashed seed each: 1 - exp(-tau(t)) of
+    the sampled distances (tau by brute force from the exported sigma), escapes completed uniformly above
+    1 - exp(-tau(inf)), is uniform (Kolmogorov-Smirnov p > 1e-3)."""
+    from scipy import stats
+
+    from motes.drjit_field import DrJitField
+
+    _, f = small_field
+    n = 4000
+    rng = np.random.default_rng(7)
+    o, d = rays(rng, n, spread=0.9)
+    o, d = o.astype(np.float32).astype(np.float64), d.astype(np.float32).astype(np.float64)
+    t, valid = DrJitField(f).sample_free_flight(jit(o, mi.Point3f), jit(d, mi.Vector3f), mi.Float(np.inf),
+                                                mi.UInt32(np.arange(n, dtype=np.uint32) * 7919 + 1))
+    t, valid = np.asarray(t, dtype=np.float64), np.asarray(valid)
+    assert 0.2 < valid.mean() < 0.98 and np.all(np.isfinite(t[valid])) and np.all(np.isinf(t[~valid]))
+    tau_t = brute_depth(f, o, d, np.where(valid, t, 0.0))
+    tau_all = brute_depth(f, o, d, np.full(n, np.inf))
+    u = np.where(valid, -np.expm1(-tau_t), -np.expm1(-tau_all) + np.exp(-tau_all) * rng.uniform(size=n))
+    assert stats.kstest(u, "uniform").pvalue > 1e-3
+
+
+def mixed(kernel, **kw):
+    """The medium of ``MIXED_SPECIES``, continuous_count = 1 (the small grains continuous, the large ones
+    discrete); rays never switch to the grains' equivalent (grain_depth at its maximum, no surface footprint)."""
+    from motes.plugins.discrete_medium import MAX_GRAIN_DEPTH
+
+    d = {"type": "discrete", "count": 20000, "species": MIXED_SPECIES, "scale_m": 1e-3, "query_radius": 0.02,
+         "continuous_count": 1.0, "size_bins": 2, "kernel": kernel, "grain_depth": MAX_GRAIN_DEPTH,
+         "surface_footprint": False, "phase": {"type": "particle"}}
+    d.update(kw)
+    return d
+
+
+def mixed_scene(medium, res):
+    """``medium`` in the unit cube under a constant white sky, seen from the front; no Russian roulette (the white
+    furnace's scene: with albedo 1 it renders 1)."""
+    T = mi.ScalarTransform4f
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 100000},
+        "sensor": {"type": "perspective", "fov": 30,
+                   "to_world": T().look_at(origin=[0, 0, 6], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium}})
+
+
+@pytest.mark.filterwarnings("ignore:query_radius")
+def test_continuous_classes_render_as_native():
+    """Small grains continuous, large ones discrete (continuous_count = 1), albedo 0.5, under a white sky: drjit
+    (the field's exact flights, the grains' walk up to them, field events scattering by their cell's mixture) and
+    native (grain_depth at its maximum, no footprint: the same model) agree in the image mean over six seeds each
+    (3 SE). (The phase function at field events: ``test_field_events_scatter_by_their_cells_mixture``.)"""
+    llvm()
+    a_scene = mixed_scene(mixed("drjit", albedo=0.5), 16)
+    medium = next(sh.interior_medium() for sh in a_scene.shapes() if sh.interior_medium() is not None)
+    assert medium.data.continuous_particles > 19000 and len(medium.data.core) > medium.data.continuous_particles
+    seeds = range(6)
+    a = np.array([np.asarray(mi.render(a_scene, spp=16, seed=s), dtype=np.float64).mean() for s in seeds])
+    b_scene = mixed_scene(mixed("native", albedo=0.5), 16)
+    b = np.array([np.asarray(mi.render(b_scene, spp=16, seed=100 + s), dtype=np.float64).mean() for s in seeds])
+    z = (a.mean() - b.mean()) / np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size)
+    assert abs(z) < 3, f"z = {z:.2f} (means {a.mean():.5f}, {b.mean():.5f})"
+    assert a.std(ddof=1) / np.sqrt(a.size) < 0.003 * a.mean()  # a 1.3 % bias fails
+    b = medium.device_bytes
+    assert medium._drjit.field is not None and b["field"] > 0 and b["total"] == b["grains"] + b["field"] + b["tables"]
+
+
+@pytest.mark.filterwarnings("ignore:query_radius")
+def test_continuous_classes_white_furnace():
+    """Non-absorbing grains, small ones continuous and large ones discrete, under a constant sky (no Russian
+    roulette): the drjit kernel renders 1 within 3 SE (the scene and kernel of
+    ``test_continuous_classes_render_as_native``, albedo 1)."""
+    llvm()
+    img = np.asarray(mi.render(mixed_scene(mixed("drjit", albedo=1.0), 16), spp=16, seed=1), dtype=np.float64)
+    pix = img.reshape(-1, img.shape[-1]).mean(axis=1)
+    m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
+    assert abs(m - 1) < 3 * se, f"furnace {m:.4f} +- {se:.4f}"
+    assert se < 0.005
+
+
+def test_field_events_scatter_by_their_cells_mixture(small_field):
+    """At a point of a field cell (no grain there): the phase function samples what it evaluates (mitsuba.chi2), and
+    its value per channel is the cell's mixture sum_i s_i a_ic f_ic(mu) / sum_i s_i over its bins' entries (s_i
+    their extinction shares; a_ic, f_ic the bins' tables of ``flat_tables`` at the channel's wavelength), its pdf the
+    mean over channels of sum_i s_i a_ic f_ic / sum_i s_i a_ic."""
+    llvm()
+    from motes.plugins.drjit_medium import DrJitKernel
+
+    data, f = small_field
+    k = DrJitKernel(data).ready()
+    start = np.asarray(f["start"])
+    cell = int(np.flatnonzero(np.diff(start) == 2)[0])  # a cell of both bins
+    dims = np.asarray(f["dims"]).astype(int)
+    ijk = np.array([cell % dims[0], cell // dims[0] % dims[1], cell // (dims[0] * dims[1])])
+    centre = np.asarray(f["lo"]) + (ijk + 0.5) * np.asarray(f["cell"])
+    wi = np.array([0.3, -0.2, 0.9327379])
+    at_origin = interactions_at_origin(mi, dr, mi.Vector3f(*(float(x) for x in wi)))
+
+    def mei_of(n):
+        mei = at_origin(n)
+        mei.p = mi.Point3f(*(float(x) for x in centre))
+        return mei
+
+    passed, messages = phase_chi2(mi, dr, k, mei_of, sample_count=200_000)
+    assert passed, messages
+    rng = np.random.default_rng(8)
+    wo = rng.normal(size=(64, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    v, pdf = k.eval_pdf(mi.PhaseFunctionContext(), mei_of(64), jit(wo, mi.Vector3f))
+    v = np.stack([np.asarray(v[c]) for c in range(3)], axis=1)
+    mu = np.clip(wo.astype(np.float32) @ -wi, -1, 1)
+    t = data.core.flat_tables()
+    off, n_lam = np.asarray(t["offset"]), len(data.wavelength_um)
+    entries = range(start[cell], start[cell + 1])
+    s = np.asarray(f["share"], dtype=np.float64)[list(entries)]
+    want_v, want_pdf = np.zeros((64, 3)), np.zeros(64)
+    for c, row in enumerate(k._rows):
+        saf = np.zeros(64)
+        sa = 0.0
+        for j, share in zip(entries, s):
+            tid = int(f["bin"][j]) * n_lam + row
+            nodes = slice(off[tid], off[tid + 1])
+            a = t["albedo"][tid]
+            saf += share * a * np.interp(mu, t["mu"][nodes], t["f"][nodes])
+            sa += share * a
+        want_v[:, c] = saf / s.sum()
+        want_pdf += saf / sa / 3
+    np.testing.assert_allclose(v, want_v, rtol=2e-4)
+    np.testing.assert_allclose(np.asarray(pdf), want_pdf, rtol=2e-4)

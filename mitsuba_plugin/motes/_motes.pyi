@@ -197,6 +197,12 @@ class DiscreteMedium:
         """The grains walked one by one as ``ParticleGrid.flat_arrays`` gives them (grey tau; "index": what the
         medium names a grain by) and "bin" (n,) uint32 each grain's optics bin; None where no grain is stored
         (a procedural cloud, every size class continuous). Continuous size classes are not in it."""
+    def flat_field(self) -> dict[str, npt.NDArray[np.generic]] | None:
+        """The continuous field of the size classes no pixel resolves (not the grains' equivalent of
+        ``grain_depth``): "lo", "cell" (3 each, float64), "dims" (3, uint32), "sigma" (per cell, float32, per scene
+        unit, x fastest), "start" (cells + 1, uint32: cell c's entries start[c]..start[c + 1]) and per entry "bin"
+        (uint32, the bins of ``flat_tables``) and "share" (float32, of its cell's extinction; one entry per bin);
+        None without such a field (``motes.drjit_field``)."""
     def procedural_export(self) -> dict[str, Any] | None:
         """A procedural cloud's discrete process as numbers (``motes.drjit_procedural`` regenerates it): seed, tiling,
         Poisson constants, density terms, classes' codes and CDF, per class code "reach", "tau" (float32, as the

@@ -64,7 +64,8 @@ Parameter                    Type       Meaning (default)
                                         memory estimate (16 bytes each to build)
 ``continuous_count``         float      size classes with at least this many particles per query cylinder
                                         (over a mean free path or across the cloud) are rendered as a
-                                        continuous medium: no pixel resolves their grains (16; inf: none)
+                                        continuous medium: no pixel resolves their grains (16, inf with
+                                        ``kernel = drjit``; inf: none)
 ``grain_depth``              integer    a path's rays walk grains one by one until its ``grain_depth``-th
                                         scattering event, and after it see their continuous equivalent
                                         where their pixel footprint holds ``continuous_count`` grains (the
@@ -138,9 +139,11 @@ Parameter                    Type       Meaning (default)
 ``kernel``                   string     ``native``: the C++/Rust render path where it is built (below, "Render
                                         paths"); ``drjit``: Dr.Jit-typed code traced into Mitsuba's kernels,
                                         no Rust call at render time (every ``llvm_ad_*`` and ``cuda_ad_*``; the
-                                        exact medium: ``continuous_count`` defaults to inf, a finite one that
-                                        leaves continuous classes is an error, as are scalar variants;
-                                        ``cells_per_particle`` defaults to 2 there;
+                                        exact medium: ``continuous_count`` defaults to inf there, a finite one
+                                        renders its continuous classes as their field (not in a procedural
+                                        cloud: an error), ``grain_depth`` and ``surface_footprint`` change
+                                        nothing; scalar variants are an error; ``cells_per_particle`` defaults
+                                        to 2 there;
                                         ``motes/plugins/drjit_medium.py``) (``native``; ``drjit``, the only
                                         one, in ``cuda_ad_*``)
 ``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
@@ -743,7 +746,7 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
     if p.truncate is not None and p.truncate < 0:
         p.truncate = None
     p.tau_max = get("tau_max", DEFAULT_TAU_MAX, float)
-    # The drjit kernel renders the exact medium (drjit_medium.py): every grain walked.
+    # The drjit kernel defaults to the exact medium (drjit_medium.py): every grain walked.
     p.continuous = get("continuous_count", np.inf if p.kernel == "drjit" else DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: 1 <= v <= MAX_GRAIN_DEPTH,
                         f"an integer in [1, {MAX_GRAIN_DEPTH}]")

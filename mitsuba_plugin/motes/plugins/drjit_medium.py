@@ -13,12 +13,24 @@ Parameter            Type     Meaning (of the ``discrete`` medium; the other par
 
 Notes
 -----
-* **Exact medium.** Every grain is walked on every ray, as with ``continuous_count = inf``, which is this
-  kernel's default; a finite ``continuous_count`` that leaves size classes continuous is an error naming it
-  (the continuous field is not ported), and so are the scalar variants (``kernel`` named) and a procedural
-  cloud of a grid density. ``grain_depth`` and ``surface_footprint`` then change nothing. A user's ``<phase>``
-  child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they are per-bin tables like the
-  grains' own.
+* **Exact medium.** Every grain of the discrete size classes is walked on every ray. ``continuous_count``
+  defaults to inf here (every class discrete); a finite one that leaves size classes continuous is honoured
+  (next note), except in a procedural cloud (an error naming it). The scalar variants (``kernel`` named) and a
+  procedural cloud of a grid density are errors. ``grain_depth`` and ``surface_footprint`` change nothing: no
+  ray switches to the grains' continuous equivalent (as native with ``grain_depth`` at its maximum and
+  ``surface_footprint = false``). A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and
+  ``phase_model = "hg"`` work: they are per-bin tables like the grains' own.
+* **Continuous size classes** (a finite ``continuous_count``; ``rust/motes-core/src/render/continuous/``): the
+  field of the classes no pixel resolves is uploaded once (``DiscreteMedium.flat_field``: sigma_t per cell, per
+  cell its bins with their shares s_i of its extinction) and walked by ``motes.drjit_field.DrJitField``: an
+  exact free flight through the piecewise-constant sigma_t (one exponential per ray, accumulated along a 3D-DDA),
+  then the grains' flight up to its distance; the two processes are independent, so the nearer interaction
+  wins (as the native kernel's ``discrete/flight.rs``). At a point where the site search finds no grain and
+  whose cell has sigma_t > 0, the phase function is the cell's: the site's formulas below with tau_j replaced
+  by s_i (value_c = sum_i s_i a_ic f_ic / sum_i s_i; sampling picks a bin by s_i a_ic), which is what the native
+  kernel's pick of one member by its extinction gives in expectation. A ray leaving a field event carries no
+  tag (it skips no grain: its parent is in the field); a shadow ray from one still skips the grains whose ball
+  holds its origin (below, "Parent exclusion": a shadow ray carries no tag to tell field from grain events).
 * **Procedural clouds** (``storage = procedural``): nothing is stored; ``motes.drjit_procedural`` regenerates
   the grains of the tiles a ray or a site needs from the core's counter-seeded streams, the core's grains bit
   for bit (``DrJitProcedural.sample_free_flight`` and ``site_walk``). Every ray regenerates its tiles (the
@@ -83,6 +95,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..drjit_field import DrJitField
 from ..drjit_procedural import DrJitProcedural
 from ..drjit_walk import DrJitGrid
 from ._bridge import depolarized, mueller_of
@@ -180,16 +193,20 @@ class DrJitKernel:
 
     def device_bytes(self) -> dict:
         """Bytes of the arrays uploaded (once per load) to the variant's device: "grains" (the walk's per-grain
-        and per-cell arrays and the size classes' tables), "tables" (the bins' phase tables and albedos), "total", and
-        "per_grain" (grains / count; None for a procedural cloud, which stores none); empty before the first call
-        uploads them."""
+        and per-cell arrays and the size classes' tables), "field" (the continuous classes' field: sigma and
+        entry starts per cell, bin and share per entry; 0 without one), "tables" (the bins' phase tables and
+        albedos), "total", and "per_grain" (grains / count; None for a procedural cloud, which stores none, and
+        where every class is continuous); empty before the first call uploads them."""
         if not self._ready:
             return {}
-        grains = _jit_bytes(vars(self.grid if self.proc is None else self.proc))
+        walked = self.grid if self.proc is None else self.proc
+        grains = 0 if walked is None else _jit_bytes(vars(walked))
+        field = 0 if self.field is None else _jit_bytes(vars(self.field))
         names = ("_mu", "_f", "_cdf", "_off", "_cnt", "_albedo") + (("_ratios",) if self.polarizing else ())
         tables = _jit_bytes({k: getattr(self, k) for k in names})
-        per_grain = None if self.proc is not None else grains / max(self.grid.count, 1)  # procedural: none stored
-        return {"grains": grains, "tables": tables, "total": grains + tables, "per_grain": per_grain}
+        per_grain = None if self.grid is None else grains / max(self.grid.count, 1)  # procedural: none stored
+        return {"grains": grains, "field": field, "tables": tables, "total": grains + field + tables,
+                "per_grain": per_grain}
 
     def summary(self) -> str:
         """One line: the kernel and, once uploaded, what it holds on the device."""
@@ -199,15 +216,21 @@ class DrJitKernel:
         if self.proc is not None:
             return (f"kernel = drjit: a procedural cloud regenerated where rays need it, {b['total'] / 2**20:.1f} MiB "
                     f"on the device ({b['tables'] / 2**20:.2f} MiB of tables)")
+        field = "" if self.field is None else (f", a continuous field of {self.field.cells} cells "
+                                               f"({b['field'] / 2**20:.2f} MiB)")
+        if self.grid is None:
+            return (f"kernel = drjit: no grains walked{field}, {b['total'] / 2**20:.1f} MiB on the device "
+                    f"({b['tables'] / 2**20:.2f} MiB of tables)")
         return (f"kernel = drjit: {self.grid.count} grains, {b['total'] / 2**20:.1f} MiB on the device "
-                f"({b['per_grain']:.1f} B a grain with its cells, {b['tables'] / 2**20:.2f} MiB of tables)")
+                f"({b['per_grain']:.1f} B a grain with its cells, {b['tables'] / 2**20:.2f} MiB of tables){field}")
 
     def _upload(self, data) -> None:
-        if getattr(data, "continuous_particles", 0):
-            raise ValueError(f"discrete medium: kernel = drjit walks every grain, but continuous_count leaves "
-                             f"{data.continuous_particles} grains in continuous size classes: set continuous_count "
-                             "= inf (the drjit kernel's default) or use kernel = native")
-        self.grid = self.proc = None
+        self.grid = self.proc = self.field = None
+        continuous = getattr(data, "continuous_particles", 0)
+        if data.core.procedural_cloud and continuous:
+            raise ValueError(f"discrete medium: kernel = drjit cannot render a procedural cloud's continuous size "
+                             f"classes (continuous_count leaves {continuous} grains continuous): set "
+                             "continuous_count = inf (the drjit kernel's default) or use kernel = native")
         if data.core.procedural_cloud:
             try:
                 self.proc = DrJitProcedural(data.core)
@@ -216,16 +239,19 @@ class DrJitKernel:
                                  "kernel = native") from None
             extent = self.proc.extent()
         else:
+            # The continuous size classes' field (module docs, "Continuous size classes"), and the grains walked.
+            f = data.core.flat_field()
+            self.field = None if f is None else DrJitField(f)
             a = data.core.flat_arrays()
-            if a is None:
-                raise ValueError("discrete medium: kernel = drjit needs grains to walk (every size class is "
-                                 "continuous)")
-            self.grid = DrJitGrid(a)
-            spheres = np.asarray(a["spheres"], dtype=np.float64).reshape(-1, 4)
+            if a is None and self.field is None:
+                raise ValueError("discrete medium: kernel = drjit found neither grains to walk nor a continuous "
+                                 "field (an empty medium)")
+            self.grid = None if a is None else DrJitGrid(a)
+            spheres = np.zeros((0, 4)) if a is None else np.asarray(a["spheres"], dtype=np.float64).reshape(-1, 4)
             if spheres.shape[0]:
                 extent = float(np.max(spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0)) + spheres[:, 3].max())
-            else:
-                extent = 0.0
+            else:  # no grains: the field's box
+                extent = 0.0 if self.field is None else float(np.max(self.field.cell * self.field.dims))
         self.coincide = COINCIDE_SHARE * max(extent, 1e-30)
         self._tables(data)
         self.set_albedo_scale(data.core.albedo_scale)
@@ -375,8 +401,22 @@ class DrJitKernel:
             t, _, _, valid = self.proc.sample_free_flight(ray.o, ray.d, 0.0, ray.maxt, seed,
                                                           exclude_origin=self.from_site(ray))
         else:
-            t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, ray.maxt, self._ray_seed(ray),
-                                                       exclude_origin=self.from_site(ray), want_index=False)
+            # Continuous size classes: the field's exact free flight first, then the grains up to its distance;
+            # the two processes are independent, so the nearer interaction wins (``continuous/mod.rs``, as the
+            # native kernel's ``discrete/flight.rs``). Their numbers: the same ray seed, hashed apart.
+            seed = self._ray_seed(ray)
+            tmax, t_f, hit_f = mi.Float(ray.maxt), None, None
+            if self.field is not None:
+                t_f, hit_f = self.field.sample_free_flight(ray.o, ray.d, ray.maxt, seed)
+                tmax = dr.select(hit_f, t_f, tmax)
+            if self.grid is not None:
+                t, _, valid = self.grid.sample_free_flight(ray.o, ray.d, tmax, seed,
+                                                           exclude_origin=self.from_site(ray), want_index=False)
+            else:
+                t, valid = dr.full(mi.Float, dr.inf, dr.width(tmax)), dr.zeros(mi.Bool, dr.width(tmax))
+            if self.field is not None:
+                t = dr.select(valid, mi.Float(t), t_f)
+                valid = valid | hit_f
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -403,7 +443,7 @@ class DrJitKernel:
         u = dr.clip(u1 - mi.Float(c), 0.0, 0.99999994)  # below 1: the reservoir picks where u < a share
         p = mi.Point3f(mei.p)
         waves = self._waves(mei)
-        _, members, (b, u) = self._site(p, d_in, waves, pick=(c, u), active=active)
+        _, members, (b, u, in_field) = self._site(p, d_in, waves, pick=(c, u), active=active)
         valid = b != 0xFFFFFFFF
         # The picked grain's table at the picked channel: its lower or upper wavelength's by the rest of
         # sample1 (``mixture_sample``).
@@ -422,6 +462,9 @@ class DrJitKernel:
         # The tag of a ray leaving a site, in the low bits of wo.x (at most TAG_MASK ulps: module docs).
         wx = (dr.reinterpret_array(mi.UInt32, wo.x) & ~mi.UInt32(TAG_MASK)) | self._tag(p, wo)
         wo = mi.Vector3f(dr.reinterpret_array(mi.Float, wx), wo.y, wo.z)
+        if self.field is not None:  # a field event's ray skips no grain (its parent is in the field): never tagged
+            wx = dr.reinterpret_array(mi.UInt32, wo.x) ^ mi.UInt32(1)
+            wo.x = dr.select(in_field, dr.reinterpret_array(mi.Float, wx), wo.x)
         ok = valid & (pdf > 0)
         weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
         return wo, weight, dr.select(ok, pdf, 0.0)
@@ -481,7 +524,8 @@ class DrJitKernel:
         reach of ``p`` per size class; procedural: the tiles within the halo of ``p``'s, regenerated): per
         channel sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given); the picked grain's bin
         and the uniform left (``pick`` given); or (neither) the number of the site's grains and the first one's
-        bin."""
+        bin. Where no grain is found and ``p``'s field cell has sigma_t > 0 (a field event), the same over the
+        cell's entries, their shares s_i for tau_j; the last of the returned tuple says where."""
         F, U = mi.Float, mi.UInt32
         ch = self.channels
         n = max(dr.width(p), dr.width(d_in), 1 if mu is None else dr.width(mu),
@@ -507,14 +551,21 @@ class DrJitKernel:
         step = self._accumulate if evaluating else self._reservoir if pick is not None else self._count
         arg = waves if evaluating else wave
         state = [A, N, T, W, u, picked]
-        if self.proc is not None:
-            def visit(tau, b, member, st):
-                return list(step(tau, b, member, mu, arg, *st))
+        def visit(tau, b, member, st):
+            return list(step(tau, b, member, mu, arg, *st))
 
+        if self.proc is not None:
             A, N, T, W, u, picked = self.proc.site_walk(p, d_in, tol, visit, state, active)
-        else:
+        elif self.grid is not None:
             A, N, T, W, u, picked = self._stored_site_walk(p, d_in, tol, mu, arg, step, state, active)
-        return A, N, T, (picked, u)
+        in_field = dr.zeros(mi.Bool, n)
+        if self.field is not None:
+            # No grain at p: a field event where p's cell has sigma_t > 0 (module docs, "Continuous size classes"):
+            # the same steps over the cell's entries, tau_j replaced by their extinction shares s_i.
+            in_field = mi.Bool(active) & (T == 0)
+            A, N, T, W, u, picked = self.field.cell_walk(p, visit, [A, N, T, W, u, picked], in_field)
+            in_field &= T > 0
+        return A, N, T, (picked, u, in_field)
 
     @dr.syntax
     def _stored_site_walk(self, p, d_in, tol, mu, arg, step, state, active):
@@ -597,7 +648,8 @@ class DrJitKernel:
         """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
         ``waves`` (``_waves``). With ``mu``: (elements per channel, ``elements[c][k]``, pdf, -); with ``pick`` =
         (channel, uniform):
-        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left)).
+        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left, whether it is a field event)); at a
+        field event the members are the cell's entries (``_site_sums``).
 
         Evaluating, a first walk only counts the site's grains and keeps the first (no table read per grain
         tested: a masked lane costs as much as an active one in a SIMD packet); a site of one grain, most,
@@ -608,7 +660,7 @@ class DrJitKernel:
                 _, _, T, picked = self._site_sums(p, d_in, waves, None, pick, active)
             return None, T, picked
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, _, members, (first, _) = self._site_sums(p, d_in, waves, None, None, active)
+            _, _, members, (first, _, _) = self._site_sums(p, d_in, waves, None, None, active)
         one = mi.Bool(active) & (members == 1)
         value, pdf = self._mixture(p, d_in, waves, mu, active=mi.Bool(active) & (members > 1))
         value, pdf = self._one_grain(first, waves, mu, one, value, pdf)

@@ -298,6 +298,28 @@ impl PyDiscreteMedium {
         Ok(Some(d))
     }
 
+    /// The continuous field of the size classes no pixel resolves (`DiscreteMedium::flat_field`) as
+    /// numpy arrays: "lo", "cell" (3 each, f64), "dims" (3, u32), "sigma" (per cell, f32, per scene unit,
+    /// x fastest), "start" (cells + 1, u32) and per entry "bin" (u32, as `flat_tables`) and "share"
+    /// (f32, of its cell's extinction); None without such a field.
+    fn flat_field<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, pyo3::types::PyDict>>> {
+        let Some(f) = py.detach(|| self.medium.flat_field()) else {
+            return Ok(None);
+        };
+        let d = pyo3::types::PyDict::new(py);
+        d.set_item("lo", f.lo.to_vec().into_pyarray(py))?;
+        d.set_item("cell", f.cell.to_vec().into_pyarray(py))?;
+        d.set_item("dims", f.dims.to_vec().into_pyarray(py))?;
+        d.set_item("sigma", f.sigma.into_pyarray(py))?;
+        d.set_item("start", f.start.into_pyarray(py))?;
+        d.set_item("bin", f.bin.into_pyarray(py))?;
+        d.set_item("share", f.share.into_pyarray(py))?;
+        Ok(Some(d))
+    }
+
     /// Heap bytes the medium holds (its particles, grid, fields and optics tables).
     #[getter]
     fn bytes(&self) -> usize {

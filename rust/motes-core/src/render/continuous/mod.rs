@@ -34,11 +34,14 @@
 //! * `build`: a field's cells, σ_t per cell, pick tables and majorants, from particles or a density.
 //! * `flight`: free flights one ray at a time, exact or by delta tracking.
 //! * `lockstep`: a packet's free flights stepped together in SIMD lanes.
+//! * `export`: the field as flat arrays for a walk outside the core (the Dr.Jit kernel).
 
 mod build;
+mod export;
 mod flight;
 mod lockstep;
 
+pub use export::FlatField;
 pub use lockstep::FLIGHT_LANES;
 
 use crate::render::footprint::{ClassMoments, SurfaceFootprint};
@@ -269,42 +272,9 @@ impl ContinuousField {
     /// pick returns members (`f(member, extinction × volume)`, once per cell it is in).
     pub fn member_extinction(&self, mut f: impl FnMut(u32, f64)) {
         let volume = self.cell_volume();
-        let mut shares = |c: usize, cdf: &mut dyn Iterator<Item = (u32, u32)>| {
-            let total = self.sigma[c] as f64 * volume;
-            let mut below = 0u32;
-            for (member, up) in cdf {
-                f(
-                    member,
-                    total * (up - below.min(up)) as f64 / u16::MAX as f64,
-                );
-                below = up;
-            }
-        };
         for c in 0..self.sigma.len() {
-            if self.sigma[c] <= 0.0 {
-                continue;
-            }
-            if let Some((first, packed)) = &self.picks {
-                let run = &packed[first[c] as usize..first[c + 1] as usize];
-                shares(
-                    c,
-                    &mut run.iter().map(|&x| (CLASS_FLAG | (x & 0xFFFF), x >> 16)),
-                );
-                continue;
-            }
-            let (a, b) = self.range(c);
-            match &self.members {
-                Members::Classes(v) => shares(
-                    c,
-                    &mut v[a..b]
-                        .iter()
-                        .map(|&x| (CLASS_FLAG | (x & 0xFFFF), x >> 16)),
-                ),
-                _ => shares(
-                    c,
-                    &mut (a..b).map(|j| (self.members.get(j), self.cdf[j] as u32)),
-                ),
-            }
+            let total = self.sigma[c] as f64 * volume;
+            self.cell_shares(c, &mut |member, share| f(member, total * share));
         }
     }
 

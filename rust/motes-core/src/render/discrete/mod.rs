@@ -115,7 +115,7 @@ pub use settings::{check_particles_and_settings, MediumSettings};
 
 use crate::ensemble::phase_table::PhaseTable;
 use crate::error::{require, OpticsError};
-use crate::render::continuous::ContinuousField;
+use crate::render::continuous::{ContinuousField, FlatField};
 use crate::render::enclosure::Enclosure;
 use crate::render::footprint::{SurfaceFootprint, View};
 use crate::render::procedural::DensityCells;
@@ -396,6 +396,16 @@ impl DiscreteMedium {
             let bins = f.index.iter().map(|&i| self.optics.bin(i) as u32).collect();
             (f, bins)
         }))
+    }
+
+    /// The continuous field of the size classes no pixel resolves (not the grains' equivalent that
+    /// `grain_depth` and the footprint rule switch to) as flat arrays ([`FlatField`]: cells, σ_t, and per
+    /// cell its optics bins, as [`Self::flat_tables`] numbers them, with their shares of the cell's
+    /// extinction), for a walk written outside the core (issue 46's Dr.Jit kernel); None where there is
+    /// no such field (`continuous_count` infinite, or every class discrete).
+    pub fn flat_field(&self) -> Option<FlatField> {
+        let f = self.field.as_ref()?;
+        Some(f.flat(|member| self.optics.bin(member) as u32))
     }
 
     /// A procedural cloud's discrete grains (None: stored particles, or every class continuous).

@@ -229,6 +229,16 @@ fn medium_with(n: usize, continuous_count: f64) -> DiscreteMedium {
 
 /// [`medium_with`], its second bin's albedo at 500 and 600 nm given.
 fn medium_with_albedo(n: usize, continuous_count: f64, albedo: [f64; 2]) -> DiscreteMedium {
+    medium_stored(n, continuous_count, albedo, Storage::Full)
+}
+
+/// [`medium_with_albedo`] with its particles kept as `storage` says.
+fn medium_stored(
+    n: usize,
+    continuous_count: f64,
+    albedo: [f64; 2],
+    storage: Storage,
+) -> DiscreteMedium {
     let mut s = 3u64;
     let mut r = || crate::test_rng::lcg(&mut s);
     let pos: Vec<[f64; 3]> = (0..n).map(|_| [r(), r(), r()]).collect();
@@ -253,7 +263,7 @@ fn medium_with_albedo(n: usize, continuous_count: f64, albedo: [f64; 2]) -> Disc
         cells_per_particle: 1.0,
         continuous_count,
         seed: 7,
-        storage: Storage::Full,
+        storage,
         ..MediumSettings::default()
     };
     DiscreteMedium::build(
@@ -1029,4 +1039,50 @@ fn mueller_ratios_are_checked_and_reversed() {
     assert!(MuellerRatios::new(&[1.1], &[0.0], &[0.0]).is_err());
     assert!(MuellerRatios::new(&[f64::NAN], &[0.0], &[0.0]).is_err());
     assert!(MuellerRatios::new(&[0.0, 0.0], &[0.0], &[0.0]).is_err());
+}
+
+/// `flat_field` (the Dr.Jit kernel's copy of the continuous classes' field), full and compact storage:
+/// each cell's shares sum to 1 (cells of σ_t = 0 have no entry), one entry per bin in increasing order,
+/// and σ_t × cell volume × share summed per bin is each bin's extinction as `member_extinction` gives it
+/// (to f32's rounding of σ_t and the shares). None where every class is discrete.
+#[test]
+fn flat_field_keeps_each_bins_extinction() {
+    assert!(medium_with(400, f64::INFINITY).flat_field().is_none());
+    for storage in [Storage::Full, Storage::Compact] {
+        let m = medium_stored(4000, 1.0, [0.5, 0.7], storage);
+        let f = m.flat_field().expect("a continuous field");
+        let cells = (f.dims[0] * f.dims[1] * f.dims[2]) as usize;
+        assert_eq!((f.sigma.len(), f.start.len()), (cells, cells + 1));
+        assert_eq!(f.start[cells] as usize, f.bin.len());
+        let volume = f.cell[0] * f.cell[1] * f.cell[2];
+        let mut per_bin = [0.0f64; 2];
+        for c in 0..cells {
+            let (a, b) = (f.start[c] as usize, f.start[c + 1] as usize);
+            assert_eq!(a == b, f.sigma[c] <= 0.0, "cell {c}");
+            if a == b {
+                continue;
+            }
+            assert!(f.bin[a..b].windows(2).all(|w| w[0] < w[1]), "cell {c}");
+            let total: f64 = f.share[a..b].iter().map(|&s| s as f64).sum();
+            assert!(
+                (total - 1.0).abs() < 1e-6,
+                "cell {c}: shares sum to {total}"
+            );
+            for j in a..b {
+                per_bin[f.bin[j] as usize] += f.sigma[c] as f64 * volume * f.share[j] as f64;
+            }
+        }
+        let mut expected = [0.0f64; 2];
+        m.field.as_ref().unwrap().member_extinction(|member, e| {
+            expected[m.optics.bin(member)] += e;
+        });
+        for b in 0..2 {
+            assert!(expected[b] > 0.0);
+            let rel = per_bin[b] / expected[b] - 1.0;
+            assert!(
+                rel.abs() < 1e-6,
+                "{storage:?} bin {b}: {per_bin:?} vs {expected:?}"
+            );
+        }
+    }
 }
