@@ -1,8 +1,10 @@
 """Issue 46: ``kernel = "drjit"`` (``mitsuba_plugin/motes/plugins/drjit_medium.py``) against the native kernel
 on the shipped scenes (``scenes_xml/*.xml``) in ``llvm_ad_rgb`` (or ``--variant``), side by side in one process.
 
-Per scene three configurations of its discrete medium: ``drjit`` (exact: continuous_count = inf, its default),
-``native-exact`` (continuous_count = inf) and ``native`` (the scene's defaults). Each renders ``--seeds`` times
+Per scene four configurations of its discrete medium: ``drjit`` (the drjit kernel at the scene's defaults: the
+size classes no pixel resolves as their field), ``drjit-exact`` (continuous_count = inf; rendered only where the
+scene's defaults leave continuous classes, else it is ``drjit``), ``native-exact`` (continuous_count = inf) and
+``native`` (the scene's defaults). Each renders ``--seeds`` times
 at ``--res`` px and ``--spp`` spp after one warm-up render (the kernels compile there); the configurations
 take turns seed by seed, so that a busy machine slows them alike. Seeds differ between configurations
 (independent noise). Printed per configuration: the image mean, its z against ``native-exact`` (difference
@@ -34,7 +36,8 @@ import time
 import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-CONFIGS = {"drjit": {"kernel": "drjit"}, "native-exact": {"continuous_count": "inf"}, "native": {}}
+CONFIGS = {"drjit": {"kernel": "drjit"}, "drjit-exact": {"kernel": "drjit", "continuous_count": "inf"},
+           "native-exact": {"continuous_count": "inf"}, "native": {}}
 REFERENCE = "native-exact"
 
 
@@ -113,9 +116,12 @@ def main() -> None:
 
             bench_lod.MAX_DEPTH[0] = args.max_depth
         scenes = {c: load(mi, name, args.res, extra, defines) for c, extra in CONFIGS.items()}
-        imgs: dict = {c: [] for c in CONFIGS}
-        secs: dict = {c: [] for c in CONFIGS}
-        cpu: dict = {c: [] for c in CONFIGS}
+        if not any(getattr(getattr(sh.interior_medium(), "data", None), "continuous_particles", 0)
+                   for sh in scenes["drjit"].shapes() if sh.interior_medium() is not None):
+            del scenes["drjit-exact"]  # no continuous class: the same medium as drjit
+        imgs: dict = {c: [] for c in scenes}
+        secs: dict = {c: [] for c in scenes}
+        cpu: dict = {c: [] for c in scenes}
         for c, sc in scenes.items():
             mi.render(sc, spp=args.spp, seed=999)  # warm-up: the kernels compile
         for s in range(args.seeds):
@@ -127,7 +133,7 @@ def main() -> None:
                 imgs[c].append(img)
         ref = np.stack(imgs[REFERENCE])
         t_ref, cpu_ref = float(np.median(secs[REFERENCE])), float(np.median(cpu[REFERENCE]))
-        for c in CONFIGS:
+        for c in scenes:
             a = np.stack(imgs[c])
             z, rms = compare(a, ref) if c != REFERENCE else (0.0, 0.0)
             t, tc = float(np.median(secs[c])), float(np.median(cpu[c]))

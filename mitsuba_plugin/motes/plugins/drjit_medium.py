@@ -13,12 +13,14 @@ Parameter            Type     Meaning (of the ``discrete`` medium; the other par
 
 Notes
 -----
-* **Exact medium.** Every grain of the discrete size classes is walked on every ray. ``continuous_count``
-  defaults to inf here (every class discrete); a finite one that leaves size classes continuous is honoured
-  (next note), except in a procedural cloud (an error naming it). The scalar variants (``kernel`` named) and a
-  procedural cloud of a grid density are errors. ``grain_depth`` and ``surface_footprint`` change nothing: no
-  ray switches to the grains' continuous equivalent (as native with ``grain_depth`` at its maximum and
-  ``surface_footprint = false``). A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and
+* **Level of detail.** Every grain of the discrete size classes is walked on every ray; the size classes no
+  pixel resolves (``continuous_count``, 16 by default as in the native kernel) are their continuous field (next
+  note). In a procedural cloud the field is not ported: ``continuous_count`` defaults to inf there (every grain
+  walked) and a finite one that leaves classes continuous is an error naming it. The scalar variants
+  (``kernel`` named) and a procedural cloud of a grid density are errors. ``grain_depth`` and
+  ``surface_footprint`` change nothing: no ray switches to the grains' continuous equivalent (as native with
+  ``grain_depth`` at its maximum and ``surface_footprint = false``); where every class is continuous (the
+  shipped dust_box, house and staircase) that is the native default's model. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and
   ``phase_model = "hg"`` work: they are per-bin tables like the grains' own.
 * **Continuous size classes** (a finite ``continuous_count``; ``rust/motes-core/src/render/continuous/``): the
   field of the classes no pixel resolves is uploaded once (``DiscreteMedium.flat_field``: sigma_t per cell, per
