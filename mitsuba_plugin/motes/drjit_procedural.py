@@ -49,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import EXCLUDE_MARGIN, face, one_minus_exp
+from .drjit_walk import EXCLUDE_MARGIN, face, fold_key, grain_tag, one_minus_exp
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -428,7 +428,7 @@ class DrJitProcedural:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             return self._walk(*_rays(origin, direction, t0, t1), None)[0]
 
-    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None):
+    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None, origin_tag=None, slack=None):
         """Exact free flights on [t0, tmax): ``(t, key, code, valid)``: the t of the first grain that interacts
         (Float64, inf where none), its key (UInt64) and class code (UInt32), and whether there is one. Each grain
         interacts with probability 1 - exp(-tau_i), independently: its uniform is the top 53 bits of
@@ -437,11 +437,16 @@ class DrJitProcedural:
         the first DDA step whose exit lies beyond an interaction (module docs): the distribution the core's
         free flight samples, not its sample. ``exclude_origin`` (a mask per ray, or None): those rays skip the
         grains whose ball holds their origin (grown by ``drjit_walk.EXCLUDE_MARGIN``), as
-        ``DrJitGrid.sample_free_flight`` does (a ray leaving a site)."""
+        ``DrJitGrid.sample_free_flight`` does (a ray leaving a site); with ``origin_tag`` (per ray a UInt32) only
+        those whose ``grain_tag(fold_key(key))`` equals it, their balls' squared radii grown by ``slack``^2."""
         o, d, t0, t1 = _rays(origin, direction, t0, t1)
         seed = mi.UInt64(seed) + dr.zeros(mi.UInt64, dr.width(t0))
         exclude = dr.zeros(mi.Bool, dr.width(t0)) if exclude_origin is None else \
             mi.Bool(exclude_origin) | dr.zeros(mi.Bool, dr.width(t0))
+        if origin_tag is not None:
+            n = dr.width(t0)
+            exclude = (exclude, mi.UInt32(origin_tag) + dr.zeros(mi.UInt32, n),
+                       dr.square(mi.Float64(0.0 if slack is None else slack)) + dr.zeros(mi.Float64, n))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             _, t, key, code = self._walk(o, d, t0, t1, seed, exclude)
         valid = key != 0
@@ -532,15 +537,20 @@ class DrJitProcedural:
             pf = [F(mi.Float(x)) for x in p]
             hit, t = self._meets(pf, reach, o, d, t0, t1)
             hit &= keep
-            if exclude is not None:
+            limit = (1 << self.index_bits) - 1
+            key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
+            if dr.hint(isinstance(exclude, tuple), mode="scalar"):  # the origin tag (``sample_free_flight``)
+                v = [pf[a] - o[a] for a in range(3)]
+                grown = reach * (1 + EXCLUDE_MARGIN)
+                holds = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown + exclude[2]
+                hit &= ~(exclude[0] & holds & (grain_tag(fold_key(key)) == exclude[1]))
+            elif dr.hint(exclude is not None, mode="scalar"):
                 v = [pf[a] - o[a] for a in range(3)]
                 grown = reach * (1 + EXCLUDE_MARGIN)
                 hit &= ~(exclude & (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown))
             tau_i = F(dr.gather(mi.Float, self._tau, code, hit))
             tau += dr.select(hit, tau_i, 0.0)
             if flight:
-                limit = (1 << self.index_bits) - 1
-                key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
                 u = _standard(splitmix64_finalise(seed ^ (key * STREAM_GAMMA)))
                 interacts = hit & (t < best_t) & (u < one_minus_exp(tau_i))
                 best_t = dr.select(interacts, t, best_t)
@@ -562,22 +572,26 @@ class DrJitProcedural:
         reach = float(np.max(np.asarray(self.export["reach"], dtype=np.float64), initial=0.0))
         return float(np.max(corners.max(axis=0) - corners.min(axis=0))) + reach + drift
 
-    def site_walk(self, p, d_in, tol, visit, state, active=True):
+    def site_walk(self, p, d_in, tol, visit, state, active=True, tag=None):
         """Visit every grain that could be part of a site at ``p`` on a ray along ``d_in`` (the grains of the tiles
         within the halo of ``p``'s tile, regenerated): ``state = visit(tau, bin, member, state)`` per grain, with
         ``member`` whether its ball holds the ray (centre and R as the grids store them) and its centre projects
         on it within ``tol`` of ``p`` (``DiscreteMedium::site_near``'s rule, in double precision); ``tau`` (Float)
-        and ``bin`` its optical depth and optics bin. ``state``: a list of JIT values, returned updated."""
+        and ``bin`` its optical depth and optics bin. ``state``: a list of JIT values, returned updated. ``tag`` =
+        (the point's origin tag, a second tolerance): a member must then also have ``grain_tag(fold_key(key))``
+        equal to it, or project within the second tolerance (the medium plugin's site rule)."""
         F = mi.Float64
         pp = [F(p[a]) for a in range(3)]
         dd = [F(d_in[a]) for a in range(3)]
         n = max(dr.width(pp[0]), dr.width(dd[0]), dr.width(tol))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
+            if tag is not None:
+                tag = (mi.UInt32(tag[0]) + dr.zeros(mi.UInt32, n), F(tag[1]) + dr.zeros(F, n))
             return self._site_walk([x + dr.zeros(F, n) for x in pp], [x + dr.zeros(F, n) for x in dd],
-                                   F(tol) + dr.zeros(F, n), visit, state, mi.Bool(active) | dr.zeros(mi.Bool, n))
+                                   F(tol) + dr.zeros(F, n), visit, state, mi.Bool(active) | dr.zeros(mi.Bool, n), tag)
 
     @dr.syntax
-    def _site_walk(self, p, d, tol, visit, state, active):
+    def _site_walk(self, p, d, tol, visit, state, active, tag=None):
         I = mi.Int32
         m, h = self.to_cloud, self.halo
         pc = [m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3] for r in range(3)]
@@ -592,17 +606,19 @@ class DrJitProcedural:
         while r < count:
             tile = mi.UInt32(((lo_[2] + r // (nx * ny)) * self.dims[1] + lo_[1] + (r // nx) % ny) * self.dims[0]
                              + lo_[0] + r % nx)
-            state = self._site_tile(tile, p, d, tol, visit, state)
+            state = self._site_tile(tile, p, d, tol, visit, state, tag)
             r += 1
         return state
 
     @dr.syntax
-    def _site_tile(self, tile, p, d, tol, visit, state):
+    def _site_tile(self, tile, p, d, tol, visit, state, tag=None):
         F = mi.Float64
         s0, s1, s2, s3 = self._seed(mi.UInt64(tile))
         count, (s0, s1, s2, s3) = self._poisson([s0, s1, s2, s3])
         tlo = self._tile_lo(tile)
         i = dr.zeros(mi.UInt32, dr.width(tile))
+        kept = dr.zeros(mi.UInt32, dr.width(tile))
+        limit = (1 << self.index_bits) - 1
         while i < count:
             keep, centre, code, (s0, s1, s2, s3) = self._candidate([s0, s1, s2, s3], tlo)
             # The drift only where the rest position is within its bound of the site.
@@ -612,9 +628,13 @@ class DrJitProcedural:
             along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
             w = [v[a] - along * d[a] for a in range(3)]
             member = keep & (dr.abs(along) <= tol) & (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < reach * reach)
+            if dr.hint(tag is not None, mode="scalar"):
+                key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
+                member &= (grain_tag(fold_key(key)) == tag[0]) | (dr.abs(along) <= tag[1])
             tau = dr.gather(mi.Float, self._tau, code, member)
             b = dr.gather(mi.UInt32, self._bin, code, member)
             state = visit(tau, b, member, state)
+            kept += dr.select(keep, 1, 0)
             i += 1
         return state
 

@@ -81,9 +81,13 @@ CELL_MARGIN = 1e-3
 #: Relative margin of the rows' reach (see ``CELL_MARGIN``).
 REACH_MARGIN = 1e-4
 #: Relative growth of a grain's ball in ``exclude_origin``: a ray leaving a site at the float32 projection of
-#: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball.
+#: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball (the
+#: medium plugin's origin tag also grows it by the site's largest shift along its ray: ``slack``).
 EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
+#: Bits of the origin tag (``grain_tag``, ``origin_tag``; the medium plugin's "Parent exclusion").
+TAG_BITS = 6
+TAG_MASK = (1 << TAG_BITS) - 1
 #: Lattice steps per cell edge of the lattice layout (module docs, "Layout"): the core's compact storage's
 #: (``LATTICE_PER_CELL`` in ``rust/motes-core/src/space/grid/slots.rs``).
 LATTICE_PER_CELL = 1 << 14
@@ -155,6 +159,24 @@ def _mix(x):
     x = x ^ (x >> 15)
     x = x * 0x846CA68B
     return x ^ (x >> 16)
+
+
+def grain_tag(ident):
+    """A grain's ``TAG_BITS``-bit tag (``mi.UInt32``): a hash of its identity (a stored grid: its position in the
+    flat arrays; a procedural cloud: its 64-bit key folded to 32 bits, ``fold_key``)."""
+    return _mix(mi.UInt32(ident) ^ 0x5BD1E995) & TAG_MASK
+
+
+def origin_tag(x, y, z):
+    """A point's ``TAG_BITS``-bit tag (``mi.UInt32``): a hash of its three float32 coordinates' bits. A ray
+    skips a grain whose ball holds its origin only where the two tags agree (the medium plugin's docs)."""
+    b = [dr.reinterpret_array(mi.UInt32, mi.Float(c)) for c in (x, y, z)]
+    return _mix(b[2] ^ _mix(b[1] ^ _mix(b[0] + _GOLDEN))) & TAG_MASK
+
+
+def fold_key(key):
+    """A procedural grain's 64-bit key folded to the 32 bits ``grain_tag`` hashes."""
+    return mi.UInt32(key & 0xFFFFFFFF) ^ mi.UInt32(key >> 32)
 
 
 def one_minus_exp(x):
@@ -306,22 +328,29 @@ class DrJitGrid:
         ``ParticleGrid.optical_depth`` gives as exp(-tau)."""
         return dr.exp(-self.optical_depth(origin, direction, tmax))
 
-    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False, want_index=True):
+    def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False, want_index=True,
+                           origin_tag=None, slack=None, want_grain=False):
         """Exact free flights on [0, tmax): ``(t, index, valid)``: the distance to the first grain that
         interacts (``self.F``; inf where none), the index the grid reports for it (``mi.UInt32``; 2^32 - 1
         where none) and whether there is one. ``u``: per ray a uniform ``mi.Float`` in [0, 1) (its bits seed
         the grains' draws) or a ``mi.UInt32`` seed (module docs). ``exclude_origin`` (a bool, or per ray a
         ``mi.Bool``): grains whose ball (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are
         skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains).
-        ``want_index=False``: no index (None; the indices are then not uploaded)."""
+        ``origin_tag`` (per ray a ``mi.UInt32``, with ``exclude_origin``): only those of such grains whose
+        ``grain_tag`` equals it are skipped, and ``slack`` (per ray, scene units) grows the ball's squared radius
+        by slack^2 (the medium plugin's origin tag). ``want_index=False``: no index (None; the indices are then
+        not uploaded). ``want_grain``: a fourth value, the grain's position in the flat arrays (2^32 - 1 where
+        none)."""
         if isinstance(u, mi.UInt32):
             seed = u
         else:
             seed = dr.reinterpret_array(mi.UInt32, mi.Float(u))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, t, g = self._walk(origin, direction, tmax, seed, exclude_origin)
+            _, t, g = self._walk(origin, direction, tmax, seed, exclude_origin, origin_tag, slack)
         valid = g != _NONE
         index = dr.select(valid, dr.gather(mi.UInt32, self._index, g, valid), _NONE) if want_index else None
+        if want_grain:
+            return dr.select(valid, t, dr.inf), index, valid, g
         return dr.select(valid, t, dr.inf), index, valid
 
     # ------------------------------------------------------------------------------------------ the walk
@@ -337,7 +366,7 @@ class DrJitGrid:
         return o, d, tmax, n
 
     @dr.syntax
-    def _walk(self, origin, direction, tmax, seed, exclude_origin=False):
+    def _walk(self, origin, direction, tmax, seed, exclude_origin=False, origin_tag=None, slack=None):
         """The walk of every class (module docs): (optical depth, first interaction's t, its grain's position
         or 2^32 - 1); a free flight where ``seed`` is given, else the optical depth alone."""
         F, I, U = self.F, mi.Int32, mi.UInt32
@@ -346,6 +375,9 @@ class DrJitGrid:
         excluding = exclude_origin is not False
         if excluding:
             exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
+        tagged = excluding and origin_tag is not None
+        origin_tag = U(origin_tag) + dr.zeros(U, n) if tagged else None
+        slack2 = dr.square(F(0.0 if slack is None else slack)) + dr.zeros(F, n) if tagged else None
         # A free flight's keys: a hash of the ray's seed, which each grain's draw mixes with its position.
         key0, key1 = mi.sample_tea_32(U(seed) + dr.zeros(U, n), U(0x2545F491), TEA_ROUNDS) if flight else (0, 0)
         tau = dr.zeros(F, n)
@@ -450,7 +482,11 @@ class DrJitGrid:
                         if excluding:  # the centre's offset from the ray's origin: v + t_enter d
                             w = [v[a] + t_enter * d[a] for a in range(3)]
                             r_x = r_i * (1 + EXCLUDE_MARGIN)
-                            hit &= ~exclude_origin | (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] >= r_x * r_x)
+                            o2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+                            if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain alone (and 1 in 64)
+                                hit &= ~exclude_origin | (o2 >= r_x * r_x + slack2) | (grain_tag(g) != origin_tag)
+                            else:
+                                hit &= ~exclude_origin | (o2 >= r_x * r_x)
                         tau_i = F(self.tau_of(tid, hit))
                         if flight:
                             w0, w1 = _mix(key0 + g * _GOLDEN), _mix(key1 ^ (g * _GOLDEN2))

@@ -16,13 +16,13 @@ parameter, e.g. ``-D storage=procedural`` (cornell, house, lamp, limit: the drji
 grains, ``motes.drjit_procedural``). ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
 grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
 drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
-its site tag). A scene whose ``cells`` parameter sets ``cells_per_particle`` (``bench``: 0.125, the native
+its origin tag, ``origin``). A scene whose ``cells`` parameter sets ``cells_per_particle`` (``bench``: 0.125, the native
 kernel's default) renders the drjit configuration at the drjit kernel's own default
 (``drjit_medium.DRJIT_CELLS_PER_PARTICLE``: its walk tests every grain of a cell it passes near, so coarse cells
 cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--exclusion tag|ball] [--max-depth 16] [--drjit-cells kernel|scene|<number>]
+        [--seeds 4] [--exclusion origin|ball] [--max-depth 16] [--drjit-cells kernel|scene|<number>]
         [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
 """
 
@@ -81,7 +81,7 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=32)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--seeds", type=int, default=4)
-    ap.add_argument("--exclusion", choices=("tag", "ball"), default="tag")
+    ap.add_argument("--exclusion", choices=("origin", "ball"), default="origin")
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
     ap.add_argument("--drjit-cells", default="kernel",
                     help="cells_per_particle of the drjit configuration where a scene's cells parameter sets it: "
