@@ -535,6 +535,7 @@ def test_sites_carry_their_grains_tag():
     t, _, _, g = k.grid.sample_free_flight(ray.o, ray.d, ray.maxt, k._ray_seed(ray), exclude_origin=True,
                                            want_index=False, origin_tag=origin_tag(ray.o.x, ray.o.y, ray.o.z),
                                            slack=2 * k._shift_max(k._largest(ray.o)), want_grain=True)
+    dr.eval(mei.p, valid, mint, t, g)  # one kernel
     ok = np.asarray(valid)
     assert ok.mean() > 0.9
     p = np.array([np.asarray(mei.p[a]) for a in range(3)])[:, ok]
@@ -568,6 +569,7 @@ def test_sites_carry_their_grains_tag():
     with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
         full, _, _ = k.grid._walk(pj, wj, INF, None)
         cut, _, _ = k.grid._walk(pj, wj, INF, None, True, origin_tag(pj.x, pj.y, pj.z), 2 * k._shift_max(k._largest(pj)))
+    dr.eval(full, cut)
     full, cut = np.asarray(full, dtype=np.float64), np.asarray(cut, dtype=np.float64)
     tau = np.asarray(flat["tau"], dtype=np.float64)
     wf = w.astype(np.float32).astype(np.float64)
