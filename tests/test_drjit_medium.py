@@ -568,7 +568,8 @@ def test_sites_carry_their_grains_tag():
     pj, wj = mi.Point3f(*[mi.Float(p[a]) for a in range(3)]), mi.Vector3f(*[mi.Float(w[:, a]) for a in range(3)])
     with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
         full, _, _ = k.grid._walk(pj, wj, INF, None)
-        cut, _, _ = k.grid._walk(pj, wj, INF, None, True, origin_tag(pj.x, pj.y, pj.z), 2 * k._shift_max(k._largest(pj)))
+        cut, _, _ = k.grid._walk(pj, wj, INF, None, True, origin_tag(pj.x, pj.y, pj.z),
+                                 2 * k._shift_max(k._largest(pj)))
     dr.eval(full, cut)
     full, cut = np.asarray(full, dtype=np.float64), np.asarray(cut, dtype=np.float64)
     tau = np.asarray(flat["tau"], dtype=np.float64)

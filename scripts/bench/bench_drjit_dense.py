@@ -6,6 +6,11 @@ lit by a point light to its left and a dim sky, rendered by ``kernel = drjit`` a
 
     .venv/bin/python scripts/bench/bench_drjit_dense.py [--seeds 32] [--res 24] [--spp 16] [--max-depth 8]
         [--exclusion origin|ball]
+    .venv/bin/python scripts/bench/bench_drjit_dense.py --far
+
+``--far``: instead, the origin tag's search (``DrJitKernel._tag_search``) on 8192 flights into the cloud from
+points 2, 5, 20 and 100 units (about that many extents) from a site: the share that finds no tag (the site then
+keeps its point and its rays may meet their grain again) and the shifts along the ray.
 """
 
 from __future__ import annotations
@@ -39,6 +44,34 @@ def dense_scene(mi, path: str, kernel: str, res: int, max_depth: int):
         "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium}})
 
 
+def far(mi, path: str) -> None:
+    import drjit as dr  # noqa: PLC0415
+
+    from motes.drjit_walk import grain_tag, origin_tag  # noqa: PLC0415
+
+    med = mi.load_dict({"type": "discrete", "filename": path, "eta": 1.5, "scale_m": 1e-3, "query_radius": 0.02,
+                        "continuous_count": float("inf"), "kernel": "drjit", "phase": {"type": "particle"}})
+    k = med._drjit.ready()
+    rng = np.random.default_rng(1)
+    m = 8192
+    for dist in (2.0, 5.0, 20.0, 100.0):
+        v = rng.normal(size=(m, 3))
+        v /= np.linalg.norm(v, axis=1)[:, None]
+        org = (rng.uniform(-0.4, 0.4, (m, 3)) - dist * v).astype(np.float32)
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(org[:, a]) for a in range(3)]),
+                       mi.Vector3f(*[mi.Float(v[:, a].astype(np.float32)) for a in range(3)]))
+        valid, mint, _ = k.intersect_aabb(ray)
+        t, _, _, g = k.grid.sample_free_flight(ray.o, ray.d, ray.maxt, k._ray_seed(ray), exclude_origin=True,
+                                               want_index=False, origin_tag=origin_tag(ray.o.x, ray.o.y, ray.o.z),
+                                               slack=2 * k._shift_max(k._largest(ray.o)), want_grain=True)
+        p = dr.fma(ray.d, mint, ray.o)
+        ok = np.asarray(valid)
+        miss = (np.asarray(origin_tag(p.x, p.y, p.z)) != np.asarray(grain_tag(g)))[ok]
+        shift = np.abs(np.asarray(mint)[ok] - np.asarray(t)[ok])
+        print(f"flights from {dist:5.0f} units: {ok.sum()} sites, no tag found {miss.mean():.5f}, shift median "
+              f"{np.median(shift):.2e}, largest {shift.max():.2e} (extent {k.extent:.3f})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=32)
@@ -46,6 +79,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--exclusion", choices=("origin", "ball"), default="origin")
+    ap.add_argument("--far", action="store_true", help="the tag search's failures from far origins")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
@@ -56,6 +90,9 @@ def main() -> None:
 
     drjit_medium.EXCLUSION = args.exclusion
     path = dense_file()
+    if args.far:
+        far(mi, path)
+        return
     scenes = {k: dense_scene(mi, path, k, args.res, args.max_depth) for k in ("drjit", "native")}
     imgs = {k: [] for k in scenes}
     t0 = time.time()
