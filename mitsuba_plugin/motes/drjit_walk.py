@@ -476,7 +476,7 @@ class DrJitGrid:
                     # the test, and what a hit costs, in a branch that a SIMD packet without a candidate
                     # skips (most: the rows hold grains up to a cell away from the ray).
                     cand = live & (d2 < reach_w2) & (t_i >= 0) & (t_i < best_t)
-                    if cand:
+                    if dr.hint(cand, mode="symbolic"):  # symbolic whatever the variant's flags say
                         r_i = self.radius_of(tid, cand) if radius is None else radius
                         hit = cand & (d2 < r_i * r_i)
                         if excluding:  # the centre's offset from the ray's origin: v + t_enter d
