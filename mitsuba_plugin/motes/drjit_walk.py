@@ -35,9 +35,9 @@ starts, or a grain's two words (a row read and a grain test in one iteration too
 own R (a gather of its code's) is read only where its centre lies within the class's reach of the ray, and
 the rest of the test, with the draw and what a hit costs, is a symbolic branch that a SIMD packet without
 such a grain skips. (A single loop over steps, rows and grains, so that no step waits for the packet's lane
-with most grains, was slower: each iteration then carries the step's work too.) Once a step is done every grain with t_i before its exit has been tested, so a free flight stops there once it has
-interacted before that exit, and the next class walks only up to that interaction (the classes are
-independent).
+with most grains, was slower: each iteration then carries the step's work too.) Once a step is done every grain with
+t_i before its exit has been tested, so a free flight stops there once it has interacted before that exit, and the
+next class walks only up to that interaction (the classes are independent).
 
 Precision: ``double=False`` walks in the variant's ``Float`` (single precision: the exact test runs from an
 origin moved to each step's entry, so that its error is a few 1e-7 of the cell and of the coordinates'
@@ -56,7 +56,8 @@ coordinates modulo 2^16 and its code (x | y << 16, z | code << 16), and per clas
 code. A row of cells x0..x1 at (y, z) holds centres within [1, 4) cells of the corner (x0 - 1, y - 1, z - 1),
 so that the wrapped difference of the u16s is the exact offset from it (the core's reading). Else
 ``spheres``: per grain centre and R (f32x4), tau (f32) and bin (u32), 24 bytes. Either way 4 bytes a cell
-(its first grain; ``start_of``), and the indices the grid reports (4 bytes a grain) only once a free flight asks for them.
+(its first grain; ``start_of``), and the indices the grid reports (4 bytes a grain) only once a free flight asks for
+them.
 
 ``DrJitGrid(grid)``: ``grid`` is a ``motes.ParticleGrid`` or ``motes.DiscreteMedium`` (or their
 ``motes._motes`` cores), or the dict their ``flat_arrays`` return; ``layout`` is ``auto`` (lattice where it

@@ -19,8 +19,8 @@ Notes
   walked) and a finite one that leaves classes continuous is an error naming it. The scalar variants
   (``kernel`` named) and a procedural cloud of a grid density are errors. ``grain_depth`` and
   ``surface_footprint`` change nothing: no ray switches to the grains' continuous equivalent (as native with
-  ``grain_depth`` at its maximum and ``surface_footprint = false``); where every class is continuous (the
-  shipped dust_box, house and staircase) that is the native default's model. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and
+  ``grain_depth`` at its maximum and ``surface_footprint = false``); where every class is continuous that is
+  the native default's model. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and
   ``phase_model = "hg"`` work: they are per-bin tables like the grains' own.
 * **Continuous size classes** (a finite ``continuous_count``; ``rust/motes-core/src/render/continuous/``): the
   field of the classes no pixel resolves is uploaded once (``DiscreteMedium.flat_field``: sigma_t per cell, per
@@ -153,6 +153,13 @@ SHIFT_SHARE = 2.0**-13
 EXCLUSION = "origin"
 
 
+def one_minus_cos(a, b):
+    """1 - a.b of unit vectors ``a``, ``b`` as |a - b|^2 / 2: no cancellation near the forward direction (the
+    phase tables' variable, ``DrJitKernel._tables``)."""
+    v = a - b
+    return dr.clip(0.5 * dr.dot(v, v), 0.0, 2.0)
+
+
 def bits(x):
     """A float's bits (``mi.UInt32``): what the ray's and the site's hashes read."""
     return dr.reinterpret_array(mi.UInt32, mi.Float(x))
@@ -225,7 +232,7 @@ class DrJitKernel:
         walked = self.grid if self.proc is None else self.proc
         grains = 0 if walked is None else _jit_bytes(vars(walked))
         field = 0 if self.field is None else _jit_bytes(vars(self.field))
-        names = ("_mu", "_f", "_cdf", "_off", "_cnt", "_albedo") + (("_ratios",) if self.polarizing else ())
+        names = ("_x", "_f", "_cdf", "_off", "_cnt", "_albedo") + (("_ratios",) if self.polarizing else ())
         tables = _jit_bytes({k: getattr(self, k) for k in names})
         per_grain = None if self.grid is None else grains / max(self.grid.count, 1)  # procedural: none stored
         return {"grains": grains, "field": field, "tables": tables, "total": grains + field + tables,
@@ -311,7 +318,10 @@ class DrJitKernel:
         if (off.size - 1) % n_lam:  # one table per bin and tabulated wavelength, bin-major
             raise ValueError(f"discrete medium: {off.size - 1} phase tables at {n_lam} wavelengths")
         cnt = np.diff(off)
-        self._mu = mi.Float(np.asarray(t["mu"], dtype=np.float32))
+        # Nodes as 1 - mu (descending along a table), from the core's double precision: a grain's diffraction peak
+        # lies within 1e-8 of mu = 1, where single-precision mu has a step of 6e-8 (a cornell grain's table:
+        # 240 of 1802 nodes merged, its integral 0.63; fireflies), and 1 - mu keeps its relative precision.
+        self._x = mi.Float((1.0 - np.asarray(t["mu"], dtype=np.float64)).astype(np.float32))
         self._f = mi.Float(np.asarray(t["f"], dtype=np.float32))
         self._cdf = mi.Float(np.asarray(t["cdf"], dtype=np.float32))
         self._off = mi.UInt32(off[:-1].astype(np.uint32))
@@ -364,14 +374,15 @@ class DrJitKernel:
             w = None if w is None else dr.select(pick, waves[j][2], w)
         return k0, k1, w
 
-    def _bin_elements(self, b, wave, mu, active):
-        """A bin's elements at ``wave`` and ``mu`` (``E`` of them: F11, the phase function, as ``bin_phase``; and
+    def _bin_elements(self, b, wave, one_minus_mu, active):
+        """A bin's elements at ``wave`` and 1 - mu = ``one_minus_mu`` (``E`` of them: F11, the phase function, as
+        ``bin_phase``; and
         F12, F33, F34 where polarising, as ``bin_elements``): the two rows' tables, interpolated."""
         k0, k1, w = wave
-        e0 = self._table_elements(b * self.n_lam + k0, mu, active)
+        e0 = self._table_elements(b * self.n_lam + k0, one_minus_mu, active)
         if w is None:
             return e0
-        e1 = self._table_elements(b * self.n_lam + k1, mu, active & (w > 0))
+        e1 = self._table_elements(b * self.n_lam + k1, one_minus_mu, active & (w > 0))
         return [(1 - w) * x0 + w * x1 for x0, x1 in zip(e0, e1)]
 
     def _spectrum(self, elements, ctx, mei, wo):
@@ -492,8 +503,8 @@ class DrJitKernel:
     def eval_pdf(self, ctx, mei, wo, active=True):
         self.ready()
         d_in = -mi.Vector3f(mei.wi)
-        mu = dr.clip(dr.dot(mi.Vector3f(wo), d_in), -1.0, 1.0)
-        elements, pdf, _ = self._site(mi.Point3f(mei.p), d_in, self._waves(mei), mu=mu, active=active)
+        elements, pdf, _ = self._site(mi.Point3f(mei.p), d_in, self._waves(mei),
+                                      one_minus_mu=one_minus_cos(mi.Vector3f(wo), d_in), active=active)
         return self._spectrum(elements, ctx, mei, wo), pdf
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
@@ -511,41 +522,44 @@ class DrJitKernel:
         # sample1 (``mixture_sample``).
         k0, k1, w = self._channel_wave(waves, c)
         row = k0 if w is None else dr.select(u < 1 - w, k0, k1)
-        mu = self._table_sample(b * self.n_lam + row, mi.Float(sample2.x), valid)
+        one_minus_mu = self._table_sample(b * self.n_lam + row, mi.Float(sample2.x), valid)
         phi = 2 * dr.pi * mi.Float(sample2.y)
-        st = dr.safe_sqrt(1 - mu * mu)
+        st = dr.safe_sqrt(one_minus_mu * (2 - one_minus_mu))  # sin(theta), exact near the forward peak
         sp, cp = dr.sincos(phi)
-        wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, mu))
-        # A site of one grain (most) needs no second walk: its bin's tables at mu, times its albedo.
+        wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, 1 - one_minus_mu))
+        # A site of one grain (most) needs no second walk: its bin's tables at one_minus_mu, times its albedo.
         one = valid & (members == 1)
-        elements, pdf = self._mixture(p, d_in, waves, mu, active=valid & ~one)
-        elements, pdf = self._one_grain(b, waves, mu, one, elements, pdf)
+        elements, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=valid & ~one)
+        elements, pdf = self._one_grain(b, waves, one_minus_mu, one, elements, pdf)
         value = self._spectrum(elements, ctx, mei, wo)
         ok = valid & (pdf > 0)
         weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
         return wo, weight, dr.select(ok, pdf, 0.0)
 
     # -- tables ------------------------------------------------------------------------------------
-    def _segment(self, keys, tid, x, active):
-        """The node i of table ``tid`` with keys[i] <= x < keys[i + 1] (clamped to its segments), by bisection."""
+    def _segment(self, keys, tid, x, active, descending=False):
+        """The node i of table ``tid`` with keys[i] <= x < keys[i + 1] (clamped to its segments), by bisection;
+        ``descending`` keys: keys[i] >= x > keys[i + 1]."""
         off = dr.gather(mi.UInt32, self._off, tid, active)
         n = dr.gather(mi.UInt32, self._cnt, tid, active)
-        lo, hi = mi.UInt32(0), dr.select(active, n - 1, 1)  # keys[off + lo] <= x < keys[off + hi] (invariant)
+        lo, hi = mi.UInt32(0), dr.select(active, n - 1, 1)  # x between keys[off + lo] and keys[off + hi] (invariant)
         for _ in range(self._steps):
             mid = (lo + hi) >> 1
             go = hi - lo > 1
-            right = dr.gather(mi.Float, keys, off + mid, active & go) <= x
+            key = dr.gather(mi.Float, keys, off + mid, active & go)
+            right = key >= x if descending else key <= x
             lo = dr.select(go & right, mid, lo)
             hi = dr.select(go & ~right, mid, hi)
         return off + lo
 
-    def _table_elements(self, tid, mu, active):
-        """Table ``tid``'s elements at ``mu`` (``E`` of them): f, and where polarising f times each ratio, all
-        interpolated linearly between the nodes around ``mu`` (``PhaseTable::eval_at``, ``MuellerRatios::at``)."""
-        i = self._segment(self._mu, tid, mu, active)
-        m0, m1 = dr.gather(mi.Float, self._mu, i, active), dr.gather(mi.Float, self._mu, i + 1, active)
+    def _table_elements(self, tid, one_minus_mu, active):
+        """Table ``tid``'s elements at 1 - mu = ``one_minus_mu`` (``E`` of them): f, and where polarising f times each
+        ratio, all interpolated linearly between the nodes around it (``PhaseTable::eval_at``,
+        ``MuellerRatios::at``)."""
+        i = self._segment(self._x, tid, one_minus_mu, active, descending=True)
+        x0, x1 = dr.gather(mi.Float, self._x, i, active), dr.gather(mi.Float, self._x, i + 1, active)
         f0, f1 = dr.gather(mi.Float, self._f, i, active), dr.gather(mi.Float, self._f, i + 1, active)
-        t = dr.clip(dr.select(m1 > m0, (mu - m0) / (m1 - m0), 0.0), 0.0, 1.0)
+        t = dr.clip(dr.select(x0 > x1, (x0 - one_minus_mu) / (x0 - x1), 0.0), 0.0, 1.0)
         f = dr.select(active, f0 + t * (f1 - f0), 0.0)
         if not self.polarizing:
             return [f]
@@ -557,13 +571,14 @@ class DrJitKernel:
         return out
 
     def _table_sample(self, tid, u, active):
-        """mu with CDF(mu) = u in table ``tid`` (``PhaseTable::sample_located``: the quadratic CDF inverted)."""
+        """1 - mu of the mu with CDF(mu) = u in table ``tid`` (``PhaseTable::sample_located``: the quadratic CDF
+        inverted)."""
         u = dr.clip(u, 0.0, 1.0)
         i = self._segment(self._cdf, tid, u, active)
         c0 = dr.gather(mi.Float, self._cdf, i, active)
-        m0, m1 = dr.gather(mi.Float, self._mu, i, active), dr.gather(mi.Float, self._mu, i + 1, active)
+        x0, x1 = dr.gather(mi.Float, self._x, i, active), dr.gather(mi.Float, self._x, i + 1, active)
         f0, f1 = dr.gather(mi.Float, self._f, i, active), dr.gather(mi.Float, self._f, i + 1, active)
-        dm = m1 - m0
+        dm = x0 - x1  # the segment's width in mu
         q = 2 * dr.pi * dm
         a, b = q * f0, q * (f1 - f0)
         target = u - c0
@@ -572,19 +587,19 @@ class DrJitKernel:
         t = dr.select(lin, dr.select(a > 0, target / dr.select(a > 0, a, 1.0), 0.5),
                       2 * target / dr.select(a + dr.sqrt(disc) > 0, a + dr.sqrt(disc), 1.0))
         t = dr.select(target > 0, dr.clip(t, 0.0, 1.0), 0.0)
-        return dr.clip(m0 + t * dm, -1.0, 1.0)
+        return dr.clip(x0 - t * dm, 0.0, 2.0)
 
     # -- the site ----------------------------------------------------------------------------------
-    def _site_sums(self, p, d_in, waves, mu, pick, active):
+    def _site_sums(self, p, d_in, waves, one_minus_mu, pick, active):
         """The walk of ``_site`` over the grains that could be part of the site at ``p`` (stored: the cells within
         reach of ``p`` per size class; procedural: the tiles within the halo of ``p``'s, regenerated): per
-        channel sum tau_j a_jc and sum tau_j a_jc f_jc(mu), and sum tau_j (``mu`` given); the picked grain's bin
-        and the uniform left (``pick`` given); or (neither) the number of the site's grains and the first one's
-        bin. Where no grain is found and ``p``'s field cell has sigma_t > 0 (a field event), the same over the
-        cell's entries, their shares s_i for tau_j; the last of the returned tuple says where."""
+        channel sum tau_j a_jc and sum tau_j a_jc f_jc(one_minus_mu), and sum tau_j (``one_minus_mu`` given); the
+        picked grain's bin and the uniform left (``pick`` given); or (neither) the number of the site's grains and the
+        first one's bin. Where no grain is found and ``p``'s field cell has sigma_t > 0 (a field event), the same over
+        the cell's entries, their shares s_i for tau_j; the last of the returned tuple says where."""
         F, U = mi.Float, mi.UInt32
         ch = self.channels
-        n = max(dr.width(p), dr.width(d_in), 1 if mu is None else dr.width(mu),
+        n = max(dr.width(p), dr.width(d_in), 1 if one_minus_mu is None else dr.width(one_minus_mu),
                 1 if pick is None else dr.width(pick[1]))
         m = self._largest(p)
         tol = SITE_COINCIDE * self.coincide + SITE_RELATIVE * m + dr.zeros(F, n)
@@ -593,15 +608,15 @@ class DrJitKernel:
         tag = (origin_tag(p.x, p.y, p.z), tol) if EXCLUSION == "origin" else None
         if tag is not None:
             tol = tol + 2 * self._shift_max(m)
-        evaluating = mu is not None
+        evaluating = one_minus_mu is not None
         if evaluating:
-            mu = F(mu)
+            one_minus_mu = F(one_minus_mu)
             c_pick, u = dr.zeros(U, n), dr.zeros(F, n)
         elif pick is not None:
-            mu = dr.zeros(F, n)
+            one_minus_mu = dr.zeros(F, n)
             c_pick, u = U(pick[0]), F(pick[1])
         else:
-            mu = dr.zeros(F, n)
+            one_minus_mu = dr.zeros(F, n)
             c_pick, u = dr.zeros(U, n), dr.zeros(F, n)
         A = [dr.zeros(F, n) for _ in range(ch)]
         N = [dr.zeros(F, n) for _ in range(ch * self.E)]  # channel c's element k at c * E + k
@@ -613,12 +628,12 @@ class DrJitKernel:
         arg = waves if evaluating else wave
         state = [A, N, T, W, u, picked]
         def visit(tau, b, member, st):
-            return list(step(tau, b, member, mu, arg, *st))
+            return list(step(tau, b, member, one_minus_mu, arg, *st))
 
         if self.proc is not None:
             A, N, T, W, u, picked = self.proc.site_walk(p, d_in, tol, visit, state, active, tag)
         elif self.grid is not None:
-            A, N, T, W, u, picked = self._stored_site_walk(p, d_in, tol, mu, arg, step, state, active, tag)
+            A, N, T, W, u, picked = self._stored_site_walk(p, d_in, tol, one_minus_mu, arg, step, state, active, tag)
         in_field = dr.zeros(mi.Bool, n)
         if self.field is not None:
             # No grain at p: a field event where p's cell has sigma_t > 0 (module docs, "Continuous size classes"):
@@ -629,7 +644,7 @@ class DrJitKernel:
         return A, N, T, (picked, u, in_field)
 
     @dr.syntax
-    def _stored_site_walk(self, p, d_in, tol, mu, arg, step, state, active, tag=None):
+    def _stored_site_walk(self, p, d_in, tol, one_minus_mu, arg, step, state, active, tag=None):
         """``_site_sums``' walk of a stored grid: ``step`` at every grain of the cells within each size class's
         reach of ``p``, with its membership of the site (``DiscreteMedium::site_near``'s rule; with ``tag`` =
         (p's origin tag, a second tolerance) a member also has that grain tag or projects within the second)."""
@@ -670,31 +685,31 @@ class DrJitKernel:
                     member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < radius * radius)
                     if dr.hint(tag is not None, mode="scalar"):
                         member &= (grain_tag(g) == tag[0]) | (dr.abs(along) <= tag[1])
-                    A, N, T, W, u, picked = step(g_.tau_of(code, member), g_.bin_of(code, member), member, mu,
+                    A, N, T, W, u, picked = step(g_.tau_of(code, member), g_.bin_of(code, member), member, one_minus_mu,
                                                  arg, A, N, T, W, u, picked)
                     g += 1
                 r += 1
             k += 1
         return A, N, T, W, u, picked
 
-    def _accumulate(self, tau, b, member, mu, waves, A, N, T, W, u, picked):
+    def _accumulate(self, tau, b, member, one_minus_mu, waves, A, N, T, W, u, picked):
         """``_site_sums``' step at a grain of optical depth ``tau`` and bin ``b`` (a member of the site or not)
-        when evaluating at ``mu``."""
+        when evaluating at ``one_minus_mu``."""
         ch = self.channels
         a_new, n_new = [], []
         for c in range(ch):
             w = dr.select(member, tau * self._bin_albedo(b, waves[c], member) * self._scale, 0.0)
             a_new.append(A[c] + w)
-            e = self._bin_elements(b, waves[c], mu, member & (w > 0))
+            e = self._bin_elements(b, waves[c], one_minus_mu, member & (w > 0))
             n_new.extend(N[c * self.E + k] + w * e[k] for k in range(self.E))
         return a_new, n_new, T + dr.select(member, tau, 0.0), W, u, picked
 
-    def _count(self, tau, b, member, mu, wave, A, N, T, W, u, picked):
+    def _count(self, tau, b, member, one_minus_mu, wave, A, N, T, W, u, picked):
         """``_site_sums``' step at a grain of bin ``b`` when counting the site's grains (``T``) and keeping the
         first one's bin."""
         return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(member & (T == 0), b, picked)
 
-    def _reservoir(self, tau, b, member, mu, wave, A, N, T, W, u, picked):
+    def _reservoir(self, tau, b, member, one_minus_mu, wave, A, N, T, W, u, picked):
         """``_site_sums``' step at a grain of optical depth ``tau`` and bin ``b`` when picking a grain's bin by
         tau_j a_jc in the picked channel (its bracket ``wave``): one pass of weighted reservoir sampling with one
         uniform, rescaled at each grain, so that ``u`` ends uniform whatever is picked (``T`` counts the
@@ -708,9 +723,10 @@ class DrJitKernel:
         u = dr.clip(u, 0.0, 0.99999994)
         return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b, picked)
 
-    def _site(self, p, d_in, waves, mu=None, pick=None, active=True):
+    def _site(self, p, d_in, waves, one_minus_mu=None, pick=None, active=True):
         """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
-        ``waves`` (``_waves``). With ``mu``: (elements per channel, ``elements[c][k]``, pdf, -); with ``pick`` =
+        ``waves`` (``_waves``). With ``one_minus_mu``: (elements per channel, ``elements[c][k]``, pdf, -); with
+        ``pick`` =
         (channel, uniform):
         (-, members, (the picked grain's bin or 2^32 - 1, the uniform left, whether it is a field event)); at a
         field event the members are the cell's entries (``_site_sums``).
@@ -719,37 +735,37 @@ class DrJitKernel:
         tested: a masked lane costs as much as an active one in a SIMD packet); a site of one grain, most,
         then reads its bin's tables once, and only the lanes of sites of several grains walk again, summing
         their mixture (``_mixture``)."""
-        if mu is None:
+        if one_minus_mu is None:
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
                 _, _, T, picked = self._site_sums(p, d_in, waves, None, pick, active)
             return None, T, picked
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             _, _, members, (first, _, _) = self._site_sums(p, d_in, waves, None, None, active)
         one = mi.Bool(active) & (members == 1)
-        value, pdf = self._mixture(p, d_in, waves, mu, active=mi.Bool(active) & (members > 1))
-        value, pdf = self._one_grain(first, waves, mu, one, value, pdf)
+        value, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=mi.Bool(active) & (members > 1))
+        value, pdf = self._one_grain(first, waves, one_minus_mu, one, value, pdf)
         return value, pdf, None
 
-    def _one_grain(self, b, waves, mu, one, elements, pdf):
-        """(elements per channel, pdf) of a site of one grain of bin ``b`` at ``mu`` where ``one``, else the given
-        ones: its bin's tables times its albedo (the grain's optical depth cancels)."""
+    def _one_grain(self, b, waves, one_minus_mu, one, elements, pdf):
+        """(elements per channel, pdf) of a site of one grain of bin ``b`` at ``one_minus_mu`` where ``one``, else the
+        given ones: its bin's tables times its albedo (the grain's optical depth cancels)."""
         ch = self.channels
-        p1 = dr.zeros(mi.Float, dr.width(mu))
+        p1 = dr.zeros(mi.Float, dr.width(one_minus_mu))
         out = []
         for c in range(ch):
             a_c = self._bin_albedo(b, waves[c], one) * self._scale
-            e = self._bin_elements(b, waves[c], mu, one & (a_c > 0))
+            e = self._bin_elements(b, waves[c], one_minus_mu, one & (a_c > 0))
             out.append([dr.select(one, a_c * e[k], elements[c][k]) for k in range(self.E)])
             p1 += e[0]
         return out, dr.select(one, p1 / ch, pdf)
 
-    def _mixture(self, p, d_in, waves, mu, active):
-        """(elements per channel, pdf) at ``mu`` of the site's mixture, summed over its grains in one walk: per
-        channel sum_j tau_j a_jc e_jc / sum_j tau_j (the site's albedo times the mixture), the pdf the mean over
+    def _mixture(self, p, d_in, waves, one_minus_mu, active):
+        """(elements per channel, pdf) at ``one_minus_mu`` of the site's mixture, summed over its grains in one walk:
+        per channel sum_j tau_j a_jc e_jc / sum_j tau_j (the site's albedo times the mixture), the pdf the mean over
         channels of the mixture's F11."""
         ch, E = self.channels, self.E
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            A, N, T, _ = self._site_sums(p, d_in, waves, mu, None, active)
+            A, N, T, _ = self._site_sums(p, d_in, waves, one_minus_mu, None, active)
         inv_t = dr.select(T > 0, 1 / dr.select(T > 0, T, 1.0), 0.0)
         elements = [[N[c * E + k] * inv_t for k in range(E)] for c in range(ch)]
         pdf = dr.zeros(mi.Float, dr.width(T))
