@@ -1,10 +1,11 @@
 """Issue 46: the white furnace of ``kernel = "drjit"`` in each LLVM variant family: non-absorbing grains (albedo 1)
 in a null-bounded cube under a constant white sky, Russian roulette off (``rr_depth`` 10^5, ``max_depth`` -1), so
 every path's weight stays near 1 and a loss of energy shows as a mean below 1. Printed per variant: the image
-mean over its pixels, its standard error (pixels as independent estimates) and z = (mean - 1) / SE.
+mean over its pixels and ``--seeds`` renders (seeds 1, 2, ...), its standard error (pixels as independent
+estimates) and z = (mean - 1) / SE.
 
     .venv/bin/python scripts/bench/bench_drjit_furnace.py [--variants llvm_ad_rgb,llvm_ad_spectral,...]
-        [--res 32] [--spp 64] [--count 20000]
+        [--res 32] [--spp 64] [--count 20000] [--seeds 1]
 """
 
 from __future__ import annotations
@@ -37,10 +38,12 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=32)
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--count", type=int, default=20000)
+    ap.add_argument("--seeds", type=int, default=1)
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
-    print(f"white furnace, kernel = drjit, {args.count} grains, {args.res} px, {args.spp} spp, roulette off")
+    print(f"white furnace, kernel = drjit, {args.count} grains, {args.res} px, {args.spp} spp, {args.seeds} seed(s), "
+          "roulette off")
     print(f"{'variant':28s} {'mean':>8s} {'SE':>8s} {'z':>6s} {'s':>6s}")
     for variant in args.variants.split(","):
         motes.set_variant(variant)
@@ -48,9 +51,10 @@ def main() -> None:
 
         sc = furnace(mi, args.res, args.spp, args.count)
         t0 = time.perf_counter()
-        img = np.asarray(mi.render(sc, spp=args.spp, seed=1), dtype=np.float64)
-        secs = time.perf_counter() - t0
-        pix = img.reshape(args.res * args.res, -1).mean(axis=1)  # polarised variants: mi.render returns S0
+        imgs = [np.asarray(mi.render(sc, spp=args.spp, seed=1 + s), dtype=np.float64) for s in range(args.seeds)]
+        secs = (time.perf_counter() - t0) / args.seeds
+        # polarised variants: mi.render returns S0
+        pix = np.concatenate([img.reshape(args.res * args.res, -1).mean(axis=1) for img in imgs])
         m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
         print(f"{variant:28s} {m:8.5f} {se:8.5f} {(m - 1) / se:6.2f} {secs:6.1f}", flush=True)
 
