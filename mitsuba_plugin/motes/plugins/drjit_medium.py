@@ -56,8 +56,8 @@ Notes
   returns, among the floats t* within a few ulps-of-p steps of the flight's t, the first (k = 0, 1, -1, 2, ...)
   whose point's ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates' float32 bits) equals its
   grain's ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key). Every ray (camera,
-  surface, scattered, shadow) then skips exactly the grains whose ball (R_i grown by ``EXCLUDE_MARGIN`` and by
-  twice the largest shift, ``SHIFT_SHARE``) holds its origin *and* whose grain tag is its origin's tag: the
+  surface, scattered, shadow) then skips exactly the grains whose ball (R_i grown by ``EXCLUDE_MARGIN``, its
+  square by the square of twice the largest shift, ``SHIFT_SHARE``) holds its origin *and* whose grain tag is its origin's tag: the
   grain it leaves, and 1 in 64 of the others holding that point. The rule is direction-free, so next-event
   estimation and phase sampling see the same medium and their MIS weights stay unbiased (a tag on scattered
   rays alone, with shadow rays skipping every ball holding their origin, read 1.0154 +- 0.0036 in the white
@@ -68,10 +68,12 @@ Notes
   kernel's site does, but the rays leaving it skip only the picked grain (and coincident grains of its tag),
   where the native kernel skips the whole site; a search that finds no tag (about 64 tries are needed; at
   most ``TAG_SEARCH``, and the shift bound, which limits a flight from far away, where t's ulp is the step)
-  keeps the flight's t: its site is still found (below), but the rays leaving it may meet the grain again
-  (measured on the dense cloud below, flights from a point 2, 5, 20 and 100 extents from their site: 0,
-  1.2e-4, 0.12 and 0.59 of the searches fail, ``bench_drjit_dense.py --far``: a camera far from a small
-  cloud loses the exclusion at many first events). Measured (drjit against native exact, 2026-11-29): the dense cloud of
+  keeps the flight's t: its site is found within the base tolerance (below) while the flight's rounding
+  (~6e-8 t along the ray) stays within it, up to some 70 extents from the ray's origin, but the rays leaving
+  it may meet the grain again (measured on the dense cloud below, flights from a point 2, 5, 20 and 100
+  extents from their site: 0, 1.2e-4, 0.12 and 0.59 of the searches fail, ``bench_drjit_dense.py --far``: a
+  camera far from a small cloud loses the exclusion at many first events, and beyond ~70 extents may lose
+  the site). Measured (drjit against native exact, 2026-11-29): the dense cloud of
   ``scripts/bench/bench_drjit_dense.py`` (20 000 grains of reach 0.04 in the unit cube, about 5 other balls
   holding a site) +0.19 %, z +0.61 over 128 seeds (the direction tag, skipping every ball holding a site:
   +11.95 %, z +14.6 over 32); the side-lit cloud (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64
@@ -115,6 +117,7 @@ Notes
 from __future__ import annotations
 
 import math
+import warnings
 
 import drjit as dr
 import mitsuba as mi
@@ -321,7 +324,16 @@ class DrJitKernel:
         # Nodes as 1 - mu (descending along a table), from the core's double precision: a grain's diffraction peak
         # lies within 1e-8 of mu = 1, where single-precision mu has a step of 6e-8 (a cornell grain's table:
         # 240 of 1802 nodes merged, its integral 0.63; fireflies), and 1 - mu keeps its relative precision.
-        self._x = mi.Float((1.0 - np.asarray(t["mu"], dtype=np.float64)).astype(np.float32))
+        x = (1.0 - np.asarray(t["mu"], dtype=np.float64)).astype(np.float32)
+        self._x = mi.Float(x)
+        # A segment whose nodes merge in single precision but which holds probability would be sampled as a point
+        # the evaluation cannot see (none in 1 - mu for grains of 0.5-1000 um; in mu, 108-720 per table).
+        cdf = np.asarray(t["cdf"], dtype=np.float64)
+        merged = (np.diff(x) == 0) & (np.diff(cdf) > 0)
+        merged[off[1:-1] - 1] = False  # the last node of one table and the first of the next
+        if merged.any():
+            warnings.warn(f"discrete medium (kernel = drjit): {int(merged.sum())} phase-table segments merge in single "
+                          "precision; sampling and evaluation disagree within them", stacklevel=2)
         self._f = mi.Float(np.asarray(t["f"], dtype=np.float32))
         self._cdf = mi.Float(np.asarray(t["cdf"], dtype=np.float32))
         self._off = mi.UInt32(off[:-1].astype(np.uint32))
@@ -423,13 +435,15 @@ class DrJitKernel:
         return dr.maximum(dr.maximum(dr.abs(v.x), dr.abs(v.y)), dr.abs(v.z))
 
     @dr.syntax
-    def _tag_search(self, ray, t, want, active):
+    def _tag_search(self, ray, t, want, active, end):
         """The t* near the flight's ``t`` whose point fma(d, t*, o) (Mitsuba's ``ray(t)``, the ``mei.p`` the phase
         function and the rays leaving the site see: the majorant's step adds nothing to t*) carries the tag
         ``want`` (``origin_tag``): t + k delta for k = 0, 1, -1, 2, -2, ..., delta about an ulp of the point's
         largest coordinate over the direction's largest component (each step moves that coordinate by at least
-        an ulp) or an ulp of t where that is coarser, within ``_shift_max`` of t and ``TAG_SEARCH`` tries; t
-        where none (1 - 1/64)^tries (module docs)."""
+        an ulp) or an ulp of t where that is coarser, within ``_shift_max`` of t and ``TAG_SEARCH`` tries, and
+        before ``end``, the end of the segment the walk searched (Mitsuba keeps an event at t* < maxt; with a
+        continuous field, the grains' event must stay before the field's); t where none, (1 - 1/64)^tries
+        (module docs)."""
         F, U = mi.Float, mi.UInt32
         o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
         t = F(t)
@@ -448,7 +462,7 @@ class DrJitKernel:
             k = dr.select((i & 1) == 1, F((i + 1) >> 1), -F(i >> 1))
             tk = dr.fma(k, delta, t)
             pk = dr.fma(d, tk, o)
-            ok = (dr.abs(k) * delta <= limit) & (tk > 0) & (tk <= ray.maxt)
+            ok = (dr.abs(k) * delta <= limit) & (tk > 0) & (tk < end)
             hit = ok & (origin_tag(pk.x, pk.y, pk.z) == want)
             best = dr.select(hit, tk, best)
             found |= hit | (F((i + 1) >> 1) * delta > limit)  # both sides spent
@@ -461,6 +475,7 @@ class DrJitKernel:
         tagged = EXCLUSION == "origin"
         otag = origin_tag(ray.o.x, ray.o.y, ray.o.z) if tagged else None
         slack = 2 * self._shift_max(self._largest(mi.Point3f(ray.o))) if tagged else None
+        end = mi.Float(ray.maxt)  # the end of the segment the grains are walked on
         if self.proc is not None:
             low = self._ray_seed(ray)
             seed = mi.UInt64(low) | (mi.UInt64(self._ray_seed_high(low)) << 32)
@@ -476,6 +491,7 @@ class DrJitKernel:
             if self.field is not None:
                 t_f, hit_f = self.field.sample_free_flight(ray.o, ray.d, ray.maxt, seed)
                 tmax = dr.select(hit_f, t_f, tmax)
+            end = tmax
             if self.grid is not None:
                 t, _, valid, ident = self.grid.sample_free_flight(ray.o, ray.d, tmax, seed, exclude_origin=True,
                                                                   want_index=False, origin_tag=otag, slack=slack,
@@ -489,7 +505,7 @@ class DrJitKernel:
                 valid = valid | hit_f
         if tagged:
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-                t = self._tag_search(ray, t, grain_tag(ident), grain)
+                t = self._tag_search(ray, t, grain_tag(ident), grain, end)
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -516,7 +532,7 @@ class DrJitKernel:
         u = dr.clip(u1 - mi.Float(c), 0.0, 0.99999994)  # below 1: the reservoir picks where u < a share
         p = mi.Point3f(mei.p)
         waves = self._waves(mei)
-        _, members, (b, u, in_field) = self._site(p, d_in, waves, pick=(c, u), active=active)
+        _, members, (b, u) = self._site(p, d_in, waves, pick=(c, u), active=active)
         valid = b != 0xFFFFFFFF
         # The picked grain's table at the picked channel: its lower or upper wavelength's by the rest of
         # sample1 (``mixture_sample``).
@@ -596,7 +612,7 @@ class DrJitKernel:
         channel sum tau_j a_jc and sum tau_j a_jc f_jc(one_minus_mu), and sum tau_j (``one_minus_mu`` given); the
         picked grain's bin and the uniform left (``pick`` given); or (neither) the number of the site's grains and the
         first one's bin. Where no grain is found and ``p``'s field cell has sigma_t > 0 (a field event), the same over
-        the cell's entries, their shares s_i for tau_j; the last of the returned tuple says where."""
+        the cell's entries, their shares s_i for tau_j."""
         F, U = mi.Float, mi.UInt32
         ch = self.channels
         n = max(dr.width(p), dr.width(d_in), 1 if one_minus_mu is None else dr.width(one_minus_mu),
@@ -634,14 +650,11 @@ class DrJitKernel:
             A, N, T, W, u, picked = self.proc.site_walk(p, d_in, tol, visit, state, active, tag)
         elif self.grid is not None:
             A, N, T, W, u, picked = self._stored_site_walk(p, d_in, tol, one_minus_mu, arg, step, state, active, tag)
-        in_field = dr.zeros(mi.Bool, n)
         if self.field is not None:
             # No grain at p: a field event where p's cell has sigma_t > 0 (module docs, "Continuous size classes"):
             # the same steps over the cell's entries, tau_j replaced by their extinction shares s_i.
-            in_field = mi.Bool(active) & (T == 0)
-            A, N, T, W, u, picked = self.field.cell_walk(p, visit, [A, N, T, W, u, picked], in_field)
-            in_field &= T > 0
-        return A, N, T, (picked, u, in_field)
+            A, N, T, W, u, picked = self.field.cell_walk(p, visit, [A, N, T, W, u, picked], mi.Bool(active) & (T == 0))
+        return A, N, T, (picked, u)
 
     @dr.syntax
     def _stored_site_walk(self, p, d_in, tol, one_minus_mu, arg, step, state, active, tag=None):
@@ -728,7 +741,7 @@ class DrJitKernel:
         ``waves`` (``_waves``). With ``one_minus_mu``: (elements per channel, ``elements[c][k]``, pdf, -); with
         ``pick`` =
         (channel, uniform):
-        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left, whether it is a field event)); at a
+        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left)); at a
         field event the members are the cell's entries (``_site_sums``).
 
         Evaluating, a first walk only counts the site's grains and keeps the first (no table read per grain
@@ -740,7 +753,7 @@ class DrJitKernel:
                 _, _, T, picked = self._site_sums(p, d_in, waves, None, pick, active)
             return None, T, picked
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, _, members, (first, _, _) = self._site_sums(p, d_in, waves, None, None, active)
+            _, _, members, (first, _) = self._site_sums(p, d_in, waves, None, None, active)
         one = mi.Bool(active) & (members == 1)
         value, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=mi.Bool(active) & (members > 1))
         value, pdf = self._one_grain(first, waves, one_minus_mu, one, value, pdf)
