@@ -22,9 +22,10 @@ pub struct FlatField {
 }
 
 impl ContinuousField {
-    /// Each member of cell `c` with its share of the cell's extinction (the difference of its running
-    /// share and the one before it, in units of 1/65535: what [`Self::pick`] picks it with), as
-    /// [`Self::member_extinction`] reads them. Nothing for a cell of σ_t = 0.
+    /// Each member of cell `c` with its share of the cell's extinction in units of 1/65535 (the
+    /// difference of its running share and the one before it: what [`Self::pick`] picks it with), as
+    /// [`Self::member_extinction`] reads them (units, not the share, so that it multiplies before it
+    /// divides, as it always has: its sums stay bit for bit). Nothing for a cell of σ_t = 0.
     pub(super) fn cell_shares(&self, c: usize, f: &mut dyn FnMut(u32, f64)) {
         if self.sigma[c] <= 0.0 {
             return;
@@ -32,7 +33,7 @@ impl ContinuousField {
         let mut run = |cdf: &mut dyn Iterator<Item = (u32, u32)>| {
             let mut below = 0u32;
             for (member, up) in cdf {
-                f(member, (up - below.min(up)) as f64 / u16::MAX as f64);
+                f(member, (up - below.min(up)) as f64);
                 below = up;
             }
         };
@@ -59,7 +60,8 @@ impl ContinuousField {
             .into_par_iter()
             .map(|c| {
                 let mut entries: Vec<(u32, f64)> = Vec::new();
-                self.cell_shares(c, &mut |member, share| {
+                self.cell_shares(c, &mut |member, units| {
+                    let share = units / u16::MAX as f64;
                     let b = bin_of(member);
                     match entries.iter_mut().find(|e| e.0 == b) {
                         Some(e) => e.1 += share,

@@ -274,7 +274,9 @@ impl ContinuousField {
         let volume = self.cell_volume();
         for c in 0..self.sigma.len() {
             let total = self.sigma[c] as f64 * volume;
-            self.cell_shares(c, &mut |member, share| f(member, total * share));
+            self.cell_shares(c, &mut |member, units| {
+                f(member, total * units / u16::MAX as f64)
+            });
         }
     }
 
