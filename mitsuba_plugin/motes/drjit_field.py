@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import face
+from .drjit_walk import face, near
 
 #: The constant the field's TEA hash mixes with a flight's seed (the grains' walk hashes the same seed with
 #: another one, ``drjit_walk._walk``): the two processes draw independent numbers.
@@ -162,11 +162,7 @@ class DrJitField:
         inv_p = [1 / p for p in per_t]
         t_in, t_out = dr.zeros(F, n), F(tmax) + dr.zeros(F, n)
         for a in range(3):
-            u0, u1 = -at[a] * inv_p[a], (F(self._dims[a]) - at[a]) * inv_p[a]
-            flat = per_t[a] == 0
-            inside = (at[a] >= 0) & (at[a] < F(self._dims[a]))
-            t_in = dr.maximum(t_in, dr.select(flat, dr.select(inside, -dr.inf, dr.inf), dr.minimum(u0, u1)))
-            t_out = dr.minimum(t_out, dr.select(flat, dr.select(inside, dr.inf, -dr.inf), dr.maximum(u0, u1)))
+            t_in, t_out = near(at[a], per_t[a], inv_p[a], 0, self._dims[a] - 1, 0.0, t_in, t_out, F)
         active = t_in < t_out
         c, step = [], []
         for a in range(3):

@@ -194,6 +194,18 @@ def face(c, at, per_t, inv_p, F):
     return dr.select(per_t > 0, (F(c + 1) - at) * inv_p, dr.select(per_t < 0, (F(c) - at) * inv_p, dr.inf))
 
 
+def near(at, per_t, inv_p, m0, m1, reach, t0, t1, F):
+    """The part of [t0, t1] where a ray's coordinate ``at + t per_t`` (cells) lies within ``reach`` of layers
+    ``m0..m1`` (a slab test, in the float type ``F``): (ta, tb), empty when ta > tb."""
+    u0 = (F(m0) - reach - at) * inv_p
+    u1 = (F(m1 + 1) + reach - at) * inv_p
+    flat = per_t == 0
+    inside = (at >= F(m0) - reach) & (at <= F(m1 + 1) + reach)
+    lo = dr.select(flat, dr.select(inside, -dr.inf, dr.inf), dr.minimum(u0, u1))
+    hi = dr.select(flat, dr.select(inside, dr.inf, -dr.inf), dr.maximum(u0, u1))
+    return dr.maximum(t0, lo), dr.minimum(t1, hi)
+
+
 class DrJitGrid:
     """A grid's grains uploaded once as the current variant's JIT arrays, walked by ``optical_depth``,
     ``transmittance`` and ``sample_free_flight`` (module docs)."""
@@ -524,13 +536,5 @@ class DrJitGrid:
         return face(c, at, per_t, inv_p, self.F)
 
     def _near(self, at, per_t, inv_p, m0, m1, reach, t0, t1):
-        """The part of [t0, t1] where the ray's coordinate ``at + t per_t`` lies within ``reach`` (cells) of
-        layers ``m0..m1``: (ta, tb), empty when ta > tb."""
-        F = self.F
-        u0 = (F(m0) - reach - at) * inv_p
-        u1 = (F(m1 + 1) + reach - at) * inv_p
-        flat = per_t == 0
-        inside = (at >= F(m0) - reach) & (at <= F(m1 + 1) + reach)
-        lo = dr.select(flat, dr.select(inside, -dr.inf, dr.inf), dr.minimum(u0, u1))
-        hi = dr.select(flat, dr.select(inside, dr.inf, -dr.inf), dr.maximum(u0, u1))
-        return dr.maximum(t0, lo), dr.minimum(t1, hi)
+        """``near`` in the walk's precision."""
+        return near(at, per_t, inv_p, m0, m1, reach, t0, t1, self.F)
