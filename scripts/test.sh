@@ -11,5 +11,5 @@ stage "set-up"
 export PATH="$HOME/.cargo/bin:$PATH"
 cargo test -p motes-core --profile ci-checked --quiet
 stage "the Rust unit tests"
-.venv/bin/python -m pytest -q tests
+.venv/bin/python -m pytest -q --durations=20 tests
 stage "pytest"

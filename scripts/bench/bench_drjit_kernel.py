@@ -22,8 +22,8 @@ kernel's default) renders the drjit configuration at the drjit kernel's own defa
 cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--exclusion origin|ball] [--max-depth 16] [--drjit-cells kernel|scene|<number>]
-        [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
+        [--seeds 4] [--first-seed 0] [--configs drjit,drjit-exact,native-exact,native] [--exclusion origin|ball]
+        [--max-depth 16] [--drjit-cells kernel|scene|<number>] [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
 """
 
 from __future__ import annotations
@@ -81,6 +81,9 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=32)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--first-seed", type=int, default=0, help="the first seed of each configuration's run")
+    ap.add_argument("--configs", default=",".join(CONFIGS),
+                    help=f"the configurations rendered, of {','.join(CONFIGS)} ({REFERENCE} always)")
     ap.add_argument("--exclusion", choices=("origin", "ball"), default="origin")
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")
     ap.add_argument("--drjit-cells", default="kernel",
@@ -115,8 +118,9 @@ def main() -> None:
             import bench_lod  # noqa: PLC0415
 
             bench_lod.MAX_DEPTH[0] = args.max_depth
-        scenes = {c: load(mi, name, args.res, extra, defines) for c, extra in CONFIGS.items()}
-        if not any(getattr(getattr(sh.interior_medium(), "data", None), "continuous_particles", 0)
+        wanted = set(args.configs.split(",")) | {REFERENCE}
+        scenes = {c: load(mi, name, args.res, extra, defines) for c, extra in CONFIGS.items() if c in wanted}
+        if "drjit-exact" in scenes and "drjit" in scenes and not any(getattr(getattr(sh.interior_medium(), "data", None), "continuous_particles", 0)
                    for sh in scenes["drjit"].shapes() if sh.interior_medium() is not None):
             del scenes["drjit-exact"]  # no continuous class: the same medium as drjit
         imgs: dict = {c: [] for c in scenes}
@@ -125,9 +129,10 @@ def main() -> None:
         for c, sc in scenes.items():
             mi.render(sc, spp=args.spp, seed=999)  # warm-up: the kernels compile
         for s in range(args.seeds):
-            for i, (c, sc) in enumerate(scenes.items()):
+            for c, sc in scenes.items():
+                i = list(CONFIGS).index(c)  # a configuration's seeds whichever others are rendered
                 t0, c0 = time.perf_counter(), time.process_time()
-                img = np.asarray(mi.render(sc, spp=args.spp, seed=1000 * i + s), dtype=np.float64)
+                img = np.asarray(mi.render(sc, spp=args.spp, seed=1000 * i + args.first_seed + s), dtype=np.float64)
                 secs[c].append(time.perf_counter() - t0)
                 cpu[c].append(time.process_time() - c0)
                 imgs[c].append(img)
