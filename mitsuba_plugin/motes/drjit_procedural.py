@@ -428,7 +428,8 @@ class DrJitProcedural:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             return self._walk(*_rays(origin, direction, t0, t1), None)[0]
 
-    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None, origin_tag=None, slack=None):
+    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None, origin_tag=None,
+                           want_ball=False):
         """Exact free flights on [t0, tmax): ``(t, key, code, valid)``: the t of the first grain that interacts
         (Float64, inf where none), its key (UInt64) and class code (UInt32), and whether there is one. Each grain
         interacts with probability 1 - exp(-tau_i), independently: its uniform is the top 53 bits of
@@ -438,23 +439,27 @@ class DrJitProcedural:
         free flight samples, not its sample. ``exclude_origin`` (a mask per ray, or None): those rays skip the
         grains whose ball holds their origin (grown by ``drjit_walk.EXCLUDE_MARGIN``), as
         ``DrJitGrid.sample_free_flight`` does (a ray leaving a site); with ``origin_tag`` (per ray a UInt32) only
-        those whose ``grain_tag(fold_key(key))`` equals it, their balls' squared radii grown by ``slack``^2."""
+        those whose ``grain_tag(fold_key(key))`` equals it. ``want_ball``: a fifth value, the grain's ball (centre
+        [x, y, z] as the bricks store it and R, Float64; 0 where none): the medium plugin's tag search keeps a site
+        inside it."""
         o, d, t0, t1 = _rays(origin, direction, t0, t1)
         seed = mi.UInt64(seed) + dr.zeros(mi.UInt64, dr.width(t0))
         exclude = dr.zeros(mi.Bool, dr.width(t0)) if exclude_origin is None else \
             mi.Bool(exclude_origin) | dr.zeros(mi.Bool, dr.width(t0))
         if origin_tag is not None:
             n = dr.width(t0)
-            exclude = (exclude, mi.UInt32(origin_tag) + dr.zeros(mi.UInt32, n),
-                       dr.square(mi.Float64(0.0 if slack is None else slack)) + dr.zeros(mi.Float64, n))
+            exclude = (exclude, mi.UInt32(origin_tag) + dr.zeros(mi.UInt32, n))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, t, key, code = self._walk(o, d, t0, t1, seed, exclude)
+            _, t, key, code, centre = self._walk(o, d, t0, t1, seed, exclude)
         valid = key != 0
+        if want_ball:
+            reach = dr.select(valid, mi.Float64(dr.gather(mi.Float, self._reach, code, valid)), 0.0)
+            return t, key, code, valid, (centre, reach)
         return t, key, code, valid
 
     @dr.syntax
     def _walk(self, o, d, t0, t1, seed, exclude=None):
-        """(optical depth, and where ``seed`` is given the first interaction's t, key and class code)."""
+        """(optical depth, and where ``seed`` is given the first interaction's t, key, class code and centre)."""
         F, I = mi.Float64, mi.Int32
         n = dr.width(o[0])
         m, h = self.to_cloud, self.halo
@@ -482,6 +487,7 @@ class DrJitProcedural:
         best_t = dr.full(F, dr.inf, n)
         best_key = dr.zeros(mi.UInt64, n)
         best_code = dr.zeros(mi.UInt32, n)
+        best_centre = [dr.zeros(F, n) for _ in range(3)]
         first = dr.full(mi.Bool, True, n)
         moved = dr.full(I, -1, n)
         while active:
@@ -505,8 +511,8 @@ class DrJitProcedural:
                 ty = lo_[1] + (r // nx) % ny
                 tz = lo_[2] + r // (nx * ny)
                 tile = mi.UInt32((tz * self.dims[1] + ty) * self.dims[0] + tx)
-                tau, best_t, best_key, best_code = self._tile(tile, o, d, t0, t1, seed, tau, best_t, best_key,
-                                                              best_code, exclude)
+                tau, best_t, best_key, best_code, best_centre = self._tile(
+                    tile, o, d, t0, t1, seed, tau, best_t, best_key, best_code, best_centre, exclude)
                 r += 1
             cx, cy, cz, tnx, tny, tnz, moved, go = _advance((cx, cy, cz), (tnx, tny, tnz), step, at, per_t, inv_p,
                                                             t_out)
@@ -514,10 +520,10 @@ class DrJitProcedural:
             go &= best_t > t_exit
             active = go & (cx >= 0) & (cx < dims[0]) & (cy >= 0) & (cy < dims[1]) & (cz >= 0) & (cz < dims[2])
             first = dr.full(mi.Bool, False, n)
-        return tau, best_t, best_key, best_code
+        return tau, best_t, best_key, best_code, best_centre
 
     @dr.syntax
-    def _tile(self, tile, o, d, t0, t1, seed, tau, best_t, best_key, best_code, exclude=None):
+    def _tile(self, tile, o, d, t0, t1, seed, tau, best_t, best_key, best_code, best_centre, exclude=None):
         """The grains of tile ``tile`` (one per lane, regenerated) on the rays: their optical depth added to
         ``tau`` and, with a ``seed``, the first interaction so far (``best_*``, module docs)."""
         F = mi.Float64
@@ -542,7 +548,7 @@ class DrJitProcedural:
             if dr.hint(isinstance(exclude, tuple), mode="scalar"):  # the origin tag (``sample_free_flight``)
                 v = [pf[a] - o[a] for a in range(3)]
                 grown = reach * (1 + EXCLUDE_MARGIN)
-                holds = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown + exclude[2]
+                holds = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown
                 hit &= ~(exclude[0] & holds & (grain_tag(fold_key(key)) == exclude[1]))
             elif dr.hint(exclude is not None, mode="scalar"):
                 v = [pf[a] - o[a] for a in range(3)]
@@ -556,9 +562,10 @@ class DrJitProcedural:
                 best_t = dr.select(interacts, t, best_t)
                 best_key = dr.select(interacts, key, best_key)
                 best_code = dr.select(interacts, code, best_code)
+                best_centre = [dr.select(interacts, pf[a], best_centre[a]) for a in range(3)]
             kept += dr.select(keep, 1, 0)
             i += 1
-        return tau, best_t, best_key, best_code
+        return tau, best_t, best_key, best_code, best_centre
 
     # ---------------------------------------------------------------------------------------- a site
 

@@ -83,7 +83,8 @@ CELL_MARGIN = 1e-3
 REACH_MARGIN = 1e-4
 #: Relative growth of a grain's ball in ``exclude_origin``: a ray leaving a site at the float32 projection of
 #: a grain's centre must not meet that grain again where rounding puts the site a hair outside its ball (the
-#: medium plugin's origin tag also grows it by the site's largest shift along its ray: ``slack``).
+#: medium plugin's tag search keeps a site inside its grain's ball, R itself: this margin absorbs the walk's
+#: own rounding of the same distance, ~1e-7 relative where the ray starts in the class's box).
 EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
 #: Bits of the origin tag (``grain_tag``, ``origin_tag``; the medium plugin's "Parent exclusion").
@@ -342,7 +343,7 @@ class DrJitGrid:
         return dr.exp(-self.optical_depth(origin, direction, tmax))
 
     def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False, want_index=True,
-                           origin_tag=None, slack=None, want_grain=False):
+                           origin_tag=None, want_grain=False, want_ball=False):
         """Exact free flights on [0, tmax): ``(t, index, valid)``: the distance to the first grain that
         interacts (``self.F``; inf where none), the index the grid reports for it (``mi.UInt32``; 2^32 - 1
         where none) and whether there is one. ``u``: per ray a uniform ``mi.Float`` in [0, 1) (its bits seed
@@ -350,21 +351,21 @@ class DrJitGrid:
         ``mi.Bool``): grains whose ball (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are
         skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains).
         ``origin_tag`` (per ray a ``mi.UInt32``, with ``exclude_origin``): only those of such grains whose
-        ``grain_tag`` equals it are skipped, and ``slack`` (per ray, scene units) grows the ball's squared radius
-        by slack^2 (the medium plugin's origin tag). ``want_index=False``: no index (None; the indices are then
-        not uploaded). ``want_grain``: a fourth value, the grain's position in the flat arrays (2^32 - 1 where
-        none)."""
+        ``grain_tag`` equals it are skipped (the medium plugin's origin tag). ``want_index=False``: no index
+        (None; the indices are then not uploaded). ``want_grain``: a further value, the grain's position in the
+        flat arrays (2^32 - 1 where none). ``want_ball``: a further value, the grain's ball as the walk read it,
+        (centre [x, y, z], R) in ``self.F`` (0 where none): the medium plugin's tag search keeps a site inside
+        it."""
         if isinstance(u, mi.UInt32):
             seed = u
         else:
             seed = dr.reinterpret_array(mi.UInt32, mi.Float(u))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, t, g = self._walk(origin, direction, tmax, seed, exclude_origin, origin_tag, slack)
+            _, t, g, *ball = self._walk(origin, direction, tmax, seed, exclude_origin, origin_tag, ball=want_ball)
         valid = g != _NONE
         index = dr.select(valid, dr.gather(mi.UInt32, self._index, g, valid), _NONE) if want_index else None
-        if want_grain:
-            return dr.select(valid, t, dr.inf), index, valid, g
-        return dr.select(valid, t, dr.inf), index, valid
+        out = (dr.select(valid, t, dr.inf), index, valid)
+        return out + ((g,) if want_grain else ()) + tuple(ball)
 
     # ------------------------------------------------------------------------------------------ the walk
 
@@ -379,9 +380,10 @@ class DrJitGrid:
         return o, d, tmax, n
 
     @dr.syntax
-    def _walk(self, origin, direction, tmax, seed, exclude_origin=False, origin_tag=None, slack=None):
+    def _walk(self, origin, direction, tmax, seed, exclude_origin=False, origin_tag=None, ball=False):
         """The walk of every class (module docs): (optical depth, first interaction's t, its grain's position
-        or 2^32 - 1); a free flight where ``seed`` is given, else the optical depth alone."""
+        or 2^32 - 1); a free flight where ``seed`` is given, else the optical depth alone. ``ball`` (a free
+        flight): a fourth value, the interacting grain's (centre [x, y, z], R) as the walk read them."""
         F, I, U = self.F, mi.Int32, mi.UInt32
         o, d, best_t, n = self._rays(origin, direction, tmax)
         flight = seed is not None
@@ -390,11 +392,12 @@ class DrJitGrid:
             exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
         tagged = excluding and origin_tag is not None
         origin_tag = U(origin_tag) + dr.zeros(U, n) if tagged else None
-        slack2 = dr.square(F(0.0 if slack is None else slack)) + dr.zeros(F, n) if tagged else None
         # A free flight's keys: a hash of the ray's seed, which each grain's draw mixes with its position.
         key0, key1 = mi.sample_tea_32(U(seed) + dr.zeros(U, n), U(0x2545F491), TEA_ROUNDS) if flight else (0, 0)
         tau = dr.zeros(F, n)
         best_g = dr.full(U, _NONE, n)
+        # The interacting grain's ball (``ball``), kept where it interacts: its centre and R as read here.
+        bx, by, bz, br = (dr.zeros(F, n) for _ in range(4))
         k = dr.zeros(U, n)
         lattice = self.layout == "lattice"
         s_off = self._s_off
@@ -497,7 +500,7 @@ class DrJitGrid:
                             r_x = r_i * (1 + EXCLUDE_MARGIN)
                             o2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
                             if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain alone (and 1 in 64)
-                                hit &= ~exclude_origin | (o2 >= r_x * r_x + slack2) | (grain_tag(g) != origin_tag)
+                                hit &= ~exclude_origin | (o2 >= r_x * r_x) | (grain_tag(g) != origin_tag)
                             else:
                                 hit &= ~exclude_origin | (o2 >= r_x * r_x)
                         tau_i = F(self.tau_of(tid, hit))
@@ -507,6 +510,11 @@ class DrJitGrid:
                             interacts = hit & (uu < mi.Float64(one_minus_exp(mi.Float(tau_i))))
                             best_t = dr.select(interacts, t_i, best_t)
                             best_g = dr.select(interacts, g, best_g)
+                            if dr.hint(ball, mode="scalar"):
+                                bx = dr.select(interacts, centre[0], bx)
+                                by = dr.select(interacts, centre[1], by)
+                                bz = dr.select(interacts, centre[2], bz)
+                                br = dr.select(interacts, r_i, br)
                         else:
                             tau += dr.select(hit, tau_i, 0)
                     g = dr.select(live, g + 1, g)
@@ -529,7 +537,7 @@ class DrJitGrid:
                 first = dr.full(mi.Bool, False, n)
                 moved = ax
             k += 1
-        return tau, best_t, best_g
+        return (tau, best_t, best_g) + ((([bx, by, bz], br),) if ball else ())
 
     def _face(self, c, at, per_t, inv_p):
         """``face`` in the walk's precision."""

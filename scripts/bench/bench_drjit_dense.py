@@ -5,12 +5,21 @@ lit by a point light to its left and a dim sky, rendered by ``kernel = drjit`` a
 (difference of the means over the renders' spread), and the per-pixel RMS difference over the noise.
 
     .venv/bin/python scripts/bench/bench_drjit_dense.py [--seeds 32] [--res 24] [--spp 16] [--max-depth 8]
-        [--exclusion origin|ball]
+        [--exclusion origin|ball] [--camera-distance 5]
     .venv/bin/python scripts/bench/bench_drjit_dense.py --far
 
+``--camera-distance``: the camera that far from the cloud on the z axis (5 by default), its field of view
+narrowed so that the cloud fills the frame as from 5 (20 degrees there), and the null cube holding the medium
+grown to half-size ``camera-distance`` - 4 (at least 1, the default's): camera rays enter the medium that far
+from the cloud, so first events come from flights of about that length, where the origin tag's search steps by
+t's ulp (the lamp, at 3 units, is then inside the medium).
+
 ``--far``: instead, the origin tag's search (``DrJitKernel._tag_search``) on 8192 flights into the cloud from
-points 2, 5, 20 and 100 units (about that many extents) from a site: the share that finds no tag (the site then
-keeps its point and its rays may meet their grain again) and the shifts along the ray.
+points 2, 5, 20 and 100 units (about that many extents) from a site: the share that finds no tag inside its
+grain's ball (the site then keeps its point and its rays may meet their grain again), the shifts along the ray
+(in scene units and in the search's steps), and the phase function's site search from the shifted site alone
+(``mei.t`` = t*): the share where it finds no grain and the mean number of members (1 but for coincident grains
+and grains of the site's tag that pass within the search's largest shift).
 """
 
 from __future__ import annotations
@@ -30,18 +39,25 @@ def dense_file(count: int = 20000, seed: int = 5) -> str:
     return path
 
 
-def dense_scene(mi, path: str, kernel: str, res: int, max_depth: int):
+def dense_scene(mi, path: str, kernel: str, res: int, max_depth: int, camera_distance: float = 5.0):
+    """The dense cloud's scene, its camera ``camera_distance`` from the cloud's centre on the z axis, its field of
+    view narrowed so that the frame spans what 20 degrees span from 5 units (the cloud fills it), and the null
+    cube that bounds the medium grown to reach within 4 units of the camera: camera rays enter the medium there
+    and fly to the cloud from that far (a cube of half-size 1 would start them 1-2 units from it)."""
     T = mi.ScalarTransform4f
+    half = max(1.0, camera_distance - 4.0)
+    fov = 2 * np.degrees(np.arctan(5 * np.tan(np.radians(10)) / camera_distance))
     medium = {"type": "discrete", "filename": path, "eta": 1.5, "albedo": 0.9, "scale_m": 1e-3, "query_radius": 0.02,
               "continuous_count": float("inf"), "kernel": kernel, "phase": {"type": "particle"}}
     return mi.load_dict({
         "type": "scene", "integrator": {"type": "volpath", "max_depth": max_depth},
-        "sensor": {"type": "perspective", "fov": 20, "to_world": T().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+        "sensor": {"type": "perspective", "fov": float(fov),
+                   "to_world": T().look_at(origin=[0, 0, camera_distance], target=[0, 0, 0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
                    "sampler": {"type": "independent"}},
         "lamp": {"type": "point", "position": [-3.0, 0.5, 0.0], "intensity": {"type": "rgb", "value": 10.0}},
         "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.05}},
-        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium}})
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium, "to_world": T().scale(half)}})
 
 
 def far(mi, path: str) -> None:
@@ -61,15 +77,27 @@ def far(mi, path: str) -> None:
         ray = mi.Ray3f(mi.Point3f(*[mi.Float(org[:, a]) for a in range(3)]),
                        mi.Vector3f(*[mi.Float(v[:, a].astype(np.float32)) for a in range(3)]))
         valid, mint, _ = k.intersect_aabb(ray)
-        t, _, _, g = k.grid.sample_free_flight(ray.o, ray.d, ray.maxt, k._ray_seed(ray), exclude_origin=True,
-                                               want_index=False, origin_tag=origin_tag(ray.o.x, ray.o.y, ray.o.z),
-                                               slack=2 * k._shift_max(k._largest(ray.o)), want_grain=True)
+        # The same flight before its tag search (same seed, same walk): its t, grain and ball.
+        t, _, _, g, (centre, radius) = k.grid.sample_free_flight(
+            ray.o, ray.d, ray.maxt, k._ray_seed(ray), exclude_origin=True, want_index=False,
+            origin_tag=origin_tag(ray.o.x, ray.o.y, ray.o.z), want_grain=True, want_ball=True)
         p = dr.fma(ray.d, mint, ray.o)
+        # The phase function's site search from the site alone (p, its ray, mei.t = t*): members found.
+        _, members, _ = k._site(p, ray.d, k._waves(None), active=valid, t=mint)
+        step = k._tag_step(t, k._largest(dr.fma(ray.d, t, ray.o)), k._largest(ray.d))
+        dr.eval(valid, mint, t, g, centre, radius, members, step)
         ok = np.asarray(valid)
-        miss = (np.asarray(origin_tag(p.x, p.y, p.z)) != np.asarray(grain_tag(g)))[ok]
+        c = np.array([np.asarray(centre[a]) for a in range(3)])[:, ok]
+        q = np.array([np.asarray(p[a]) for a in range(3)])[:, ok]
+        inside = np.sum((q - c) ** 2, axis=0) < np.asarray(radius)[ok] ** 2
+        miss = (np.asarray(origin_tag(p.x, p.y, p.z)) != np.asarray(grain_tag(g)))[ok] | ~inside
         shift = np.abs(np.asarray(mint)[ok] - np.asarray(t)[ok])
-        print(f"flights from {dist:5.0f} units: {ok.sum()} sites, no tag found {miss.mean():.5f}, shift median "
-              f"{np.median(shift):.2e}, largest {shift.max():.2e} (extent {k.extent:.3f})")
+        steps = shift / np.asarray(step)[ok]
+        found = np.asarray(members)[ok]
+        print(f"flights from {dist:5.0f} units: {ok.sum()} sites, no tag found {miss.mean():.5f}; shift median "
+              f"{np.median(shift):.2e}, largest {shift.max():.2e} ({np.median(steps):.0f} and {steps.max():.0f} "
+              f"steps of {np.median(np.asarray(step)[ok]):.1e}); site search: none found {np.mean(found == 0):.5f}, "
+              f"members {found.mean():.4f} (extent {k.extent:.3f})")
 
 
 def main() -> None:
@@ -80,6 +108,8 @@ def main() -> None:
     ap.add_argument("--max-depth", type=int, default=8)
     ap.add_argument("--exclusion", choices=("origin", "ball"), default="origin")
     ap.add_argument("--far", action="store_true", help="the tag search's failures from far origins")
+    ap.add_argument("--camera-distance", type=float, default=5.0,
+                    help="the camera's distance from the cloud (its field of view narrowed to keep the frame)")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
@@ -93,7 +123,7 @@ def main() -> None:
     if args.far:
         far(mi, path)
         return
-    scenes = {k: dense_scene(mi, path, k, args.res, args.max_depth) for k in ("drjit", "native")}
+    scenes = {k: dense_scene(mi, path, k, args.res, args.max_depth, args.camera_distance) for k in ("drjit", "native")}
     imgs = {k: [] for k in scenes}
     t0 = time.time()
     for s in range(args.seeds):
@@ -104,9 +134,10 @@ def main() -> None:
     z = (ma.mean() - mb.mean()) / np.hypot(ma.std(ddof=1), mb.std(ddof=1)) * np.sqrt(len(ma))
     noise = a.var(axis=0, ddof=1) / a.shape[0] + b.var(axis=0, ddof=1) / b.shape[0]
     rms = float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
-    print(f"dense cloud, exclusion {args.exclusion}, {args.seeds} seeds, {args.res} px, {args.spp} spp, depth "
-          f"{args.max_depth}: drjit {ma.mean():.6f}, native exact {mb.mean():.6f}, "
-          f"{100 * (ma.mean() / mb.mean() - 1):+.3f} %, z {z:+.2f}, RMS/noise {rms:.2f} ({time.time() - t0:.0f} s)")
+    print(f"dense cloud, exclusion {args.exclusion}, camera at {args.camera_distance:g}, {args.seeds} seeds, "
+          f"{args.res} px, {args.spp} spp, depth {args.max_depth}: drjit {ma.mean():.6f}, native exact "
+          f"{mb.mean():.6f}, {100 * (ma.mean() / mb.mean() - 1):+.3f} %, z {z:+.2f}, RMS/noise {rms:.2f} "
+          f"({time.time() - t0:.0f} s)")
 
 
 if __name__ == "__main__":

@@ -53,31 +53,43 @@ Notes
   *origin* alone. Mitsuba puts a medium event at ``mei.p = ray(mint + (-log(1 - u)) / majorant) = fma(d, mint,
   o)``, which with ``MAJORANT`` = 1e20 is fma(d, mint, o) exactly (mint > ~3e-12), and the rays leaving it,
   scattered and shadow, start at p exactly (n = 0: ``offset_p`` adds 0). So ``intersect_aabb`` (``_tag_search``)
-  returns, among the floats t* within a few ulps-of-p steps of the flight's t, the first (k = 0, 1, -1, 2, ...)
-  whose point's ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates' float32 bits) equals its
-  grain's ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key). Every ray (camera,
-  surface, scattered, shadow) then skips exactly the grains whose ball (R_i grown by ``EXCLUDE_MARGIN``, its
-  square by the square of twice the largest shift, ``SHIFT_SHARE``) holds its origin *and* whose grain tag is its origin's tag: the
-  grain it leaves, and 1 in 64 of the others holding that point. The rule is direction-free, so next-event
+  returns, among the floats t* = t + k delta near the flight's t (k = 0, 1, -1, 2, ...; delta ``_tag_step``: an ulp
+  of p's largest coordinate over the direction's largest component, or an ulp of t where that is coarser), the
+  first whose point lies inside its grain's ball (R_i, as the walk read it: ``want_ball``) and whose
+  ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates' float32 bits) equals its grain's
+  ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key). Every ray (camera, surface,
+  scattered, shadow) then skips exactly the grains whose ball (R_i grown by ``EXCLUDE_MARGIN``, which absorbs the
+  walk's rounding of the distance the search tested) holds its origin *and* whose grain tag is its origin's tag:
+  the grain it leaves, and 1 in 64 of the others holding that point. The rule is direction-free, so next-event
   estimation and phase sampling see the same medium and their MIS weights stay unbiased (a tag on scattered
   rays alone, with shadow rays skipping every ball holding their origin, read 1.0154 +- 0.0036 in the white
-  furnace). The remaining approximations: rays from other points (the camera, a surface, the medium's
-  boundary, a field event) skip each grain whose ball holds their origin with probability 1/64, and a site's
-  other holders are skipped with the same 1/64 (the native kernel skips none of them); at a site of several
-  coincident grains (projections within the site tolerance) the phase function mixes them all, as the native
-  kernel's site does, but the rays leaving it skip only the picked grain (and coincident grains of its tag),
-  where the native kernel skips the whole site; a search that finds no tag (about 64 tries are needed; at
-  most ``TAG_SEARCH``, and the shift bound, which limits a flight from far away, where t's ulp is the step)
-  keeps the flight's t: its site is found within the base tolerance (below) while the flight's rounding
-  (~6e-8 t along the ray) stays within it, up to some 70 extents from the ray's origin, but the rays leaving
-  it may meet the grain again (measured on the dense cloud below, flights from a point 2, 5, 20 and 100
-  extents from their site: 0, 1.2e-4, 0.12 and 0.59 of the searches fail, ``bench_drjit_dense.py --far``: a
-  camera far from a small cloud loses the exclusion at many first events, and beyond ~70 extents may lose
-  the site). Measured (drjit against native exact, 2026-11-29): the dense cloud of
-  ``scripts/bench/bench_drjit_dense.py`` (20 000 grains of reach 0.04 in the unit cube, about 5 other balls
-  holding a site) +0.19 %, z +0.61 over 128 seeds (the direction tag, skipping every ball holding a site:
-  +11.95 %, z +14.6 over 32); the side-lit cloud (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64
-  --seeds 12 --max-depth 2``) z +0.37, RMS/noise 0.93 (the direction tag: z -0.28, 0.94).
+  furnace). The ball bounds the shift, not the scene's size: the search has its ``TAG_SEARCH`` tries however
+  coarse its step, so a flight from far away (a camera far from a small cloud), whose step is t's ulp, finds its
+  tag as a near one does, and no ray needs a ball grown by the shift. Measured (``bench_drjit_dense.py --far``:
+  8192 flights into the dense cloud below from points 2, 5, 20 and 100 extents from their site): no tag found
+  0, 0, 0 and 2.4e-4 of the searches (with the earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and
+  0.59); shifts of 22 steps (median) and at most 293 (at 100 extents 7.6e-6 a step: at most 2.1e-3, a
+  twentieth of the grains' R). The remaining approximations: rays from other points (the camera, a surface,
+  the medium's boundary, a field event) skip each grain whose ball holds their origin with probability 1/64,
+  and a site's other holders are skipped with the same 1/64 (the native kernel skips none of them); at a site
+  of several coincident grains (projections within the site tolerance) the phase function mixes them all, as
+  the native kernel's site does, but the rays leaving it skip only the picked grain (and coincident grains of
+  its tag), where the native kernel skips the whole site; a search that finds no tag keeps the flight's t and
+  the rays leaving it may meet the grain again: (63/64)^``TAG_SEARCH`` = 1e-7 where the ball's chord holds the
+  tries (about 64 are needed), more at a grazing hit whose chord holds only a few steps (a share ~(32
+  delta / R)^2 of the hits: the 2.4e-4 at 100 extents); and the phase function's site search (below) admits a
+  grain of p's tag crossing the ray within the search's largest shift, which mixes its phase function in
+  (members per site in the dense cloud, where coincident grains are rare: 1.0013, 1.0017, 1.0040 and 1.0146 at
+  2, 5, 20 and 100 extents) or, from far away, misses a grazing hit that the walk's rounding (an ulp of the
+  coordinates where it enters the grain's cell) put inside the ball and the site search outside (1.2e-4 of
+  the sites at 100 extents: those paths end there). Measured (drjit against native exact, 2026-11-29): the
+  dense cloud of ``scripts/bench/bench_drjit_dense.py`` (20 000 grains of reach 0.04 in the unit cube, about 5
+  other balls holding a site) +0.03 %, z +0.09 over 128 seeds (the direction tag, skipping every ball holding
+  a site: +11.95 %, z +14.6 over 32); the same seen from 60 units, its medium entered 56 units from the cloud
+  (``--camera-distance 60``) +0.06 %, z +0.19 over 128 seeds; the white furnace
+  (``bench_drjit_furnace.py --variants llvm_ad_rgb --seeds 4``) 1.00000 +- 0.00064; the side-lit cloud
+  (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2``) z +0.37, RMS/noise
+  0.93 (the direction tag: z -0.28, 0.94).
   ``EXCLUSION = "ball"`` (every ray skips every grain whose ball holds its origin, sites not moved) is kept for
   comparison: rays entering the cloud through the ball of a grain that straddles its box lose that grain
   (the side-lit cloud of ``scripts/bench/bench_lod.py``: 4.5 % darker than native, z -4.6, RMS/noise 3.65,
@@ -85,9 +97,12 @@ Notes
 * **Sites and phase function.** A free flight stops at the first grain that interacts; the phase function
   finds the site from ``mei.p`` and ``mei.wi`` alone: the grains whose ball the incoming ray (through p along
   -wi) crosses and whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's
-  ``DiscreteMedium::site_near``; ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``), or
-  within that plus twice the tag search's largest shift where the grain's tag is p's origin tag (the picked
-  grain, moved along the ray by ``_tag_search``; the tag also keeps out most grains that merely pass near).
+  ``DiscreteMedium::site_near``; ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``) and
+  ``FLIGHT_ROUNDING`` steps of the tag search at ``mei.t`` (the flight's own rounding of t, which beyond ~70
+  extents from the ray's origin outgrows the rest), or within that plus the tag search's largest shift where
+  the grain's tag is p's origin tag (the picked grain, moved along the ray by ``_tag_search``; the bound,
+  ``_shift_bound``, rebuilt from ``mei.t`` and p, since the step grows with t; the tag also keeps out most
+  grains that merely pass near).
   They are in the cells of each size class within its reach of p. Per channel c, with tau_j the grains' grey optical
   depths and a_jc their bins' albedos (times ``albedo_scale``): value_c = sum_j tau_j a_jc f_jc(mu) / sum_j
   tau_j (the site's albedo times its mixture f_c = sum_j tau_j a_jc f_jc / sum_j tau_j a_jc), pdf = the mean
@@ -146,11 +161,15 @@ COINCIDE_SHARE = 1e-6
 SITE_COINCIDE = 4.0
 SITE_RELATIVE = 1e-6
 #: The origin tag (module docs, "Parent exclusion"): ``intersect_aabb`` moves a site along its ray, at most
-#: ``TAG_SEARCH`` tries, each a step of about an ulp of its largest coordinate (or of t, where coarser), and at
-#: most ``SHIFT_SHARE`` max(|p|_max, the grains' extent) from the flight's t, to the first point whose
-#: ``origin_tag`` is its grain's ``grain_tag``. The exclusion test and the site search allow twice that shift.
+#: ``TAG_SEARCH`` tries (k = 0, 1, -1, 2, ...: at most 512 steps either way), each a step of about an ulp of its
+#: largest coordinate (or of t, where coarser), to the first point inside its grain's ball whose ``origin_tag``
+#: is its grain's ``grain_tag``: about 64 tries are needed, (63/64)^1024 = 1e-7 fail where the ball's chord
+#: holds them all. The site search allows the largest such shift (``_shift_bound``), so more tries would admit
+#: more grains that merely pass near a site.
 TAG_SEARCH = 1024
-SHIFT_SHARE = 2.0**-13
+#: Steps of the tag search (``DrJitKernel._tag_step``) that cover a flight's rounding of its t (t_enter + the
+#: centre's projection, each rounded: about an ulp of t each): the site search's tolerance adds them.
+FLIGHT_ROUNDING = 4
 #: ``origin`` (the rule above) or ``ball``: every ray skips every grain whose ball holds its origin, and sites
 #: stay where the flight found them (for comparison: ``scripts/bench/bench_drjit_kernel.py --exclusion ball``).
 EXCLUSION = "origin"
@@ -425,62 +444,94 @@ class DrJitKernel:
         h0, _ = mi.sample_tea_32(low, self._seed[1] ^ 0x9E3779B9, 4)
         return h0
 
-    def _shift_max(self, m):
-        """The largest shift of a site along its ray (``_tag_search``) at a point whose largest coordinate's
-        magnitude is ``m``: ``SHIFT_SHARE`` max(m, the grains' extent)."""
-        return SHIFT_SHARE * dr.maximum(mi.Float(m), self.extent)
+    @staticmethod
+    def _tag_step(t, m, dm):
+        """The tag search's step in t at distance ``t`` along a ray whose direction's largest component is ``dm``,
+        at a point whose largest coordinate's magnitude is ``m``: an ulp of m over dm (each step moves that
+        coordinate by at least an ulp, so every step reaches a new point) or an ulp of t where that is coarser (a
+        flight from far away: t + delta must differ from t)."""
+        F, U = mi.Float, mi.UInt32
+        ulp = lambda x: dr.reinterpret_array(F, dr.reinterpret_array(U, F(x)) & 0x7F800000) * 2.0**-23
+        return dr.maximum(dr.maximum(ulp(m) / dr.maximum(F(dm), 1e-30), ulp(t)), 1e-38)
+
+    @staticmethod
+    def _event_t(t):
+        """An event's distance along its ray as the site search reads it (``mei.t``): non-finite (no event) as 0."""
+        t = mi.Float(t)
+        return dr.select(dr.isfinite(t), dr.abs(t), 0.0)
+
+    @classmethod
+    def _shift_bound(cls, t, p, d):
+        """A bound on a site's shift along its ray (``_tag_search``: at most ``TAG_SEARCH`` / 2 steps from the
+        flight's t) rebuilt from the site alone: its distance ``t`` (``mei.t``, the shifted t*) and point ``p`` on
+        its ray along ``d``. The search's step was taken at the flight's t and point, within 512 of its steps
+        of t*, which is at most twice the step at t*: so within ``reach`` = (``TAG_SEARCH`` + 2
+        ``FLIGHT_ROUNDING``) steps at t*, and the step at t* + reach, |p|_max + reach (ulps grow with magnitude)
+        bounds the search's. ``FLIGHT_ROUNDING`` steps more: the flight's own rounding of t."""
+        t = cls._event_t(t)
+        m, dm = cls._largest(p), cls._largest(d)
+        reach = (TAG_SEARCH + 2 * FLIGHT_ROUNDING) * cls._tag_step(t, m, dm)
+        return (TAG_SEARCH // 2 + FLIGHT_ROUNDING) * cls._tag_step(t + reach, m + reach, dm)
 
     @staticmethod
     def _largest(v):
         return dr.maximum(dr.maximum(dr.abs(v.x), dr.abs(v.y)), dr.abs(v.z))
 
+    @staticmethod
+    def _inside(q, centre, radius):
+        """Whether point ``q`` lies inside the ball (``centre`` [x, y, z], ``radius``), in single precision: the
+        difference of nearby floats is exact, so this is the distance the walk's exclusion test computes from a
+        ray starting at ``q``, to ~1e-7 (its ``EXCLUDE_MARGIN`` absorbs that)."""
+        F = mi.Float
+        v = [F(centre[0]) - q.x, F(centre[1]) - q.y, F(centre[2]) - q.z]
+        r = F(radius)
+        return v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < r * r
+
     @dr.syntax
-    def _tag_search(self, ray, t, want, active, end):
+    def _tag_search(self, ray, t, want, ball, active, end):
         """The t* near the flight's ``t`` whose point fma(d, t*, o) (Mitsuba's ``ray(t)``, the ``mei.p`` the phase
         function and the rays leaving the site see: the majorant's step adds nothing to t*) carries the tag
-        ``want`` (``origin_tag``): t + k delta for k = 0, 1, -1, 2, -2, ..., delta about an ulp of the point's
-        largest coordinate over the direction's largest component (each step moves that coordinate by at least
-        an ulp) or an ulp of t where that is coarser, within ``_shift_max`` of t and ``TAG_SEARCH`` tries, and
-        before ``end``, the end of the segment the walk searched (Mitsuba keeps an event at t* < maxt; with a
-        continuous field, the grains' event must stay before the field's); t where none, (1 - 1/64)^tries
-        (module docs)."""
+        ``want`` (``origin_tag``) and lies inside the picked grain's ``ball`` (centre, R as the walk read them):
+        t + k delta for k = 0, 1, -1, 2, -2, ..., delta ``_tag_step``, at most ``TAG_SEARCH`` tries, and before
+        ``end``, the end of the segment the walk searched (Mitsuba keeps an event at t* < maxt; with a
+        continuous field, the grains' event must stay before the field's). The ball, not a share of the scene,
+        bounds the shift: a ray from t* then skips its grain by the plain ball test and the tag, and a flight
+        from far away (a coarse step) still has its tries. t where none, (1 - 1/64)^tries (module docs)."""
         F, U = mi.Float, mi.UInt32
         o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
         t = F(t)
         want = U(want)
+        centre, radius = ball
+        radius = F(radius)
         p = dr.fma(d, t, o)
-        m = self._largest(p)
-        ulp = lambda x: dr.reinterpret_array(F, dr.reinterpret_array(U, F(x)) & 0x7F800000) * 2.0**-23
-        delta = dr.maximum(ulp(m) / dr.maximum(self._largest(d), 1e-30), ulp(t))
-        delta = dr.maximum(delta, 1e-38)
-        limit = self._shift_max(m)
+        delta = self._tag_step(t, self._largest(p), self._largest(d))
         best = F(t)
-        found = ~mi.Bool(active) | (origin_tag(p.x, p.y, p.z) == want)
+        found = ~mi.Bool(active) | ((origin_tag(p.x, p.y, p.z) == want) & self._inside(p, centre, radius))
         i = dr.zeros(U, dr.width(best))
         while ~found & (i < TAG_SEARCH):
             i += 1
             k = dr.select((i & 1) == 1, F((i + 1) >> 1), -F(i >> 1))
             tk = dr.fma(k, delta, t)
             pk = dr.fma(d, tk, o)
-            ok = (dr.abs(k) * delta <= limit) & (tk > 0) & (tk < end)
+            ok = (tk > 0) & (tk < end) & self._inside(pk, centre, radius)
             hit = ok & (origin_tag(pk.x, pk.y, pk.z) == want)
             best = dr.select(hit, tk, best)
-            found |= hit | (F((i + 1) >> 1) * delta > limit)  # both sides spent
+            # Both sides spent once a step reaches past the ball's diameter (no chord is longer).
+            found |= hit | (F((i + 1) >> 1) * delta > 2 * radius)
         return best
 
     def intersect_aabb(self, ray):
         self.ready()
-        # Parent exclusion (module docs): every ray skips the grains whose ball (grown by the shift's slack) holds
-        # its origin and whose grain tag is its origin's tag; ``ball``: every grain whose ball holds it.
+        # Parent exclusion (module docs): every ray skips the grains whose ball holds its origin and whose grain
+        # tag is its origin's tag; ``ball``: every grain whose ball holds it.
         tagged = EXCLUSION == "origin"
         otag = origin_tag(ray.o.x, ray.o.y, ray.o.z) if tagged else None
-        slack = 2 * self._shift_max(self._largest(mi.Point3f(ray.o))) if tagged else None
         end = mi.Float(ray.maxt)  # the end of the segment the grains are walked on
         if self.proc is not None:
             low = self._ray_seed(ray)
             seed = mi.UInt64(low) | (mi.UInt64(self._ray_seed_high(low)) << 32)
-            t, key, _, valid = self.proc.sample_free_flight(ray.o, ray.d, 0.0, ray.maxt, seed, exclude_origin=True,
-                                                            origin_tag=otag, slack=slack)
+            t, key, _, valid, ball = self.proc.sample_free_flight(ray.o, ray.d, 0.0, ray.maxt, seed,
+                                                                  exclude_origin=True, origin_tag=otag, want_ball=True)
             t, grain, ident = mi.Float(t), valid, fold_key(key)
         else:
             # Continuous size classes: the field's exact free flight first, then the grains up to its distance;
@@ -493,19 +544,20 @@ class DrJitKernel:
                 tmax = dr.select(hit_f, t_f, tmax)
             end = tmax
             if self.grid is not None:
-                t, _, valid, ident = self.grid.sample_free_flight(ray.o, ray.d, tmax, seed, exclude_origin=True,
-                                                                  want_index=False, origin_tag=otag, slack=slack,
-                                                                  want_grain=True)
+                t, _, valid, ident, ball = self.grid.sample_free_flight(ray.o, ray.d, tmax, seed, exclude_origin=True,
+                                                                        want_index=False, origin_tag=otag,
+                                                                        want_grain=True, want_ball=True)
             else:
                 t, valid = dr.full(mi.Float, dr.inf, dr.width(tmax)), dr.zeros(mi.Bool, dr.width(tmax))
                 ident = dr.zeros(mi.UInt32, dr.width(tmax))
+                ball = ([mi.Float(0.0)] * 3, mi.Float(0.0))
             t, grain = mi.Float(t), mi.Bool(valid)
             if self.field is not None:  # a field event keeps its point (no grain to tag)
                 t = dr.select(valid, t, t_f)
                 valid = valid | hit_f
         if tagged:
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-                t = self._tag_search(ray, t, grain_tag(ident), grain, end)
+                t = self._tag_search(ray, t, grain_tag(ident), ball, grain, end)
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -520,7 +572,7 @@ class DrJitKernel:
         self.ready()
         d_in = -mi.Vector3f(mei.wi)
         elements, pdf, _ = self._site(mi.Point3f(mei.p), d_in, self._waves(mei),
-                                      one_minus_mu=one_minus_cos(mi.Vector3f(wo), d_in), active=active)
+                                      one_minus_mu=one_minus_cos(mi.Vector3f(wo), d_in), active=active, t=mei.t)
         return self._spectrum(elements, ctx, mei, wo), pdf
 
     def sample(self, ctx, mei, sample1, sample2, active=True):
@@ -532,7 +584,7 @@ class DrJitKernel:
         u = dr.clip(u1 - mi.Float(c), 0.0, 0.99999994)  # below 1: the reservoir picks where u < a share
         p = mi.Point3f(mei.p)
         waves = self._waves(mei)
-        _, members, (b, u) = self._site(p, d_in, waves, pick=(c, u), active=active)
+        _, members, (b, u) = self._site(p, d_in, waves, pick=(c, u), active=active, t=mei.t)
         valid = b != 0xFFFFFFFF
         # The picked grain's table at the picked channel: its lower or upper wavelength's by the rest of
         # sample1 (``mixture_sample``).
@@ -545,7 +597,7 @@ class DrJitKernel:
         wo = mi.Frame3f(d_in).to_world(mi.Vector3f(st * cp, st * sp, 1 - one_minus_mu))
         # A site of one grain (most) needs no second walk: its bin's tables at one_minus_mu, times its albedo.
         one = valid & (members == 1)
-        elements, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=valid & ~one)
+        elements, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=valid & ~one, t=mei.t)
         elements, pdf = self._one_grain(b, waves, one_minus_mu, one, elements, pdf)
         value = self._spectrum(elements, ctx, mei, wo)
         ok = valid & (pdf > 0)
@@ -606,8 +658,9 @@ class DrJitKernel:
         return dr.clip(x0 - t * dm, 0.0, 2.0)
 
     # -- the site ----------------------------------------------------------------------------------
-    def _site_sums(self, p, d_in, waves, one_minus_mu, pick, active):
-        """The walk of ``_site`` over the grains that could be part of the site at ``p`` (stored: the cells within
+    def _site_sums(self, p, d_in, waves, one_minus_mu, pick, active, t=0.0):
+        """The walk of ``_site`` over the grains that could be part of the site at ``p``, ``t`` along its ray
+        (``mei.t``: what bounds the tag search's shift, ``_shift_bound``) (stored: the cells within
         reach of ``p`` per size class; procedural: the tiles within the halo of ``p``'s, regenerated): per
         channel sum tau_j a_jc and sum tau_j a_jc f_jc(one_minus_mu), and sum tau_j (``one_minus_mu`` given); the
         picked grain's bin and the uniform left (``pick`` given); or (neither) the number of the site's grains and the
@@ -618,12 +671,17 @@ class DrJitKernel:
         n = max(dr.width(p), dr.width(d_in), 1 if one_minus_mu is None else dr.width(one_minus_mu),
                 1 if pick is None else dr.width(pick[1]))
         m = self._largest(p)
-        tol = SITE_COINCIDE * self.coincide + SITE_RELATIVE * m + dr.zeros(F, n)
-        # The origin tag (module docs): a grain whose tag is p's within the flight's shift of p, or any grain
-        # within ``tol`` (a site whose tag search failed, or coincident grains).
+        # The core's tolerance, and the flight's own rounding of t (a few ulps of t: beyond ~70 extents from the
+        # ray's origin it outgrows the rest).
+        t = self._event_t(t)
+        tol = (SITE_COINCIDE * self.coincide + SITE_RELATIVE * m
+               + FLIGHT_ROUNDING * self._tag_step(t, m, self._largest(d_in)) + dr.zeros(F, n))
+        # The origin tag (module docs): a grain whose tag is p's within the search's shift of p (bounded from
+        # the site's own t and p), or any grain within ``tol`` (a site whose tag search failed, or coincident
+        # grains).
         tag = (origin_tag(p.x, p.y, p.z), tol) if EXCLUSION == "origin" else None
         if tag is not None:
-            tol = tol + 2 * self._shift_max(m)
+            tol = tol + self._shift_bound(t, p, d_in)
         evaluating = one_minus_mu is not None
         if evaluating:
             one_minus_mu = F(one_minus_mu)
@@ -736,13 +794,12 @@ class DrJitKernel:
         u = dr.clip(u, 0.0, 0.99999994)
         return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b, picked)
 
-    def _site(self, p, d_in, waves, one_minus_mu=None, pick=None, active=True):
+    def _site(self, p, d_in, waves, one_minus_mu=None, pick=None, active=True, t=0.0):
         """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
-        ``waves`` (``_waves``). With ``one_minus_mu``: (elements per channel, ``elements[c][k]``, pdf, -); with
-        ``pick`` =
-        (channel, uniform):
-        (-, members, (the picked grain's bin or 2^32 - 1, the uniform left)); at a
-        field event the members are the cell's entries (``_site_sums``).
+        ``waves`` (``_waves``), ``t`` along it (``mei.t``, ``_site_sums``). With ``one_minus_mu``: (elements per
+        channel, ``elements[c][k]``, pdf, -); with ``pick`` = (channel, uniform): (-, members, (the picked grain's
+        bin or 2^32 - 1, the uniform left)); at a field event the members are the cell's entries
+        (``_site_sums``).
 
         Evaluating, a first walk only counts the site's grains and keeps the first (no table read per grain
         tested: a masked lane costs as much as an active one in a SIMD packet); a site of one grain, most,
@@ -750,12 +807,12 @@ class DrJitKernel:
         their mixture (``_mixture``)."""
         if one_minus_mu is None:
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):  # as the walk (drjit_walk's module docs)
-                _, _, T, picked = self._site_sums(p, d_in, waves, None, pick, active)
+                _, _, T, picked = self._site_sums(p, d_in, waves, None, pick, active, t)
             return None, T, picked
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, _, members, (first, _) = self._site_sums(p, d_in, waves, None, None, active)
+            _, _, members, (first, _) = self._site_sums(p, d_in, waves, None, None, active, t)
         one = mi.Bool(active) & (members == 1)
-        value, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=mi.Bool(active) & (members > 1))
+        value, pdf = self._mixture(p, d_in, waves, one_minus_mu, active=mi.Bool(active) & (members > 1), t=t)
         value, pdf = self._one_grain(first, waves, one_minus_mu, one, value, pdf)
         return value, pdf, None
 
@@ -772,13 +829,13 @@ class DrJitKernel:
             p1 += e[0]
         return out, dr.select(one, p1 / ch, pdf)
 
-    def _mixture(self, p, d_in, waves, one_minus_mu, active):
+    def _mixture(self, p, d_in, waves, one_minus_mu, active, t=0.0):
         """(elements per channel, pdf) at ``one_minus_mu`` of the site's mixture, summed over its grains in one walk:
         per channel sum_j tau_j a_jc e_jc / sum_j tau_j (the site's albedo times the mixture), the pdf the mean over
         channels of the mixture's F11."""
         ch, E = self.channels, self.E
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            A, N, T, _ = self._site_sums(p, d_in, waves, one_minus_mu, None, active)
+            A, N, T, _ = self._site_sums(p, d_in, waves, one_minus_mu, None, active, t)
         inv_t = dr.select(T > 0, 1 / dr.select(T > 0, T, 1.0), 0.0)
         elements = [[N[c * E + k] * inv_t for k in range(E)] for c in range(ch)]
         pdf = dr.zeros(mi.Float, dr.width(T))
