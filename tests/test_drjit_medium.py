@@ -249,16 +249,6 @@ def test_clear_errors(extra, message):
         mi.load_dict({"type": "discrete", "count": 100, "kernel": "drjit", "phase": {"type": "particle"}, **extra})
 
 
-def test_procedural_continuous_classes_are_an_error():
-    """A procedural cloud whose finite continuous_count leaves continuous size classes is an error naming it (the
-    drjit kernel walks a procedural cloud's grains only)."""
-    llvm()
-    with pytest.raises(Exception, match="continuous_count"):
-        scene({"type": "discrete", "count": 20000, "radius_median": 20.0, "query_radius": 0.3, "continuous_count": 1.0,
-               "storage": "procedural", "size_bins": 2, "kernel": "drjit",
-               "to_world": mi.ScalarTransform4f().scale(10.0), "phase": {"type": "particle"}}, 8)
-
-
 def test_other_variants_are_an_error():
     motes.set_variant("scalar_rgb")
     with pytest.raises(Exception, match="kernel = drjit renders in"):
@@ -481,6 +471,51 @@ def test_continuous_classes_white_furnace():
     m, se = pix.mean(), pix.std(ddof=1) / np.sqrt(pix.size)
     assert abs(m - 1) < 3 * se, f"furnace {m:.4f} +- {se:.4f}"
     assert se < 0.005
+
+
+def test_procedural_field_flights_follow_beer_lambert():
+    """A procedural cloud whose continuous_count leaves some classes continuous (the default on drjit, as native):
+    ``intersect_aabb`` samples the field's flight and the regenerated grains' up to it, so 1 - exp(-tau(t)) of its
+    distances, tau the core's optical depth (the grains' staircase plus the field's mean, completed uniformly
+    across a grain's step and above 1 - exp(-tau(inf)) for escapes), is uniform (Kolmogorov-Smirnov p > 1e-3).
+    Broken, it fails: the field's flights ignored, p = 0; the grains walked past the field's flight, p = 3e-4."""
+    from scipy import stats
+
+    from motes.plugins.drjit_medium import DrJitKernel
+
+    llvm()
+    # MIXED_SPECIES' grains (their optics computed above, in the session's cache), more large ones: 30 discrete.
+    species = [motes.Species(motes.Uniform(15, 25), 1.33), motes.Species(motes.Uniform(60, 90), 1.5)]
+    data = motes.DiscreteMedium.procedural(3000, species, [0.99, 0.01], motes.RGB_WAVELENGTHS_UM, scale_m=1e-3,
+                                           query_radius=0.02, size_bins=2, continuous_count=1.0, cloud_seed=4,
+                                           cache_bytes=2**24)
+    assert 2900 < data.continuous_particles < 3000 and data.core.procedural_export() is not None
+    k = DrJitKernel(data, seed=3).ready()
+    assert k.proc is not None and k.field is not None and k.device_bytes()["field"] > 0 and "field" in k.summary()
+    # Rays from outside the cube (no ball holds their origin: nothing skipped) through random points in it.
+    n = 4000
+    rng = np.random.default_rng(8)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = (rng.uniform(-0.8, 0.8, (n, 3)) - 3.0 * d).astype(np.float32).astype(np.float64)
+    d = d.astype(np.float32).astype(np.float64)
+    ray = mi.Ray3f(jit(o, mi.Point3f), jit(d, mi.Vector3f))
+    valid, t, _ = k.intersect_aabb(ray)
+    valid, t = np.asarray(valid), np.asarray(t, dtype=np.float64)
+    # A grain's event moves by at most the tag search's shift (module docs; ``_shift_bound`` from the site's t):
+    # its step lies within twice that.
+    at = np.where(valid, t, 0.0)
+    w = 2 * np.asarray(k._shift_bound(mi.Float(at), jit(o + at[:, None] * d, mi.Point3f), jit(d, mi.Vector3f)),
+                       dtype=np.float64)
+    tau_lo = data.optical_depth(o, d, 0.0, np.where(valid, np.maximum(t - w, 0.0), 0.0))
+    tau_hi = data.optical_depth(o, d, 0.0, np.where(valid, t + w, 0.0))
+    tau_all = data.optical_depth(o, d, 0.0, np.full(n, 10.0))
+    lo, hi = -np.expm1(-tau_lo), -np.expm1(-tau_hi)
+    escaped = -np.expm1(-tau_all) + np.exp(-tau_all) * rng.uniform(size=n)
+    u = np.where(valid, lo + (hi - lo) * rng.uniform(size=n), escaped)
+    p = stats.kstest(u, "uniform").pvalue
+    assert p > 1e-3, f"KS p = {p:.3g}"
+    assert 0.2 < valid.mean() < 0.9 and (hi - lo > 0.01).mean() > 0.02  # both processes interact
 
 
 def test_field_events_scatter_by_their_cells_mixture(small_field):

@@ -5,7 +5,7 @@ mean over its pixels and ``--seeds`` renders (seeds 1, 2, ...), its standard err
 estimates) and z = (mean - 1) / SE.
 
     .venv/bin/python scripts/bench/bench_drjit_furnace.py [--variants llvm_ad_rgb,llvm_ad_spectral,...]
-        [--res 32] [--spp 64] [--count 20000] [--seeds 1]
+        [--res 32] [--spp 64] [--count 20000] [--seeds 1] [--storage procedural] [--continuous-count 16]
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import time
 import numpy as np
 
 
-def furnace(mi, res: int, spp: int, count: int, kernel: str = "drjit"):
-    """The furnace scene (as ``tests/test_drjit_medium.py``'s, larger)."""
+def furnace(mi, res: int, spp: int, count: int, kernel: str = "drjit", medium_extra: dict | None = None):
+    """The furnace scene (as ``tests/test_drjit_medium.py``'s, larger); ``medium_extra`` set on its medium."""
     T = mi.ScalarTransform4f
     return mi.load_dict({
         "type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 100000},
@@ -28,7 +28,7 @@ def furnace(mi, res: int, spp: int, count: int, kernel: str = "drjit"):
         "cube": {"type": "cube", "bsdf": {"type": "null"},
                  "interior": {"type": "discrete", "count": count, "radius_median": 20.0, "scale_m": 1e-3,
                               "query_radius": 0.02, "albedo": 1.0, "kernel": kernel, "size_bins": 4,
-                              "phase": {"type": "particle"}}}})
+                              "phase": {"type": "particle"}, **(medium_extra or {})}}})
 
 
 def main() -> None:
@@ -39,6 +39,9 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--count", type=int, default=20000)
     ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--storage", default=None, help="the medium's storage (procedural: regenerated grains)")
+    ap.add_argument("--continuous-count", type=float, default=None,
+                    help="the medium's continuous_count (the size classes rendered as their field)")
     args = ap.parse_args()
     import motes  # noqa: PLC0415
 
@@ -49,7 +52,12 @@ def main() -> None:
         motes.set_variant(variant)
         import mitsuba as mi  # noqa: PLC0415
 
-        sc = furnace(mi, args.res, args.spp, args.count)
+        extra = {} if args.storage is None else {"storage": args.storage}
+        if args.continuous_count is not None:
+            extra["continuous_count"] = args.continuous_count
+        sc = furnace(mi, args.res, args.spp, args.count, medium_extra=extra)
+        medium = next(sh.interior_medium() for sh in sc.shapes() if sh.interior_medium() is not None)
+        print(f"{variant}: {medium.data.continuous_particles} of {len(medium.data.core)} grains continuous", flush=True)
         t0 = time.perf_counter()
         imgs = [np.asarray(mi.render(sc, spp=args.spp, seed=1 + s), dtype=np.float64) for s in range(args.seeds)]
         secs = (time.perf_counter() - t0) / args.seeds

@@ -11,10 +11,13 @@ take turns seed by seed, so that a busy machine slows them alike. Seeds differ b
 of the means over the renders' spread), the per-pixel RMS difference of the mean images over their noise
 (about 1 where they differ by noise alone; estimated from the seeds' spread), and seconds per render with
 the ratio to ``native-exact``, wall-clock and the process's CPU time (steadier where other work shares the
-machine: a render waiting for a core spends none; medians over the seeds). ``-D KEY=VALUE`` sets a scene
+machine: a render waiting for a core spends none; medians over the seeds); then z and RMS/noise of ``drjit``
+against ``native`` (the same settings) and against ``drjit-exact``. ``-D KEY=VALUE`` sets a scene
 parameter, e.g. ``-D storage=procedural`` (cornell, house, lamp, limit: the drjit kernel then regenerates the
 grains, ``motes.drjit_procedural``). ``sidelit`` (not a shipped scene) is ``bench_lod.py``'s side-lit cloud of 300
-grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``--exclusion ball`` renders the
+grains of 200-450 um that touch the faces of their cube (``--max-depth``, 16); ``mixed`` (not shipped either) a
+procedural cloud whose small grains are continuous and large ones discrete (``-D count=5000 -D storage=procedural``;
+``mixed``'s docs); ``--exclusion ball`` renders the
 drjit kernel with every ray skipping the grains whose ball holds its origin (``drjit_medium.EXCLUSION``, against
 its origin tag, ``origin``). A scene whose ``cells`` parameter sets ``cells_per_particle`` (``bench``: 0.125, the native
 kernel's default) renders the drjit configuration at the drjit kernel's own default
@@ -39,6 +42,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 CONFIGS = {"drjit": {"kernel": "drjit"}, "drjit-exact": {"kernel": "drjit", "continuous_count": "inf"},
            "native-exact": {"continuous_count": "inf"}, "native": {}}
 REFERENCE = "native-exact"
+#: Pairs compared after the table: the same settings on both kernels, and drjit's field against its exact walk.
+PAIRS = (("drjit", "native"), ("drjit", "drjit-exact"))
 
 
 #: ``--drjit-cells``: the ``cells`` parameter the drjit configuration loads scenes that declare one with (None:
@@ -58,6 +63,8 @@ def load(mi, name: str, res: int, extra: dict, defines: dict | None = None):
 
         return mi.load_dict(bench_lod.sidelit(mi, res, 0.0, {k: float(v) if k != "kernel" else v
                                                             for k, v in extra.items()}))
+    if name == "mixed":
+        return mi.load_dict(mixed(mi, res, extra, defines or {}))
     text = (ROOT / "scenes_xml" / f"{name}.xml").read_text()
     tags = "".join(f'<{"string" if k == "kernel" else "float"} name="{k}" value="{v}"/>' for k, v in extra.items())
     text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, text)
@@ -65,6 +72,35 @@ def load(mi, name: str, res: int, extra: dict, defines: dict | None = None):
     if extra.get("kernel") == "drjit" and DRJIT_CELLS[0] is not None and '<default name="cells"' in text:
         params["cells"] = DRJIT_CELLS[0]
     return mi.load_string(text, **params)
+
+
+#: ``mixed``'s grains (``tests/test_drjit_medium.py``'s MIXED_SPECIES, more large ones): small ones continuous at
+#: ``continuous_count`` = 1 and a few large ones discrete, at 1 mm a unit.
+MIXED_SPECIES = ('[{"psd": {"type": "uniform", "r_min_um": 15, "r_max_um": 25}, "eta": [1.33, 0], "share": 0.99},'
+                 ' {"psd": {"type": "uniform", "r_min_um": 60, "r_max_um": 90}, "eta": [1.5, 0], "share": 0.01}]')
+
+
+def mixed(mi, res: int, extra: dict, defines: dict) -> dict:
+    """``mixed``: a cloud whose small grains are continuous and large ones discrete (``continuous_count`` 1,
+    ``-D count=...``, 5000; ``-D storage=...``, procedural) in the cube [-1, 1]^3, lit by a point light to its left
+    under a dim sky. Rays never switch to the grains' equivalent (``grain_depth`` at its maximum, no surface
+    footprint), so native and drjit render the same model."""
+    from motes.plugins.discrete_medium import MAX_GRAIN_DEPTH  # noqa: PLC0415
+
+    T = mi.ScalarTransform4f
+    medium = {"type": "discrete", "count": int(float(defines.get("count", 5000))), "species": MIXED_SPECIES,
+              "scale_m": 1e-3, "query_radius": 0.02, "continuous_count": 1.0, "size_bins": 2,
+              "storage": defines.get("storage", "procedural"), "grain_depth": MAX_GRAIN_DEPTH,
+              "surface_footprint": False, "phase": {"type": "particle"}}
+    medium.update({k: v if k == "kernel" else float(v) for k, v in extra.items()})
+    return {"type": "scene", "integrator": {"type": "volpath", "max_depth": 16},
+            "sensor": {"type": "perspective", "fov": 30,
+                       "to_world": T().look_at(origin=[0, 0, 6], target=[0, 0, 0], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                       "sampler": {"type": "independent"}},
+            "lamp": {"type": "point", "position": [-2.2, 0.0, 0.0], "intensity": {"type": "rgb", "value": 4.0}},
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.1}},
+            "cloud": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium}}
 
 
 def compare(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -144,6 +180,11 @@ def main() -> None:
             t, tc = float(np.median(secs[c])), float(np.median(cpu[c]))
             print(f"{name:10s} {c:13s} {a.mean():10.5g} {z:6.2f} {rms:9.2f} {t:9.3f} {t / t_ref:6.2f} {tc:8.3f} "
                   f"{tc / cpu_ref:9.2f}", flush=True)
+        # The same model by both kernels, and the field against every grain walked: z and RMS/noise per pair.
+        for c, ref_c in PAIRS:
+            if c in imgs and ref_c in imgs:
+                z, rms = compare(np.stack(imgs[c]), np.stack(imgs[ref_c]))
+                print(f"{name:10s} {c + ' vs ' + ref_c:27s} z {z:6.2f} RMS/noise {rms:5.2f}", flush=True)
 
 
 if __name__ == "__main__":

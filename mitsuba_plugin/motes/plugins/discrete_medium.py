@@ -64,8 +64,7 @@ Parameter                    Type       Meaning (default)
                                         memory estimate (16 bytes each to build)
 ``continuous_count``         float      size classes with at least this many particles per query cylinder
                                         (over a mean free path or across the cloud) are rendered as a
-                                        continuous medium: no pixel resolves their grains (16; inf with
-                                        ``kernel = drjit`` in a procedural cloud; inf: none)
+                                        continuous medium: no pixel resolves their grains (16; inf: none)
 ``grain_depth``              integer    a path's rays walk grains one by one until its ``grain_depth``-th
                                         scattering event, and after it see their continuous equivalent
                                         where their pixel footprint holds ``continuous_count`` grains (the
@@ -139,12 +138,10 @@ Parameter                    Type       Meaning (default)
 ``kernel``                   string     ``native``: the C++/Rust render path where it is built (below, "Render
                                         paths"); ``drjit``: Dr.Jit-typed code traced into Mitsuba's kernels,
                                         no Rust call at render time (every ``llvm_ad_*`` and ``cuda_ad_*``;
-                                        continuous size classes render as their field, except in a procedural
-                                        cloud, where ``continuous_count`` defaults to inf and a finite one that
-                                        leaves classes continuous is an error; every ray walks the discrete
-                                        classes' grains: ``grain_depth`` and ``surface_footprint`` change
-                                        nothing; scalar variants are an error; ``cells_per_particle`` defaults
-                                        to 2 there;
+                                        continuous size classes render as their field, stored or procedural;
+                                        every ray walks the discrete classes' grains: ``grain_depth`` and
+                                        ``surface_footprint`` change nothing; scalar variants are an error;
+                                        ``cells_per_particle`` defaults to 2 there;
                                         ``motes/plugins/drjit_medium.py``) (``native``; ``drjit``, the only
                                         one, in ``cuda_ad_*``)
 ``has_spectral_extinction``  boolean    as ``homogeneous`` takes it: false is what this medium does (grey free
@@ -747,10 +744,8 @@ def _read_rendering(props, p: SimpleNamespace, bad: list, get) -> None:
     if p.truncate is not None and p.truncate < 0:
         p.truncate = None
     p.tau_max = get("tau_max", DEFAULT_TAU_MAX, float)
-    # The drjit kernel renders continuous size classes as their field (drjit_medium.py), but not a procedural
-    # cloud's (not ported): there it walks every grain by default.
-    exact = p.kernel == "drjit" and p.storage == "procedural"
-    p.continuous = get("continuous_count", np.inf if exact else DEFAULT_CONTINUOUS_COUNT, float)
+    # Both kernels render continuous size classes as their field, stored or procedural (drjit_medium.py).
+    p.continuous = get("continuous_count", DEFAULT_CONTINUOUS_COUNT, float)
     p.grain_depth = get("grain_depth", DEFAULT_GRAIN_DEPTH, int, lambda v: 1 <= v <= MAX_GRAIN_DEPTH,
                         f"an integer in [1, {MAX_GRAIN_DEPTH}]")
     p.surface_footprint = get("surface_footprint", True, bool)

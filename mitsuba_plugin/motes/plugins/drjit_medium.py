@@ -15,13 +15,12 @@ Notes
 -----
 * **Level of detail.** Every grain of the discrete size classes is walked on every ray; the size classes no
   pixel resolves (``continuous_count``, 16 by default as in the native kernel) are their continuous field (next
-  note). In a procedural cloud the field is not ported: ``continuous_count`` defaults to inf there (every grain
-  walked) and a finite one that leaves classes continuous is an error naming it. The scalar variants
-  (``kernel`` named) and a procedural cloud of a grid density are errors. ``grain_depth`` and
-  ``surface_footprint`` change nothing: no ray switches to the grains' continuous equivalent (as native with
-  ``grain_depth`` at its maximum and ``surface_footprint = false``); where every class is continuous that is
-  the native default's model. A user's ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and
-  ``phase_model = "hg"`` work: they are per-bin tables like the grains' own.
+  note), stored or procedural. The scalar variants (``kernel`` named) and a procedural cloud of a grid density
+  whose grains are not all continuous are errors. ``grain_depth`` and ``surface_footprint`` change nothing: no
+  ray switches to the grains' continuous equivalent (as native with ``grain_depth`` at its maximum and
+  ``surface_footprint = false``); where every class is continuous that is the native default's model. A user's
+  ``<phase>`` child (``isotropic``, ``hg``, ``tabphase``) and ``phase_model = "hg"`` work: they are per-bin
+  tables like the grains' own.
 * **Continuous size classes** (a finite ``continuous_count``; ``rust/motes-core/src/render/continuous/``): the
   field of the classes no pixel resolves is uploaded once (``DiscreteMedium.flat_field``: sigma_t per cell, per
   cell its bins with their shares s_i of its extinction) and walked by ``motes.drjit_field.DrJitField``: an
@@ -37,7 +36,15 @@ Notes
   the grains of the tiles a ray or a site needs from the core's counter-seeded streams, the core's grains bit
   for bit (``DrJitProcedural.sample_free_flight`` and ``site_walk``). Every ray regenerates its tiles (the
   native kernel caches bricks): 10-25x the native kernel's time on the CPU (``bench_drjit_kernel.py -D
-  storage=procedural``).
+  storage=procedural``). Its continuous classes are a field as a stored set's (previous note): the core's
+  (``ProceduralParts::field``, the density's expected extinction of those classes per cell, 64 cells along the
+  box's longest side), at rest where a drift moves the grains, as the native kernel's; the field's flight comes
+  first, the regenerated grains are walked up to it (``intersect_aabb``), and a field event's phase function is
+  its cell's mixture (``_site_sums``, after the procedural site walk finds no grain). Where every class is
+  continuous the field alone is walked (``DrJitProcedural`` is not built). Measured (2026-11-29, BENCHMARKS.md):
+  against native on the same settings, ``bench_drjit_kernel.py --scenes mixed`` (small grains continuous, large
+  ones discrete) z -0.86, RMS/noise 0.86 over 32 seeds; a procedural white furnace of 17 558 continuous grains
+  in 20 000 (``bench_drjit_furnace.py --storage procedural --continuous-count 1``) 1.00062 +- 0.00089.
 * **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` from the ray's origin up to its
   ``maxt``, each grain interacting with probability 1 - exp(-tau_i), the nearest that does returned as
   ``mint`` (``maxt`` = inf), ``hit = False`` where none. Its random numbers hash the ray (origin, direction,
@@ -265,11 +272,11 @@ class DrJitKernel:
         b = self.device_bytes()
         if not b:
             return "kernel = drjit (arrays not uploaded yet)"
-        if self.proc is not None:
-            return (f"kernel = drjit: a procedural cloud regenerated where rays need it, {b['total'] / 2**20:.1f} MiB "
-                    f"on the device ({b['tables'] / 2**20:.2f} MiB of tables)")
         field = "" if self.field is None else (f", a continuous field of {self.field.cells} cells "
                                                f"({b['field'] / 2**20:.2f} MiB)")
+        if self.proc is not None:
+            return (f"kernel = drjit: a procedural cloud regenerated where rays need it, {b['total'] / 2**20:.1f} MiB "
+                    f"on the device ({b['tables'] / 2**20:.2f} MiB of tables){field}")
         if self.grid is None:
             return (f"kernel = drjit: no grains walked{field}, {b['total'] / 2**20:.1f} MiB on the device "
                     f"({b['tables'] / 2**20:.2f} MiB of tables)")
@@ -278,22 +285,14 @@ class DrJitKernel:
 
     def _upload(self, data) -> None:
         self.grid = self.proc = self.field = None
-        continuous = getattr(data, "continuous_particles", 0)
-        if data.core.procedural_cloud and continuous:
-            raise ValueError(f"discrete medium: kernel = drjit cannot render a procedural cloud's continuous size "
-                             f"classes (continuous_count leaves {continuous} grains continuous): set "
-                             "continuous_count = inf (the drjit kernel's default) or use kernel = native")
+        # The continuous size classes' field (module docs, "Continuous size classes"): a stored set's, or a
+        # procedural cloud's expected extinction of its continuous classes (at rest, as the native kernel's).
+        f = data.core.flat_field()
+        self.field = None if f is None else DrJitField(f)
         if data.core.procedural_cloud:
-            try:
-                self.proc = DrJitProcedural(data.core)
-            except ValueError as e:  # a grid density
-                raise ValueError(f"discrete medium: kernel = drjit cannot render this procedural cloud ({e}): use "
-                                 "kernel = native") from None
-            extent = self.proc.extent()
+            self.proc = self._procedural_grains(data.core)
+            extent = self.proc.extent() if self.proc is not None else self._field_extent()
         else:
-            # The continuous size classes' field (module docs, "Continuous size classes"), and the grains walked.
-            f = data.core.flat_field()
-            self.field = None if f is None else DrJitField(f)
             a = data.core.flat_arrays()
             if a is None and self.field is None:
                 raise ValueError("discrete medium: kernel = drjit found neither grains to walk nor a continuous "
@@ -303,13 +302,30 @@ class DrJitKernel:
             if spheres.shape[0]:
                 extent = float(np.max(spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0)) + spheres[:, 3].max())
             else:  # no grains: the field's box
-                extent = 0.0 if self.field is None else float(np.max(self.field.cell * self.field.dims))
+                extent = self._field_extent()
         self.extent = max(extent, 1e-30)
         self.coincide = COINCIDE_SHARE * self.extent
         self._tables(data)
         self.set_albedo_scale(data.core.albedo_scale)
         self._seed = [dr.opaque(mi.UInt32, self.seed & 0xFFFFFFFF),
                       dr.opaque(mi.UInt32, (self.seed >> 32) & 0xFFFFFFFF)]
+
+    def _procedural_grains(self, core):
+        """A procedural cloud's discrete grains, regenerated by ``DrJitProcedural`` (None where every class is
+        continuous: the field alone is walked, as a stored set's)."""
+        export = core.procedural_export()
+        if export is None:
+            return None
+        try:
+            return DrJitProcedural(export)
+        except ValueError as e:  # a grid density (its field alone, every class continuous, is walked)
+            raise ValueError(f"discrete medium: kernel = drjit cannot render this procedural cloud ({e}): use "
+                             "kernel = native") from None
+
+    def _field_extent(self) -> float:
+        """The largest side of the continuous field's box (0 without one): the grains' extent where none is
+        walked."""
+        return 0.0 if self.field is None else float(np.max(self.field.cell * self.field.dims))
 
     def _tables(self, data) -> None:
         """Per (bin, tabulated wavelength): the phase table (the core's nodes: mu ascending, f and CDF normalised,
@@ -520,41 +536,59 @@ class DrJitKernel:
             found |= hit | (F((i + 1) >> 1) * delta > 2 * radius)
         return best
 
+    def _field_flight(self, ray, seed):
+        """The continuous field's exact free flight on [0, maxt) (``DrJitField.sample_free_flight``, its numbers
+        ``seed``, a ``mi.UInt32``, hashed with the field's own key): (its t, whether it hits, the end of the
+        segment the grains are then walked on: its t where it hits, else maxt); (None, None, maxt) without a
+        field."""
+        maxt = mi.Float(ray.maxt)
+        if self.field is None:
+            return None, None, maxt
+        t_f, hit_f = self.field.sample_free_flight(ray.o, ray.d, ray.maxt, seed)
+        return t_f, hit_f, dr.select(hit_f, t_f, maxt)
+
+    @staticmethod
+    def _nearer(t, valid, t_f, hit_f):
+        """The nearer of the grains' interaction (``t``, ``valid``; walked up to the field's flight, so nearer
+        where valid) and the field's (``t_f``, ``hit_f``; None: no field): the two processes are independent, so
+        the first interaction of their union is the first of either (``continuous/mod.rs``)."""
+        if t_f is None:
+            return t, valid
+        return dr.select(valid, t, t_f), valid | hit_f
+
     def intersect_aabb(self, ray):
         self.ready()
         # Parent exclusion (module docs): every ray skips the grains whose ball holds its origin and whose grain
         # tag is its origin's tag; ``ball``: every grain whose ball holds it.
         tagged = EXCLUSION == "origin"
         otag = origin_tag(ray.o.x, ray.o.y, ray.o.z) if tagged else None
-        end = mi.Float(ray.maxt)  # the end of the segment the grains are walked on
+        # ``end``: the end of the segment the grains are walked on (the field's flight, else maxt).
         if self.proc is not None:
+            # The continuous classes' field first, then the regenerated grains up to its flight (as the stored
+            # branch below): the field's numbers hash the low 32 bits of the grains' 64-bit seed apart.
             low = self._ray_seed(ray)
+            t_f, hit_f, end = self._field_flight(ray, low)
             seed = mi.UInt64(low) | (mi.UInt64(self._ray_seed_high(low)) << 32)
-            t, key, _, valid, ball = self.proc.sample_free_flight(ray.o, ray.d, 0.0, ray.maxt, seed,
-                                                                  exclude_origin=True, origin_tag=otag, want_ball=True)
-            t, grain, ident = mi.Float(t), valid, fold_key(key)
+            t, key, _, valid, ball = self.proc.sample_free_flight(ray.o, ray.d, 0.0, end, seed, exclude_origin=True,
+                                                                  origin_tag=otag, want_ball=True)
+            t, grain, ident = mi.Float(t), mi.Bool(valid), fold_key(key)
+            t, valid = self._nearer(t, valid, t_f, hit_f)
         else:
             # Continuous size classes: the field's exact free flight first, then the grains up to its distance;
             # the two processes are independent, so the nearer interaction wins (``continuous/mod.rs``, as the
             # native kernel's ``discrete/flight.rs``). Their numbers: the same ray seed, hashed apart.
             seed = self._ray_seed(ray)
-            tmax, t_f, hit_f = mi.Float(ray.maxt), None, None
-            if self.field is not None:
-                t_f, hit_f = self.field.sample_free_flight(ray.o, ray.d, ray.maxt, seed)
-                tmax = dr.select(hit_f, t_f, tmax)
-            end = tmax
+            t_f, hit_f, end = self._field_flight(ray, seed)
             if self.grid is not None:
-                t, _, valid, ident, ball = self.grid.sample_free_flight(ray.o, ray.d, tmax, seed, exclude_origin=True,
+                t, _, valid, ident, ball = self.grid.sample_free_flight(ray.o, ray.d, end, seed, exclude_origin=True,
                                                                         want_index=False, origin_tag=otag,
                                                                         want_grain=True, want_ball=True)
             else:
-                t, valid = dr.full(mi.Float, dr.inf, dr.width(tmax)), dr.zeros(mi.Bool, dr.width(tmax))
-                ident = dr.zeros(mi.UInt32, dr.width(tmax))
+                t, valid = dr.full(mi.Float, dr.inf, dr.width(end)), dr.zeros(mi.Bool, dr.width(end))
+                ident = dr.zeros(mi.UInt32, dr.width(end))
                 ball = ([mi.Float(0.0)] * 3, mi.Float(0.0))
             t, grain = mi.Float(t), mi.Bool(valid)
-            if self.field is not None:  # a field event keeps its point (no grain to tag)
-                t = dr.select(valid, t, t_f)
-                valid = valid | hit_f
+            t, valid = self._nearer(t, valid, t_f, hit_f)  # a field event keeps its point (no grain to tag)
         if tagged:
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
                 t = self._tag_search(ray, t, grain_tag(ident), ball, grain, end)
