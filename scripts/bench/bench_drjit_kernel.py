@@ -82,9 +82,10 @@ MIXED_SPECIES = ('[{"psd": {"type": "uniform", "r_min_um": 15, "r_max_um": 25}, 
 
 def mixed(mi, res: int, extra: dict, defines: dict) -> dict:
     """``mixed``: a cloud whose small grains are continuous and large ones discrete (``continuous_count`` 1,
-    ``-D count=...``, 5000; ``-D storage=...``, procedural) in the cube [-1, 1]^3, lit by a point light to its left
-    under a dim sky. Rays never switch to the grains' equivalent (``grain_depth`` at its maximum, no surface
-    footprint), so native and drjit render the same model."""
+    ``-D count=...``, 5000; ``-D storage=...``, procedural; ``-D turbulence=... -D time=...``, a drift that moves the
+    grains while the field stays at rest) in the cube [-1, 1]^3, lit by a point light to its left under a dim sky.
+    Rays never switch to the grains' equivalent (``grain_depth`` at its maximum, no surface footprint), so native
+    and drjit render the same model."""
     from motes.plugins.discrete_medium import MAX_GRAIN_DEPTH  # noqa: PLC0415
 
     T = mi.ScalarTransform4f
@@ -92,6 +93,7 @@ def mixed(mi, res: int, extra: dict, defines: dict) -> dict:
               "scale_m": 1e-3, "query_radius": 0.02, "continuous_count": 1.0, "size_bins": 2,
               "storage": defines.get("storage", "procedural"), "grain_depth": MAX_GRAIN_DEPTH,
               "surface_footprint": False, "phase": {"type": "particle"}}
+    medium.update({k: float(defines[k]) for k in ("turbulence", "time") if k in defines})  # a drift
     medium.update({k: v if k == "kernel" else float(v) for k, v in extra.items()})
     return {"type": "scene", "integrator": {"type": "volpath", "max_depth": 16},
             "sensor": {"type": "perspective", "fov": 30,

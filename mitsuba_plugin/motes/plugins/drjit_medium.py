@@ -43,7 +43,8 @@ Notes
   its cell's mixture (``_site_sums``, after the procedural site walk finds no grain). Where every class is
   continuous the field alone is walked (``DrJitProcedural`` is not built). Measured (2026-11-29, BENCHMARKS.md):
   against native on the same settings, ``bench_drjit_kernel.py --scenes mixed`` (small grains continuous, large
-  ones discrete) z -0.86, RMS/noise 0.86 over 32 seeds; a procedural white furnace of 17 558 continuous grains
+  ones discrete) z -1.62, RMS/noise 0.92 over 16 seeds, and with a drift (``-D turbulence=0.05 -D time=1``)
+  z -0.55, 1.00 over 24; a procedural white furnace of 17 558 continuous grains
   in 20 000 (``bench_drjit_furnace.py --storage procedural --continuous-count 1``) 1.00062 +- 0.00089.
 * **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` from the ray's origin up to its
   ``maxt``, each grain interacting with probability 1 - exp(-tau_i), the nearest that does returned as
