@@ -2,7 +2,7 @@
 regenerate a cell's grains from the counter-based hash instead of storing them"): for a wavefront of tile
 indices, each tile's grains as the Rust core's bricks generate them (``rust/motes-core/src/space/cloud.rs``,
 ``rust/motes-core/src/render/procedural/``), in the current Mitsuba variant's JIT types (``llvm_ad_*``, and
-``cuda_ad_*``, where a kernel cannot call the core). Not wired into the medium plugin yet.
+``cuda_ad_*``, where a kernel cannot call the core): the medium plugin's ``kernel = drjit`` in a procedural cloud.
 
 The process (the core's module docs): tile t's stream is xoshiro256++ seeded by SplitMix64 from
 ``splitmix64(seed ^ splitmix64(TILE_STREAM ^ t))``; it draws the tile's candidate count K_t ~ Poisson(lambda)
@@ -582,8 +582,9 @@ class DrJitProcedural:
     def site_walk(self, p, d_in, tol, visit, state, active=True, tag=None):
         """Visit every grain that could be part of a site at ``p`` on a ray along ``d_in`` (the grains of the tiles
         within the halo of ``p``'s tile, regenerated): ``state = visit(tau, bin, member, state)`` per grain, with
-        ``member`` whether its ball holds the ray (centre and R as the grids store them) and its centre projects
-        on it within ``tol`` of ``p`` (``DiscreteMedium::site_near``'s rule, in double precision); ``tau`` (Float)
+        ``member`` whether its ball holds the ray (centre and R as the grids store them, R grown by the base
+        tolerance, which holds the flight's rounding of t) and its centre projects on it within ``tol`` of ``p``
+        (``DiscreteMedium::site_near``'s rule, in double precision); ``tau`` (Float)
         and ``bin`` its optical depth and optics bin. ``state``: a list of JIT values, returned updated. ``tag`` =
         (the point's origin tag, a second tolerance): a member must then also have ``grain_tag(fold_key(key))``
         equal to it, or project within the second tolerance (the medium plugin's site rule)."""
@@ -634,7 +635,8 @@ class DrJitProcedural:
             v = [F(mi.Float(q[a])) - p[a] for a in range(3)]
             along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
             w = [v[a] - along * d[a] for a in range(3)]
-            member = keep & (dr.abs(along) <= tol) & (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < reach * reach)
+            rim = reach + (tag[1] if tag is not None else tol)  # the flight's rounding across, too
+            member = keep & (dr.abs(along) <= tol) & (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < rim * rim)
             if dr.hint(tag is not None, mode="scalar"):
                 key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
                 member &= (grain_tag(fold_key(key)) == tag[0]) | (dr.abs(along) <= tag[1])

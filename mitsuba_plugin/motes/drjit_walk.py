@@ -1,8 +1,7 @@
-"""The walk of the particle grid in Dr.Jit-typed code (issue 46, first slice): optical depth along a ray and
-exact free flights to the first grain interaction, for a wavefront of rays, in the current Mitsuba variant's
-JIT types (``llvm_ad_*``, later ``cuda_ad_*``: a CUDA kernel cannot call the Rust core).
-
-Not wired into the medium plugin yet. The physics is the Rust core's (``rust/motes-core/src/space/grid/``);
+"""The walk of the particle grid in Dr.Jit-typed code (issue 46): optical depth along a ray and exact free
+flights to the first grain interaction, for a wavefront of rays, in the current Mitsuba variant's JIT types
+(``llvm_ad_*`` and ``cuda_ad_*``: a CUDA kernel cannot call the Rust core); the medium plugin's ``kernel =
+drjit`` (``plugins/drjit_medium.py``) walks stored grains with it. The physics is the Rust core's (``rust/motes-core/src/space/grid/``);
 this module only reads a built grid's grains as flat arrays (``ParticleGrid.flat_arrays`` or
 ``DiscreteMedium.flat_arrays``, ``rust/motes-core/src/space/grid/flat.rs``) and walks them:
 
@@ -90,6 +89,9 @@ _NONE = 0xFFFFFFFF
 #: Bits of the origin tag (``grain_tag``, ``origin_tag``; the medium plugin's "Parent exclusion").
 TAG_BITS = 6
 TAG_MASK = (1 << TAG_BITS) - 1
+#: The one origin tag no grain has (grains' tags are 0 .. ``FIELD_TAG`` - 1): the medium plugin moves a field
+#: event to a point of this tag, so that the rays leaving it skip no grain and its site admits none by tag.
+FIELD_TAG = TAG_MASK
 #: Lattice steps per cell edge of the lattice layout (module docs, "Layout"): the core's compact storage's
 #: (``LATTICE_PER_CELL`` in ``rust/motes-core/src/space/grid/slots.rs``).
 LATTICE_PER_CELL = 1 << 14
@@ -164,9 +166,9 @@ def _mix(x):
 
 
 def grain_tag(ident):
-    """A grain's ``TAG_BITS``-bit tag (``mi.UInt32``): a hash of its identity (a stored grid: its position in the
-    flat arrays; a procedural cloud: its 64-bit key folded to 32 bits, ``fold_key``)."""
-    return _mix(mi.UInt32(ident) ^ 0x5BD1E995) & TAG_MASK
+    """A grain's tag (``mi.UInt32``, 0 .. ``FIELD_TAG`` - 1, uniform to 1e-8): a hash of its identity (a stored
+    grid: its position in the flat arrays; a procedural cloud: its 64-bit key folded to 32 bits, ``fold_key``)."""
+    return _mix(mi.UInt32(ident) ^ 0x5BD1E995) % FIELD_TAG
 
 
 def origin_tag(x, y, z):
@@ -499,7 +501,7 @@ class DrJitGrid:
                             w = [v[a] + t_enter * d[a] for a in range(3)]
                             r_x = r_i * (1 + EXCLUDE_MARGIN)
                             o2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
-                            if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain alone (and 1 in 64)
+                            if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain alone (and 1 in 63)
                                 hit &= ~exclude_origin | (o2 >= r_x * r_x) | (grain_tag(g) != origin_tag)
                             else:
                                 hit &= ~exclude_origin | (o2 >= r_x * r_x)

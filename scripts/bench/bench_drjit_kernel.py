@@ -26,7 +26,8 @@ cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
         [--seeds 4] [--first-seed 0] [--configs drjit,drjit-exact,native-exact,native] [--exclusion origin|ball]
-        [--max-depth 16] [--drjit-cells kernel|scene|<number>] [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
+        [--max-depth 16] [--drjit-cells kernel|scene|<number>]
+        [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
 """
 
 from __future__ import annotations
@@ -158,8 +159,9 @@ def main() -> None:
             bench_lod.MAX_DEPTH[0] = args.max_depth
         wanted = set(args.configs.split(",")) | {REFERENCE}
         scenes = {c: load(mi, name, args.res, extra, defines) for c, extra in CONFIGS.items() if c in wanted}
-        if "drjit-exact" in scenes and "drjit" in scenes and not any(getattr(getattr(sh.interior_medium(), "data", None), "continuous_particles", 0)
-                   for sh in scenes["drjit"].shapes() if sh.interior_medium() is not None):
+        if "drjit-exact" in scenes and "drjit" in scenes and not any(
+                getattr(getattr(sh.interior_medium(), "data", None), "continuous_particles", 0)
+                for sh in scenes["drjit"].shapes() if sh.interior_medium() is not None):
             del scenes["drjit-exact"]  # no continuous class: the same medium as drjit
         imgs: dict = {c: [] for c in scenes}
         secs: dict = {c: [] for c in scenes}

@@ -78,6 +78,9 @@ def main() -> None:
             t = np.where(d > 0, (hi - o) / d, (lo - o) / d)
         return o, d, np.nan_to_num(t, nan=np.inf).min(axis=1).astype(np.float32).astype(np.float64)
 
+    # The phase check compares every site with the first one's pdf: one optics bin (a monodisperse cloud).
+    if int(np.max(np.asarray(core.core.flat_arrays()["bin"]))) != 0:
+        raise SystemExit(f"{args.scene}: several optics bins; the phase check needs a monodisperse cloud")
     print(f"{args.scene} exact, {k.grid.count} grains, extent {k.extent:.3g}")
     for kind in ("camera", "face", "inside"):
         o, d, tmax = rays(kind, 20000)

@@ -35,7 +35,8 @@ Notes
 * **Procedural clouds** (``storage = procedural``): nothing is stored; ``motes.drjit_procedural`` regenerates
   the grains of the tiles a ray or a site needs from the core's counter-seeded streams, the core's grains bit
   for bit (``DrJitProcedural.sample_free_flight`` and ``site_walk``). Every ray regenerates its tiles (the
-  native kernel caches bricks): 10-25x the native kernel's time on the CPU (``bench_drjit_kernel.py -D
+  native kernel caches bricks): exact (every grain walked), 11-21x the native kernel's time on the CPU; at the
+  defaults, whose field holds the classes no pixel resolves, as fast as native (``bench_drjit_kernel.py -D
   storage=procedural``). Its continuous classes are a field as a stored set's (previous note): the core's
   (``ProceduralParts::field``, the density's expected extinction of those classes per cell, 64 cells along the
   box's longest side), at rest where a drift moves the grains, as the native kernel's; the field's flight comes
@@ -46,71 +47,72 @@ Notes
   ones discrete) z -1.62, RMS/noise 0.92 over 16 seeds, and with a drift (``-D turbulence=0.05 -D time=1``)
   z -0.55, 1.00 over 24; a procedural white furnace of 17 558 continuous grains
   in 20 000 (``bench_drjit_furnace.py --storage procedural --continuous-count 1``) 1.00062 +- 0.00089.
-* **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` from the ray's origin up to its
-  ``maxt``, each grain interacting with probability 1 - exp(-tau_i), the nearest that does returned as
-  ``mint`` (``maxt`` = inf), ``hit = False`` where none. Its random numbers hash the ray (origin, direction,
-  ``maxt``) and the medium's ``seed``: a render is a function of scene, seed and spp. ``get_majorant`` returns
-  ``MAJORANT`` and ``get_scattering_coefficients`` sigma_s = sigma_t = ``MAJORANT``, sigma_n = 0, as the native
-  kernel does (``discrete``'s notes, "How it maps onto Mitsuba's delta tracking"): no null collisions; the
-  site's albedo rides on the phase function's value and weight.
-* **Parent exclusion without state: the origin tag.** A ray leaving a site must not meet the grain it scatters
-  from (its internal paths are in its phase function); the native kernel remembers events and skips the site's
-  grains. A Dr.Jit kernel cannot remember events per lane (a ``dr.gather`` from a buffer the same symbolic
-  kernel ``dr.scatter``\\ s into reads the contents from before the kernel), and Mitsuba's shadow rays
-  (``spawn_ray_to``, their direction the emitter's) carry nothing of ours: the rule must read the ray's
-  *origin* alone. Mitsuba puts a medium event at ``mei.p = ray(mint + (-log(1 - u)) / majorant) = fma(d, mint,
-  o)``, which with ``MAJORANT`` = 1e20 is fma(d, mint, o) exactly (mint > ~3e-12), and the rays leaving it,
-  scattered and shadow, start at p exactly (n = 0: ``offset_p`` adds 0). So ``intersect_aabb`` (``_tag_search``)
-  returns, among the floats t* = t + k delta near the flight's t (k = 0, 1, -1, 2, ...; delta ``_tag_step``: an ulp
-  of p's largest coordinate over the direction's largest component, or an ulp of t where that is coarser), the
-  first whose point lies inside its grain's ball (R_i, as the walk read it: ``want_ball``) and whose
-  ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates' float32 bits) equals its grain's
-  ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key). Every ray (camera, surface,
-  scattered, shadow) then skips exactly the grains whose ball (R_i grown by ``EXCLUDE_MARGIN``, which absorbs the
-  walk's rounding of the distance the search tested) holds its origin *and* whose grain tag is its origin's tag:
-  the grain it leaves, and 1 in 64 of the others holding that point. The rule is direction-free, so next-event
-  estimation and phase sampling see the same medium and their MIS weights stay unbiased (a tag on scattered
-  rays alone, with shadow rays skipping every ball holding their origin, read 1.0154 +- 0.0036 in the white
-  furnace). The ball bounds the shift, not the scene's size: the search has its ``TAG_SEARCH`` tries however
-  coarse its step, so a flight from far away (a camera far from a small cloud), whose step is t's ulp, finds its
-  tag as a near one does, and no ray needs a ball grown by the shift. Measured (``bench_drjit_dense.py --far``:
-  8192 flights into the dense cloud below from points 2, 5, 20 and 100 extents from their site): no tag found
-  0, 0, 0 and 2.4e-4 of the searches (with the earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and
-  0.59); shifts of 22 steps (median) and at most 293 (at 100 extents 7.6e-6 a step: at most 2.1e-3, a
-  twentieth of the grains' R). The remaining approximations: rays from other points (the camera, a surface,
-  the medium's boundary, a field event) skip each grain whose ball holds their origin with probability 1/64,
-  and a site's other holders are skipped with the same 1/64 (the native kernel skips none of them); at a site
-  of several coincident grains (projections within the site tolerance) the phase function mixes them all, as
-  the native kernel's site does, but the rays leaving it skip only the picked grain (and coincident grains of
-  its tag), where the native kernel skips the whole site; a search that finds no tag keeps the flight's t and
-  the rays leaving it may meet the grain again: (63/64)^``TAG_SEARCH`` = 1e-7 where the ball's chord holds the
-  tries (about 64 are needed), more at a grazing hit whose chord holds only a few steps (a share ~(32
-  delta / R)^2 of the hits: the 2.4e-4 at 100 extents); and the phase function's site search (below) admits a
-  grain of p's tag crossing the ray within the search's largest shift, which mixes its phase function in
-  (members per site in the dense cloud, where coincident grains are rare: 1.0013, 1.0017, 1.0040 and 1.0146 at
-  2, 5, 20 and 100 extents) or, from far away, misses a grazing hit that the walk's rounding (an ulp of the
-  coordinates where it enters the grain's cell) put inside the ball and the site search outside (1.2e-4 of
-  the sites at 100 extents: those paths end there). Measured (drjit against native exact, 2026-11-29): the
-  dense cloud of ``scripts/bench/bench_drjit_dense.py`` (20 000 grains of reach 0.04 in the unit cube, about 5
-  other balls holding a site) +0.03 %, z +0.09 over 128 seeds (the direction tag, skipping every ball holding
-  a site: +11.95 %, z +14.6 over 32); the same seen from 60 units, its medium entered 56 units from the cloud
-  (``--camera-distance 60``) +0.06 %, z +0.19 over 128 seeds; the white furnace
+* **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` (a procedural cloud:
+  ``DrJitProcedural.sample_free_flight``) from the ray's origin up to its ``maxt``, or up to the continuous field's
+  own flight where it has one (the nearer of the two wins), each grain interacting with probability 1 - exp(-tau_i),
+  the nearest that does returned as ``mint`` (``maxt`` = inf), ``hit = False`` where none. Its random numbers hash
+  the ray (origin, direction, ``maxt``) and the medium's ``seed``: a render is a function of scene, seed and spp.
+  ``get_majorant`` returns ``MAJORANT`` and ``get_scattering_coefficients`` sigma_s = sigma_t = ``MAJORANT``,
+  sigma_n = 0, as the native kernel does (``discrete``'s notes, "How it maps onto Mitsuba's delta tracking"): no
+  null collisions; the site's albedo rides on the phase function's value and weight.
+* **Parent exclusion without state: the origin tag.** A ray leaving a site must not meet the grain it scatters from
+  (its internal paths are in its phase function); the native kernel remembers events and skips the site's grains. A
+  Dr.Jit kernel cannot remember events per lane (a ``dr.gather`` from a buffer the same symbolic kernel
+  ``dr.scatter``\\ s into reads the contents from before the kernel), and Mitsuba's shadow rays (``spawn_ray_to``,
+  their direction the emitter's) carry nothing of ours: the rule must read the ray's *origin* alone. Mitsuba puts a
+  medium event at ``mei.p = ray(mint + (-log(1 - u)) / majorant) = fma(d, mint, o)``, which with ``MAJORANT`` = 1e20
+  is fma(d, mint, o) exactly (mint > ~3e-12), and the rays leaving it, scattered and shadow, start at p exactly (n =
+  0: ``offset_p`` adds 0). So ``intersect_aabb`` (``_tag_search``) returns, among the floats t* = t + k delta near
+  the flight's t (k = 0, 1, -1, 2, ...; delta ``_tag_step``: an ulp of p's largest coordinate over the direction's
+  largest component, or an ulp of t where that is coarser), the first whose point lies inside its grain's ball (R_i,
+  as the walk read it: ``want_ball``) and whose ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates'
+  float32 bits) equals its grain's ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key;
+  0 to 62: tag 63, ``FIELD_TAG``, is no grain's). A field event (continuous classes) moves, with no ball to stay in,
+  to a point of ``FIELD_TAG``. Every ray (camera, surface, scattered, shadow) then skips exactly the grains whose
+  ball (R_i grown by ``EXCLUDE_MARGIN``, which absorbs the walk's rounding of the distance the search tested) holds
+  its origin *and* whose grain tag is its origin's tag: from a site, the grain it leaves and 1 in 63 of the others
+  holding that point; from a field event, none. The rule is direction-free, so next-event estimation and phase
+  sampling see the same medium and their MIS weights stay unbiased (a tag on scattered rays alone, with shadow rays
+  skipping every ball holding their origin, read 1.0154 +- 0.0036 in the white furnace). The ball bounds the shift,
+  not the scene's size: the search has its ``TAG_SEARCH`` tries however coarse its step, so a flight from far away
+  (a camera far from a small cloud), whose step is t's ulp, finds its tag as a near one does, and no ray needs a
+  ball grown by the shift. Measured (``bench_drjit_dense.py --far``: 8192 flights into the dense cloud below from
+  points 2, 5, 20 and 100 extents from their site): no tag found 0, 0, 0 and 2.4e-4 of the searches (with the
+  earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and 0.59); shifts of 22 steps (median) and at most 293
+  (at 100 extents 7.6e-6 a step: at most 2.1e-3, a twentieth of the grains' R). The search needs ~64 steps inside
+  the ball's chord: where R < ~32 steps (R / |p|_max below ~4e-6, or flights from beyond ~R / 4e-6 units, 10^4 units
+  for R = 0.04) most searches fail. The remaining approximations: rays from other points (the camera, a surface, the
+  medium's boundary) skip each grain whose ball holds their origin with probability 1/64, and a site's other holders
+  are skipped with probability 1/63 (the native kernel skips none of them); at a site of several coincident grains
+  (projections within the site tolerance) the phase function mixes them all, as the native kernel's site does, but
+  the rays leaving it skip only the picked grain (and coincident grains of its tag), where the native kernel skips
+  the whole site; a search that finds no tag keeps the flight's t and the rays leaving it may meet the grain again:
+  (63/64)^``TAG_SEARCH`` = 1e-7 where the ball's chord holds the tries (about 64 are needed), more at a grazing hit
+  whose chord holds only a few steps (a share ~(32 delta / R)^2 of the hits: the 2.4e-4 at 100 extents); and the
+  phase function's site search (below) admits a grain of p's tag crossing the ray within the search's largest shift,
+  which mixes its phase function in (members per site in the dense cloud, where coincident grains are rare: 1.0013,
+  1.0017, 1.0040 and 1.0146 at 2, 5, 20 and 100 extents; none at a field event, whose tag no grain has). The site
+  search grows R by its base tolerance, so a far grazing hit that the walk's rounding put inside the ball is found
+  (without that, 1.2e-4 of the sites at 100 extents were missed and their paths ended there; now none). Measured
+  (drjit against native exact, 2026-11-29): the dense cloud of ``scripts/bench/bench_drjit_dense.py`` (20 000 grains
+  of reach 0.04 in the unit cube, about 5 other balls holding a site) +0.03 %, z +0.09 over 128 seeds (the direction
+  tag, skipping every ball holding a site: +11.95 %, z +14.6 over 32); the same seen from 60 units, its medium
+  entered 56 units from the cloud (``--camera-distance 60``) +0.06 %, z +0.19 over 128 seeds; the white furnace
   (``bench_drjit_furnace.py --variants llvm_ad_rgb --seeds 4``) 1.00000 +- 0.00064; the side-lit cloud
-  (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2``) z +0.37, RMS/noise
-  0.93 (the direction tag: z -0.28, 0.94).
+  (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2``) z +0.37, RMS/noise 0.93
+  (the direction tag: z -0.28, 0.94).
   ``EXCLUSION = "ball"`` (every ray skips every grain whose ball holds its origin, sites not moved) is kept for
   comparison: rays entering the cloud through the ball of a grain that straddles its box lose that grain
   (the side-lit cloud of ``scripts/bench/bench_lod.py``: 4.5 % darker than native, z -4.6, RMS/noise 3.65,
   ``scripts/bench/bench_drjit_kernel.py --scenes sidelit --exclusion ball``).
-* **Sites and phase function.** A free flight stops at the first grain that interacts; the phase function
-  finds the site from ``mei.p`` and ``mei.wi`` alone: the grains whose ball the incoming ray (through p along
-  -wi) crosses and whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's
-  ``DiscreteMedium::site_near``; ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``) and
-  ``FLIGHT_ROUNDING`` steps of the tag search at ``mei.t`` (the flight's own rounding of t, which beyond ~70
-  extents from the ray's origin outgrows the rest), or within that plus the tag search's largest shift where
-  the grain's tag is p's origin tag (the picked grain, moved along the ray by ``_tag_search``; the bound,
-  ``_shift_bound``, rebuilt from ``mei.t`` and p, since the step grows with t; the tag also keeps out most
-  grains that merely pass near).
+* **Sites and phase function.** A free flight stops at the first grain that interacts; the phase function finds the
+  site from ``mei.p`` and ``mei.wi`` alone: the grains whose ball the incoming ray (through p along -wi) crosses and
+  whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's ``DiscreteMedium::site_near``;
+  ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``) and ``FLIGHT_ROUNDING`` steps of the tag
+  search at ``mei.t`` (the flight's own rounding of t, which beyond ~70 extents from the ray's origin outgrows the
+  rest; R is grown by the same tolerance), or within that plus the tag search's largest shift where the grain's tag
+  is p's origin tag (the picked grain, moved along the ray by ``_tag_search``; the bound, ``_shift_bound``, rebuilt
+  from ``mei.t`` and p, since the step grows with t; the tag also keeps out most grains that merely pass near).
   They are in the cells of each size class within its reach of p. Per channel c, with tau_j the grains' grey optical
   depths and a_jc their bins' albedos (times ``albedo_scale``): value_c = sum_j tau_j a_jc f_jc(mu) / sum_j
   tau_j (the site's albedo times its mixture f_c = sum_j tau_j a_jc f_jc / sum_j tau_j a_jc), pdf = the mean
@@ -148,7 +150,7 @@ import numpy as np
 
 from ..drjit_field import DrJitField
 from ..drjit_procedural import DrJitProcedural
-from ..drjit_walk import DrJitGrid, fold_key, grain_tag, origin_tag
+from ..drjit_walk import FIELD_TAG, DrJitGrid, fold_key, grain_tag, origin_tag
 from ._bridge import depolarized, mueller_of
 
 #: What ``kernel`` takes, and its default (``default_kernel``: ``drjit`` in CUDA variants, the only one there).
@@ -574,6 +576,7 @@ class DrJitKernel:
                                                                   origin_tag=otag, want_ball=True)
             t, grain, ident = mi.Float(t), mi.Bool(valid), fold_key(key)
             t, valid = self._nearer(t, valid, t_f, hit_f)
+            ball = (ball[0], mi.Float(ball[1]))
         else:
             # Continuous size classes: the field's exact free flight first, then the grains up to its distance;
             # the two processes are independent, so the nearer interaction wins (``continuous/mod.rs``, as the
@@ -581,9 +584,10 @@ class DrJitKernel:
             seed = self._ray_seed(ray)
             t_f, hit_f, end = self._field_flight(ray, seed)
             if self.grid is not None:
-                t, _, valid, ident, ball = self.grid.sample_free_flight(ray.o, ray.d, end, seed, exclude_origin=True,
-                                                                        want_index=False, origin_tag=otag,
-                                                                        want_grain=True, want_ball=True)
+                t, _, valid, ident, *ball = self.grid.sample_free_flight(ray.o, ray.d, end, seed, exclude_origin=True,
+                                                                         want_index=False, origin_tag=otag,
+                                                                         want_grain=True, want_ball=tagged)
+                ball = ball[0] if tagged else None
             else:
                 t, valid = dr.full(mi.Float, dr.inf, dr.width(end)), dr.zeros(mi.Bool, dr.width(end))
                 ident = dr.zeros(mi.UInt32, dr.width(end))
@@ -591,8 +595,16 @@ class DrJitKernel:
             t, grain = mi.Float(t), mi.Bool(valid)
             t, valid = self._nearer(t, valid, t_f, hit_f)  # a field event keeps its point (no grain to tag)
         if tagged:
+            # A grain's event to a point of its grain's tag inside its ball; a field event (valid, no grain) to a
+            # point of ``FIELD_TAG``, no grain's: the rays leaving it skip no grain and its site admits none by tag
+            # (module docs). A field event may move either way (its segment's end is maxt; the grains before it
+            # were walked to its t, and a few ulps past it hold none but with probability ~ulp / spacing).
+            field_event = valid & ~grain
+            want = dr.select(grain, grain_tag(ident), FIELD_TAG)
+            radius = dr.select(grain, ball[1], dr.inf)
+            end = dr.select(grain, end, mi.Float(ray.maxt))
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-                t = self._tag_search(ray, t, grain_tag(ident), ball, grain, end)
+                t = self._tag_search(ray, t, want, (ball[0], radius), grain | field_event, end)
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -693,7 +705,7 @@ class DrJitKernel:
         return dr.clip(x0 - t * dm, 0.0, 2.0)
 
     # -- the site ----------------------------------------------------------------------------------
-    def _site_sums(self, p, d_in, waves, one_minus_mu, pick, active, t=0.0):
+    def _site_sums(self, p, d_in, waves, one_minus_mu, pick, active, t):
         """The walk of ``_site`` over the grains that could be part of the site at ``p``, ``t`` along its ray
         (``mei.t``: what bounds the tag search's shift, ``_shift_bound``) (stored: the cells within
         reach of ``p`` per size class; procedural: the tiles within the halo of ``p``'s, regenerated): per
@@ -752,8 +764,9 @@ class DrJitKernel:
     @dr.syntax
     def _stored_site_walk(self, p, d_in, tol, one_minus_mu, arg, step, state, active, tag=None):
         """``_site_sums``' walk of a stored grid: ``step`` at every grain of the cells within each size class's
-        reach of ``p``, with its membership of the site (``DiscreteMedium::site_near``'s rule; with ``tag`` =
-        (p's origin tag, a second tolerance) a member also has that grain tag or projects within the second)."""
+        reach of ``p``, with its membership of the site (``DiscreteMedium::site_near``'s rule, R grown by the base
+        tolerance: a far flight's rounding of t, across the ray too, may put a grazing site a hair outside; with
+        ``tag`` = (p's origin tag, the base tolerance) a member also has that grain tag or projects within it)."""
         g_ = self.grid
         F, I, U = mi.Float, mi.Int32, mi.UInt32
         n = dr.width(tol)
@@ -788,7 +801,8 @@ class DrJitKernel:
                     vx, vy, vz = centre[0] - px, centre[1] - py, centre[2] - pz
                     along = vx * dx + vy * dy + vz * dz
                     qx, qy, qz = vx - along * dx, vy - along * dy, vz - along * dz
-                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < radius * radius)
+                    rim = radius + (tag[1] if tag is not None else tol)  # the flight's rounding across, too
+                    member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < rim * rim)
                     if dr.hint(tag is not None, mode="scalar"):
                         member &= (grain_tag(g) == tag[0]) | (dr.abs(along) <= tag[1])
                     A, N, T, W, u, picked = step(g_.tau_of(code, member), g_.bin_of(code, member), member, one_minus_mu,
@@ -829,7 +843,7 @@ class DrJitKernel:
         u = dr.clip(u, 0.0, 0.99999994)
         return A, N, T + dr.select(member, 1.0, 0.0), W, u, dr.select(take, b, picked)
 
-    def _site(self, p, d_in, waves, one_minus_mu=None, pick=None, active=True, t=0.0):
+    def _site(self, p, d_in, waves, t, one_minus_mu=None, pick=None, active=True):
         """The site at ``p`` on the ray along ``d_in`` (module docs), its channels' wavelengths bracketed by
         ``waves`` (``_waves``), ``t`` along it (``mei.t``, ``_site_sums``). With ``one_minus_mu``: (elements per
         channel, ``elements[c][k]``, pdf, -); with ``pick`` = (channel, uniform): (-, members, (the picked grain's
@@ -864,7 +878,7 @@ class DrJitKernel:
             p1 += e[0]
         return out, dr.select(one, p1 / ch, pdf)
 
-    def _mixture(self, p, d_in, waves, one_minus_mu, active, t=0.0):
+    def _mixture(self, p, d_in, waves, one_minus_mu, active, t):
         """(elements per channel, pdf) at ``one_minus_mu`` of the site's mixture, summed over its grains in one walk:
         per channel sum_j tau_j a_jc e_jc / sum_j tau_j (the site's albedo times the mixture), the pdf the mean over
         channels of the mixture's F11."""
