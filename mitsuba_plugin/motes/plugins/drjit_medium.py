@@ -98,7 +98,7 @@ Notes
   of reach 0.04 in the unit cube, about 5 other balls holding a site) +0.03 %, z +0.09 over 128 seeds (the direction
   tag, skipping every ball holding a site: +11.95 %, z +14.6 over 32); the same seen from 60 units, its medium
   entered 56 units from the cloud (``--camera-distance 60``) +0.06 %, z +0.19 over 128 seeds; the white furnace
-  (``bench_drjit_furnace.py --variants llvm_ad_rgb --seeds 4``) 1.00000 +- 0.00064; the side-lit cloud
+  (``bench_drjit_furnace.py --variants llvm_ad_rgb --seeds 4``) 0.99931 +- 0.00065; the side-lit cloud
   (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2``) z +0.37, RMS/noise 0.93
   (the direction tag: z -0.28, 0.94).
   ``EXCLUSION = "ball"`` (every ray skips every grain whose ball holds its origin, sites not moved) is kept for
