@@ -78,8 +78,8 @@ Notes
   (a camera far from a small cloud), whose step is t's ulp, finds its tag as a near one does, and no ray needs a
   ball grown by the shift. Measured (``bench_drjit_dense.py --far``: 8192 flights into the dense cloud below from
   points 2, 5, 20 and 100 extents from their site): no tag found 0, 0, 0 and 2.4e-4 of the searches (with the
-  earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and 0.59); shifts of 22 steps (median) and at most 293
-  (at 100 extents 7.6e-6 a step: at most 2.1e-3, a twentieth of the grains' R). The search needs ~64 steps inside
+  earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and 0.59); shifts of 22 steps (median) and at most 336
+  (at 100 extents 7.6e-6 a step: at most 2.3e-3, a seventeenth of the grains' R). The search needs ~64 steps inside
   the ball's chord: where R < ~32 steps (R / |p|_max below ~4e-6, or flights from beyond ~R / 4e-6 units, 10^4 units
   for R = 0.04) most searches fail. The remaining approximations: rays from other points (the camera, a surface, the
   medium's boundary) skip each grain whose ball holds their origin with probability 1/64, and a site's other holders
@@ -90,8 +90,8 @@ Notes
   (63/64)^``TAG_SEARCH`` = 1e-7 where the ball's chord holds the tries (about 64 are needed), more at a grazing hit
   whose chord holds only a few steps (a share ~(32 delta / R)^2 of the hits: the 2.4e-4 at 100 extents); and the
   phase function's site search (below) admits a grain of p's tag crossing the ray within the search's largest shift,
-  which mixes its phase function in (members per site in the dense cloud, where coincident grains are rare: 1.0013,
-  1.0017, 1.0040 and 1.0146 at 2, 5, 20 and 100 extents; none at a field event, whose tag no grain has). The site
+  which mixes its phase function in (members per site in the dense cloud, where coincident grains are rare: 1.0015,
+  1.0016, 1.0044 and 1.0140 at 2, 5, 20 and 100 extents; none at a field event, whose tag no grain has). The site
   search grows R by its base tolerance, so a far grazing hit that the walk's rounding put inside the ball is found
   (without that, 1.2e-4 of the sites at 100 extents were missed and their paths ended there; now none). Measured
   (drjit against native exact, 2026-11-29): the dense cloud of ``scripts/bench/bench_drjit_dense.py`` (20 000 grains
