@@ -49,7 +49,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import EXCLUDE_MARGIN, face, fold_key, grain_tag, one_minus_exp
+from .drjit_walk import (EXCLUDE_MARGIN, face, fold_key, grain_hash, largest, one_minus_exp, origin_hash,
+                         tag_thresholds, tags_agree)
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -224,6 +225,13 @@ class DrJitProcedural:
         self._reach = mi.Float(np.asarray(e["reach"], dtype=np.float32))
         self._tau = mi.Float(np.asarray(e["tau"], dtype=np.float32))
         self._bin = mi.UInt32(np.asarray(e["bin"], dtype=np.uint32))
+        # The origin tag's bits where balls are a few ulps wide (``drjit_walk.tag_thresholds``): the balls holding
+        # a point where the density is 1 (lambda candidates a tile, each of a class by the cdf).
+        share = np.diff(np.concatenate([[0.0], np.asarray(e["cdf"], dtype=np.float64)]))
+        reach = np.asarray(e["reach"], dtype=np.float64)[codes]
+        tile = float(np.prod(self.size)) * abs(float(np.linalg.det(np.asarray(self.to_scene)[:, :3])))
+        self.holders = self.lam * float(np.sum(share * 4 / 3 * np.pi * reach**3)) / max(tile, 1e-300)
+        self.tag_thresholds = tag_thresholds(self.holders)
 
     # ---------------------------------------------------------------------------------------- the process
 
@@ -428,7 +436,7 @@ class DrJitProcedural:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             return self._walk(*_rays(origin, direction, t0, t1), None)[0]
 
-    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None, origin_tag=None,
+    def sample_free_flight(self, origin, direction, t0, t1, seed, exclude_origin=None, tagged=False,
                            want_ball=False):
         """Exact free flights on [t0, tmax): ``(t, key, code, valid)``: the t of the first grain that interacts
         (Float64, inf where none), its key (UInt64) and class code (UInt32), and whether there is one. Each grain
@@ -438,17 +446,18 @@ class DrJitProcedural:
         the first DDA step whose exit lies beyond an interaction (module docs): the distribution the core's
         free flight samples, not its sample. ``exclude_origin`` (a mask per ray, or None): those rays skip the
         grains whose ball holds their origin (grown by ``drjit_walk.EXCLUDE_MARGIN``), as
-        ``DrJitGrid.sample_free_flight`` does (a ray leaving a site); with ``origin_tag`` (per ray a UInt32) only
-        those whose ``grain_tag(fold_key(key))`` equals it. ``want_ball``: a fifth value, the grain's ball (centre
+        ``DrJitGrid.sample_free_flight`` does (a ray leaving a site); ``tagged``: only those whose tag the origin
+        carries (``drjit_walk.tags_agree``, the grain's hash ``grain_hash(fold_key(key))``). ``want_ball``: a fifth value, the grain's ball (centre
         [x, y, z] as the bricks store it and R, Float64; 0 where none): the medium plugin's tag search keeps a site
         inside it."""
         o, d, t0, t1 = _rays(origin, direction, t0, t1)
         seed = mi.UInt64(seed) + dr.zeros(mi.UInt64, dr.width(t0))
         exclude = dr.zeros(mi.Bool, dr.width(t0)) if exclude_origin is None else \
             mi.Bool(exclude_origin) | dr.zeros(mi.Bool, dr.width(t0))
-        if origin_tag is not None:
+        if tagged:  # the origin's hash and the magnitude its ulp scales with (``tags_agree``)
             n = dr.width(t0)
-            exclude = (exclude, mi.UInt32(origin_tag) + dr.zeros(mi.UInt32, n))
+            exclude = (exclude, origin_hash(origin[0], origin[1], origin[2]) + dr.zeros(mi.UInt32, n),
+                       largest(origin[0], origin[1], origin[2]) + dr.zeros(mi.Float, n))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             _, t, key, code, centre = self._walk(o, d, t0, t1, seed, exclude)
         valid = key != 0
@@ -549,7 +558,8 @@ class DrJitProcedural:
                 v = [pf[a] - o[a] for a in range(3)]
                 grown = reach * (1 + EXCLUDE_MARGIN)
                 holds = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown
-                hit &= ~(exclude[0] & holds & (grain_tag(fold_key(key)) == exclude[1]))
+                hit &= ~(exclude[0] & holds & tags_agree(exclude[1], grain_hash(fold_key(key)), mi.Float(reach),
+                                                         exclude[2], self.tag_thresholds))
             elif dr.hint(exclude is not None, mode="scalar"):
                 v = [pf[a] - o[a] for a in range(3)]
                 grown = reach * (1 + EXCLUDE_MARGIN)
@@ -586,15 +596,16 @@ class DrJitProcedural:
         tolerance, which holds the flight's rounding of t) and its centre projects on it within ``tol`` of ``p``
         (``DiscreteMedium::site_near``'s rule, in double precision); ``tau`` (Float)
         and ``bin`` its optical depth and optics bin. ``state``: a list of JIT values, returned updated. ``tag`` =
-        (the point's origin tag, a second tolerance): a member must then also have ``grain_tag(fold_key(key))``
-        equal to it, or project within the second tolerance (the medium plugin's site rule)."""
+        (the point's ``origin_hash``, a second tolerance, its ``largest``): a member must then also have its tag
+        there (``tags_agree``), or project within the second tolerance (the medium plugin's site rule)."""
         F = mi.Float64
         pp = [F(p[a]) for a in range(3)]
         dd = [F(d_in[a]) for a in range(3)]
         n = max(dr.width(pp[0]), dr.width(dd[0]), dr.width(tol))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             if tag is not None:
-                tag = (mi.UInt32(tag[0]) + dr.zeros(mi.UInt32, n), F(tag[1]) + dr.zeros(F, n))
+                tag = (mi.UInt32(tag[0]) + dr.zeros(mi.UInt32, n), F(tag[1]) + dr.zeros(F, n),
+                       mi.Float(tag[2]) + dr.zeros(mi.Float, n))
             return self._site_walk([x + dr.zeros(F, n) for x in pp], [x + dr.zeros(F, n) for x in dd],
                                    F(tol) + dr.zeros(F, n), visit, state, mi.Bool(active) | dr.zeros(mi.Bool, n), tag)
 
@@ -639,7 +650,9 @@ class DrJitProcedural:
             member = keep & (dr.abs(along) <= tol) & (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] < rim * rim)
             if dr.hint(tag is not None, mode="scalar"):
                 key = ((mi.UInt64(tile) << self.index_bits) | mi.UInt64(dr.minimum(kept, limit))) + 1
-                member &= (grain_tag(fold_key(key)) == tag[0]) | (dr.abs(along) <= tag[1])
+                # The search kept the picked grain's site inside its ball: its shift is also within R.
+                agree = tags_agree(tag[0], grain_hash(fold_key(key)), mi.Float(reach), tag[2], self.tag_thresholds)
+                member &= (agree & (dr.abs(along) <= tag[1] + reach)) | (dr.abs(along) <= tag[1])
             tau = dr.gather(mi.Float, self._tau, code, member)
             b = dr.gather(mi.UInt32, self._bin, code, member)
             state = visit(tau, b, member, state)

@@ -86,12 +86,19 @@ REACH_MARGIN = 1e-4
 #: own rounding of the same distance, ~1e-7 relative where the ray starts in the class's box).
 EXCLUDE_MARGIN = 1e-4
 _NONE = 0xFFFFFFFF
-#: Bits of the origin tag (``grain_tag``, ``origin_tag``; the medium plugin's "Parent exclusion").
+#: Bits of the origin tag at most (``grain_tag``, ``origin_tag``; the medium plugin's "Parent exclusion"); a small
+#: ball far from the origin gets fewer (``tag_bits``).
 TAG_BITS = 6
 TAG_MASK = (1 << TAG_BITS) - 1
 #: The one origin tag no grain has (grains' tags are 0 .. ``FIELD_TAG`` - 1): the medium plugin moves a field
-#: event to a point of this tag, so that the rays leaving it skip no grain and its site admits none by tag.
+#: event to a point of this tag, so that the rays leaving it skip no grain and its site admits none by tag. Its
+#: low b bits are all ones, which no grain's b-bit tag is (``tags_agree``), so it serves every ``tag_bits``.
 FIELD_TAG = TAG_MASK
+#: ``tag_bits``: all ``TAG_BITS`` wherever x = e(R) - e(m) >= ``TAG_FULL`` (e: a float's binary exponent; R a
+#: ball's inclusion radius, m the largest magnitude of a point's coordinates): the ball's chord then holds at least
+#: ~2^(x + 24) >= 8192 distinct float points along a central hit, and 6 bits miss their tag at less than ~1e-4 of
+#: the sites (grazing hits dominate: ~2 (64 / 2^(x + 24))^2). Every scene measured so far lies there.
+TAG_FULL = -11
 #: Lattice steps per cell edge of the lattice layout (module docs, "Layout"): the core's compact storage's
 #: (``LATTICE_PER_CELL`` in ``rust/motes-core/src/space/grid/slots.rs``).
 LATTICE_PER_CELL = 1 << 14
@@ -165,17 +172,85 @@ def _mix(x):
     return x ^ (x >> 16)
 
 
+def grain_hash(ident):
+    """A 32-bit hash (``mi.UInt32``) of a grain's identity (a stored grid: its position in the flat arrays; a
+    procedural cloud: its 64-bit key folded to 32 bits, ``fold_key``): its tag's source (``tags_agree``)."""
+    return _mix(mi.UInt32(ident) ^ 0x5BD1E995)
+
+
 def grain_tag(ident):
-    """A grain's tag (``mi.UInt32``, 0 .. ``FIELD_TAG`` - 1, uniform to 1e-8): a hash of its identity (a stored
-    grid: its position in the flat arrays; a procedural cloud: its 64-bit key folded to 32 bits, ``fold_key``)."""
-    return _mix(mi.UInt32(ident) ^ 0x5BD1E995) % FIELD_TAG
+    """A grain's ``TAG_BITS``-bit tag (``mi.UInt32``, 0 .. ``FIELD_TAG`` - 1, uniform to 1e-8)."""
+    return grain_hash(ident) % FIELD_TAG
+
+
+def origin_hash(x, y, z):
+    """A 32-bit hash (``mi.UInt32``) of a point's three float32 coordinates' bits: its tag's source."""
+    b = [dr.reinterpret_array(mi.UInt32, mi.Float(c)) for c in (x, y, z)]
+    return _mix(b[2] ^ _mix(b[1] ^ _mix(b[0] + _GOLDEN)))
 
 
 def origin_tag(x, y, z):
-    """A point's ``TAG_BITS``-bit tag (``mi.UInt32``): a hash of its three float32 coordinates' bits. A ray
-    skips a grain whose ball holds its origin only where the two tags agree (the medium plugin's docs)."""
-    b = [dr.reinterpret_array(mi.UInt32, mi.Float(c)) for c in (x, y, z)]
-    return _mix(b[2] ^ _mix(b[1] ^ _mix(b[0] + _GOLDEN))) & TAG_MASK
+    """A point's ``TAG_BITS``-bit tag (``mi.UInt32``). A ray skips a grain whose ball holds its origin only where
+    their tags agree (``tags_agree``; the medium plugin's docs)."""
+    return origin_hash(x, y, z) & TAG_MASK
+
+
+def largest(x, y, z):
+    """The largest magnitude of a point's coordinates (``mi.Float``): the scale of its float32 ulp."""
+    return dr.maximum(dr.maximum(dr.abs(mi.Float(x)), dr.abs(mi.Float(y))), dr.abs(mi.Float(z)))
+
+
+def _exponent(x):
+    """The binary exponent of float32 ``x`` (``mi.Int32``; 0 gives -127, inf and NaN 128)."""
+    return mi.Int32((dr.reinterpret_array(mi.UInt32, mi.Float(x)) >> 23) & 0xFF) - 127
+
+
+def tag_thresholds(holders: float) -> tuple:
+    """The tag's bits as a function of x = e(R) - e(m) (``TAG_FULL``) for a cloud where ``holders`` other balls
+    hold a site on average: (X_2, ..., X_6), b = 1 + the number of X_k <= x. Below ``TAG_FULL`` the ball's chord
+    holds only N ~ 2^(x + 24) distinct float points along a central hit (N sqrt(1 - s^2) at impact s R), too few to
+    find 6 bits in: b minimises the grains treated wrongly per site, the own grain's tag not found (the site keeps
+    its point, and the rays leaving it may meet the grain again), E_s[(1 - 2^-b)^(N sqrt(1 - s^2))], plus the other
+    balls holding a point skipped though they should not be, ``holders`` (1 / (2^b - 1) + 2^-b) (at a site, and
+    at any other origin inside a ball). Measured with ``scripts/bench/bench_drjit_dense.py --offset``."""
+    x = np.arange(-24, TAG_FULL)[:, None, None]  # below -24 a ball holds less than a float point across
+    bits = np.arange(1, TAG_BITS + 1)[None, :, None]
+    chord = np.sqrt(1 - (np.arange(512) + 0.5) / 512)[None, None, :]  # s^2 uniform over the disk
+    miss = ((1 - 2.0**-bits) ** (2.0 ** (x + 24) * chord)).mean(axis=2)
+    skip = float(holders) * (1 / (2.0**bits - 1) + 2.0**-bits)[:, :, 0]
+    best = 1 + np.argmin(miss + skip, axis=1)
+    best = np.minimum.accumulate(best[::-1])[::-1]  # nondecreasing in x: at most the best of every larger x
+    xs = x[:, 0, 0]
+    return tuple(int(xs[best >= k][0]) if np.any(best >= k) else TAG_FULL for k in range(2, TAG_BITS + 1))
+
+
+def ball_holders(radius: np.ndarray, volume: float) -> float:
+    """The mean number of balls (inclusion radii ``radius``, scene units) holding a point of a cloud of
+    ``volume``: their volumes' sum over it (``tag_thresholds``; a clumped cloud holds more at its sites)."""
+    r = np.asarray(radius, dtype=np.float64)
+    return float(np.sum(4 / 3 * np.pi * r**3) / max(float(volume), 1e-300))
+
+
+def tag_bits(radius, m, thresholds):
+    """The tag's bits (``mi.UInt32``, 1 .. ``TAG_BITS``) for a grain of inclusion radius ``radius`` at a point whose
+    largest coordinate's magnitude is ``m`` (``largest``), ``thresholds`` its cloud's ``tag_thresholds``: 6 wherever
+    R / m >= ~2^-11 (``TAG_FULL``), fewer in a ball of a few ulps, where a tag of 6 bits could not be found. A
+    function of R and of the point alone (their float32 exponents: no rounding can change it), so that the search
+    that moves a site (at its candidate point) and the rays leaving it (at their origin) agree."""
+    x = _exponent(radius) - _exponent(m)
+    b = mi.UInt32(1)
+    for xk in thresholds:
+        b += dr.select(x >= xk, 1, 0)
+    return b
+
+
+def tags_agree(o_hash, g_hash, radius, m, thresholds):
+    """Whether a point (its ``origin_hash`` ``o_hash`` and ``largest`` ``m``) carries the tag of a grain (its
+    ``grain_hash`` ``g_hash`` and inclusion radius ``radius``) in a cloud of ``thresholds``: with b =
+    ``tag_bits``, the point's low b bits equal the grain's hash mod 2^b - 1 (0 .. 2^b - 2: all ones is
+    ``FIELD_TAG``'s). At b = ``TAG_BITS``: ``origin_tag == grain_tag``."""
+    mask = (mi.UInt32(1) << tag_bits(radius, m, thresholds)) - 1
+    return (mi.UInt32(o_hash) & mask) == mi.UInt32(g_hash) % mask
 
 
 def fold_key(key):
@@ -221,6 +296,13 @@ class DrJitGrid:
         self.F = mi.Float64 if self.double else mi.Float
         spheres = np.ascontiguousarray(a["spheres"], dtype=np.float32).reshape(-1, 4)
         self.count = int(spheres.shape[0])
+        # The origin tag's bits where balls are a few ulps wide (``tag_thresholds``): the balls holding a point.
+        if self.count:
+            side = spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0) + 2 * float(spheres[:, 3].max())
+            self.holders = ball_holders(spheres[:, 3], float(np.prod(side.astype(np.float64))))
+        else:
+            self.holders = 0.0
+        self.tag_thresholds = tag_thresholds(self.holders)
         self.classes = int(len(a["class_cell"]))
         self.cells = int(len(a["start"]))
         self.bin = np.asarray(a["bin"]) if "bin" in a else None
@@ -345,15 +427,15 @@ class DrJitGrid:
         return dr.exp(-self.optical_depth(origin, direction, tmax))
 
     def sample_free_flight(self, origin, direction, tmax, u, *, exclude_origin=False, want_index=True,
-                           origin_tag=None, want_grain=False, want_ball=False):
+                           tagged=False, want_grain=False, want_ball=False):
         """Exact free flights on [0, tmax): ``(t, index, valid)``: the distance to the first grain that
         interacts (``self.F``; inf where none), the index the grid reports for it (``mi.UInt32``; 2^32 - 1
         where none) and whether there is one. ``u``: per ray a uniform ``mi.Float`` in [0, 1) (its bits seed
         the grains' draws) or a ``mi.UInt32`` seed (module docs). ``exclude_origin`` (a bool, or per ray a
         ``mi.Bool``): grains whose ball (radius R_i, grown by ``EXCLUDE_MARGIN``) holds the ray's origin are
         skipped (the medium plugin's stateless "parent" exclusion: a ray leaving a site skips its grains).
-        ``origin_tag`` (per ray a ``mi.UInt32``, with ``exclude_origin``): only those of such grains whose
-        ``grain_tag`` equals it are skipped (the medium plugin's origin tag). ``want_index=False``: no index
+        ``tagged`` (with ``exclude_origin``): only those of such grains whose tag the origin carries
+        (``tags_agree``) are skipped (the medium plugin's origin tag). ``want_index=False``: no index
         (None; the indices are then not uploaded). ``want_grain``: a further value, the grain's position in the
         flat arrays (2^32 - 1 where none). ``want_ball``: a further value, the grain's ball as the walk read it,
         (centre [x, y, z], R) in ``self.F`` (0 where none): the medium plugin's tag search keeps a site inside
@@ -363,7 +445,7 @@ class DrJitGrid:
         else:
             seed = dr.reinterpret_array(mi.UInt32, mi.Float(u))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-            _, t, g, *ball = self._walk(origin, direction, tmax, seed, exclude_origin, origin_tag, ball=want_ball)
+            _, t, g, *ball = self._walk(origin, direction, tmax, seed, exclude_origin, tagged, ball=want_ball)
         valid = g != _NONE
         index = dr.select(valid, dr.gather(mi.UInt32, self._index, g, valid), _NONE) if want_index else None
         out = (dr.select(valid, t, dr.inf), index, valid)
@@ -382,7 +464,7 @@ class DrJitGrid:
         return o, d, tmax, n
 
     @dr.syntax
-    def _walk(self, origin, direction, tmax, seed, exclude_origin=False, origin_tag=None, ball=False):
+    def _walk(self, origin, direction, tmax, seed, exclude_origin=False, tagged=False, ball=False):
         """The walk of every class (module docs): (optical depth, first interaction's t, its grain's position
         or 2^32 - 1); a free flight where ``seed`` is given, else the optical depth alone. ``ball`` (a free
         flight): a fourth value, the interacting grain's (centre [x, y, z], R) as the walk read them."""
@@ -392,8 +474,11 @@ class DrJitGrid:
         excluding = exclude_origin is not False
         if excluding:
             exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
-        tagged = excluding and origin_tag is not None
-        origin_tag = U(origin_tag) + dr.zeros(U, n) if tagged else None
+        tagged = excluding and bool(tagged)
+        # The origin's tag (``tags_agree``): its hash, and the magnitude its ulp scales with.
+        o_hash = origin_hash(origin[0], origin[1], origin[2]) + dr.zeros(U, n) if tagged else None
+        o_m = largest(origin[0], origin[1], origin[2]) + dr.zeros(mi.Float, n) if tagged else None
+        thresholds = self.tag_thresholds
         # A free flight's keys: a hash of the ray's seed, which each grain's draw mixes with its position.
         key0, key1 = mi.sample_tea_32(U(seed) + dr.zeros(U, n), U(0x2545F491), TEA_ROUNDS) if flight else (0, 0)
         tau = dr.zeros(F, n)
@@ -502,7 +587,8 @@ class DrJitGrid:
                             r_x = r_i * (1 + EXCLUDE_MARGIN)
                             o2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
                             if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain alone (and 1 in 63)
-                                hit &= ~exclude_origin | (o2 >= r_x * r_x) | (grain_tag(g) != origin_tag)
+                                hit &= ~exclude_origin | (o2 >= r_x * r_x) | ~tags_agree(o_hash, grain_hash(g),
+                                                                                         r_i, o_m, thresholds)
                             else:
                                 hit &= ~exclude_origin | (o2 >= r_x * r_x)
                         tau_i = F(self.tau_of(tid, hit))

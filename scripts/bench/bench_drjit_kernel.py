@@ -4,7 +4,9 @@ on the shipped scenes (``scenes_xml/*.xml``) in ``llvm_ad_rgb`` (or ``--variant`
 Per scene four configurations of its discrete medium: ``drjit`` (the drjit kernel at the scene's defaults: the
 size classes no pixel resolves as their field), ``drjit-exact`` (continuous_count = inf; rendered only where the
 scene's defaults leave continuous classes, else it is ``drjit``), ``native-exact`` (continuous_count = inf) and
-``native`` (the scene's defaults). Each renders ``--seeds`` times
+``native`` (the scene's defaults); ``native-null`` (only when asked with ``--configs``) is ``native-exact`` again
+with its own seeds, a null test: its z and RMS/noise show how far the statistics stray where nothing differs
+(heavy-tailed pixels make the noise estimate low). Each renders ``--seeds`` times
 at ``--res`` px and ``--spp`` spp after one warm-up render (the kernels compile there); the configurations
 take turns seed by seed, so that a busy machine slows them alike. Seeds differ between configurations
 (independent noise). Printed per configuration: the image mean, its z against ``native-exact`` (difference
@@ -25,7 +27,7 @@ kernel's default) renders the drjit configuration at the drjit kernel's own defa
 cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--first-seed 0] [--configs drjit,drjit-exact,native-exact,native] [--exclusion origin|ball]
+        [--seeds 4] [--first-seed 0] [--configs drjit,drjit-exact,native-exact,native,native-null] [--exclusion origin|ball]
         [--max-depth 16] [--drjit-cells kernel|scene|<number>]
         [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
 """
@@ -41,7 +43,8 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CONFIGS = {"drjit": {"kernel": "drjit"}, "drjit-exact": {"kernel": "drjit", "continuous_count": "inf"},
-           "native-exact": {"continuous_count": "inf"}, "native": {}}
+           "native-exact": {"continuous_count": "inf"}, "native": {},
+           "native-null": {"continuous_count": "inf"}}
 REFERENCE = "native-exact"
 #: Pairs compared after the table: the same settings on both kernels, and drjit's field against its exact walk.
 PAIRS = (("drjit", "native"), ("drjit", "drjit-exact"))
@@ -121,7 +124,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--first-seed", type=int, default=0, help="the first seed of each configuration's run")
-    ap.add_argument("--configs", default=",".join(CONFIGS),
+    ap.add_argument("--configs", default=",".join(c for c in CONFIGS if c != "native-null"),
                     help=f"the configurations rendered, of {','.join(CONFIGS)} ({REFERENCE} always)")
     ap.add_argument("--exclusion", choices=("origin", "ball"), default="origin")
     ap.add_argument("--max-depth", type=int, default=16, help="the side-lit cloud's integrator depth")

@@ -6,7 +6,8 @@ compare two such files pixel for pixel. The check behind "images bitwise unchang
     .venv/bin/python scripts/bench/image_bits.py compare /tmp/base.npz /tmp/new.npz
 
 (`pip install --no-deps --target /tmp/basepkg <checkout of the other commit>` installs the other build.)
-`--only NAME,NAME` renders a subset. Renders run on one Dr.Jit thread, so that two renders of one build
+`--only NAME,NAME` renders a subset; `--kernel drjit` renders every discrete medium with the Dr.Jit kernel
+(exact: `continuous_count = inf`, and its default) instead. Renders run on one Dr.Jit thread, so that two renders of one build
 agree to the bit (several threads accumulate the film in a varying order). `compare A1,A2 B` takes several
 references: in scalar_rgb the house scene renders one of two images from load to load (their means agree
 within noise; not yet understood), so its reference is both.
@@ -14,6 +15,7 @@ within noise; not yet understood), so its reference is both.
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -31,7 +33,7 @@ SCENES = (
 )
 
 
-def render(variant: str, out: str, only: set[str] | None = None) -> None:
+def render(variant: str, out: str, only: set[str] | None = None, kernel: str | None = None) -> None:
     import motes  # noqa: PLC0415
 
     motes.set_variant(variant)
@@ -47,8 +49,15 @@ def render(variant: str, out: str, only: set[str] | None = None) -> None:
         if only and name not in only:
             continue
         xml = Path(motes.__file__).parent / "scenes" / f"{scene}.xml"
-        sc = mi.load_file(str(xml), res="48", spp="8", **overrides)
-        images[name] = np.asarray(mi.render(sc, spp=8, seed=3))
+        if kernel is None:
+            sc = mi.load_file(str(xml), res="48", spp="8", **overrides)
+            images[name] = np.asarray(mi.render(sc, spp=8, seed=3))
+            continue
+        for label, extra in (("", ""), ("_exact", '<float name="continuous_count" value="inf"/>')):
+            tags = f'<string name="kernel" value="{kernel}"/>' + extra
+            text = re.sub(r'(<medium type="discrete"[^>]*>)', lambda m: m.group(1) + tags, xml.read_text())
+            sc = mi.load_string(text, res="48", spp="8", **overrides)
+            images[name + label] = np.asarray(mi.render(sc, spp=8, seed=3))
     np.savez(out, **images)
     print(f"{motes.__file__}: wrote {out}")
 
@@ -74,9 +83,14 @@ def compare(a_files: str, b_file: str) -> int:
 
 
 def main() -> None:
+    kernel = None
+    if "--kernel" in sys.argv:
+        i = sys.argv.index("--kernel")
+        kernel = sys.argv[i + 1]
+        del sys.argv[i:i + 2]
     if len(sys.argv) in (4, 6) and sys.argv[1] == "render":
         only = set(sys.argv[5].split(",")) if len(sys.argv) == 6 and sys.argv[4] == "--only" else None
-        render(sys.argv[2], sys.argv[3], only)
+        render(sys.argv[2], sys.argv[3], only, kernel)
     elif len(sys.argv) == 4 and sys.argv[1] == "compare":
         sys.exit(1 if compare(sys.argv[2], sys.argv[3]) else 0)
     else:

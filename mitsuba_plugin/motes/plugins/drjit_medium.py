@@ -67,7 +67,7 @@ Notes
   largest component, or an ulp of t where that is coarser), the first whose point lies inside its grain's ball (R_i,
   as the walk read it: ``want_ball``) and whose ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates'
   float32 bits) equals its grain's ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key;
-  0 to 62: tag 63, ``FIELD_TAG``, is no grain's). A field event (continuous classes) moves, with no ball to stay in,
+  0 to 62: tag 63, ``FIELD_TAG``, is no grain's; fewer bits in balls a few ulps wide, below, ``tags_agree``). A field event (continuous classes) moves, with no ball to stay in,
   to a point of ``FIELD_TAG``. Every ray (camera, surface, scattered, shadow) then skips exactly the grains whose
   ball (R_i grown by ``EXCLUDE_MARGIN``, which absorbs the walk's rounding of the distance the search tested) holds
   its origin *and* whose grain tag is its origin's tag: from a site, the grain it leaves and 1 in 63 of the others
@@ -79,9 +79,21 @@ Notes
   ball grown by the shift. Measured (``bench_drjit_dense.py --far``: 8192 flights into the dense cloud below from
   points 2, 5, 20 and 100 extents from their site): no tag found 0, 0, 0 and 2.4e-4 of the searches (with the
   earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and 0.59); shifts of 22 steps (median) and at most 336
-  (at 100 extents 7.6e-6 a step: at most 2.3e-3, a seventeenth of the grains' R). The search needs ~64 steps inside
-  the ball's chord: where R < ~32 steps (R / |p|_max below ~4e-6, or flights from beyond ~R / 4e-6 units, 10^4 units
-  for R = 0.04) most searches fail. The remaining approximations: rays from other points (the camera, a surface, the
+  (at 100 extents 7.6e-6 a step: at most 2.3e-3, a seventeenth of the grains' R). **Balls a few ulps wide.** A 6-bit tag
+  needs a few hundred distinct float points along the ball's chord (a central hit holds ~2^(x + 24), x = e(R) -
+  e(|p|_max), the difference of their binary exponents): below x = ``drjit_walk.TAG_FULL`` (-11; R / |p|_max below
+  ~5e-4, far outside every shipped scene, whose x >= -9) the tag has fewer bits, ``drjit_walk.tag_bits``, a
+  function of R and of the point alone (so the search at its candidate point and the rays leaving that point
+  agree), chosen per cloud (``tag_thresholds``) to minimise the grains treated wrongly per site: the own grain's
+  tag not found, against the other balls holding the point that a shorter tag skips (the mean number holding a
+  point, ``holders``, from the balls' volumes over the cloud's). Measured (``bench_drjit_dense.py --offset 10000``:
+  R = 0.04 at 10^4 units, x = -18, ~70 float points across; ``--far`` and renders at ``--sky 0``, against native
+  exact): a sparse cloud (``--count 500``, 0.11 balls holding a point) gets 3 bits, no tag found at 2.7 % of the
+  sites (6 bits: 50 %), the render -2.63 %, z -1.39 (6 bits: +8.47 %, z +4.10; 64 seeds of 64 spp); the dense
+  cloud (4.3 balls holding a point) gets 5 bits, no tag found at 28 % (50 %), the render +11.6 %, z +2.93 (6 bits:
+  +5.9 %, z +1.27; 32 seeds of 32 spp): where balls a few ulps wide overlap, neither rule is exact. A flight from
+  far away (its step t's ulp) has fewer points in the chord than ``tag_bits`` assumes: at 100 extents, 2.4e-4 of
+  the dense cloud's searches fail. The remaining approximations: rays from other points (the camera, a surface, the
   medium's boundary) skip each grain whose ball holds their origin with probability 1/64, and a site's other holders
   are skipped with probability 1/63 (the native kernel skips none of them); at a site of several coincident grains
   (projections within the site tolerance) the phase function mixes them all, as the native kernel's site does, but
@@ -110,9 +122,10 @@ Notes
   whose centre projects on it within ``4 coincide + 1e-6 |p|_max`` of p (the core's ``DiscreteMedium::site_near``;
   ``coincide`` = 1e-6 of the grains' extent, ``render/discrete/build.rs``) and ``FLIGHT_ROUNDING`` steps of the tag
   search at ``mei.t`` (the flight's own rounding of t, which beyond ~70 extents from the ray's origin outgrows the
-  rest; R is grown by the same tolerance), or within that plus the tag search's largest shift where the grain's tag
-  is p's origin tag (the picked grain, moved along the ray by ``_tag_search``; the bound, ``_shift_bound``, rebuilt
-  from ``mei.t`` and p, since the step grows with t; the tag also keeps out most grains that merely pass near).
+  rest; R is grown by the same tolerance), or within that plus the tag search's largest shift where p carries the
+  grain's tag (the picked grain, moved along the ray by ``_tag_search``; the bound, ``_shift_bound``, rebuilt
+  from ``mei.t`` and p, since the step grows with t, and at most the grain's R, since the search keeps p inside
+  its ball; the tag also keeps out most grains that merely pass near).
   They are in the cells of each size class within its reach of p. Per channel c, with tau_j the grains' grey optical
   depths and a_jc their bins' albedos (times ``albedo_scale``): value_c = sum_j tau_j a_jc f_jc(mu) / sum_j
   tau_j (the site's albedo times its mixture f_c = sum_j tau_j a_jc f_jc / sum_j tau_j a_jc), pdf = the mean
@@ -150,7 +163,8 @@ import numpy as np
 
 from ..drjit_field import DrJitField
 from ..drjit_procedural import DrJitProcedural
-from ..drjit_walk import FIELD_TAG, DrJitGrid, fold_key, grain_tag, origin_tag
+from ..drjit_walk import (FIELD_TAG, TAG_MASK, DrJitGrid, fold_key, grain_hash, largest, origin_hash, tag_thresholds,
+                          tags_agree)
 from ._bridge import depolarized, mueller_of
 
 #: What ``kernel`` takes, and its default (``default_kernel``: ``drjit`` in CUDA variants, the only one there).
@@ -494,7 +508,7 @@ class DrJitKernel:
 
     @staticmethod
     def _largest(v):
-        return dr.maximum(dr.maximum(dr.abs(v.x), dr.abs(v.y)), dr.abs(v.z))
+        return largest(v.x, v.y, v.z)
 
     @staticmethod
     def _inside(q, centre, radius):
@@ -507,10 +521,11 @@ class DrJitKernel:
         return v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < r * r
 
     @dr.syntax
-    def _tag_search(self, ray, t, want, ball, active, end):
+    def _tag_search(self, ray, t, g_hash, field, ball, active, end):
         """The t* near the flight's ``t`` whose point fma(d, t*, o) (Mitsuba's ``ray(t)``, the ``mei.p`` the phase
-        function and the rays leaving the site see: the majorant's step adds nothing to t*) carries the tag
-        ``want`` (``origin_tag``) and lies inside the picked grain's ``ball`` (centre, R as the walk read them):
+        function and the rays leaving the site see: the majorant's step adds nothing to t*) carries the tag of the
+        picked grain (its ``grain_hash`` ``g_hash``, ``tags_agree``) and lies inside the grain's ``ball`` (centre, R
+        as the walk read them), or where ``field`` (a field event: no grain, no ball) carries ``FIELD_TAG``:
         t + k delta for k = 0, 1, -1, 2, -2, ..., delta ``_tag_step``, at most ``TAG_SEARCH`` tries, and before
         ``end``, the end of the segment the walk searched (Mitsuba keeps an event at t* < maxt; with a
         continuous field, the grains' event must stay before the field's). The ball, not a share of the scene,
@@ -519,24 +534,32 @@ class DrJitKernel:
         F, U = mi.Float, mi.UInt32
         o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
         t = F(t)
-        want = U(want)
+        g_hash, field = U(g_hash), mi.Bool(field)
+        walked = self.grid if self.proc is None else self.proc  # a field alone: field events only
+        thresholds = walked.tag_thresholds if walked is not None else tag_thresholds(0.0)
         centre, radius = ball
         radius = F(radius)
+
+        def carries(q):  # whether point q carries the tag sought (the grain's at q's tag bits, or the field's)
+            h = origin_hash(q.x, q.y, q.z)
+            return dr.select(field, (h & TAG_MASK) == FIELD_TAG,
+                             tags_agree(h, g_hash, radius, self._largest(q), thresholds))
+
         p = dr.fma(d, t, o)
         delta = self._tag_step(t, self._largest(p), self._largest(d))
         best = F(t)
-        found = ~mi.Bool(active) | ((origin_tag(p.x, p.y, p.z) == want) & self._inside(p, centre, radius))
+        found = ~mi.Bool(active) | (carries(p) & (field | self._inside(p, centre, radius)))
         i = dr.zeros(U, dr.width(best))
         while ~found & (i < TAG_SEARCH):
             i += 1
             k = dr.select((i & 1) == 1, F((i + 1) >> 1), -F(i >> 1))
             tk = dr.fma(k, delta, t)
             pk = dr.fma(d, tk, o)
-            ok = (tk > 0) & (tk < end) & self._inside(pk, centre, radius)
-            hit = ok & (origin_tag(pk.x, pk.y, pk.z) == want)
+            ok = (tk > 0) & (tk < end) & (field | self._inside(pk, centre, radius))
+            hit = ok & carries(pk)
             best = dr.select(hit, tk, best)
             # Both sides spent once a step reaches past the ball's diameter (no chord is longer).
-            found |= hit | (F((i + 1) >> 1) * delta > 2 * radius)
+            found |= hit | (~field & (F((i + 1) >> 1) * delta > 2 * radius))
         return best
 
     def _field_flight(self, ray, seed):
@@ -564,7 +587,6 @@ class DrJitKernel:
         # Parent exclusion (module docs): every ray skips the grains whose ball holds its origin and whose grain
         # tag is its origin's tag; ``ball``: every grain whose ball holds it.
         tagged = EXCLUSION == "origin"
-        otag = origin_tag(ray.o.x, ray.o.y, ray.o.z) if tagged else None
         # ``end``: the end of the segment the grains are walked on (the field's flight, else maxt).
         if self.proc is not None:
             # The continuous classes' field first, then the regenerated grains up to its flight (as the stored
@@ -573,7 +595,7 @@ class DrJitKernel:
             t_f, hit_f, end = self._field_flight(ray, low)
             seed = mi.UInt64(low) | (mi.UInt64(self._ray_seed_high(low)) << 32)
             t, key, _, valid, ball = self.proc.sample_free_flight(ray.o, ray.d, 0.0, end, seed, exclude_origin=True,
-                                                                  origin_tag=otag, want_ball=True)
+                                                                  tagged=tagged, want_ball=True)
             t, grain, ident = mi.Float(t), mi.Bool(valid), fold_key(key)
             t, valid = self._nearer(t, valid, t_f, hit_f)
             ball = (ball[0], mi.Float(ball[1]))
@@ -585,7 +607,7 @@ class DrJitKernel:
             t_f, hit_f, end = self._field_flight(ray, seed)
             if self.grid is not None:
                 t, _, valid, ident, *ball = self.grid.sample_free_flight(ray.o, ray.d, end, seed, exclude_origin=True,
-                                                                         want_index=False, origin_tag=otag,
+                                                                         want_index=False, tagged=tagged,
                                                                          want_grain=True, want_ball=tagged)
                 ball = ball[0] if tagged else None
             else:
@@ -600,11 +622,9 @@ class DrJitKernel:
             # (module docs). A field event may move either way (its segment's end is maxt; the grains before it
             # were walked to its t, and a few ulps past it hold none but with probability ~ulp / spacing).
             field_event = valid & ~grain
-            want = dr.select(grain, grain_tag(ident), FIELD_TAG)
-            radius = dr.select(grain, ball[1], dr.inf)
             end = dr.select(grain, end, mi.Float(ray.maxt))
             with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-                t = self._tag_search(ray, t, want, (ball[0], radius), grain | field_event, end)
+                t = self._tag_search(ray, t, grain_hash(ident), field_event, ball, grain | field_event, end)
         return valid, dr.select(valid, mi.Float(t), dr.inf), dr.select(valid, dr.inf, -dr.inf)
 
     def get_majorant(self, mei, active=True):
@@ -726,7 +746,7 @@ class DrJitKernel:
         # The origin tag (module docs): a grain whose tag is p's within the search's shift of p (bounded from
         # the site's own t and p), or any grain within ``tol`` (a site whose tag search failed, or coincident
         # grains).
-        tag = (origin_tag(p.x, p.y, p.z), tol) if EXCLUSION == "origin" else None
+        tag = (origin_hash(p.x, p.y, p.z), tol, m) if EXCLUSION == "origin" else None
         if tag is not None:
             tol = tol + self._shift_bound(t, p, d_in)
         evaluating = one_minus_mu is not None
@@ -804,7 +824,10 @@ class DrJitKernel:
                     rim = radius + (tag[1] if tag is not None else tol)  # the flight's rounding across, too
                     member = (dr.abs(along) <= tol) & (qx * qx + qy * qy + qz * qz < rim * rim)
                     if dr.hint(tag is not None, mode="scalar"):
-                        member &= (grain_tag(g) == tag[0]) | (dr.abs(along) <= tag[1])
+                        # The search kept the picked grain's site inside its ball: its shift is also within R.
+                        shifted = (tags_agree(tag[0], grain_hash(g), radius, tag[2], g_.tag_thresholds)
+                                   & (dr.abs(along) <= tag[1] + radius))
+                        member &= shifted | (dr.abs(along) <= tag[1])
                     A, N, T, W, u, picked = step(g_.tau_of(code, member), g_.bin_of(code, member), member, one_minus_mu,
                                                  arg, A, N, T, W, u, picked)
                     g += 1
