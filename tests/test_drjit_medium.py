@@ -473,6 +473,32 @@ def test_continuous_classes_white_furnace():
     assert se < 0.005
 
 
+def test_empty_procedural_cloud_is_refused():
+    """A procedural cloud with neither discrete grains to regenerate nor a continuous field is refused by name, as a
+    stored set's is (the core makes none: here a cloud whose every class is continuous, its field hidden)."""
+    from motes.plugins.drjit_medium import DrJitKernel
+
+    llvm()
+    species = [motes.Species(motes.Uniform(15, 25), 1.33)]
+    data = motes.DiscreteMedium.procedural(10, species, [1.0], motes.RGB_WAVELENGTHS_UM, scale_m=1e-3,
+                                           query_radius=0.02, continuous_count=1e-300, cloud_seed=4)
+    assert data.core.procedural_export() is None and data.core.flat_field() is not None
+    DrJitKernel(data).ready()  # the field alone is walked
+
+    class Hidden:
+        """``inner`` with the attributes ``hide`` in place of its own (the core's ``flat_field``: the field hidden)."""
+
+        def __init__(self, inner, **hide):
+            self._inner, self._hide = inner, hide
+
+        def __getattr__(self, name):
+            return self._hide[name] if name in self._hide else getattr(self._inner, name)
+
+    empty = Hidden(data, core=Hidden(data.core, flat_field=lambda: None))
+    with pytest.raises(ValueError, match="neither grains to regenerate nor a continuous field"):
+        DrJitKernel(empty).ready()
+
+
 def test_procedural_field_flights_follow_beer_lambert():
     """A procedural cloud whose continuous_count leaves some classes continuous (the default on drjit, as native):
     ``intersect_aabb`` samples the field's flight and the regenerated grains' up to it, so 1 - exp(-tau(t)) of its

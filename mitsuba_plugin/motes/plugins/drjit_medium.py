@@ -295,6 +295,9 @@ class DrJitKernel:
         self.field = None if f is None else DrJitField(f)
         if data.core.procedural_cloud:
             self.proc = self._procedural_grains(data.core)
+            if self.proc is None and self.field is None:
+                raise ValueError("discrete medium: kernel = drjit found neither grains to regenerate nor a continuous "
+                                 "field in this procedural cloud (an empty medium)")
             extent = self.proc.extent() if self.proc is not None else self._field_extent()
         else:
             a = data.core.flat_arrays()
