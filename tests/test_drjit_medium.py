@@ -473,6 +473,32 @@ def test_continuous_classes_white_furnace():
     assert se < 0.005
 
 
+def test_empty_procedural_cloud_is_refused():
+    """A procedural cloud with neither discrete grains to regenerate nor a continuous field is refused by name, as a
+    stored set's is (the core makes none: here a cloud whose every class is continuous, its field hidden)."""
+    from motes.plugins.drjit_medium import DrJitKernel
+
+    llvm()
+    species = [motes.Species(motes.Uniform(15, 25), 1.33)]
+    data = motes.DiscreteMedium.procedural(10, species, [1.0], motes.RGB_WAVELENGTHS_UM, scale_m=1e-3,
+                                           query_radius=0.02, continuous_count=1e-300, cloud_seed=4)
+    assert data.core.procedural_export() is None and data.core.flat_field() is not None
+    DrJitKernel(data).ready()  # the field alone is walked
+
+    class Hidden:
+        """``inner`` with the attributes ``hide`` in place of its own (the core's ``flat_field``: the field hidden)."""
+
+        def __init__(self, inner, **hide):
+            self._inner, self._hide = inner, hide
+
+        def __getattr__(self, name):
+            return self._hide[name] if name in self._hide else getattr(self._inner, name)
+
+    empty = Hidden(data, core=Hidden(data.core, flat_field=lambda: None))
+    with pytest.raises(ValueError, match="neither grains to regenerate nor a continuous field"):
+        DrJitKernel(empty).ready()
+
+
 def test_procedural_field_flights_follow_beer_lambert():
     """A procedural cloud whose continuous_count leaves some classes continuous (the default on drjit, as native):
     ``intersect_aabb`` samples the field's flight and the regenerated grains' up to it, so 1 - exp(-tau(t)) of its
@@ -650,7 +676,8 @@ def test_small_balls_far_from_the_origin_find_their_tag():
     assert np.all(np.abs(skipped - np.round(skipped)) < 1e-3) and np.all(skipped >= 1) and np.mean(skipped > 1) < 0.1
 
 
-def test_sites_carry_their_grains_tag():
+@pytest.mark.parametrize("storage", ["stored", "procedural"])
+def test_sites_carry_their_grains_tag(storage):
     """The origin tag (drjit_medium's docs, "Parent exclusion"): Mitsuba's ``sample_interaction`` puts each event
     at fma(d, t, o) of the t ``intersect_aabb`` returns, bit for bit, and that point's origin tag is the grain's
     tag (its flight's grain, found again with the same seed), inside the grain's ball, and the phase function's
@@ -658,18 +685,26 @@ def test_sites_carry_their_grains_tag():
     search's step (the earlier bound, a share 2^-13 of the scene's extent, left 0.59 of such searches without
     a tag). A ray leaving it skips exactly the balls holding it whose grain tag is its tag: its own grain, and
     about 1 in 64 of the other grains whose ball holds it (the earlier direction tag skipped them all: a dense
-    cloud rendered 0.67 % brighter than native, z 5.7)."""
+    cloud rendered 0.67 % brighter than native, z 5.7). ``procedural``: the same of a procedural cloud of as many
+    grains in the same cube (its grains regenerated, ``DrJitProcedural.grains``; a grain's tag hashes its key)."""
     llvm()
-    from motes.drjit_walk import grain_tag, origin_tag
+    from motes.drjit_procedural import _rays
+    from motes.drjit_walk import fold_key, grain_tag, largest, origin_hash, origin_tag
 
     rng = np.random.default_rng(7)
     n = 5000
-    pos = rng.uniform(-0.5, 0.5, (n, 3))
-    path = str(__import__("pathlib").Path(__import__("tempfile").mkdtemp()) / "dense.npz")
-    np.savez(path, positions=pos, radii_um=np.full(n, 30.0))
-    med = mi.load_dict({"type": "discrete", "filename": path, "eta": 1.5, "scale_m": 1e-3, "query_radius": 0.03,
-                        "continuous_count": INF, "kernel": "drjit", "phase": {"type": "particle"}})
+    common = {"type": "discrete", "eta": 1.5, "scale_m": 1e-3, "query_radius": 0.03, "continuous_count": INF,
+              "kernel": "drjit", "phase": {"type": "particle"}}
+    if storage == "stored":
+        pos = rng.uniform(-0.5, 0.5, (n, 3))
+        path = str(__import__("pathlib").Path(__import__("tempfile").mkdtemp()) / "dense.npz")
+        np.savez(path, positions=pos, radii_um=np.full(n, 30.0))
+        med = mi.load_dict(dict(common, filename=path))
+    else:
+        med = mi.load_dict(dict(common, count=n, psd='{"type": "monodisperse", "radius_um": 30}', seed=7,
+                                storage="procedural", to_world=mi.ScalarTransform4f().scale(0.5)))
     k = med._drjit.ready()
+    assert (k.proc is not None) == (storage == "procedural")
     m = 384
     v = rng.normal(size=(m, 3))
     v /= np.linalg.norm(v, axis=1)[:, None]
@@ -679,8 +714,14 @@ def test_sites_carry_their_grains_tag():
     ray = mi.Ray3f(o, mi.Vector3f(*[mi.Float(v[:, a].astype(np.float32)) for a in range(3)]))
     mei = med.sample_interaction(ray, mi.Float(rng.uniform(0, 1, m).astype(np.float32)), mi.UInt32(0), True)
     valid, mint, _ = k.intersect_aabb(ray)
-    t, _, _, g = k.grid.sample_free_flight(ray.o, ray.d, ray.maxt, k._ray_seed(ray), exclude_origin=True,
-                                           want_index=False, tagged=True, want_grain=True)
+    if k.proc is None:
+        t, _, _, g = k.grid.sample_free_flight(ray.o, ray.d, ray.maxt, k._ray_seed(ray), exclude_origin=True,
+                                               want_index=False, tagged=True, want_grain=True)
+    else:  # intersect_aabb's 64-bit seed
+        low = k._ray_seed(ray)
+        seed = mi.UInt64(low) | (mi.UInt64(k._ray_seed_high(low)) << 32)
+        t, g, _, _ = k.proc.sample_free_flight(ray.o, ray.d, 0.0, ray.maxt, seed, exclude_origin=True, tagged=True)
+        t = mi.Float(t)  # as intersect_aabb rounds it
     _, members, _ = k._site(mei.p, ray.d, k._waves(mei), active=valid, t=mei.t)  # the phase function's search
     dr.eval(mei.p, valid, mint, t, g, members)  # one kernel
     ok = np.asarray(valid)
@@ -690,14 +731,27 @@ def test_sites_carry_their_grains_tag():
     q = np.array([np.asarray(dr.fma(ray.d, mint, ray.o)[a]) for a in range(3)])[:, ok]
     assert np.array_equal(p.view(np.uint32), q.view(np.uint32))  # mei.p = fma(d, mint, o), bit for bit
     tag_p = np.asarray(origin_tag(mei.p.x, mei.p.y, mei.p.z))[ok]
-    g = np.asarray(g)[ok]
-    assert np.array_equal(tag_p, np.asarray(grain_tag(mi.UInt32(g))))  # every search found its tag
+    ident = mi.UInt32(g) if k.proc is None else fold_key(g)
+    assert np.array_equal(tag_p, np.asarray(grain_tag(ident))[ok])  # every search found its tag
     shift = np.abs(np.asarray(mint, dtype=np.float64)[ok] - np.asarray(t, dtype=np.float64)[ok])
     assert np.all(shift <= np.asarray(k._shift_bound(mint, mei.p, ray.d))[ok])  # what the site search allows
     # Skipped from p: the balls (radius R_i) holding p whose grain tag is p's tag.
-    flat = k.data().core.flat_arrays()
-    sph = np.asarray(flat["spheres"], dtype=np.float64).reshape(-1, 4)
-    tags = np.asarray(grain_tag(mi.UInt32(np.arange(sph.shape[0], dtype=np.uint32))))
+    if k.proc is None:
+        flat = k.data().core.flat_arrays()
+        sph = np.asarray(flat["spheres"], dtype=np.float64).reshape(-1, 4)
+        tags = np.asarray(grain_tag(mi.UInt32(np.arange(sph.shape[0], dtype=np.uint32))))
+        tau = np.asarray(flat["tau"], dtype=np.float64)
+        g = np.asarray(g)[ok]
+    else:  # every grain, as the bricks store it (float32 centre and R), in key order
+        grains = k.proc.grains(np.arange(k.proc.tiles))
+        sph = np.column_stack([np.asarray(x, dtype=np.float32) for x in grains["position"]]
+                              + [np.asarray(grains["reach"])]).astype(np.float64)
+        tags = np.asarray(grain_tag(fold_key(grains["key"])))
+        tau = np.asarray(grains["tau"], dtype=np.float64)
+        keys = np.asarray(grains["key"])
+        flight_keys = np.asarray(g)[ok]
+        g = np.searchsorted(keys, flight_keys)
+        assert np.all(np.diff(keys.astype(np.int64)) > 0) and np.array_equal(keys[g], flight_keys)
     own, others, skipped = 0, 0, 0
     for j in range(p.shape[1]):
         holds = np.sum((sph[:, :3] - p[:, j]) ** 2, axis=1) < (sph[:, 3] * (1 + 1e-4)) ** 2
@@ -715,11 +769,16 @@ def test_sites_carry_their_grains_tag():
     w /= np.linalg.norm(w, axis=1)[:, None]
     pj, wj = mi.Point3f(*[mi.Float(p[a]) for a in range(3)]), mi.Vector3f(*[mi.Float(w[:, a]) for a in range(3)])
     with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
-        full, _, _ = k.grid._walk(pj, wj, INF, None)
-        cut, _, _ = k.grid._walk(pj, wj, INF, None, True, True)
+        if k.proc is None:
+            full, _, _ = k.grid._walk(pj, wj, INF, None)
+            cut, _, _ = k.grid._walk(pj, wj, INF, None, True, True)
+        else:
+            r = _rays(pj, wj, 0.0, INF)
+            full = k.proc._walk(*r, None)[0]
+            cut = k.proc._walk(*r, None, (dr.full(mi.Bool, True, p.shape[1]), origin_hash(pj.x, pj.y, pj.z),
+                                          largest(pj.x, pj.y, pj.z)))[0]
     dr.eval(full, cut)
     full, cut = np.asarray(full, dtype=np.float64), np.asarray(cut, dtype=np.float64)
-    tau = np.asarray(flat["tau"], dtype=np.float64)
     wf = w.astype(np.float32).astype(np.float64)
     for j in range(p.shape[1]):
         v = sph[:, :3] - p[:, j]
