@@ -607,11 +607,13 @@ def test_tag_bits_follow_the_balls_width_in_ulps():
     from motes.drjit_walk import (FIELD_TAG, TAG_FULL, grain_hash, grain_tag, origin_hash, origin_tag, tag_bits,
                                   tag_thresholds, tags_agree)
 
+    one = mi.Int32(0)  # the exponent of a point whose largest coordinate is in [1, 2)
+
     for holders in (0.0, 1e-3, 0.1, 1.0, 5.0, 100.0):
         th = tag_thresholds(holders)
         assert list(th) == sorted(th) and max(th) <= TAG_FULL
         radius = mi.Float(np.float32(2.0) ** np.arange(-30, 1, dtype=np.float32))
-        bits = np.asarray(tag_bits(radius, mi.Float(1.0), th))
+        bits = np.asarray(tag_bits(radius, one, th))
         assert np.all(np.diff(bits) >= 0) and bits.min() >= 1
         assert np.all(bits[np.arange(-30, 1) >= TAG_FULL] == 6)
     sparse, dense = tag_thresholds(0.1), tag_thresholds(5.0)
@@ -620,11 +622,18 @@ def test_tag_bits_follow_the_balls_width_in_ulps():
     xyz = [mi.Float(rng.uniform(-2, 2, 4096).astype(np.float32)) for _ in range(3)]
     ident = mi.UInt32(rng.integers(0, 2**32, 4096, dtype=np.uint64).astype(np.uint32))
     o_hash, g_hash = origin_hash(*xyz), grain_hash(ident)
-    agree = tags_agree(o_hash, g_hash, mi.Float(0.1), mi.Float(1.0), dense)
+    agree = tags_agree(o_hash, g_hash, mi.Float(0.1), one, dense)
     assert np.array_equal(np.asarray(agree), np.asarray(origin_tag(*xyz) == grain_tag(ident)))
     field = (np.asarray(o_hash) & 63) == FIELD_TAG
-    for r in (1e-7, 1e-5, 1e-3, 0.1):  # 1 .. 6 bits
-        assert not np.any(np.asarray(tags_agree(o_hash, g_hash, mi.Float(r), mi.Float(1.0), sparse))[field])
+    widths = set()
+    for r in 2.0 ** np.arange(-25, 0):  # every width, 1 .. 6 bits
+        widths.add(int(np.asarray(tag_bits(mi.Float(r), one, sparse))[0]))
+        assert not np.any(np.asarray(tags_agree(o_hash, g_hash, mi.Float(r), one, sparse))[field])
+        # Tags of b bits: a point carries a given grain's with probability 2^-b.
+        b = int(np.asarray(tag_bits(mi.Float(r), one, sparse))[0])
+        share = np.asarray(tags_agree(o_hash, g_hash, mi.Float(r), one, sparse)).mean()
+        assert abs(share - 2.0**-b) < 4 * np.sqrt(2.0**-b / 4096), (b, share)
+    assert widths == set(range(1, 7)), widths
 
 
 def test_small_balls_far_from_the_origin_find_their_tag():
@@ -633,7 +642,7 @@ def test_small_balls_far_from_the_origin_find_their_tag():
     native): its sites carry their grain's tag at fewer bits (``tag_bits``), inside its ball, at all but a few
     per cent of the sites, and a ray leaving a site skips its grain."""
     llvm()
-    from motes.drjit_walk import TAG_BITS, grain_hash, largest, origin_hash, tag_bits, tags_agree
+    from motes.drjit_walk import TAG_BITS, grain_hash, origin_hash, point_exponent, tag_bits, tags_agree
 
     rng = np.random.default_rng(11)
     n, offset = 500, np.array([1e4, 0.0, 0.0])
@@ -654,7 +663,7 @@ def test_small_balls_far_from_the_origin_find_their_tag():
                                                              exclude_origin=True, want_index=False, tagged=True,
                                                              want_grain=True, want_ball=True)
     p = dr.fma(ray.d, mint, ray.o)
-    m_p = largest(p.x, p.y, p.z)
+    m_p = point_exponent(p.x, p.y, p.z)
     agree = tags_agree(origin_hash(p.x, p.y, p.z), grain_hash(g), radius, m_p, th)
     bits = tag_bits(radius, m_p, th)
     # A ray leaving each site towards its grain's centre (so that it crosses the ball): the optical depth with
@@ -689,7 +698,7 @@ def test_sites_carry_their_grains_tag(storage):
     grains in the same cube (its grains regenerated, ``DrJitProcedural.grains``; a grain's tag hashes its key)."""
     llvm()
     from motes.drjit_procedural import _rays
-    from motes.drjit_walk import fold_key, grain_tag, largest, origin_hash, origin_tag
+    from motes.drjit_walk import fold_key, grain_tag, origin_hash, origin_tag, point_exponent
 
     rng = np.random.default_rng(7)
     n = 5000
@@ -776,7 +785,7 @@ def test_sites_carry_their_grains_tag(storage):
             r = _rays(pj, wj, 0.0, INF)
             full = k.proc._walk(*r, None)[0]
             cut = k.proc._walk(*r, None, (dr.full(mi.Bool, True, p.shape[1]), origin_hash(pj.x, pj.y, pj.z),
-                                          largest(pj.x, pj.y, pj.z)))[0]
+                                          point_exponent(pj.x, pj.y, pj.z)))[0]
     dr.eval(full, cut)
     full, cut = np.asarray(full, dtype=np.float64), np.asarray(cut, dtype=np.float64)
     wf = w.astype(np.float32).astype(np.float64)

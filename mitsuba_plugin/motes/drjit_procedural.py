@@ -55,8 +55,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .drjit_walk import (EXCLUDE_MARGIN, face, fold_key, grain_hash, largest, near, one_minus_exp, origin_hash,
-                         tag_thresholds, tags_agree)
+from .drjit_walk import (EXCLUDE_MARGIN, face, fold_key, grain_hash, near, one_minus_exp, origin_hash,
+                         point_exponent, tag_thresholds, tags_agree)
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -256,7 +256,8 @@ class DrJitProcedural:
         rows = np.linalg.norm(np.asarray(self.to_cloud, dtype=np.float64)[:, :3], axis=1)
         self.cell_reach = [float(self.near_reach * rows[a] / self.size[a]) * (1 + 1e-9) for a in range(3)]
         # The origin tag's bits where balls are a few ulps wide (``drjit_walk.tag_thresholds``): the balls holding
-        # a point where the density is 1 (lambda candidates a tile, each of a class by the cdf).
+        # a point where the density is at its bound (lambda candidates a tile, before thinning, each of a class by
+        # the cdf): the densest region's, which errs towards more bits.
         share = np.diff(np.concatenate([[0.0], np.asarray(e["cdf"], dtype=np.float64)]))
         reach = np.asarray(e["reach"], dtype=np.float64)[codes]
         tile = float(np.prod(self.size)) * abs(float(np.linalg.det(m4s[:, :3])))
@@ -328,7 +329,7 @@ class DrJitProcedural:
         # dr.binary_search(0, n_codes - 1, cdf[i] <= u) (the first i with cdf[i] > u, else the last) within u's
         # bucket of the guide: u >= b / M, so every i below guide[b] has cdf[i] <= u; u < (b + 1) / M, so
         # cdf[guide[b + 1]] > u (or it is the last class).
-        b = mi.UInt32(u * self._guide_m)
+        b = dr.minimum(mi.UInt32(u * self._guide_m), self._guide_m - 1)  # u rounds to 1.0 once in 2^53
         start = dr.gather(mi.UInt32, self._guide, b)
         end = dr.gather(mi.UInt32, self._guide, b + 1)
         while start < end:
@@ -493,17 +494,17 @@ class DrJitProcedural:
         free flight samples, not its sample. ``exclude_origin`` (a mask per ray, or None): those rays skip the
         grains whose ball holds their origin (grown by ``drjit_walk.EXCLUDE_MARGIN``), as
         ``DrJitGrid.sample_free_flight`` does (a ray leaving a site); ``tagged``: only those whose tag the origin
-        carries (``drjit_walk.tags_agree``, the grain's hash ``grain_hash(fold_key(key))``). ``want_ball``: a fifth value, the grain's ball (centre
-        [x, y, z] as the bricks store it and R, Float64; 0 where none): the medium plugin's tag search keeps a site
-        inside it."""
+        carries (``drjit_walk.tags_agree``, the grain's hash ``grain_hash(fold_key(key))``). ``want_ball``: a fifth
+        value, the grain's ball (centre [x, y, z] as the bricks store it and R, Float64; 0 where none): the medium
+        plugin's tag search keeps a site inside it."""
         o, d, t0, t1 = _rays(origin, direction, t0, t1)
         seed = mi.UInt64(seed) + dr.zeros(mi.UInt64, dr.width(t0))
         exclude = dr.zeros(mi.Bool, dr.width(t0)) if exclude_origin is None else \
             mi.Bool(exclude_origin) | dr.zeros(mi.Bool, dr.width(t0))
-        if tagged:  # the origin's hash and the magnitude its ulp scales with (``tags_agree``)
+        if tagged:  # the origin's hash and the exponent its ulp scales with (``tags_agree``)
             n = dr.width(t0)
             exclude = (exclude, origin_hash(origin[0], origin[1], origin[2]) + dr.zeros(mi.UInt32, n),
-                       largest(origin[0], origin[1], origin[2]) + dr.zeros(mi.Float, n))
+                       point_exponent(origin[0], origin[1], origin[2]) + dr.zeros(mi.Int32, n))
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             _, t, key, code, centre = self._walk(o, d, t0, t1, seed, exclude, want_ball)
         valid = key != 0
@@ -689,7 +690,7 @@ class DrJitProcedural:
         tolerance, which holds the flight's rounding of t) and its centre projects on it within ``tol`` of ``p``
         (``DiscreteMedium::site_near``'s rule, in double precision); ``tau`` (Float)
         and ``bin`` its optical depth and optics bin. ``state``: a list of JIT values, returned updated. ``tag`` =
-        (the point's ``origin_hash``, a second tolerance, its ``largest``): a member must then also have its tag
+        (the point's ``origin_hash``, a second tolerance, its ``point_exponent``): a member must then also have its tag
         there (``tags_agree``), or project within the second tolerance (the medium plugin's site rule)."""
         F = mi.Float64
         pp = [F(p[a]) for a in range(3)]
@@ -698,7 +699,7 @@ class DrJitProcedural:
         with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, True):
             if tag is not None:
                 tag = (mi.UInt32(tag[0]) + dr.zeros(mi.UInt32, n), F(tag[1]) + dr.zeros(F, n),
-                       mi.Float(tag[2]) + dr.zeros(mi.Float, n))
+                       mi.Int32(tag[2]) + dr.zeros(mi.Int32, n))
             return self._site_walk([x + dr.zeros(F, n) for x in pp], [x + dr.zeros(F, n) for x in dd],
                                    F(tol) + dr.zeros(F, n), visit, state, mi.Bool(active) | dr.zeros(mi.Bool, n), tag)
 
@@ -764,7 +765,10 @@ class DrJitProcedural:
         """``visit`` at one kept candidate (rest position ``q``, class ``code``) with its membership of the site."""
         F = mi.Float64
         # The drift only where the rest position is within its bound of the site.
-        reach, q = self._placed(True, q, code, lambda x, r_d: sum((x[a] - p[a]) ** 2 for a in range(3)) < r_d * r_d)
+        # (A member lies within its R, the base tolerance and ``tol`` of p.)
+        near_p = tol + (tag[1] if tag is not None else tol)
+        reach, q = self._placed(True, q, code,
+                                lambda x, r_d: sum((x[a] - p[a]) ** 2 for a in range(3)) < (r_d + near_p) ** 2)
         v = [F(mi.Float(q[a])) - p[a] for a in range(3)]
         along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2]
         w = [v[a] - along * d[a] for a in range(3)]

@@ -205,6 +205,12 @@ def _exponent(x):
     return mi.Int32((dr.reinterpret_array(mi.UInt32, mi.Float(x)) >> 23) & 0xFF) - 127
 
 
+def point_exponent(x, y, z):
+    """The binary exponent of a point's ``largest`` coordinate (``mi.Int32``): what its tag's width reads of it
+    (``tag_bits``), computed once per point."""
+    return _exponent(largest(x, y, z))
+
+
 def tag_thresholds(holders: float) -> tuple:
     """The tag's bits as a function of x = e(R) - e(m) (``TAG_FULL``) for a cloud where ``holders`` other balls
     hold a site on average: (X_2, ..., X_6), b = 1 + the number of X_k <= x. Below ``TAG_FULL`` the ball's chord
@@ -213,11 +219,13 @@ def tag_thresholds(holders: float) -> tuple:
     its point, and the rays leaving it may meet the grain again), E_s[(1 - 2^-b)^(N sqrt(1 - s^2))], plus the other
     balls holding a point skipped though they should not be, ``holders`` (1 / (2^b - 1) + 2^-b) (at a site, and
     at any other origin inside a ball). Measured with ``scripts/bench/bench_drjit_dense.py --offset``."""
-    x = np.arange(-24, TAG_FULL)[:, None, None]  # below -24 a ball holds less than a float point across
+    # Below x = -24 a ball holds less than a float point across: 1 bit there whatever the cloud.
+    x = np.arange(-24, TAG_FULL)[:, None, None]
     bits = np.arange(1, TAG_BITS + 1)[None, :, None]
     chord = np.sqrt(1 - (np.arange(512) + 0.5) / 512)[None, None, :]  # s^2 uniform over the disk
     miss = ((1 - 2.0**-bits) ** (2.0 ** (x + 24) * chord)).mean(axis=2)
-    skip = float(holders) * (1 / (2.0**bits - 1) + 2.0**-bits)[:, :, 0]
+    holders = float(holders) if np.isfinite(holders) else 1e30  # NaN or inf: as dense as can be (6 bits)
+    skip = max(holders, 0.0) * (1 / (2.0**bits - 1) + 2.0**-bits)[:, :, 0]
     best = 1 + np.argmin(miss + skip, axis=1)
     best = np.minimum.accumulate(best[::-1])[::-1]  # nondecreasing in x: at most the best of every larger x
     xs = x[:, 0, 0]
@@ -231,26 +239,30 @@ def ball_holders(radius: np.ndarray, volume: float) -> float:
     return float(np.sum(4 / 3 * np.pi * r**3) / max(float(volume), 1e-300))
 
 
-def tag_bits(radius, m, thresholds):
+def tag_bits(radius, m_exp, thresholds):
     """The tag's bits (``mi.UInt32``, 1 .. ``TAG_BITS``) for a grain of inclusion radius ``radius`` at a point whose
-    largest coordinate's magnitude is ``m`` (``largest``), ``thresholds`` its cloud's ``tag_thresholds``: 6 wherever
-    R / m >= ~2^-11 (``TAG_FULL``), fewer in a ball of a few ulps, where a tag of 6 bits could not be found. A
-    function of R and of the point alone (their float32 exponents: no rounding can change it), so that the search
-    that moves a site (at its candidate point) and the rays leaving it (at their origin) agree."""
-    x = _exponent(radius) - _exponent(m)
+    largest coordinate's exponent is ``m_exp`` (``point_exponent``), ``thresholds`` its cloud's ``tag_thresholds``:
+    6 wherever R / m >= ~2^-11 (``TAG_FULL``), fewer in a ball of a few ulps, where a tag of 6 bits could not be
+    found. A function of R and of the point alone (their float32 exponents: no rounding can change it), so that the
+    search that moves a site (at its candidate point) and the rays leaving it (at their origin) agree."""
+    x = _exponent(radius) - mi.Int32(m_exp)
     b = mi.UInt32(1)
     for xk in thresholds:
         b += dr.select(x >= xk, 1, 0)
     return b
 
 
-def tags_agree(o_hash, g_hash, radius, m, thresholds):
-    """Whether a point (its ``origin_hash`` ``o_hash`` and ``largest`` ``m``) carries the tag of a grain (its
-    ``grain_hash`` ``g_hash`` and inclusion radius ``radius``) in a cloud of ``thresholds``: with b =
-    ``tag_bits``, the point's low b bits equal the grain's hash mod 2^b - 1 (0 .. 2^b - 2: all ones is
-    ``FIELD_TAG``'s). At b = ``TAG_BITS``: ``origin_tag == grain_tag``."""
-    mask = (mi.UInt32(1) << tag_bits(radius, m, thresholds)) - 1
-    return (mi.UInt32(o_hash) & mask) == mi.UInt32(g_hash) % mask
+def tags_agree(o_hash, g_hash, radius, m_exp, thresholds):
+    """Whether a point (its ``origin_hash`` ``o_hash`` and ``point_exponent`` ``m_exp``) carries the tag of a grain
+    (its ``grain_hash`` ``g_hash`` and inclusion radius ``radius``) in a cloud of ``thresholds``: with b =
+    ``tag_bits``, the point's low b bits equal the grain's b-bit tag, 0 .. 2^b - 2 (all ones is ``FIELD_TAG``'s):
+    at b = ``TAG_BITS`` ``grain_tag`` (so ``origin_tag == grain_tag``), below it the hash's top bits scaled to
+    0 .. 2^b - 2 (a multiplication, where a modulo by a varying 2^b - 1 would be a division on every test)."""
+    bits = tag_bits(radius, m_exp, thresholds)
+    mask = (mi.UInt32(1) << bits) - 1
+    g_hash = mi.UInt32(g_hash)
+    narrow = mi.UInt32((mi.UInt64(g_hash) * mi.UInt64(mask)) >> 32)
+    return (mi.UInt32(o_hash) & mask) == dr.select(bits == TAG_BITS, g_hash % FIELD_TAG, narrow)
 
 
 def fold_key(key):
@@ -475,9 +487,9 @@ class DrJitGrid:
         if excluding:
             exclude_origin = mi.Bool(exclude_origin) | dr.zeros(mi.Bool, n)
         tagged = excluding and bool(tagged)
-        # The origin's tag (``tags_agree``): its hash, and the magnitude its ulp scales with.
+        # The origin's tag (``tags_agree``): its hash, and the exponent its ulp scales with.
         o_hash = origin_hash(origin[0], origin[1], origin[2]) + dr.zeros(U, n) if tagged else None
-        o_m = largest(origin[0], origin[1], origin[2]) + dr.zeros(mi.Float, n) if tagged else None
+        o_m = point_exponent(origin[0], origin[1], origin[2]) + dr.zeros(mi.Int32, n) if tagged else None
         thresholds = self.tag_thresholds
         # A free flight's keys: a hash of the ray's seed, which each grain's draw mixes with its position.
         key0, key1 = mi.sample_tea_32(U(seed) + dr.zeros(U, n), U(0x2545F491), TEA_ROUNDS) if flight else (0, 0)
@@ -586,7 +598,7 @@ class DrJitGrid:
                             w = [v[a] + t_enter * d[a] for a in range(3)]
                             r_x = r_i * (1 + EXCLUDE_MARGIN)
                             o2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
-                            if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain alone (and 1 in 63)
+                            if dr.hint(tagged, mode="scalar"):  # the origin tag: its grain (and 1 in 2^b - 1 others)
                                 hit &= ~exclude_origin | (o2 >= r_x * r_x) | ~tags_agree(o_hash, grain_hash(g),
                                                                                          r_i, o_m, thresholds)
                             else:

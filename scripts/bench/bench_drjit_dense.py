@@ -61,13 +61,14 @@ def dense_scene(mi, path: str, kernel: str, res: int, max_depth: int, camera_dis
                    "sampler": {"type": "independent"}},
         "lamp": {"type": "point", "position": [x0 - 3.0, 0.5, 0.0], "intensity": {"type": "rgb", "value": 10.0}},
         "env": {"type": "constant", "radiance": {"type": "rgb", "value": float(sky)}},
-        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium, "to_world": T().translate([x0, 0, 0]) @ T().scale(half)}})
+        "cube": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium,
+                 "to_world": T().translate([x0, 0, 0]) @ T().scale(half)}})
 
 
 def far(mi, path: str, offset: float = 0.0) -> None:
     import drjit as dr  # noqa: PLC0415
 
-    from motes.drjit_walk import grain_hash, largest, origin_hash, tag_bits, tags_agree  # noqa: PLC0415
+    from motes.drjit_walk import grain_hash, origin_hash, point_exponent, tag_bits, tags_agree  # noqa: PLC0415
 
     med = mi.load_dict({"type": "discrete", "filename": path, "eta": 1.5, "scale_m": 1e-3, "query_radius": 0.02,
                         "continuous_count": float("inf"), "kernel": "drjit", "phase": {"type": "particle"}})
@@ -94,7 +95,7 @@ def far(mi, path: str, offset: float = 0.0) -> None:
         c = np.array([np.asarray(centre[a]) for a in range(3)])[:, ok]
         q = np.array([np.asarray(p[a]) for a in range(3)])[:, ok]
         inside = np.sum((q - c) ** 2, axis=0) < np.asarray(radius)[ok] ** 2
-        m_p = largest(p.x, p.y, p.z)
+        m_p = point_exponent(p.x, p.y, p.z)
         agree = tags_agree(origin_hash(p.x, p.y, p.z), grain_hash(g), radius, m_p, k.grid.tag_thresholds)
         bits = np.asarray(tag_bits(radius, m_p, k.grid.tag_thresholds))[ok]
         miss = ~np.asarray(agree)[ok] | ~inside
@@ -119,7 +120,8 @@ def main() -> None:
     ap.add_argument("--camera-distance", type=float, default=5.0,
                     help="the camera's distance from the cloud (its field of view narrowed to keep the frame)")
     ap.add_argument("--sky", type=float, default=0.05, help="the sky's radiance (0: the lamp's scattered light alone)")
-    ap.add_argument("--count", type=int, default=20000, help="grains in the unit cube (20 000: about 5 balls hold a point)")
+    ap.add_argument("--count", type=int, default=20000,
+                    help="grains in the unit cube (20 000: about 5 balls hold a point)")
     ap.add_argument("--offset", type=float, default=0.0,
                     help="the whole scene moved this far along x: the grains' R over their coordinates shrinks")
     args = ap.parse_args()
@@ -147,7 +149,8 @@ def main() -> None:
     z = (ma.mean() - mb.mean()) / np.hypot(ma.std(ddof=1), mb.std(ddof=1)) * np.sqrt(len(ma))
     noise = a.var(axis=0, ddof=1) / a.shape[0] + b.var(axis=0, ddof=1) / b.shape[0]
     rms = float(np.sqrt(np.mean((a.mean(0) - b.mean(0)) ** 2) / np.mean(noise)))
-    print(f"cloud of {args.count} grains, exclusion {args.exclusion}, camera at {args.camera_distance:g}, offset {args.offset:g}, sky {args.sky:g}, {args.seeds} seeds, "
+    print(f"cloud of {args.count} grains, exclusion {args.exclusion}, camera at {args.camera_distance:g}, "
+          f"offset {args.offset:g}, sky {args.sky:g}, {args.seeds} seeds, "
           f"{args.res} px, {args.spp} spp, depth {args.max_depth}: drjit {ma.mean():.6f}, native exact "
           f"{mb.mean():.6f}, {100 * (ma.mean() / mb.mean() - 1):+.3f} %, z {z:+.2f}, RMS/noise {rms:.2f} "
           f"({time.time() - t0:.0f} s)")

@@ -27,7 +27,8 @@ kernel's default) renders the drjit configuration at the drjit kernel's own defa
 cost it more), unless ``--drjit-cells scene``; a number sets it.
 
     .venv/bin/python scripts/bench/bench_drjit_kernel.py [--scenes dust_box,cornell,sidelit] [--res 32] [--spp 16]
-        [--seeds 4] [--first-seed 0] [--configs drjit,drjit-exact,native-exact,native,native-null] [--exclusion origin|ball]
+        [--seeds 4] [--first-seed 0] [--configs drjit,drjit-exact,native-exact,native,native-null]
+        [--exclusion origin|ball]
         [--max-depth 16] [--drjit-cells kernel|scene|<number>]
         [--variant llvm_ad_rgb|llvm_ad_spectral|llvm_ad_mono] [-D storage=procedural]
 """

@@ -7,10 +7,11 @@ compare two such files pixel for pixel. The check behind "images bitwise unchang
 
 (`pip install --no-deps --target /tmp/basepkg <checkout of the other commit>` installs the other build.)
 `--only NAME,NAME` renders a subset; `--kernel drjit` renders every discrete medium with the Dr.Jit kernel
-(exact: `continuous_count = inf`, and its default) instead. Renders run on one Dr.Jit thread, so that two renders of one build
-agree to the bit (several threads accumulate the film in a varying order). `compare A1,A2 B` takes several
-references: in scalar_rgb the house scene renders one of two images from load to load (their means agree
-within noise; not yet understood), so its reference is both.
+(exact: `continuous_count = inf`, and its default) instead. Renders run on one Dr.Jit thread, so that two
+renders of one build agree to the bit (several threads accumulate the film in a varying order). `compare A1,A2
+B` takes several references: in scalar_rgb, and with `--kernel drjit` in llvm_ad_rgb (its default, the field
+alone), the house scene renders one of two images from load to load (their means agree within noise; not yet
+understood), so its reference is both.
 """
 
 from __future__ import annotations

@@ -63,57 +63,57 @@ Notes
   their direction the emitter's) carry nothing of ours: the rule must read the ray's *origin* alone. Mitsuba puts a
   medium event at ``mei.p = ray(mint + (-log(1 - u)) / majorant) = fma(d, mint, o)``, which with ``MAJORANT`` = 1e20
   is fma(d, mint, o) exactly (mint > ~3e-12), and the rays leaving it, scattered and shadow, start at p exactly (n =
-  0: ``offset_p`` adds 0). So ``intersect_aabb`` (``_tag_search``) returns, among the floats t* = t + k delta near
-  the flight's t (k = 0, 1, -1, 2, ...; delta ``_tag_step``: an ulp of p's largest coordinate over the direction's
-  largest component, or an ulp of t where that is coarser), the first whose point lies inside its grain's ball (R_i,
-  as the walk read it: ``want_ball``) and whose ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates'
-  float32 bits) equals its grain's ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key;
-  0 to 62: tag 63, ``FIELD_TAG``, is no grain's; fewer bits in balls a few ulps wide, below, ``tags_agree``). A field event (continuous classes) moves, with no ball to stay in,
-  to a point of ``FIELD_TAG``. Every ray (camera, surface, scattered, shadow) then skips exactly the grains whose
-  ball (R_i grown by ``EXCLUDE_MARGIN``, which absorbs the walk's rounding of the distance the search tested) holds
-  its origin *and* whose grain tag is its origin's tag: from a site, the grain it leaves and 1 in 63 of the others
-  holding that point; from a field event, none. The rule is direction-free, so next-event estimation and phase
-  sampling see the same medium and their MIS weights stay unbiased (a tag on scattered rays alone, with shadow rays
-  skipping every ball holding their origin, read 1.0154 +- 0.0036 in the white furnace). The ball bounds the shift,
-  not the scene's size: the search has its ``TAG_SEARCH`` tries however coarse its step, so a flight from far away
-  (a camera far from a small cloud), whose step is t's ulp, finds its tag as a near one does, and no ray needs a
-  ball grown by the shift. Measured (``bench_drjit_dense.py --far``: 8192 flights into the dense cloud below from
-  points 2, 5, 20 and 100 extents from their site): no tag found 0, 0, 0 and 2.4e-4 of the searches (with the
-  earlier bound, a share 2^-13 of the extent: 0, 1.2e-4, 0.12 and 0.59); shifts of 22 steps (median) and at most 336
-  (at 100 extents 7.6e-6 a step: at most 2.3e-3, a seventeenth of the grains' R). **Balls a few ulps wide.** A 6-bit tag
-  needs a few hundred distinct float points along the ball's chord (a central hit holds ~2^(x + 24), x = e(R) -
-  e(|p|_max), the difference of their binary exponents): below x = ``drjit_walk.TAG_FULL`` (-11; R / |p|_max below
-  ~5e-4, far outside every shipped scene, whose x >= -9) the tag has fewer bits, ``drjit_walk.tag_bits``, a
-  function of R and of the point alone (so the search at its candidate point and the rays leaving that point
-  agree), chosen per cloud (``tag_thresholds``) to minimise the grains treated wrongly per site: the own grain's
-  tag not found, against the other balls holding the point that a shorter tag skips (the mean number holding a
-  point, ``holders``, from the balls' volumes over the cloud's). Measured (``bench_drjit_dense.py --offset 10000``:
-  R = 0.04 at 10^4 units, x = -18, ~70 float points across; ``--far`` and renders at ``--sky 0``, against native
-  exact): a sparse cloud (``--count 500``, 0.11 balls holding a point) gets 3 bits, no tag found at 2.7 % of the
-  sites (6 bits: 50 %), the render -2.63 %, z -1.39 (6 bits: +8.47 %, z +4.10; 64 seeds of 64 spp); the dense
-  cloud (4.3 balls holding a point) gets 5 bits, no tag found at 28 % (50 %), the render +4.3 %, z +1.65 (6 bits:
-  +2.1 %, z +0.71; 64 seeds of 32 spp): where balls a few ulps wide overlap, neither rule is exact. A flight from
-  far away (its step t's ulp) has fewer points in the chord than ``tag_bits`` assumes: at 100 extents, 2.4e-4 of
-  the dense cloud's searches fail. The remaining approximations: rays from other points (the camera, a surface, the
-  medium's boundary) skip each grain whose ball holds their origin with probability 1/64, and a site's other holders
-  are skipped with probability 1/63 (the native kernel skips none of them); at a site of several coincident grains
-  (projections within the site tolerance) the phase function mixes them all, as the native kernel's site does, but
-  the rays leaving it skip only the picked grain (and coincident grains of its tag), where the native kernel skips
-  the whole site; a search that finds no tag keeps the flight's t and the rays leaving it may meet the grain again:
-  (63/64)^``TAG_SEARCH`` = 1e-7 where the ball's chord holds the tries (about 64 are needed), more at a grazing hit
-  whose chord holds only a few steps (a share ~(32 delta / R)^2 of the hits: the 2.4e-4 at 100 extents); and the
-  phase function's site search (below) admits a grain of p's tag crossing the ray within the search's largest shift,
-  which mixes its phase function in (members per site in the dense cloud, where coincident grains are rare: 1.0015,
-  1.0016, 1.0044 and 1.0140 at 2, 5, 20 and 100 extents; none at a field event, whose tag no grain has). The site
-  search grows R by its base tolerance, so a far grazing hit that the walk's rounding put inside the ball is found
-  (without that, 1.2e-4 of the sites at 100 extents were missed and their paths ended there; now none). Measured
-  (drjit against native exact, 2026-11-29): the dense cloud of ``scripts/bench/bench_drjit_dense.py`` (20 000 grains
-  of reach 0.04 in the unit cube, about 5 other balls holding a site) +0.03 %, z +0.09 over 128 seeds (the direction
-  tag, skipping every ball holding a site: +11.95 %, z +14.6 over 32); the same seen from 60 units, its medium
-  entered 56 units from the cloud (``--camera-distance 60``) +0.06 %, z +0.19 over 128 seeds; the white furnace
-  (``bench_drjit_furnace.py --variants llvm_ad_rgb --seeds 4``) 0.99931 +- 0.00065; the side-lit cloud
-  (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2``) z +0.37, RMS/noise 0.93
-  (the direction tag: z -0.28, 0.94).
+  0: ``offset_p`` adds 0). So ``intersect_aabb`` (``_tag_search``) returns, among the floats t* = t + k delta near the
+  flight's t (k = 0, 1, -1, 2, ...; delta ``_tag_step``: an ulp of p's largest coordinate over the direction's largest
+  component, or an ulp of t where that is coarser), the first whose point lies inside its grain's ball (R_i, as the
+  walk read it: ``want_ball``) and whose ``drjit_walk.origin_tag`` (6 bits, ``TAG_BITS``, of the coordinates' float32
+  bits) equals its grain's ``grain_tag`` (a hash of its position in the flat arrays; procedural: of its key; 0 to 62:
+  tag 63, ``FIELD_TAG``, is no grain's; fewer bits in balls a few ulps wide, below, ``tags_agree``). A field event
+  (continuous classes) moves, with no ball to stay in, to a point of ``FIELD_TAG``. Every ray (camera, surface,
+  scattered, shadow) then skips exactly the grains whose ball (R_i grown by ``EXCLUDE_MARGIN``, which absorbs the
+  walk's rounding of the distance the search tested) holds its origin *and* whose grain tag is its origin's tag: from
+  a site, the grain it leaves and 1 in 63 of the others holding that point (1 in 2^b - 1 at b bits, below); from a
+  field event, none. The rule is direction-free, so next-event estimation and phase sampling see the same medium and
+  their MIS weights stay unbiased (a tag on scattered rays alone, with shadow rays skipping every ball holding their
+  origin, read 1.0154 +- 0.0036 in the white furnace). The ball bounds the shift, not the scene's size: the search has
+  its ``TAG_SEARCH`` tries however coarse its step, so a flight from far away (a camera far from a small cloud), whose
+  step is t's ulp, finds its tag as a near one does, and no ray needs a ball grown by the shift. Measured
+  (``bench_drjit_dense.py --far``: 8192 flights into the dense cloud below from points 2, 5, 20 and 100 extents from
+  their site): no tag found 0, 0, 0 and 2.4e-4 of the searches (with the earlier bound, a share 2^-13 of the extent:
+  0, 1.2e-4, 0.12 and 0.59); shifts of 22 steps (median) and at most 336 (at 100 extents 7.6e-6 a step: at most
+  2.3e-3, a seventeenth of the grains' R). **Balls a few ulps wide.** A 6-bit tag needs a few hundred distinct float
+  points along the ball's chord (a central hit holds ~2^(x + 24), x = e(R) - e(|p|_max), the difference of their
+  binary exponents): below x = ``drjit_walk.TAG_FULL`` (-11; R / |p|_max below ~5e-4, far outside every shipped scene,
+  whose x >= -9) the tag has fewer bits, ``drjit_walk.tag_bits``, a function of R and of the point alone (so the
+  search at its candidate point and the rays leaving that point agree), chosen per cloud (``tag_thresholds``) to
+  minimise the grains treated wrongly per site: the own grain's tag not found, against the other balls holding the
+  point that a shorter tag skips (the mean number holding a point, ``holders``, from the balls' volumes over the
+  cloud's). Measured (``bench_drjit_dense.py --offset 10000``: R = 0.04 at 10^4 units, x = -18, ~70 float points
+  across; ``--far`` and renders at ``--sky 0``, against native exact): a sparse cloud (``--count 500``, 0.11 balls
+  holding a point) gets 3 bits, no tag found at 2.7 % of the sites (6 bits: 50 %), the render -2.63 %, z -1.39 (6
+  bits: +8.47 %, z +4.10; 64 seeds of 64 spp); the dense cloud (4.3 balls holding a point) gets 5 bits, no tag found
+  at 28 % (50 %), the render +4.3 %, z +1.65 (6 bits: +2.1 %, z +0.71; 64 seeds of 32 spp): where balls a few ulps
+  wide overlap, neither rule is exact. A flight from far away (its step t's ulp) has fewer points in the chord than
+  ``tag_bits`` assumes: at 100 extents, 2.4e-4 of the dense cloud's searches fail. The remaining approximations: rays
+  from other points (the camera, a surface, the medium's boundary) skip each grain whose ball holds their origin with
+  probability 1/64 (2^-b), and a site's other holders are skipped with probability 1/63 (1 / (2^b - 1)) (the native
+  kernel skips none of them); at a site of several coincident grains (projections within the site tolerance) the phase
+  function mixes them all, as the native kernel's site does, but the rays leaving it skip only the picked grain (and
+  coincident grains of its tag), where the native kernel skips the whole site; a search that finds no tag keeps the
+  flight's t and the rays leaving it may meet the grain again: (63/64)^``TAG_SEARCH`` = 1e-7 where the ball's chord
+  holds the tries (about 64 are needed), more at a grazing hit whose chord holds only a few steps (a share ~(32 delta
+  / R)^2 of the hits: the 2.4e-4 at 100 extents); and the phase function's site search (below) admits a grain of p's
+  tag crossing the ray within the search's largest shift, which mixes its phase function in (members per site in the
+  dense cloud, where coincident grains are rare: 1.0015, 1.0016, 1.0044 and 1.0140 at 2, 5, 20 and 100 extents; none
+  at a field event, whose tag no grain has). The site search grows R by its base tolerance, so a far grazing hit that
+  the walk's rounding put inside the ball is found (without that, 1.2e-4 of the sites at 100 extents were missed and
+  their paths ended there; now none). Measured (drjit against native exact, 2026-11-29): the dense cloud of
+  ``scripts/bench/bench_drjit_dense.py`` (20 000 grains of reach 0.04 in the unit cube, about 5 other balls holding a
+  site) +0.03 %, z +0.09 over 128 seeds (the direction tag, skipping every ball holding a site: +11.95 %, z +14.6 over
+  32); the same seen from 60 units, its medium entered 56 units from the cloud (``--camera-distance 60``) +0.06 %, z
+  +0.19 over 128 seeds; the white furnace (``bench_drjit_furnace.py --variants llvm_ad_rgb --seeds 4``) 0.99931 +-
+  0.00065; the side-lit cloud (``bench_drjit_kernel.py --scenes sidelit --res 32 --spp 64 --seeds 12 --max-depth 2``)
+  z +0.37, RMS/noise 0.93 (the direction tag: z -0.28, 0.94).
   ``EXCLUSION = "ball"`` (every ray skips every grain whose ball holds its origin, sites not moved) is kept for
   comparison: rays entering the cloud through the ball of a grain that straddles its box lose that grain
   (the side-lit cloud of ``scripts/bench/bench_lod.py``: 4.5 % darker than native, z -4.6, RMS/noise 3.65,
@@ -164,8 +164,8 @@ import numpy as np
 
 from ..drjit_field import DrJitField
 from ..drjit_procedural import DrJitProcedural
-from ..drjit_walk import (FIELD_TAG, TAG_MASK, DrJitGrid, fold_key, grain_hash, largest, origin_hash, tag_thresholds,
-                          tags_agree)
+from ..drjit_walk import (FIELD_TAG, TAG_MASK, DrJitGrid, fold_key, grain_hash, largest, origin_hash,
+                          point_exponent, tag_thresholds, tags_agree)
 from ._bridge import depolarized, mueller_of
 
 #: What ``kernel`` takes, and its default (``default_kernel``: ``drjit`` in CUDA variants, the only one there).
@@ -534,7 +534,7 @@ class DrJitKernel:
         ``end``, the end of the segment the walk searched (Mitsuba keeps an event at t* < maxt; with a
         continuous field, the grains' event must stay before the field's). The ball, not a share of the scene,
         bounds the shift: a ray from t* then skips its grain by the plain ball test and the tag, and a flight
-        from far away (a coarse step) still has its tries. t where none, (1 - 1/64)^tries (module docs)."""
+        from far away (a coarse step) still has its tries. t where none, (1 - 2^-b)^tries (module docs)."""
         F, U = mi.Float, mi.UInt32
         o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
         t = F(t)
@@ -547,7 +547,7 @@ class DrJitKernel:
         def carries(q):  # whether point q carries the tag sought (the grain's at q's tag bits, or the field's)
             h = origin_hash(q.x, q.y, q.z)
             return dr.select(field, (h & TAG_MASK) == FIELD_TAG,
-                             tags_agree(h, g_hash, radius, self._largest(q), thresholds))
+                             tags_agree(h, g_hash, radius, point_exponent(q.x, q.y, q.z), thresholds))
 
         p = dr.fma(d, t, o)
         delta = self._tag_step(t, self._largest(p), self._largest(d))
@@ -750,7 +750,7 @@ class DrJitKernel:
         # The origin tag (module docs): a grain whose tag is p's within the search's shift of p (bounded from
         # the site's own t and p), or any grain within ``tol`` (a site whose tag search failed, or coincident
         # grains).
-        tag = (origin_hash(p.x, p.y, p.z), tol, m) if EXCLUSION == "origin" else None
+        tag = (origin_hash(p.x, p.y, p.z), tol, point_exponent(p.x, p.y, p.z)) if EXCLUSION == "origin" else None
         if tag is not None:
             tol = tol + self._shift_bound(t, p, d_in)
         evaluating = one_minus_mu is not None
@@ -790,7 +790,8 @@ class DrJitKernel:
         """``_site_sums``' walk of a stored grid: ``step`` at every grain of the cells within each size class's
         reach of ``p``, with its membership of the site (``DiscreteMedium::site_near``'s rule, R grown by the base
         tolerance: a far flight's rounding of t, across the ray too, may put a grazing site a hair outside; with
-        ``tag`` = (p's origin tag, the base tolerance) a member also has that grain tag or projects within it)."""
+        ``tag`` = (p's ``origin_hash``, the base tolerance, its ``point_exponent``) a member also carries its tag there
+        (``tags_agree``) within its R, or projects within the base tolerance)."""
         g_ = self.grid
         F, I, U = mi.Float, mi.Int32, mi.UInt32
         n = dr.width(tol)
