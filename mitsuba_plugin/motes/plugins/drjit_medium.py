@@ -92,7 +92,7 @@ Notes
   across; ``--far`` and renders at ``--sky 0``, against native exact): a sparse cloud (``--count 500``, 0.11 balls
   holding a point) gets 3 bits, no tag found at 2.3 % of the sites (6 bits: 50 %), the render -2.36 %, z -1.10 (6
   bits: +8.47 %, z +4.10; 64 seeds of 64 spp); the dense cloud (4.3 balls holding a point) gets 5 bits, no tag found
-  at 28 % (50 %), the render +4.3 %, z +1.65 (6 bits: +2.1 %, z +0.71; 64 seeds of 32 spp): where balls a few ulps
+  at 28 % (50 %), the render +3.1 %, z +1.32 (6 bits: +2.1 %, z +0.71; 64 seeds of 32 spp): where balls a few ulps
   wide overlap, neither rule is exact. A flight from far away (its step t's ulp) has fewer points in the chord than
   ``tag_bits`` assumes: at 100 extents, 2.4e-4 of the dense cloud's searches fail. The remaining approximations: rays
   from other points (the camera, a surface, the medium's boundary) skip each grain whose ball holds their origin with
