@@ -520,7 +520,8 @@ class DrJitProcedural:
     @dr.syntax
     def _walk(self, o, d, t0, t1, seed, exclude=None, ball=False):
         """(optical depth, and where ``seed`` is given the first interaction's t, key, class code and, with
-        ``ball``, centre: an empty list without, three loop variables fewer)."""
+        ``ball``, centre: an empty list without, three loop variables fewer; with a ``seed`` the optical depth is
+        not summed, 0)."""
         F, I = mi.Float64, mi.Int32
         n = dr.width(o[0])
         m, h = self.to_cloud, self.halo
@@ -666,9 +667,9 @@ class DrJitProcedural:
             v = [pf[a] - o[a] for a in range(3)]
             grown = reach * (1 + EXCLUDE_MARGIN)
             hit &= ~(exclude & (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < grown * grown))
-        tau_i = F(dr.gather(mi.Float, self._tau, code, hit))
-        tau = tau + dr.select(hit, tau_i, 0.0)
-        if seed is not None:
+        if seed is None:  # a flight needs no optical depth (its interaction: ``_interact``), a walk no flight
+            tau = tau + dr.select(hit, F(dr.gather(mi.Float, self._tau, code, hit)), 0.0)
+        else:
             bits = splitmix64_finalise(seed ^ (key * STREAM_GAMMA)) >> 11
             interacts = hit & (t < best_t) & (bits < dr.gather(mi.UInt64, self._interact, code, hit))
             best_t = dr.select(interacts, t, best_t)

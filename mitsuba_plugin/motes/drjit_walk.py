@@ -250,7 +250,12 @@ def tags_agree(o_hash, g_hash, radius, m, thresholds):
     ``tag_bits``, the point's low b bits equal the grain's hash mod 2^b - 1 (0 .. 2^b - 2: all ones is
     ``FIELD_TAG``'s). At b = ``TAG_BITS``: ``origin_tag == grain_tag``."""
     mask = (mi.UInt32(1) << tag_bits(radius, m, thresholds)) - 1
-    return (mi.UInt32(o_hash) & mask) == mi.UInt32(g_hash) % mask
+    # g mod mask without a vector integer division (the CPU has none: one lane at a time): (g + 1/2) / mask lies
+    # at least 1 / (2 mask) >= 1/126 from an integer, far beyond float64's rounding of it (< 2^-20 for g < 2^32),
+    # so its floor is the quotient exactly, however the JIT divides.
+    g = mi.UInt32(g_hash)
+    quotient = mi.UInt32(dr.floor((mi.Float64(g) + 0.5) / mi.Float64(mask)))
+    return (mi.UInt32(o_hash) & mask) == g - quotient * mask
 
 
 def fold_key(key):
