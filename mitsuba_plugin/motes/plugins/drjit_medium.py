@@ -32,22 +32,22 @@ Notes
   kernel's pick of one member by its extinction gives in expectation. A field event keeps its point (no tag
   search): the rays leaving it skip a grain whose ball holds it only where their tags agree by chance (1 in
   64; below, "Parent exclusion").
-* **Procedural clouds** (``storage = procedural``): nothing is stored; ``motes.drjit_procedural`` regenerates
-  the grains of the tiles a ray or a site needs from the core's counter-seeded streams, the core's grains bit
-  for bit (``DrJitProcedural.sample_free_flight`` and ``site_walk``). Every ray regenerates its tiles (the
-  native kernel caches bricks), those it can meet only, and tests only the grains within reach of it: exact
-  (every grain walked) 2.6-3.3x the native kernel's CPU time (lamp, limit; 14-22x before those skips); at the
-  defaults, whose field holds the classes no pixel resolves, as fast as native (``bench_drjit_kernel.py -D
+* **Procedural clouds** (``storage = procedural``): nothing is stored; ``motes.drjit_procedural`` regenerates the
+  grains of the tiles a ray or a site needs from the core's counter-seeded streams, the core's grains bit for bit
+  (``DrJitProcedural.sample_free_flight`` and ``site_walk``). Every ray regenerates its tiles (the native kernel
+  caches bricks), those it can meet only, and tests only the grains within reach of it: exact (every grain walked)
+  2.5-2.7x (limit) and 3.0-3.4x (lamp) the native kernel's CPU time (14-22x before those skips); at the defaults,
+  whose field holds the classes no pixel resolves, as fast as native (``bench_drjit_kernel.py -D
   storage=procedural``). Its continuous classes are a field as a stored set's (previous note): the core's
-  (``ProceduralParts::field``, the density's expected extinction of those classes per cell, 64 cells along the
-  box's longest side), at rest where a drift moves the grains, as the native kernel's; the field's flight comes
-  first, the regenerated grains are walked up to it (``intersect_aabb``), and a field event's phase function is
-  its cell's mixture (``_site_sums``, after the procedural site walk finds no grain). Where every class is
-  continuous the field alone is walked (``DrJitProcedural`` is not built). Measured (2026-11-29, BENCHMARKS.md):
-  against native on the same settings, ``bench_drjit_kernel.py --scenes mixed`` (small grains continuous, large
-  ones discrete) z -1.62, RMS/noise 0.92 over 16 seeds, and with a drift (``-D turbulence=0.05 -D time=1``)
-  z -0.55, 1.00 over 24; a procedural white furnace of 17 558 continuous grains
-  in 20 000 (``bench_drjit_furnace.py --storage procedural --continuous-count 1``) 1.00062 +- 0.00089.
+  (``ProceduralParts::field``, the density's expected extinction of those classes per cell, 64 cells along the box's
+  longest side), at rest where a drift moves the grains, as the native kernel's; the field's flight comes first, the
+  regenerated grains are walked up to it (``intersect_aabb``), and a field event's phase function is its cell's
+  mixture (``_site_sums``, after the procedural site walk finds no grain). Where every class is continuous the field
+  alone is walked (``DrJitProcedural`` is not built). Measured (2026-11-29, BENCHMARKS.md): against native on the
+  same settings, ``bench_drjit_kernel.py --scenes mixed`` (small grains continuous, large ones discrete) z -1.62,
+  RMS/noise 0.92 over 16 seeds, and with a drift (``-D turbulence=0.05 -D time=1``) z -0.55, 1.00 over 24; a
+  procedural white furnace of 17 558 continuous grains in 20 000 (``bench_drjit_furnace.py --storage procedural
+  --continuous-count 1``) 1.00062 +- 0.00089.
 * **Free flights** (``intersect_aabb``): ``DrJitGrid.sample_free_flight`` (a procedural cloud:
   ``DrJitProcedural.sample_free_flight``) from the ray's origin up to its ``maxt``, or up to the continuous field's
   own flight where it has one (the nearer of the two wins), each grain interacting with probability 1 - exp(-tau_i),
