@@ -604,8 +604,8 @@ def test_tag_bits_follow_the_balls_width_in_ulps():
     in R / m, and fewer where fewer balls overlap (a skipped neighbour costs less); at 6 bits ``tags_agree`` is
     ``origin_tag == grain_tag``, and the field's tag agrees with no grain's at any width."""
     llvm()
-    from motes.drjit_walk import (FIELD_TAG, TAG_FULL, grain_hash, grain_tag, origin_hash, origin_tag, tag_bits,
-                                  tag_thresholds, tags_agree)
+    from motes.drjit_walk import (FIELD_TAG, TAG_FULL, cloud_tag_thresholds, grain_hash, grain_tag, origin_hash,
+                                  origin_tag, tag_bits, tag_thresholds, tags_agree)
 
     one = mi.Int32(0)  # the exponent of a point whose largest coordinate is in [1, 2)
 
@@ -624,6 +624,9 @@ def test_tag_bits_follow_the_balls_width_in_ulps():
     o_hash, g_hash = origin_hash(*xyz), grain_hash(ident)
     agree = tags_agree(o_hash, g_hash, mi.Float(0.1), one, dense)
     assert np.array_equal(np.asarray(agree), np.asarray(origin_tag(*xyz) == grain_tag(ident)))
+    # A cloud whose balls are all wide in ulps reads the 6-bit tags alone (None), the same test.
+    assert cloud_tag_thresholds(5.0, 0.04, 1.0) is None and cloud_tag_thresholds(5.0, 0.04, 1e4) == dense
+    assert np.array_equal(np.asarray(tags_agree(o_hash, g_hash, mi.Float(0.1), one, None)), np.asarray(agree))
     field = (np.asarray(o_hash) & 63) == FIELD_TAG
     widths = set()
     for r in 2.0 ** np.arange(-25, 0):  # every width, 1 .. 6 bits

@@ -58,7 +58,7 @@ import mitsuba as mi
 import numpy as np
 
 from .drjit_walk import (EXCLUDE_MARGIN, face, fold_key, grain_hash, near, one_minus_exp, origin_hash,
-                         point_exponent, tag_thresholds, tags_agree)
+                         cloud_tag_thresholds, point_exponent, tags_agree)
 
 GOLDEN_GAMMA = 0x9E3779B97F4A7C15
 #: ``rng::STREAM_GAMMA``: spreads a grain's key over a free flight's stream.
@@ -269,7 +269,8 @@ class DrJitProcedural:
         reach = np.asarray(e["reach"], dtype=np.float64)[codes]
         tile = float(np.prod(self.size)) * abs(float(np.linalg.det(m4s[:, :3])))
         self.holders = self.lam * float(np.sum(share * 4 / 3 * np.pi * reach**3)) / max(tile, 1e-300)
-        self.tag_thresholds = tag_thresholds(self.holders)
+        # (None, the 6-bit tags alone, where no ball is a few ulps wide: ``scale`` bounds the coordinates in a ball.)
+        self.tag_thresholds = cloud_tag_thresholds(self.holders, float(np.min(reach, initial=np.inf)), scale)
 
     # ---------------------------------------------------------------------------------------- the process
 

@@ -232,6 +232,22 @@ def tag_thresholds(holders: float) -> tuple:
     return tuple(int(xs[best >= k][0]) if np.any(best >= k) else TAG_FULL for k in range(2, TAG_BITS + 1))
 
 
+def _exponent_host(x: float) -> int:
+    """``_exponent`` on the host: the binary exponent of float32 ``x``."""
+    return int((np.float32(x).view(np.uint32) >> 23) & 0xFF) - 127
+
+
+def cloud_tag_thresholds(holders: float, r_min: float, m_max: float):
+    """A cloud's ``tag_thresholds``, or None where every point inside any of its balls gets all ``TAG_BITS`` (the
+    smallest inclusion radius ``r_min`` against ``m_max``, a bound on the coordinates' magnitudes inside a ball):
+    ``tags_agree`` then reads the 6-bit tags alone (every shipped scene), as cheap as before the widths existed."""
+    thresholds = tag_thresholds(holders)
+    m_max = float(np.nextafter(np.float32(abs(m_max)), np.float32(np.inf)))
+    if _exponent_host(r_min) - _exponent_host(m_max) >= thresholds[-1]:
+        return None
+    return thresholds
+
+
 def ball_holders(radius: np.ndarray, volume: float) -> float:
     """The mean number of balls (inclusion radii ``radius``, scene units) holding a point of a cloud of
     ``volume``: their volumes' sum over it (``tag_thresholds``; a clumped cloud holds more at its sites)."""
@@ -247,7 +263,7 @@ def tag_bits(radius, m_exp, thresholds):
     search that moves a site (at its candidate point) and the rays leaving it (at their origin) agree."""
     x = _exponent(radius) - mi.Int32(m_exp)
     b = mi.UInt32(1)
-    for xk in thresholds:
+    for xk in (thresholds if thresholds is not None else (-(1 << 30),) * (TAG_BITS - 1)):
         b += dr.select(x >= xk, 1, 0)
     return b
 
@@ -257,7 +273,10 @@ def tags_agree(o_hash, g_hash, radius, m_exp, thresholds):
     (its ``grain_hash`` ``g_hash`` and inclusion radius ``radius``) in a cloud of ``thresholds``: with b =
     ``tag_bits``, the point's low b bits equal the grain's b-bit tag, 0 .. 2^b - 2 (all ones is ``FIELD_TAG``'s):
     at b = ``TAG_BITS`` ``grain_tag`` (so ``origin_tag == grain_tag``), below it the hash's top bits scaled to
-    0 .. 2^b - 2 (a multiplication, where a modulo by a varying 2^b - 1 would be a division on every test)."""
+    0 .. 2^b - 2 (a multiplication, where a modulo by a varying 2^b - 1 would be a division on every test).
+    ``thresholds`` None (``cloud_tag_thresholds``: 6 bits wherever a point lies in a ball): the 6-bit test alone."""
+    if thresholds is None:
+        return (mi.UInt32(o_hash) & TAG_MASK) == mi.UInt32(g_hash) % FIELD_TAG
     bits = tag_bits(radius, m_exp, thresholds)
     mask = (mi.UInt32(1) << bits) - 1
     g_hash = mi.UInt32(g_hash)
@@ -312,9 +331,11 @@ class DrJitGrid:
         if self.count:
             side = spheres[:, :3].max(axis=0) - spheres[:, :3].min(axis=0) + 2 * float(spheres[:, 3].max())
             self.holders = ball_holders(spheres[:, 3], float(np.prod(side.astype(np.float64))))
+            m_max = float(np.abs(spheres[:, :3]).max()) + float(spheres[:, 3].max())
+            self.tag_thresholds = cloud_tag_thresholds(self.holders, float(spheres[:, 3].min()), m_max)
         else:
             self.holders = 0.0
-        self.tag_thresholds = tag_thresholds(self.holders)
+            self.tag_thresholds = None
         self.classes = int(len(a["class_cell"]))
         self.cells = int(len(a["start"]))
         self.bin = np.asarray(a["bin"]) if "bin" in a else None

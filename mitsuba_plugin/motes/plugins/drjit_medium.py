@@ -165,7 +165,7 @@ import numpy as np
 from ..drjit_field import DrJitField
 from ..drjit_procedural import DrJitProcedural
 from ..drjit_walk import (FIELD_TAG, TAG_MASK, DrJitGrid, fold_key, grain_hash, largest, origin_hash,
-                          point_exponent, tag_thresholds, tags_agree)
+                          point_exponent, tags_agree)
 from ._bridge import depolarized, mueller_of
 
 #: What ``kernel`` takes, and its default (``default_kernel``: ``drjit`` in CUDA variants, the only one there).
@@ -540,7 +540,7 @@ class DrJitKernel:
         t = F(t)
         g_hash, field = U(g_hash), mi.Bool(field)
         walked = self.grid if self.proc is None else self.proc  # a field alone: field events only
-        thresholds = walked.tag_thresholds if walked is not None else tag_thresholds(0.0)
+        thresholds = walked.tag_thresholds if walked is not None else None
         centre, radius = ball
         radius = F(radius)
 
