@@ -261,9 +261,11 @@ def tag_bits(radius, m_exp, thresholds):
     6 wherever R / m >= ~2^-11 (``TAG_FULL``), fewer in a ball of a few ulps, where a tag of 6 bits could not be
     found. A function of R and of the point alone (their float32 exponents: no rounding can change it), so that the
     search that moves a site (at its candidate point) and the rays leaving it (at their origin) agree."""
+    if thresholds is None:  # ``cloud_tag_thresholds``: no ball of the cloud is a few ulps wide
+        return mi.UInt32(TAG_BITS) + dr.zeros(mi.UInt32, dr.width(radius))
     x = _exponent(radius) - mi.Int32(m_exp)
     b = mi.UInt32(1)
-    for xk in (thresholds if thresholds is not None else (-(1 << 30),) * (TAG_BITS - 1)):
+    for xk in thresholds:
         b += dr.select(x >= xk, 1, 0)
     return b
 
